@@ -1,0 +1,193 @@
+"""Batched forward kinematics and CoM in numpy, many configurations per call.
+
+The planner and the survey evaluate thousands of states at once; a Python loop
+over pinocchio would spend its time in call overhead. This path walks the joint
+tree once per batch, each step a handful of vectorised array operations over all
+states. It is validated against pinocchio in the tests (1e-9).
+
+Layout: structure of arrays, rotations ``(3, 3, N)`` and positions ``(3, N)`` per joint,
+so every update is a contiguous vector operation. Joint
+rotations about a principal axis are applied as two column updates instead of a
+3x3 product.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from .robot_model import RobotModel
+
+_AXIS_KIND = {
+    "JointModelRX": ("R", 0), "JointModelRY": ("R", 1), "JointModelRZ": ("R", 2),
+    "JointModelPX": ("P", 0), "JointModelPY": ("P", 1), "JointModelPZ": ("P", 2),
+    "JointModelRevoluteUnaligned": ("RU", -1), "JointModelPrismaticUnaligned": ("PU", -1),
+}
+
+
+@dataclass(frozen=True)
+class _JointStep:
+    jid: int
+    parent: int
+    rot0: np.ndarray | None  # None when the placement rotation is identity
+    pos0: np.ndarray
+    kind: str
+    axis_index: int
+    axis: np.ndarray
+    q_col: int  # column of the wire q
+    mult: float
+    offset: float
+    mass: float
+    lever: np.ndarray
+
+
+def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrices from quaternions ``[qx, qy, qz, qw]``; shape (..., 4) -> (..., 3, 3)."""
+    x, y, z, w = np.moveaxis(np.asarray(quat, dtype=float), -1, 0)
+    out = np.empty(x.shape + (3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - z * w)
+    out[..., 0, 2] = 2 * (x * z + y * w)
+    out[..., 1, 0] = 2 * (x * y + z * w)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - x * w)
+    out[..., 2, 0] = 2 * (x * z - y * w)
+    out[..., 2, 1] = 2 * (y * z + x * w)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
+
+
+class BatchKinematics:
+    """Vectorised FK/CoM over a batch of configurations of one robot."""
+
+    def __init__(self, robot: RobotModel):
+        self.robot = robot
+        model = robot.pin_model
+        col_of_pinq = {int(p): (int(s), float(m), float(o)) for p, s, m, o in zip(robot.pin_q_index, robot.q_source, robot.q_mult, robot.q_offset)}
+        steps: list[_JointStep] = []
+        for jid in range(2, model.njoints):
+            jm = model.joints[jid]
+            short = jm.shortname()
+            if short not in _AXIS_KIND:
+                raise ValueError(f"joint {model.names[jid]!r} of type {short} is not supported by the batch path")
+            kind, ax = _AXIS_KIND[short]
+            if kind in ("RU", "PU"):
+                axis = np.array(jm.extract().axis if hasattr(jm.extract(), "axis") else jm.axis, dtype=float)
+            else:
+                axis = np.eye(3)[ax]
+            placement = model.jointPlacements[jid]
+            rot = np.array(placement.rotation)
+            src, mult, off = col_of_pinq[int(model.idx_qs[jid])]
+            inertia = model.inertias[jid]
+            steps.append(
+                _JointStep(
+                    jid=jid, parent=int(model.parents[jid]),
+                    rot0=None if np.allclose(rot, np.eye(3), atol=1e-15) else rot,
+                    pos0=np.array(placement.translation), kind=kind[0] if kind in ("R", "P") else kind,
+                    axis_index=ax, axis=axis, q_col=src, mult=mult, offset=off,
+                    mass=float(inertia.mass), lever=np.array(inertia.lever),
+                )
+            )
+        self._steps = steps
+        root_inertia = model.inertias[1]
+        self._root_mass = float(root_inertia.mass)
+        self._root_lever = np.array(root_inertia.lever)
+        self.total_mass = float(sum(s.mass for s in steps) + self._root_mass)
+        self._njoints = model.njoints
+        self._frames = {f.name: (int(f.parentJoint), np.array(f.placement.rotation), np.array(f.placement.translation)) for f in model.frames}
+
+    def forward(self, base_pose: np.ndarray, Q: np.ndarray) -> tuple[list, list]:
+        """World rotations ``(3, 3, N)`` and positions ``(3, N)`` of every joint frame, by pinocchio joint id."""
+        Q = np.atleast_2d(np.asarray(Q, dtype=float))
+        n = Q.shape[0]
+        base_pose = np.asarray(base_pose, dtype=float)
+        Rs: list = [None] * self._njoints
+        ps: list = [None] * self._njoints
+        if base_pose.ndim == 1:
+            Rs[1] = np.repeat(quat_to_matrix(base_pose[3:])[:, :, None], n, axis=2)
+            ps[1] = np.repeat(base_pose[:3, None], n, axis=1)
+        else:
+            Rs[1] = np.moveaxis(quat_to_matrix(base_pose[:, 3:]), 0, 2).copy()
+            ps[1] = base_pose[:, :3].T.copy()
+        QT = Q.T
+        for s in self._steps:
+            Rp, pp = Rs[s.parent], ps[s.parent]
+            p = _affine(pp, Rp, s.pos0)
+            R = _rotate(Rp, s.rot0) if s.rot0 is not None else Rp.copy()
+            theta = QT[s.q_col] * s.mult + s.offset if (s.mult != 1.0 or s.offset != 0.0) else QT[s.q_col]
+            if s.kind == "R":
+                c, sn = np.cos(theta), np.sin(theta)
+                i, j = ((1, 2), (2, 0), (0, 1))[s.axis_index]
+                ci = R[:, i].copy()
+                cj = R[:, j]
+                R[:, i] = c * ci + sn * cj
+                R[:, j] = c * cj - sn * ci
+            elif s.kind == "RU":
+                R = np.einsum("ijn,jkn->ikn", R, _rodrigues(s.axis, theta))
+            else:  # prismatic: move along the rotated axis
+                p = p + theta * _matvec(R, s.axis)
+            Rs[s.jid], ps[s.jid] = R, p
+        return Rs, ps
+
+    def com(self, base_pose: np.ndarray, Q: np.ndarray) -> np.ndarray:
+        """Robot CoM in the world for each configuration: (N, 3)."""
+        Rs, ps = self.forward(base_pose, Q)
+        return self._com_from(Rs, ps)
+
+    def _com_from(self, Rs: list, ps: list) -> np.ndarray:
+        acc = self._root_mass * _affine(ps[1], Rs[1], self._root_lever)
+        for s in self._steps:
+            if s.mass > 0:
+                acc += s.mass * _affine(ps[s.jid], Rs[s.jid], s.lever)
+        return (acc / self.total_mass).T
+
+    def frame(self, Rs: list, ps: list, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """World (R (N, 3, 3), p (N, 3)) of a named frame from a ``forward`` result."""
+        try:
+            jid, R0, p0 = self._frames[name]
+        except KeyError:
+            raise ValueError(f"unknown frame {name!r}") from None
+        R = _rotate(Rs[jid], R0)
+        p = _affine(ps[jid], Rs[jid], p0)
+        return np.moveaxis(R, 2, 0), p.T
+
+    def com_and_frames(self, base_pose: np.ndarray, Q: np.ndarray, frames: list[str]) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, np.ndarray]]]:
+        Rs, ps = self.forward(base_pose, Q)
+        return self._com_from(Rs, ps), {f: self.frame(Rs, ps, f) for f in frames}
+
+
+def _matvec(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R (3, 3, N) times a constant vector v (3,): (3, N), skipping zero components."""
+    out = np.zeros((3, R.shape[2]))
+    for j in range(3):
+        if v[j] != 0.0:
+            out += R[:, j] * v[j]
+    return out
+
+
+def _affine(p: np.ndarray, R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """p + R v for a constant vector v."""
+    out = p.copy()
+    for j in range(3):
+        if v[j] != 0.0:
+            out += R[:, j] * v[j]
+    return out
+
+
+def _rotate(R: np.ndarray, R0: np.ndarray) -> np.ndarray:
+    """R (3, 3, N) times a constant rotation R0 (3, 3)."""
+    return np.einsum("ijn,jk->ikn", R, R0)
+
+
+def _rodrigues(axis: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    k = axis / np.linalg.norm(axis)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    c, s = np.cos(theta), np.sin(theta)
+    out = np.eye(3)[:, :, None] + s[None, None, :] * K[:, :, None] + (1 - c)[None, None, :] * (K @ K)[:, :, None]
+    return out
+
+
+def pin_se3(R: np.ndarray, p: np.ndarray) -> pin.SE3:
+    return pin.SE3(np.asarray(R), np.asarray(p))

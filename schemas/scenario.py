@@ -1,0 +1,94 @@
+"""The scenario file (``schema: regrasp.scenario/1``, CONTRACT.md section 2)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from .common import Finite, FiniteVector, HandsChoice, Pose7, StrictModel, Vec3
+from .stance import StanceDef
+
+SCENARIO_SCHEMA = "regrasp.scenario/1"
+ObjectShape = Literal["box", "cylinder", "bar", "drill", "mesh"]
+
+
+class MeshSource(StrictModel):
+    path: str = Field(description="STL or OBJ file; relative paths resolve against the scenario file")
+    scale: Finite = Field(1.0, gt=0)
+
+
+class ObjectDef(StrictModel):
+    name: str = "object"
+    shape: ObjectShape
+    size: FiniteVector | None = Field(
+        None,
+        description="box/bar: [x, y, z] m; cylinder: [radius, height] m; drill: [x, y, z] bounding box (optional)",
+    )
+    mesh: MeshSource | None = None
+    mass_kg: Finite = Field(gt=0, le=100, description="total mass of the object, kg")
+    com_local: Vec3 | None = Field(None, description="CoM in the object frame, m; a point mass places it; default: geometric centre")
+
+    @model_validator(mode="after")
+    def _check(self) -> "ObjectDef":
+        if self.shape == "mesh":
+            if self.mesh is None:
+                raise ValueError("shape 'mesh' needs mesh: {path: FILE, scale: 1.0}")
+        elif self.mesh is not None:
+            raise ValueError(f"'mesh' is only for shape 'mesh', not {self.shape!r}")
+        expected = {"box": 3, "bar": 3, "cylinder": 2, "drill": 3}.get(self.shape)
+        if self.shape in ("box", "bar", "cylinder") and self.size is None:
+            raise ValueError(f"shape {self.shape!r} needs size ({expected} numbers)")
+        if self.size is not None and expected is not None:
+            if len(self.size) != expected:
+                raise ValueError(f"size of a {self.shape} has {expected} numbers, got {len(self.size)}")
+            if any(s <= 0 for s in self.size):
+                raise ValueError(f"size must be positive, got {self.size}")
+            if max(self.size) > 3.0:
+                raise ValueError(f"size {self.size} is over 3 m: sizes are in metres")
+        return self
+
+
+class BoxDef(StrictModel):
+    name: str
+    pose: Pose7 = Field(description="box centre in the world")
+    size: Vec3
+
+    @model_validator(mode="after")
+    def _positive(self) -> "BoxDef":
+        if any(s <= 0 for s in self.size):
+            raise ValueError(f"box {self.name!r}: size must be positive, got {self.size}")
+        return self
+
+
+class Limits(StrictModel):
+    time_s: Finite = Field(60.0, gt=0, le=3600, description="safety net; seeded runs stop on max_iterations")
+    max_iterations: int = Field(2000, ge=1, le=1_000_000)
+
+
+class SurveySettings(StrictModel):
+    states_per_configuration: int = Field(10_000, ge=1, le=1_000_000)
+
+
+class Scenario(StrictModel):
+    schema_: Literal["regrasp.scenario/1"] = Field(SCENARIO_SCHEMA, alias="schema")
+    name: str
+    description: str | None = None
+    robot: str = "hrp5p"
+    stance: str | StanceDef = "upright"
+    object: ObjectDef
+    start_pose: Pose7
+    goal_pose: Pose7
+    tables: list[BoxDef] = Field(default_factory=list)
+    obstacles: list[BoxDef] = Field(default_factory=list)
+    threshold_m: Finite = Field(0.0, ge=0, le=0.5, description="minimum CoM margin to the support polygon edge, m")
+    hands: HandsChoice = "auto"
+    limits: Limits = Field(default_factory=Limits)
+    survey: SurveySettings = Field(default_factory=SurveySettings)
+    seed: int = Field(1, ge=0, le=2**63 - 1)
+
+    @model_validator(mode="after")
+    def _check(self) -> "Scenario":
+        if not self.tables:
+            raise ValueError("a scenario needs at least one table for the start and goal poses")
+        return self
