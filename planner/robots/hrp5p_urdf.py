@@ -212,8 +212,6 @@ def build_arm(side: str) -> tuple[list[Link], list[Joint]]:
             link.inertia_box = (0.08, 0.11, 0.12)
             # Palm: between 150 and 50 mm behind the TCP along the approach axis.
             link.geoms.append(Geom("box", (0.08, 0.12, 0.10), (0.0, 0.0, -(TCP_OFFSET_M - 0.10))))
-        if suffix != "HDY":
-            link.com = _mid(vec)
         links.append(link)
         joints.append(
             Joint(f"{side}{suffix}", "revolute", parent, child, offset, axis=AXES[axis], lower=lo_r, upper=hi_r, velocity=VEL_UPPER)

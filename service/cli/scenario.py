@@ -1,0 +1,58 @@
+"""``regrasp scenario list | show NAME | check FILE``."""
+
+from __future__ import annotations
+
+import click
+import yaml
+
+from .common import console, fail
+
+
+@click.group()
+def scenario() -> None:
+    """Built-in scenarios and scenario files (schema regrasp.scenario/1)."""
+
+
+@scenario.command("list")
+def list_scenarios() -> None:
+    """Print the built-in scenarios with their stance, object and threshold."""
+    from planner.scenarios import builtin_names, load_builtin
+
+    for name in builtin_names():
+        sc = load_builtin(name)
+        stance = sc.stance if isinstance(sc.stance, str) else sc.stance.name
+        click.echo(
+            f"{name}\tstance={stance}\tobject={sc.object.shape} {sc.object.mass_kg:g} kg\t"
+            f"threshold={sc.threshold_m * 1000:g} mm\thands={sc.hands}"
+        )
+
+
+@scenario.command("show")
+@click.argument("name")
+def show(name: str) -> None:
+    """Print a built-in scenario (or a scenario file) as resolved YAML."""
+    from planner.scenarios import ScenarioError, load_scenario
+
+    try:
+        sc = load_scenario(name)
+    except ScenarioError as exc:
+        fail(str(exc))
+    click.echo(yaml.safe_dump(sc.model_dump(by_alias=True, exclude_none=True), sort_keys=False))
+
+
+@scenario.command("check")
+@click.argument("file")
+def check(file: str) -> None:
+    """Validate a scenario file (or built-in name): schema, robot, stance, threshold, object, start/goal."""
+    from planner.scenarios import ScenarioError, check_scenario, load_scenario
+
+    try:
+        sc = load_scenario(file)
+    except ScenarioError as exc:
+        fail(str(exc))
+    report = check_scenario(sc)
+    for note in report.notes:
+        console.print(f"[dim]{note}[/]")
+    if not report.ok:
+        fail("\n".join(report.problems), code=1)
+    console.print(f"[green]ok[/]: scenario {sc.name!r} is valid")
