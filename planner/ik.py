@@ -1,0 +1,266 @@
+"""Inverse kinematics of the upper body: waist + one arm, or waist + both arms (handover).
+
+The feet and pelvis are fixed by the stance, so IK only moves the waist and the
+arm(s) that carry a target. Damped least squares on the TCP frame errors
+(``log6`` of the local error, LOCAL Jacobians), with the joint limits enforced by
+clamping after every step and a null-space pull towards a rest posture, so that
+redundant joints stay near a natural posture instead of drifting to their limits.
+
+Solves are seeded: the planner passes the nearest known solution (a neighbouring
+grasp or key pose) as ``seed_q``; when that attempt fails, a few restarts from
+random postures drawn with the caller's ``numpy.random.Generator`` follow, so
+results are deterministic for a seed.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Literal, Mapping, Sequence
+
+import numpy as np
+import pinocchio as pin
+from pydantic import BaseModel, ConfigDict, Field
+
+from .robot_model import RobotModel
+from .stances import Stance
+
+Side = Literal["left", "right"]
+#: An attempt stops when its error has not improved by 1 % for this many iterations.
+STALL_ITERATIONS = 12
+STALL_IMPROVEMENT = 0.01
+#: Re-solves per iteration with the joints pinned at a limit removed.
+LIMIT_PASSES = 3
+LIMIT_EPS = 1e-9
+
+
+class IkSettings(BaseModel):
+    """Tolerances and effort of one IK solve."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    pos_tol_m: float = Field(1e-3, gt=0, description="TCP position tolerance")
+    rot_tol_rad: float = Field(1e-2, gt=0, description="TCP orientation tolerance")
+    max_iterations: int = Field(80, ge=1, description="DLS iterations per attempt")
+    restarts: int = Field(6, ge=0, description="random restarts after the seeded attempt")
+    damping: float = Field(1e-2, gt=0, description="DLS damping lambda (m or rad)")
+    max_step_rad: float = Field(0.35, gt=0, description="largest joint change per iteration")
+    nullspace_gain: float = Field(0.05, ge=0, description="pull towards the rest posture, per iteration")
+    use_waist: bool = Field(True, description="let the waist joints help the arm(s)")
+    #: A target farther than reach * this from the shoulder is rejected without iterating.
+    reach_slack: float = Field(1.05, gt=0)
+    restart_noise_rad: float = Field(0.6, gt=0, description="std of the restart perturbation around the seed")
+
+
+@dataclass(frozen=True)
+class IkResult:
+    """``q`` (full wire configuration) or None, with the reason of a failure."""
+
+    q: np.ndarray | None
+    reason: str | None
+    code: str | None  # None, "OUT_OF_REACH", "NO_CONVERGENCE", "BAD_INPUT"
+    iterations: int
+    attempts: int
+    pos_err_m: float
+    rot_err_rad: float
+    elapsed_s: float = field(default=0.0)
+
+    @property
+    def ok(self) -> bool:
+        return self.q is not None
+
+
+class IkSolver:
+    """Upper-body IK for one robot in one stance (legs, neck and unused arm stay as in ``seed_q``).
+
+    Holds a pinocchio ``Data`` scratch buffer: one solver per thread.
+    """
+
+    def __init__(self, robot: RobotModel, stance: Stance, settings: IkSettings | None = None):
+        self.robot = robot
+        self.stance = stance
+        self.settings = settings or IkSettings()
+        self.base_pose = np.asarray(stance.base_pose, dtype=float)
+        self._model = robot.pin_model
+        self._data = robot.create_data()
+        self._tcp_fid = {side: robot.frame_id(arm.tcp) for side, arm in robot.spec.arms.items()}
+        self._vcol = {
+            name: int(self._model.idx_vs[self._model.getJointId(name)]) for name in robot.joint_names
+        }
+        self._reach = {side: self._arm_reach(side) for side in robot.spec.arms}
+        self.solves = 0
+        self.total_time_s = 0.0
+
+    def active_indices(self, sides: Sequence[Side]) -> np.ndarray:
+        """Wire columns IK moves for these hands: waist (if used) then each arm."""
+        parts = [self.robot.waist_indices()] if self.settings.use_waist else []
+        parts += [self.robot.arm_indices(s) for s in sides]
+        return np.concatenate(parts).astype(int)
+
+    def _arm_reach(self, side: Side) -> tuple[int, float]:
+        """(joint id of the arm's first joint, distance bound from that joint to the TCP)."""
+        chain = self.robot.spec.arms[side].chain
+        model = self._model
+        first = model.getJointId(chain[0])
+        fid = self._tcp_fid[side]
+        # Sum of link offsets along the chain (an upper bound of the reach).
+        total = 0.0
+        for name in chain[1:]:
+            total += float(np.linalg.norm(model.jointPlacements[model.getJointId(name)].translation))
+        total += float(np.linalg.norm(model.frames[fid].placement.translation))
+        return first, total
+
+    def _errors(self, q: np.ndarray, targets: Mapping[Side, pin.SE3], sides: Sequence[Side]) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Stacked local errors (6k,), Jacobian (6k, nv) and the worst position / rotation errors."""
+        model, data = self._model, self._data
+        qp = self.robot.to_pin_q(self.base_pose, q)
+        pin.computeJointJacobians(model, data, qp)
+        pin.updateFramePlacements(model, data)
+        errs, jacs = [], []
+        pmax = rmax = 0.0
+        for side in sides:
+            fid = self._tcp_fid[side]
+            cur = data.oMf[fid]
+            iMd = cur.actInv(targets[side])
+            e = pin.log6(iMd).vector
+            pmax = max(pmax, float(np.linalg.norm(targets[side].translation - cur.translation)))
+            rmax = max(rmax, float(np.linalg.norm(e[3:])))
+            errs.append(e)
+            J = pin.getFrameJacobian(model, data, fid, pin.LOCAL)
+            # log6 error is (nearly) J dq for small errors; use the log Jacobian for accuracy further out.
+            jacs.append(pin.Jlog6(iMd.inverse()) @ J)
+        return np.concatenate(errs), np.vstack(jacs), pmax, rmax
+
+    def _attempt(self, q0: np.ndarray, rest: np.ndarray, targets: Mapping[Side, pin.SE3], sides: Sequence[Side], active: np.ndarray, vcols: np.ndarray) -> tuple[np.ndarray, int, float, float, bool]:
+        """One damped least-squares descent; joints pinned at a limit that the step pushes further are frozen."""
+        s = self.settings
+        q = q0.copy()
+        lo, hi = self.robot.lower[active], self.robot.upper[active]
+        q[active] = np.clip(q[active], lo, hi)
+        lam2 = s.damping**2
+        pmax = rmax = np.inf
+        best_score, since_best = np.inf, 0
+        it = 0
+        for it in range(1, s.max_iterations + 1):
+            e, J, pmax, rmax = self._errors(q, targets, sides)
+            if pmax <= s.pos_tol_m and rmax <= s.rot_tol_rad:
+                return q, it, pmax, rmax, True
+            score = pmax + 0.1 * rmax
+            if score < best_score * (1.0 - STALL_IMPROVEMENT):
+                best_score, since_best = score, 0
+            else:
+                since_best += 1
+                if since_best >= STALL_ITERATIONS:
+                    break
+            Ja_full = J[:, vcols]
+            qa = q[active]
+            free = np.ones(len(active), dtype=bool)
+            for _ in range(LIMIT_PASSES):
+                Ja = Ja_full[:, free]
+                A = Ja @ Ja.T + lam2 * np.eye(Ja.shape[0])
+                dq_free = Ja.T @ np.linalg.solve(A, e)
+                if s.nullspace_gain > 0:
+                    pull = s.nullspace_gain * (rest[active][free] - qa[free])
+                    dq_free += pull - Ja.T @ np.linalg.solve(A, Ja @ pull)
+                dq = np.zeros(len(active))
+                dq[free] = dq_free
+                blocked = free & (((qa <= lo + LIMIT_EPS) & (dq < 0)) | ((qa >= hi - LIMIT_EPS) & (dq > 0)))
+                if not blocked.any():
+                    break
+                free &= ~blocked
+            big = np.abs(dq).max()
+            if big > s.max_step_rad:
+                dq *= s.max_step_rad / big
+            q[active] = np.clip(qa + dq, lo, hi)
+        e, J, pmax, rmax = self._errors(q, targets, sides)
+        return q, it, pmax, rmax, bool(pmax <= s.pos_tol_m and rmax <= s.rot_tol_rad)
+
+    def solve(
+        self,
+        targets: Mapping[Side, np.ndarray],
+        seed_q: np.ndarray,
+        rng: np.random.Generator,
+        rest_q: np.ndarray | None = None,
+    ) -> IkResult:
+        """Move waist + the targeted arm(s) so each TCP reaches its world pose (4, 4).
+
+        ``seed_q`` is a full wire configuration: the first attempt starts there and
+        every joint IK does not move keeps its value. ``rest_q`` (default: the
+        stance posture) is what the null-space pull aims at.
+        """
+        t0 = time.perf_counter()
+        s = self.settings
+        sides = [side for side in ("left", "right") if side in targets]
+        if not sides or len(sides) != len(targets):
+            return self._fail(None, "BAD_INPUT", f"targets must be keyed by 'left' and/or 'right', got {sorted(targets)}", 0, 0, t0)
+        seed_q = np.asarray(seed_q, dtype=float)
+        if seed_q.shape != (self.robot.nq,) or not np.all(np.isfinite(seed_q)):
+            return self._fail(None, "BAD_INPUT", f"seed_q must be {self.robot.nq} finite values", 0, 0, t0)
+        se3: dict[Side, pin.SE3] = {}
+        for side in sides:
+            T = np.asarray(targets[side], dtype=float)
+            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+                return self._fail(None, "BAD_INPUT", f"{side} target must be a finite 4x4 transform", 0, 0, t0)
+            R = T[:3, :3]
+            if not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
+                return self._fail(None, "BAD_INPUT", f"{side} target rotation is not orthonormal", 0, 0, t0)
+            se3[side] = pin.SE3(R, T[:3, 3])
+        rest = np.asarray(rest_q if rest_q is not None else self.stance.q, dtype=float)
+        active = self.active_indices(sides)
+        vcols = np.array([self._vcol[self.robot.joint_names[i]] for i in active], dtype=int)
+
+        # Quick reach test from the shoulder at the seed posture (the waist moves the shoulder only a little).
+        pin.forwardKinematics(self._model, self._data, self.robot.to_pin_q(self.base_pose, seed_q))
+        for side in sides:
+            jfirst, reach = self._reach[side]
+            d = float(np.linalg.norm(se3[side].translation - self._data.oMi[jfirst].translation))
+            waist_slack = 0.35 if s.use_waist else 0.0  # the waist can bring the shoulder this much closer
+            if d > reach * s.reach_slack + waist_slack:
+                return self._fail(None, "OUT_OF_REACH", f"{side} TCP target is {d:.3f} m from the shoulder, beyond the arm's reach {reach:.3f} m", 0, 0, t0)
+
+        total_it = 0
+        best = (np.inf, np.inf)
+        for attempt in range(s.restarts + 1):
+            if attempt == 0:
+                q0 = seed_q
+            else:
+                q0 = seed_q.copy()
+                if attempt % 2 == 1:
+                    q0[active] = seed_q[active] + rng.normal(0.0, s.restart_noise_rad, len(active))
+                else:
+                    q0[active] = rng.uniform(self.robot.lower[active], self.robot.upper[active])
+            q, it, pe, re, ok = self._attempt(q0, rest, se3, sides, active, vcols)
+            total_it += it
+            if ok:
+                elapsed = time.perf_counter() - t0
+                self.solves += 1
+                self.total_time_s += elapsed
+                return IkResult(q=q, reason=None, code=None, iterations=total_it, attempts=attempt + 1, pos_err_m=pe, rot_err_rad=re, elapsed_s=elapsed)
+            if pe + re < best[0] + best[1]:
+                best = (pe, re)
+        return self._fail(
+            best, "NO_CONVERGENCE",
+            f"IK for {'+'.join(sides)} did not converge within the joint limits after {s.restarts + 1} attempts "
+            f"(best residual {best[0] * 1000:.1f} mm, {best[1]:.3f} rad)",
+            total_it, s.restarts + 1, t0,
+        )
+
+    def solve_arm(self, side: Side, T_world_tcp: np.ndarray, seed_q: np.ndarray, rng: np.random.Generator, rest_q: np.ndarray | None = None) -> IkResult:
+        """Waist + one arm to one TCP pose."""
+        return self.solve({side: T_world_tcp}, seed_q, rng, rest_q)
+
+    def solve_both(self, T_left: np.ndarray, T_right: np.ndarray, seed_q: np.ndarray, rng: np.random.Generator, rest_q: np.ndarray | None = None) -> IkResult:
+        """Waist + both arms (handover): two TCP poses, one shared waist."""
+        return self.solve({"left": T_left, "right": T_right}, seed_q, rng, rest_q)
+
+    def _fail(self, best: tuple[float, float] | None, code: str, reason: str, iterations: int, attempts: int, t0: float) -> IkResult:
+        elapsed = time.perf_counter() - t0
+        self.solves += 1
+        self.total_time_s += elapsed
+        pe, re = best if best is not None else (np.inf, np.inf)
+        return IkResult(q=None, reason=reason, code=code, iterations=iterations, attempts=attempts, pos_err_m=float(pe), rot_err_rad=float(re), elapsed_s=elapsed)
+
+    def tcp_pose(self, q: np.ndarray, side: Side) -> np.ndarray:
+        """World TCP pose (4, 4) of a configuration."""
+        pin.forwardKinematics(self._model, self._data, self.robot.to_pin_q(self.base_pose, np.asarray(q, dtype=float)))
+        return pin.updateFramePlacement(self._model, self._data, self._tcp_fid[side]).homogeneous.copy()
