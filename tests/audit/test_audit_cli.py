@@ -1,0 +1,67 @@
+"""``regrasp audit verify|show`` exit codes and output."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from click.testing import CliRunner
+
+from service.cli.main import cli
+
+from .conftest import write_sample
+
+
+def _run(*args: str):
+    return CliRunner().invoke(cli, ["audit", *args])
+
+
+def test_verify_exit_codes(tmp_path, hrp5p_urdf):
+    done = tmp_path / "done.mcap"
+    heads = write_sample(done, hrp5p_urdf)
+    ok = _run("verify", str(done), "--head", heads[-1])
+    assert ok.exit_code == 0, ok.output
+    assert "INTACT" in ok.output
+
+    wrong = _run("verify", str(done), "--head", heads[-3])
+    assert wrong.exit_code == 1 and "BROKEN" in wrong.output and "where" in wrong.output
+
+    open_file = tmp_path / "open.mcap"
+    write_sample(open_file, hrp5p_urdf, close=False)
+    unfinished = _run("verify", str(open_file))
+    assert unfinished.exit_code == 2 and "UNFINISHED" in unfinished.output
+
+    raw = bytearray(done.read_bytes())
+    raw[len(raw) // 3] ^= 0x10
+    done.write_bytes(bytes(raw))
+    broken = _run("verify", str(done), "--json")
+    assert broken.exit_code == 1 and '"status": "broken"' in broken.output
+
+
+def test_verify_bad_arguments_are_clear(tmp_path, hrp5p_urdf):
+    missing = _run("verify", str(tmp_path / "nope.mcap"))
+    assert missing.exit_code == 2 and "does not exist" in missing.output
+    path = tmp_path / "a.mcap"
+    write_sample(path, None)
+    bad_head = _run("verify", str(path), "--head", "xyz")
+    assert bad_head.exit_code == 2 and "64 hex digits" in bad_head.output
+
+
+def test_show_prints_a_timeline(tmp_path, hrp5p_urdf):
+    path = tmp_path / "a.mcap"
+    write_sample(path, hrp5p_urdf)
+    out = _run("show", str(path))
+    assert out.exit_code == 0, out.output
+    assert "state None -> queued" in out.output and "by alice" in out.output
+    assert "robot description" in out.output
+    assert "/joint_states/plan" in out.output and "INTACT" in out.output
+
+
+def test_console_script_runs(tmp_path):
+    path = tmp_path / "a.mcap"
+    heads = write_sample(path, None)
+    proc = subprocess.run(
+        [sys.executable, "-m", "service.cli.main", "audit", "verify", str(path), "--head", heads[-1]],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
