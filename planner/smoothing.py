@@ -1,0 +1,129 @@
+"""Shortcut smoothing of a piecewise-linear joint path.
+
+A T-RRT path zig-zags through the sampled space. Random shortcuts replace the
+stretch between two random points of the path (anywhere on its segments, not
+only at waypoints) by a straight segment when every state along it, at the
+same resolution the planner used, passes the caller's validity callback
+(collision + margin >= threshold). Then waypoints that a straight line can skip
+are dropped. The random choices come from the caller's generator, so a seed
+gives the same result; the path only ever gets shorter and stays valid.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from .trrt import ShouldStop, Validity
+
+
+#: Straight-line skips tried per waypoint in the final pass (farthest first).
+MAX_SKIP_TRIES = 8
+
+
+class SmoothingSettings(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    iterations: int = Field(60, ge=0, description="random shortcut attempts")
+    edge_resolution_rad: float = Field(0.02, gt=0, description="largest per-joint change between checked states")
+    min_gain: float = Field(1e-3, ge=0, description="ignore shortcuts that save less path length than this (rad)")
+
+
+@dataclass
+class SmoothResult:
+    path: np.ndarray
+    length_before: float
+    length_after: float
+    stats: dict = field(default_factory=dict)
+
+
+def path_length(path: np.ndarray) -> float:
+    """Euclidean joint-space length of a piecewise-linear path."""
+    P = np.asarray(path, dtype=float)
+    return float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum()) if len(P) > 1 else 0.0
+
+
+def _edge_states(a: np.ndarray, b: np.ndarray, resolution: float) -> np.ndarray:
+    n = max(1, int(math.ceil(float(np.abs(b - a).max()) / resolution - 1e-9)))
+    f = np.arange(1, n + 1)[:, None] / n
+    return a + f * (b - a)
+
+
+def _point_at(path: np.ndarray, cum: np.ndarray, s: float) -> tuple[int, np.ndarray]:
+    """Segment index and point at arc length s."""
+    i = int(np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(path) - 2))
+    seg = cum[i + 1] - cum[i]
+    f = 0.0 if seg <= 0 else (s - cum[i]) / seg
+    return i, path[i] + f * (path[i + 1] - path[i])
+
+
+def shortcut(
+    path: np.ndarray,
+    validity: Validity,
+    rng: np.random.Generator,
+    settings: SmoothingSettings | None = None,
+    should_stop: ShouldStop | None = None,
+) -> SmoothResult:
+    """Shorten ``path`` (K, n) with random valid shortcuts; returns the new path (endpoints unchanged)."""
+    s = settings or SmoothingSettings()
+    P = np.asarray(path, dtype=float).copy()
+    before = path_length(P)
+    tried = accepted = 0
+    for _ in range(s.iterations):
+        if len(P) < 3 or (should_stop is not None and should_stop()):
+            break
+        cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
+        total = cum[-1]
+        if total <= 0:
+            break
+        s1, s2 = np.sort(rng.uniform(0.0, total, 2))
+        i, a = _point_at(P, cum, s1)
+        j, b = _point_at(P, cum, s2)
+        if j <= i:
+            continue  # both on one segment: already straight
+        gain = (s2 - s1) - float(np.linalg.norm(b - a))
+        if gain < s.min_gain:
+            continue
+        tried += 1
+        states = np.vstack([a[None], _edge_states(a, b, s.edge_resolution_rad)])
+        valid, _ = validity(states)
+        if not np.all(valid):
+            continue
+        accepted += 1
+        P = np.vstack([P[: i + 1], a[None], b[None], P[j + 1 :]])
+        P = _dedupe(P)
+    P, dropped = _drop_skippable(P, validity, s.edge_resolution_rad)
+    return SmoothResult(path=P, length_before=before, length_after=path_length(P),
+                        stats=dict(shortcuts_tried=tried, shortcuts_accepted=accepted, waypoints_dropped=dropped))
+
+
+def _dedupe(P: np.ndarray) -> np.ndarray:
+    keep = [0]
+    for k in range(1, len(P)):
+        if np.abs(P[k] - P[keep[-1]]).max() > 1e-12:
+            keep.append(k)
+    if keep[-1] != len(P) - 1:
+        keep[-1] = len(P) - 1
+    return P[keep]
+
+
+def _drop_skippable(P: np.ndarray, validity: Validity, resolution: float) -> tuple[np.ndarray, int]:
+    """Greedy pass: from each kept waypoint, jump to the farthest one reachable in a straight valid line."""
+    if len(P) < 3:
+        return P, 0
+    out = [0]
+    i = 0
+    while i < len(P) - 1:
+        nxt = i + 1
+        candidates = np.unique(np.linspace(i + 2, len(P) - 1, MAX_SKIP_TRIES).astype(int))[::-1] if i + 2 < len(P) else []
+        for j in candidates:
+            valid, _ = validity(_edge_states(P[i], P[j], resolution))
+            if np.all(valid):
+                nxt = j
+                break
+        out.append(nxt)
+        i = nxt
+    return P[out], len(P) - len(out)
