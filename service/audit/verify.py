@@ -259,6 +259,17 @@ def _parse(opcode: int, body: bytes, length: int) -> Any:
     return None  # indexes, statistics, metadata, attachments: not part of the chain
 
 
+def _ends_at(chain: _Chain, head: str) -> bool:
+    """The chain ends at ``head``: its last record, or the one the closing record seals.
+
+    The closing record only seals the file (it follows the last event and counts
+    the records), so a head stored just before ``close()`` names the same history.
+    """
+    if chain.head == head:
+        return True
+    return chain.closed and len(chain.digests) >= 2 and chain.digests[-2] == head
+
+
 def verify(path: str | Path, head: str | None = None, *, keep_records: bool = False) -> VerifyResult:
     """Check an audit file; see the module docstring for the verdicts.
 
@@ -373,7 +384,7 @@ def verify(path: str | Path, head: str | None = None, *, keep_records: bool = Fa
     if finished and not chain.closed:
         return result(ExitCode.BROKEN, "the file is finished but its chain has no closing record "
                       "(records were removed and the file re-written)", Where(record_index=chain.seq))
-    if head is not None and chain.head.lower() != head.lower():
+    if head is not None and not _ends_at(chain, head.lower()):
         seen = ""
         if head.lower() in chain.digests:
             match = chain.digests.index(head.lower())

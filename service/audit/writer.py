@@ -30,6 +30,7 @@ its last complete call (exit code 2, "unfinished").
 from __future__ import annotations
 
 import json
+import logging
 import os
 import threading
 import time
@@ -46,6 +47,7 @@ from .chain import CHAIN_FORMAT, GENESIS, record_digest
 from .urdf_frames import WORLD_FRAME, UrdfTree, joint_transforms, parse_urdf
 
 NS_PER_S = 1_000_000_000
+_log = logging.getLogger("regrasp.audit")
 
 TOPIC_EVENTS = "/audit/events"
 TOPIC_LOG = "/log"
@@ -94,6 +96,8 @@ class AuditSettings(BaseSettings):
     marker_lift_m: float = 0.002
     #: Diameter of the CoM sphere marker.
     com_marker_diameter_m: float = 0.04
+    #: Derive Foxglove views (plan playback, executed joint states) from ``record`` payloads.
+    auto_visualize: bool = True
 
 
 class AuditError(RuntimeError):
@@ -177,8 +181,8 @@ class AuditWriter:
         path: str | os.PathLike[str],
         job_id: str,
         *,
-        robot_name: str | None,
-        urdf_text: str | None,
+        robot_name: str | None = None,
+        urdf_text: str | None = None,
         settings: AuditSettings | None = None,
         clock_ns: Callable[[], int] = time.time_ns,
     ) -> None:
@@ -308,7 +312,36 @@ class AuditWriter:
             )
             level = "error" if kind.endswith(("error", "failed", "veto")) else "info"
             self._emit(TOPIC_LOG, fx.LOG, self._log_body(f"{kind}: {_summarise(payload)}", level, ns), ns)
-            return self._commit()
+            self._commit()
+            if self.settings.auto_visualize:
+                self._visualize(payload, ns)
+            return self._head
+
+    def _visualize(self, payload: Mapping[str, Any], ns: int) -> None:
+        """Foxglove views derived from an event, so callers that only use ``record`` get them too.
+
+        - a plan document (CONTRACT section 3, as the payload or its ``document``/``plan``)
+          -> the robot description (looked up by the plan's robot name if none was
+          given) and the plan's playback;
+        - ``joint_names`` with ``q`` (or ``positions``) in the payload or its ``data``
+          -> an executed joint state (``base_pose`` used if present).
+        Never raises: the event itself is already recorded.
+        """
+        try:
+            plan = _find_plan(payload)
+            if plan is not None:
+                if self._tree is None:
+                    urdf = _urdf_for((plan.get("robot") or {}).get("name") or self.robot_name)
+                    if urdf is not None:
+                        self.robot_description(urdf, ns)
+                self.plan_playback(plan, ns)
+                return
+            state = _find_joint_state(payload)
+            if state is not None:
+                names, q, base = state
+                self.joint_state(names, q, source="executed", base_pose=base, log_time_ns=ns)
+        except Exception as exc:  # noqa: BLE001 - a view must never lose the audit event
+            _log.warning("audit %s: no Foxglove view for an event (%s)", self.job_id, exc)
 
     def state_change(
         self,
@@ -637,3 +670,39 @@ def _summarise(payload: Mapping[str, Any], limit: int = 160) -> str:
             parts.append(f"{key}={{{len(value)}}}")
     text = " ".join(parts)
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _find_plan(payload: Mapping[str, Any]) -> Mapping[str, Any] | None:
+    for candidate in (payload, payload.get("document"), payload.get("plan"), payload.get("result")):
+        if (
+            isinstance(candidate, Mapping)
+            and str(candidate.get("schema", "")).startswith("regrasp.plan/")
+            and candidate.get("trajectory")
+        ):
+            return candidate
+    return None
+
+
+def _find_joint_state(payload: Mapping[str, Any]) -> tuple[list[str], list[float], list[float] | None] | None:
+    for candidate in (payload, payload.get("data"), payload.get("payload")):
+        if not isinstance(candidate, Mapping):
+            continue
+        names = candidate.get("joint_names")
+        q = candidate.get("q", candidate.get("positions"))
+        if isinstance(names, (list, tuple)) and isinstance(q, (list, tuple)) and len(names) == len(q) and names:
+            base = candidate.get("base_pose")
+            return list(names), [float(v) for v in q], list(base) if base is not None else None
+    return None
+
+
+def _urdf_for(robot_name: str | None) -> str | None:
+    """The URDF text of a known robot (from the planner's registry), or None."""
+    if not robot_name:
+        return None
+    try:
+        from planner.robots.registry import urdf_path
+
+        return urdf_path(str(robot_name)).read_text()
+    except Exception as exc:  # noqa: BLE001 - unknown robot: the file simply has no model
+        _log.warning("audit: no robot description for %r (%s)", robot_name, exc)
+        return None

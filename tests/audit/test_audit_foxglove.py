@@ -77,3 +77,24 @@ def test_shrink_polygon_offsets_inward():
     inner = shrink_polygon(square, 0.25)
     assert np.allclose(sorted(map(tuple, np.abs(inner))), [(0.75, 0.75)] * 4)
     assert shrink_polygon(square, 2.0) == []
+
+
+def test_record_of_a_plan_document_adds_the_model_and_its_playback(tmp_path):
+    """The service only calls record(kind, payload): the Foxglove views follow from it."""
+    robot = load_robot("hrp5p")
+    plan = tiny_plan(21)
+    plan["schema"] = "regrasp.plan/1"
+    plan["robot"] = {"name": "hrp5p", "joint_names": list(robot.joint_names)}
+    for point in plan["trajectory"]:
+        point["q"] = robot.default_q().tolist()
+    path = tmp_path / "a.mcap"
+    w = AuditWriter(path, "job-7")
+    w.record("plan", {"plan_sha256": "x", "document": plan})
+    w.record("exec", {"data": {"joint_names": list(robot.joint_names), "q": robot.default_q().tolist()}})
+    head = w.close()
+    with open(path, "rb") as f:
+        topics = [c.topic for _s, c, _m in make_reader(f).iter_messages()]
+    assert topics.count("/robot_description") == 1
+    assert topics.count("/joint_states/plan") == 6  # 0.1 s at 50 Hz, both ends included
+    assert topics.count("/joint_states/executed") == 1
+    assert verify(path, head).exit_code == 0
