@@ -1,0 +1,718 @@
+"""Collision checking with python-fcl on the model's primitives, batched over configurations.
+
+What is checked (each pair once, in this order, the first hit reported):
+
+- the held object against the tables and obstacles (touching within
+  ``object_env_tolerance_m`` is not a collision: an object is picked from and put on a table);
+- the robot against the tables and obstacles;
+- the robot against the object, resting or held, except the fingers of the hand that grasps
+  or holds it (those touch it by design);
+- robot self-collision, minus the pairs an SRDF would disable: geometric neighbours in the
+  kinematic tree and pairs already touching in the default posture (computed once). The two
+  hands are an ordinary pair, so hand against hand at a handover is covered.
+
+How it is fast: every body is bounded by an oriented box. A batch of states is screened with
+bounding spheres, then with the separating-axis test on the oriented boxes, all in numpy
+over (pairs x states). Box-box pairs are decided exactly there (the SAT is exact for boxes);
+only pairs with a sphere, cylinder, capsule or mesh that pass the screen go to fcl's
+narrow phase, with transforms set from the precomputed arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import fcl
+import numpy as np
+import pinocchio as pin
+from pydantic import BaseModel, ConfigDict, Field
+
+from .kinematics_batch import BatchKinematics
+from .objects import ObjectModel
+from .robot_model import RobotModel
+from .robots.spec import Side
+from .robots.urdf_geometry import collision_primitives
+from .transforms import inverse, pose7_to_matrix
+
+#: Margin on the bounding-sphere screen; the SAT and fcl decide exactly afterwards.
+_SPHERE_SLACK_M = 1e-6
+#: Guard against the cross-product axes of nearly parallel box edges in the SAT.
+_SAT_EPS = 1e-9
+
+
+class CollisionSettings(BaseModel):
+    """Tolerances of the collision checker (metres)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    object_env_tolerance_m: float = Field(
+        0.002, ge=0, description="held object vs table/obstacle: penetration up to this is contact, not collision"
+    )
+    object_robot_tolerance_m: float = Field(0.0, ge=0, description="object vs robot bodies (fingers of the holding hand are skipped)")
+    self_tolerance_m: float = Field(0.0, ge=0, description="robot vs robot")
+    env_tolerance_m: float = Field(0.0, ge=0, description="robot vs tables and obstacles")
+    default_touch_margin_m: float = Field(
+        0.0, ge=0, description="self pairs closer than this in the default posture are disabled (like an SRDF)"
+    )
+
+
+@dataclass(frozen=True)
+class Collision:
+    """The first colliding pair of a state, by body name (``link`` or ``link#k``, ``env:NAME``, ``object``)."""
+
+    body_a: str
+    body_b: str
+    kind: str  # "self" | "env" | "object" | "object-env"
+
+    def __str__(self) -> str:
+        return f"{self.body_a} vs {self.body_b} ({self.kind})"
+
+
+@dataclass(frozen=True)
+class EnvBox:
+    """A static box of the environment (table or obstacle)."""
+
+    name: str
+    pose: np.ndarray  # 4x4 of the box centre in the world
+    size: tuple[float, float, float]
+
+
+@dataclass
+class _Body:
+    name: str
+    group: str  # robot | env | object
+    kind: str  # box | cylinder | sphere | capsule | mesh
+    dims: tuple[float, ...]
+    local: np.ndarray  # 4x4: parent (joint, world or object frame) -> shape centre
+    half: np.ndarray  # half sizes of the oriented bounding box (shape frame)
+    obb_offset: np.ndarray  # OBB centre in the shape frame (non-zero only for meshes)
+    joint: int = -1  # pinocchio joint id for robot bodies
+    link: str = ""
+    geometry: object = field(default=None, repr=False)
+
+
+def _fcl_geometry(kind: str, dims: tuple[float, ...], mesh=None):
+    if kind == "box":
+        return fcl.Box(*dims)
+    if kind == "cylinder":
+        return fcl.Cylinder(dims[0], dims[1])
+    if kind == "capsule":
+        return fcl.Capsule(dims[0], dims[1])
+    if kind == "sphere":
+        return fcl.Sphere(dims[0])
+    if kind == "mesh":
+        bvh = fcl.BVHModel()
+        bvh.beginModel(len(mesh.vertices), len(mesh.faces))
+        bvh.addSubModel(np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int32))
+        bvh.endModel()
+        return bvh
+    raise ValueError(f"unsupported collision shape {kind!r}")
+
+
+def _half_extents(kind: str, dims: tuple[float, ...]) -> np.ndarray:
+    if kind == "box":
+        return np.asarray(dims, dtype=float) / 2.0
+    if kind == "cylinder":
+        return np.array([dims[0], dims[0], dims[1] / 2.0])
+    if kind == "capsule":
+        return np.array([dims[0], dims[0], dims[1] / 2.0 + dims[0]])
+    if kind == "sphere":
+        return np.full(3, dims[0])
+    raise ValueError(f"unsupported collision shape {kind!r}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Oriented-box separating-axis test, vectorised
+
+
+_I = np.repeat(np.arange(3), 3)
+_J = np.tile(np.arange(3), 3)
+_I1, _I2 = (_I + 1) % 3, (_I + 2) % 3
+_J1, _J2 = (_J + 1) % 3, (_J + 2) % 3
+
+
+def obb_penetration(
+    Ra: np.ndarray, ca: np.ndarray, ea: np.ndarray, Rb: np.ndarray, cb: np.ndarray, eb: np.ndarray
+) -> np.ndarray:
+    """Penetration depth of oriented boxes (K pairs); negative = separated by at least that much.
+
+    Rotations (K, 3, 3), centres (K, 3), half sizes (K, 3). The separating-axis theorem
+    with the 15 axes of two boxes is exact for boxes; the smallest overlap over the axes
+    is the penetration depth (a lower bound of the separation distance when negative).
+    """
+    RaT = np.swapaxes(Ra, 1, 2)
+    R = RaT @ Rb  # b's axes in a's frame
+    t = (RaT @ (cb - ca)[:, :, None])[:, :, 0]  # b's centre in a's frame
+    absR = np.abs(R) + _SAT_EPS
+    # the 3 axes of a, then the 3 axes of b
+    d_a = ea + (absR @ eb[:, :, None])[:, :, 0] - np.abs(t)
+    tb = (np.swapaxes(R, 1, 2) @ t[:, :, None])[:, :, 0]
+    d_b = (np.swapaxes(absR, 1, 2) @ ea[:, :, None])[:, :, 0] + eb - np.abs(tb)
+    # the 9 cross axes a_i x b_j, all at once
+    ra = ea[:, _I1] * absR[:, _I2, _J] + ea[:, _I2] * absR[:, _I1, _J]
+    rb = eb[:, _J1] * absR[:, _I, _J2] + eb[:, _J2] * absR[:, _I, _J1]
+    proj = np.abs(t[:, _I2] * R[:, _I1, _J] - t[:, _I1] * R[:, _I2, _J])
+    norm = np.sqrt(np.maximum(1.0 - R[:, _I, _J] ** 2, 0.0))
+    valid = norm > 1e-6
+    d_x = np.where(valid, (ra + rb - proj) / np.where(valid, norm, 1.0), np.inf)
+    return np.minimum(np.minimum(d_a.min(axis=1), d_b.min(axis=1)), d_x.min(axis=1))
+
+
+# ---------------------------------------------------------------------------------------------
+# Hand geometry in the TCP frame (used by grasps and handovers)
+
+
+@dataclass(frozen=True)
+class HandShape:
+    link: str
+    kind: str
+    dims: tuple[float, ...]
+    T_tcp_shape0: np.ndarray  # at jaw value 0
+    velocity: np.ndarray  # d(translation)/d(jaw value) in the TCP frame
+    is_finger: bool
+
+
+@dataclass(frozen=True)
+class HandGeometry:
+    """The hand's collision primitives in its TCP frame, fingers as a function of the jaw value.
+
+    Read from the URDF (link primitives) and pinocchio (link placements), so nothing here
+    is specific to one robot: the hand is every link rigidly attached to the TCP's parent
+    joint plus the links moved by the gripper joint and its mimic joints.
+    """
+
+    side: str
+    shapes: tuple[HandShape, ...]
+    max_opening_m: float
+    opening_per_unit: float
+
+    def at_opening(self, opening_m: float) -> list[tuple[str, str, tuple[float, ...], np.ndarray]]:
+        """(link, kind, dims, T_tcp_shape) of every shape with the jaw opened to ``opening_m``."""
+        value = opening_m / self.opening_per_unit
+        out = []
+        for s in self.shapes:
+            T = s.T_tcp_shape0.copy()
+            T[:3, 3] += s.velocity * value
+            out.append((s.link, s.kind, s.dims, T))
+        return out
+
+    def signature(self) -> bytes:
+        """Bytes that identify the geometry (cache keys)."""
+        parts = [f"{self.max_opening_m:.9f}/{self.opening_per_unit:.9f}".encode()]
+        for s in self.shapes:
+            parts.append(f"{s.kind}{np.round(s.dims, 9).tolist()}{s.is_finger}".encode())
+            parts.append(np.round(s.T_tcp_shape0, 9).tobytes())
+            parts.append(np.round(s.velocity, 9).tobytes())
+        return b"|".join(parts)
+
+
+def _hand_links(robot: RobotModel, side: Side) -> tuple[set[int], set[int]]:
+    """(pinocchio joint ids that carry the hand, those that carry fingers)."""
+    model = robot.pin_model
+    arm = robot.spec.arms[side]
+    tcp_joint = int(model.frames[robot.frame_id(arm.tcp)].parentJoint)
+    finger_joints = {int(model.getJointId(arm.gripper.joint))}
+    for mimic, (master, _k, _b) in robot.mimic.items():
+        if master == arm.gripper.joint:
+            finger_joints.add(int(model.getJointId(mimic)))
+    return {tcp_joint}, finger_joints
+
+
+_HAND_CACHE: dict[tuple[str, str, str], "HandGeometry"] = {}
+
+
+def hand_geometry(robot: RobotModel, side: Side) -> HandGeometry:
+    """The hand of ``side`` in its TCP frame (see :class:`HandGeometry`); cached per robot model."""
+    key = (robot.name, robot.urdf_sha256, side)
+    if key not in _HAND_CACHE:
+        _HAND_CACHE[key] = _hand_geometry(robot, side)
+    return _HAND_CACHE[key]
+
+
+def _hand_geometry(robot: RobotModel, side: Side) -> HandGeometry:
+    model = robot.pin_model
+    data = model.createData()
+    arm = robot.spec.arms[side]
+    palm_joints, finger_joints = _hand_links(robot, side)
+    q = robot.default_q()
+    jaw = robot.joint_index(arm.gripper.joint)
+    link_joint = {f.name: int(f.parentJoint) for f in model.frames if f.type == pin.FrameType.BODY}
+    shapes = []
+    placements = []
+    for value in (0.0, 1e-2):
+        q[jaw] = value
+        pin.forwardKinematics(model, data, robot.to_pin_q(np.array([0, 0, 0, 0, 0, 0, 1.0]), q))
+        pin.updateFramePlacements(model, data)
+        T_w_tcp = data.oMf[robot.frame_id(arm.tcp)].homogeneous
+        per = {}
+        for prim in collision_primitives(robot.urdf_path):
+            jid = link_joint.get(prim.link)
+            if jid is None or jid not in palm_joints | finger_joints:
+                continue
+            T_w_link = data.oMf[model.getFrameId(prim.link)].homogeneous
+            per[(prim.link, id(prim))] = (prim, inverse(T_w_tcp) @ T_w_link @ prim.origin, jid in finger_joints)
+        placements.append(per)
+    for key, (prim, T0, is_finger) in placements[0].items():
+        T1 = placements[1][key][1]
+        shapes.append(HandShape(prim.link, prim.kind, tuple(prim.dims), T0, (T1[:3, 3] - T0[:3, 3]) / 1e-2, is_finger))
+    if not shapes:
+        raise ValueError(f"robot {robot.name!r}: the {side} hand has no collision primitives")
+    return HandGeometry(side, tuple(shapes), arm.gripper.max_opening_m, arm.gripper.opening_per_unit)
+
+
+# ---------------------------------------------------------------------------------------------
+# Shape sets: small helper for "these shapes at these poses vs those shapes at those poses"
+
+
+def object_bodies(obj: ObjectModel) -> list[_Body]:
+    """Collision bodies of an object in its frame: its primitives, or one BVH for a mesh."""
+    out = []
+    if obj.primitives:
+        for k, p in enumerate(obj.primitives):
+            out.append(_Body(f"object#{k}" if len(obj.primitives) > 1 else "object", "object", p.kind, p.dims, p.origin,
+                             _half_extents(p.kind, p.dims), np.zeros(3), geometry=_fcl_geometry(p.kind, p.dims)))
+    else:
+        # the mesh in its own frame; the OBB is the axis-aligned box of the vertices
+        lo, hi = obj.mesh.bounds
+        out.append(_Body("object", "object", "mesh", (), np.eye(4), (hi - lo) / 2.0, (hi + lo) / 2.0,
+                         geometry=_fcl_geometry("mesh", (), obj.mesh)))
+    return out
+
+
+def _make_fcl_object(body: _Body) -> fcl.CollisionObject:
+    return fcl.CollisionObject(body.geometry, fcl.Transform())
+
+
+def _fcl_collide(oa: fcl.CollisionObject, ob: fcl.CollisionObject, tolerance: float) -> bool:
+    if tolerance <= 0.0:
+        return fcl.collide(oa, ob, fcl.CollisionRequest(), fcl.CollisionResult()) > 0
+    req = fcl.CollisionRequest(num_max_contacts=4, enable_contact=True)
+    res = fcl.CollisionResult()
+    if fcl.collide(oa, ob, req, res) == 0:
+        return False
+    return max(c.penetration_depth for c in res.contacts) > tolerance
+
+
+def _set_tf(o: fcl.CollisionObject, R: np.ndarray, p: np.ndarray) -> None:
+    o.setTransform(fcl.Transform(R, p))
+
+
+def shapes_collide(
+    bodies_a: Sequence[_Body], poses_a: np.ndarray, bodies_b: Sequence[_Body], poses_b: np.ndarray, tolerance: float = 0.0
+) -> np.ndarray:
+    """Whether any body of set a collides with any of set b, for K pose hypotheses.
+
+    ``poses_a`` (K, len(a), 4, 4) and ``poses_b`` (K, len(b), 4, 4) are world poses of the
+    bodies' parents (the ``local`` transform of each body is applied here). Used by the
+    grasp and handover filters, which test many hand poses against one object.
+    """
+    K = poses_a.shape[0]
+    hit = np.zeros(K, dtype=bool)
+    objs_a = [_make_fcl_object(b) for b in bodies_a]
+    objs_b = [_make_fcl_object(b) for b in bodies_b]
+    for ia, ba in enumerate(bodies_a):
+        Ta = poses_a[:, ia] @ ba.local
+        ca = Ta[:, :3, 3] + np.einsum("kij,j->ki", Ta[:, :3, :3], ba.obb_offset)
+        for ib, bb in enumerate(bodies_b):
+            Tb = poses_b[:, ib] @ bb.local
+            cb = Tb[:, :3, 3] + np.einsum("kij,j->ki", Tb[:, :3, :3], bb.obb_offset)
+            todo = ~hit
+            depth = np.full(K, -np.inf)
+            idx = np.flatnonzero(todo)
+            if idx.size == 0:
+                return hit
+            depth[idx] = obb_penetration(Ta[idx, :3, :3], ca[idx], np.broadcast_to(ba.half, (idx.size, 3)),
+                                         Tb[idx, :3, :3], cb[idx], np.broadcast_to(bb.half, (idx.size, 3)))
+            cand = depth > tolerance
+            if ba.kind == "box" and bb.kind == "box":
+                hit |= cand
+                continue
+            for k in np.flatnonzero(cand & todo):
+                _set_tf(objs_a[ia], Ta[k, :3, :3], Ta[k, :3, 3])
+                _set_tf(objs_b[ib], Tb[k, :3, :3], Tb[k, :3, 3])
+                if _fcl_collide(objs_a[ia], objs_b[ib], tolerance):
+                    hit[k] = True
+    return hit
+
+
+def hand_bodies(hand: HandGeometry, opening_m: float, include_fingers: bool = True) -> list[_Body]:
+    """The hand's shapes as bodies whose parent frame is the TCP."""
+    out = []
+    for (link, kind, dims, T), s in zip(hand.at_opening(opening_m), hand.shapes):
+        if s.is_finger and not include_fingers:
+            continue
+        out.append(_Body(link, "robot", kind, dims, T, _half_extents(kind, dims), np.zeros(3), link=link,
+                         geometry=_fcl_geometry(kind, dims)))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The world
+
+
+def environment_boxes(scenario) -> list[EnvBox]:
+    """Tables and obstacles of a scenario as :class:`EnvBox` (tables first)."""
+    return [EnvBox(b.name, pose7_to_matrix(b.pose), tuple(b.size)) for b in [*scenario.tables, *scenario.obstacles]]
+
+
+@dataclass
+class BatchResult:
+    """Per state: whether it collides, and the first colliding pair (None when free)."""
+
+    collides: np.ndarray
+    first: list[Collision | None]
+
+
+class CollisionWorld:
+    """Robot + environment boxes + (optionally) the object; immutable after construction.
+
+    ``check``/``check_batch`` take the stance's base pose and wire configurations ``q``;
+    ``check_forward`` takes a :meth:`BatchKinematics.forward` result computed elsewhere, so a
+    planner that already has the joint frames pays no second FK.
+    """
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        environment: Iterable[EnvBox] = (),
+        obj: ObjectModel | None = None,
+        settings: CollisionSettings | None = None,
+        kinematics: BatchKinematics | None = None,
+        reference_postures: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+        moving_joints: Sequence[str] | None = None,
+    ):
+        """``reference_postures``: (base_pose, q) pairs, such as the stance posture, whose touching
+        self pairs are disabled like the default posture's. ``moving_joints``: when given (e.g. the
+        waist and arms while the feet stay planted), pairs of two bodies that none of these joints
+        moves are dropped: they cannot change during a plan, so check the stance once with a
+        world built without ``moving_joints``."""
+        self.robot = robot
+        self._reference_postures = [(np.asarray(b, float), np.asarray(q, float)) for b, q in reference_postures]
+        self.settings = settings or CollisionSettings()
+        self.kin = kinematics or BatchKinematics(robot)
+        self.obj = obj
+        model = robot.pin_model
+        link_joint = {f.name: int(f.parentJoint) for f in model.frames if f.type == pin.FrameType.BODY}
+        link_frame = {f.name: f for f in model.frames if f.type == pin.FrameType.BODY}
+        bodies: list[_Body] = []
+        prims = collision_primitives(robot.urdf_path)
+        per_link: dict[str, int] = {}
+        for p in prims:
+            per_link[p.link] = per_link.get(p.link, 0) + 1
+        seen: dict[str, int] = {}
+        for p in prims:
+            if p.link not in link_joint:
+                continue
+            k = seen.get(p.link, 0)
+            seen[p.link] = k + 1
+            name = p.link if per_link[p.link] == 1 else f"{p.link}#{k}"
+            local = link_frame[p.link].placement.homogeneous @ p.origin
+            bodies.append(_Body(name, "robot", p.kind, tuple(p.dims), local, _half_extents(p.kind, p.dims), np.zeros(3),
+                                joint=link_joint[p.link], link=p.link, geometry=_fcl_geometry(p.kind, tuple(p.dims))))
+        self.n_robot = len(bodies)
+        self.env = tuple(environment)
+        for e in self.env:
+            bodies.append(_Body(f"env:{e.name}", "env", "box", tuple(e.size), np.asarray(e.pose, float),
+                                np.asarray(e.size, float) / 2.0, np.zeros(3), geometry=fcl.Box(*e.size)))
+        self.n_env = len(self.env)
+        obj_bodies = object_bodies(obj) if obj is not None else []
+        bodies.extend(obj_bodies)
+        self.n_obj = len(obj_bodies)
+        self.bodies = bodies
+        self._fcl = [_make_fcl_object(b) for b in bodies]
+        B = len(bodies)
+        self._half = np.array([b.half for b in bodies])
+        self._radius = np.linalg.norm(self._half, axis=1)
+        self._is_box = np.array([b.kind == "box" for b in bodies])
+        self._local_R = np.array([b.local[:3, :3] for b in bodies])
+        self._local_p = np.array([b.local[:3, 3] + b.local[:3, :3] @ b.obb_offset for b in bodies])
+        self._local_origin = np.array([b.local[:3, 3] for b in bodies])
+        self._robot_joints = np.array([b.joint for b in bodies[: self.n_robot]], dtype=int)
+        self._uniq_joints, self._joint_slot = np.unique(self._robot_joints, return_inverse=True)
+        self._env_slice = slice(self.n_robot, self.n_robot + self.n_env)
+        self._obj_slice = slice(self.n_robot + self.n_env, B)
+        # finger bodies per side
+        self._fingers: dict[str, np.ndarray] = {}
+        self._tcp: dict[str, str] = {}
+        for side, arm in robot.spec.arms.items():
+            _, fj = _hand_links(robot, side)
+            self._fingers[side] = np.array([i for i in range(self.n_robot) if bodies[i].joint in fj], dtype=int)
+            self._tcp[side] = arm.tcp
+        self.disabled = self._disabled_self_pairs()
+        moving = np.ones(B, dtype=bool)
+        moving[self.n_robot:] = False
+        moving[self._obj_slice] = True  # the object may move (held) or be placed anywhere
+        if moving_joints is not None:
+            mj = {int(model.getJointId(robot.joint_names[robot.joint_index(n)])) for n in moving_joints}
+            for i in range(self.n_robot):
+                support = {int(j) for j in model.supports[bodies[i].joint]}
+                moving[i] = bool(support & mj)
+        self._moving = moving
+        self._build_pairs()
+
+    # -- construction helpers -------------------------------------------------------------------
+
+    @classmethod
+    def from_scenario(cls, robot: RobotModel, scenario, obj: ObjectModel | None, **kwargs) -> "CollisionWorld":
+        """World of a :class:`schemas.scenario.Scenario`: its tables and obstacles as boxes.
+
+        Keyword arguments go to the constructor (settings, kinematics, reference_postures, moving_joints).
+        """
+        return cls(robot, environment_boxes(scenario), obj, **kwargs)
+
+    def _geometric_parent(self) -> dict[str, str | None]:
+        """Nearest ancestor link that has collision geometry, per link with geometry."""
+        model = self.robot.pin_model
+        geom_links = {b.link for b in self.bodies[: self.n_robot]}
+        frames = {f.name: f for f in model.frames}
+        # parent link of each body frame: the frame's parentFrame chain (fixed joints) and joint parents
+        parent_of: dict[str, str | None] = {}
+        joint_body: dict[int, str] = {}
+        for f in model.frames:
+            if f.type == pin.FrameType.BODY and f.name not in joint_body.values():
+                joint_body.setdefault(int(f.parentJoint), f.name)
+        for f in model.frames:
+            if f.type != pin.FrameType.BODY:
+                continue
+            pf = model.frames[f.parentFrame]
+            # walk up through joint frames to the body frame that carries this one
+            while pf.type != pin.FrameType.BODY and pf.name != "universe":
+                pf = model.frames[pf.parentFrame]
+            parent_of[f.name] = None if pf.name == "universe" or pf.name == f.name else pf.name
+        out: dict[str, str | None] = {}
+        for link in geom_links:
+            p = parent_of.get(link)
+            while p is not None and p not in geom_links:
+                p = parent_of.get(p)
+            out[link] = p
+        del frames
+        return out
+
+    def _disabled_self_pairs(self) -> set[tuple[str, str]]:
+        """Pairs of links never checked: geometric neighbours, and pairs touching in the default posture."""
+        gp = self._geometric_parent()
+        disabled: set[tuple[str, str]] = set()
+        for link, parent in gp.items():
+            if parent is not None:
+                disabled.add(tuple(sorted((link, parent))))  # type: ignore[arg-type]
+        # siblings on the same geometric parent that share a joint (e.g. several shapes of one link)
+        robot = self.robot
+        base = np.array([0, 0, robot.spec.upright.pelvis_height_m, 0, 0, 0, 1.0])
+        n = self.n_robot
+        ia, ib = np.triu_indices(n, 1)
+        same = np.array([self.bodies[i].link == self.bodies[j].link for i, j in zip(ia, ib)], dtype=bool)
+        ia, ib = ia[~same], ib[~same]
+        postures = [(base, robot.default_q())] + self._reference_postures
+        for pbase, pq in postures:
+            Rw, pw = self._robot_world(*self.kin.forward(pbase, pq[None, :]))
+            hits = self._pair_hits(Rw, pw, ia, ib, np.full(ia.size, -self.settings.default_touch_margin_m))
+            for k in np.flatnonzero(hits[:, 0]):
+                disabled.add(tuple(sorted((self.bodies[ia[k]].link, self.bodies[ib[k]].link))))  # type: ignore[arg-type]
+        return disabled
+
+    def _build_pairs(self) -> None:
+        s = self.settings
+        n, B = self.n_robot, len(self.bodies)
+        ia, ib = np.triu_indices(n, 1)
+        keep = np.array([
+            self.bodies[i].link != self.bodies[j].link and tuple(sorted((self.bodies[i].link, self.bodies[j].link))) not in self.disabled
+            for i, j in zip(ia, ib)
+        ], dtype=bool)
+        keep &= self._moving[ia] | self._moving[ib]
+        self._self_pairs = (ia[keep], ib[keep])
+        er, ee = np.meshgrid(np.arange(n), np.arange(self._env_slice.start, self._env_slice.stop), indexing="ij")
+        er, ee = er.ravel(), ee.ravel()
+        keep = self._moving[er]
+        self._env_pairs = (er[keep], ee[keep])
+        orr, oo = np.meshgrid(np.arange(n), np.arange(self._obj_slice.start, B), indexing="ij")
+        self._obj_pairs = (orr.ravel(), oo.ravel())
+        oe_o, oe_e = np.meshgrid(np.arange(self._obj_slice.start, B), np.arange(self._env_slice.start, self._env_slice.stop), indexing="ij")
+        self._objenv_pairs = (oe_o.ravel(), oe_e.ravel())
+        self._tol = {"self": s.self_tolerance_m, "env": s.env_tolerance_m, "object": s.object_robot_tolerance_m,
+                     "object-env": s.object_env_tolerance_m}
+        self._pair_cache: dict = {}
+
+    def self_pair_count(self) -> int:
+        return int(self._self_pairs[0].size)
+
+    # -- pose computation ------------------------------------------------------------------------
+
+    def _robot_world(self, Rs: list, ps: list) -> tuple[np.ndarray, np.ndarray]:
+        """World rotation (n_robot, N, 3, 3) and OBB centre (n_robot, N, 3) of every robot body."""
+        RJ = np.stack([Rs[j] for j in self._uniq_joints])  # (J, 3, 3, N)
+        pJ = np.stack([ps[j] for j in self._uniq_joints])  # (J, 3, N)
+        RJ = RJ[self._joint_slot]
+        pJ = pJ[self._joint_slot]
+        n = self.n_robot
+        Rw = np.einsum("bijn,bjk->bnik", RJ, self._local_R[:n])
+        pw = np.einsum("bijn,bj->bni", RJ, self._local_p[:n]) + np.moveaxis(pJ, 2, 1)
+        return Rw, pw
+
+    def _all_world(self, Rs: list, ps: list, T_obj: np.ndarray | None, N: int) -> tuple[np.ndarray, np.ndarray]:
+        Rr, pr = self._robot_world(Rs, ps)
+        parts_R, parts_p = [Rr], [pr]
+        if self.n_env:
+            Re = np.broadcast_to(self._local_R[self._env_slice][:, None], (self.n_env, N, 3, 3))
+            pe = np.broadcast_to(self._local_p[self._env_slice][:, None], (self.n_env, N, 3))
+            parts_R.append(Re)
+            parts_p.append(pe)
+        if self.n_obj:
+            # an absent object gets an identity pose: no pair involving it is tested then
+            T = np.broadcast_to(np.eye(4), (N, 4, 4)) if T_obj is None else T_obj
+            Ro = np.einsum("nij,bjk->bnik", T[:, :3, :3], self._local_R[self._obj_slice])
+            po = np.einsum("nij,bj->bni", T[:, :3, :3], self._local_p[self._obj_slice]) + T[None, :, :3, 3]
+            parts_R.append(Ro)
+            parts_p.append(po)
+        return np.concatenate(parts_R), np.concatenate(parts_p)
+
+    # -- pair testing ------------------------------------------------------------------------------
+
+    def _pair_hits(
+        self, Rw: np.ndarray, pw: np.ndarray, ia: np.ndarray, ib: np.ndarray, tol: np.ndarray, first_only: bool = False
+    ) -> np.ndarray:
+        """(P, N) collision matrix of body pairs over N states (box screen, SAT, then fcl).
+
+        With ``first_only`` a state known to collide is not tested further, so its row holds
+        at least one colliding pair, not necessarily all of them.
+        """
+        P, N = ia.size, Rw.shape[1]
+        hits = np.zeros((P, N), dtype=bool)
+        if P == 0:
+            return hits
+        # screen 1: world axis-aligned boxes of the oriented boxes (one small matmul per body)
+        ext = (np.abs(Rw) @ self._half[: Rw.shape[0], None, :, None])[..., 0]  # (B, N, 3)
+        slack = _SPHERE_SLACK_M - tol[:, None, None]
+        near = np.all(np.abs(pw[ia] - pw[ib]) < ext[ia] + ext[ib] + slack, axis=2)
+        kp, ks = np.nonzero(near)
+        if kp.size == 0:
+            return hits
+        a, b = ia[kp], ib[kp]
+        depth = obb_penetration(Rw[a, ks], pw[a, ks], self._half[a], Rw[b, ks], pw[b, ks], self._half[b])
+        cand = depth > tol[kp]
+        exact = self._is_box[a] & self._is_box[b]
+        sure = cand & exact
+        hits[kp[sure], ks[sure]] = True
+        done = np.zeros(N, dtype=bool)
+        done[ks[sure]] = True
+        for k in np.flatnonzero(cand & ~exact):
+            s = ks[k]
+            if first_only and done[s]:
+                continue  # this state already collides; its first pair is reported below
+            ba, bb = a[k], b[k]
+            oa, ob = self._fcl[ba], self._fcl[bb]
+            Ra, Rb = Rw[ba, s], Rw[bb, s]
+            # fcl wants the shape frame; our centres are OBB centres (offset only for meshes)
+            _set_tf(oa, Ra, pw[ba, s] - Ra @ self.bodies[ba].obb_offset)
+            _set_tf(ob, Rb, pw[bb, s] - Rb @ self.bodies[bb].obb_offset)
+            if _fcl_collide(oa, ob, float(tol[kp[k]])):
+                hits[kp[k], s] = True
+                done[s] = True
+        return hits
+
+    def _pairs_for(self, held_sides: tuple[str, ...], grasping: str | None, object_present: bool, object_held: bool):
+        key = (held_sides, grasping, object_present, object_held)
+        cached = self._pair_cache.get(key)
+        if cached is not None:
+            return cached
+        groups = []
+        if object_present and object_held and self.n_env:
+            groups.append(("object-env", *self._objenv_pairs))
+        if self.n_env:
+            groups.append(("env", *self._env_pairs))
+        if object_present:
+            excluded = set()
+            for side in (*held_sides, *((grasping,) if grasping else ())):
+                excluded |= set(self._fingers[side].tolist())
+            orr, oo = self._obj_pairs
+            keep = np.array([r not in excluded for r in orr], dtype=bool)
+            groups.append(("object", orr[keep], oo[keep]))
+        groups.append(("self", *self._self_pairs))
+        ia = np.concatenate([g[1] for g in groups]).astype(int)
+        ib = np.concatenate([g[2] for g in groups]).astype(int)
+        kinds = np.concatenate([np.full(g[1].size, i) for i, g in enumerate(groups)])
+        tol = np.concatenate([np.full(g[1].size, self._tol[g[0]]) for g in groups])
+        names = [g[0] for g in groups]
+        out = (ia, ib, kinds, tol, names)
+        self._pair_cache[key] = out
+        return out
+
+    # -- public API --------------------------------------------------------------------------------
+
+    def object_pose_held(self, Rs: list, ps: list, side: str, T_obj_tcp: np.ndarray) -> np.ndarray:
+        """World pose (N, 4, 4) of an object held by ``side`` with grasp ``T_obj_tcp``."""
+        R, p = self.kin.frame(Rs, ps, self._tcp[side])
+        T = np.zeros((R.shape[0], 4, 4))
+        T[:, :3, :3] = R
+        T[:, :3, 3] = p
+        T[:, 3, 3] = 1.0
+        return T @ inverse(np.asarray(T_obj_tcp, dtype=float))
+
+    def check_forward(
+        self,
+        Rs: list,
+        ps: list,
+        *,
+        held: Sequence[tuple[str, np.ndarray]] = (),
+        free_object_pose: np.ndarray | None = None,
+        grasping: str | None = None,
+    ) -> BatchResult:
+        """Check the N states of a :meth:`BatchKinematics.forward` result.
+
+        ``held``: ``[(side, T_obj_tcp)]`` (one entry, or two at a handover; the object follows
+        the first). ``free_object_pose``: 4x4 (or (N, 4, 4)) pose of a resting object, when
+        nothing holds it. ``grasping``: the side whose fingers are at the resting object
+        (approach and grasp key poses); its fingers are not checked against the object.
+        """
+        N = Rs[1].shape[2]
+        held = tuple(held)
+        if held and free_object_pose is not None:
+            raise ValueError("an object is either held or free, not both")
+        T_obj = None
+        if held:
+            if self.n_obj == 0:
+                raise ValueError("this collision world has no object to hold")
+            T_obj = self.object_pose_held(Rs, ps, held[0][0], held[0][1])
+        elif free_object_pose is not None and self.n_obj:
+            T = np.asarray(free_object_pose, dtype=float)
+            T_obj = np.broadcast_to(T, (N, 4, 4)) if T.ndim == 2 else T
+        Rw, pw = self._all_world(Rs, ps, T_obj, N)
+        sides = tuple(sorted({h[0] for h in held}))
+        ia, ib, kinds, tol, names = self._pairs_for(sides, grasping, T_obj is not None, bool(held))
+        hits = self._pair_hits(Rw, pw, ia, ib, tol, first_only=True)
+        collides = hits.any(axis=0)
+        first: list[Collision | None] = [None] * N
+        if collides.any():
+            firsts = np.argmax(hits, axis=0)
+            for s in np.flatnonzero(collides):
+                k = firsts[s]
+                first[s] = Collision(self.bodies[ia[k]].name, self.bodies[ib[k]].name, names[kinds[k]])
+        return BatchResult(collides, first)
+
+    def check_batch(self, base_pose: np.ndarray, Q: np.ndarray, **kwargs) -> BatchResult:
+        """Check N configurations ``Q`` (N, n) at the stance's ``base_pose`` (see :meth:`check_forward`)."""
+        Rs, ps = self.kin.forward(np.asarray(base_pose, float), np.atleast_2d(Q))
+        return self.check_forward(Rs, ps, **kwargs)
+
+    def check(self, base_pose: np.ndarray, q: np.ndarray, **kwargs) -> Collision | None:
+        """First collision of one configuration, or None when it is free."""
+        return self.check_batch(base_pose, np.asarray(q, float)[None, :], **kwargs).first[0]
+
+    def object_pose_clear(self, T_world_obj: np.ndarray) -> Collision | None:
+        """Whether the object at a world pose is clear of the environment (resting contact allowed)."""
+        if self.n_obj == 0:
+            raise ValueError("this collision world has no object")
+        T = np.asarray(T_world_obj, dtype=float)[None]
+        B = len(self.bodies)
+        Rw = np.broadcast_to(np.eye(3), (B, 1, 3, 3)).copy()
+        pw = np.zeros((B, 1, 3))
+        Rw[self._env_slice, 0] = self._local_R[self._env_slice]
+        pw[self._env_slice, 0] = self._local_p[self._env_slice]
+        Rw[self._obj_slice] = np.einsum("nij,bjk->bnik", T[:, :3, :3], self._local_R[self._obj_slice])
+        pw[self._obj_slice] = np.einsum("nij,bj->bni", T[:, :3, :3], self._local_p[self._obj_slice]) + T[None, :, :3, 3]
+        ia, ib = self._objenv_pairs
+        hits = self._pair_hits(Rw, pw, ia, ib, np.full(ia.size, self.settings.object_env_tolerance_m))
+        if hits.any():
+            k = int(np.argmax(hits[:, 0]))
+            return Collision(self.bodies[ia[k]].name, self.bodies[ib[k]].name, "object-env")
+        return None
