@@ -1,0 +1,1 @@
+"""HTTP routes of the planning service, one module per resource."""

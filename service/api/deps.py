@@ -1,0 +1,54 @@
+"""Dependencies shared by the routes: the service object and the caller's identity."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import Depends, Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+
+from schemas.jobs import Problem
+
+from ..auth import Principal
+from ..context import Service
+from ..problems import PROBLEM_MEDIA_TYPE, ProblemError
+
+bearer = HTTPBearer(auto_error=False, description="Bearer token; roles planner, approver, operator, admin")
+
+
+def service(request: Request) -> Service:
+    return request.app.state.service
+
+
+def principal(request: Request, creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> Principal:
+    challenge = {"WWW-Authenticate": 'Bearer realm="regrasp"'}
+    if creds is None:
+        raise ProblemError(401, "no bearer token: send 'Authorization: Bearer TOKEN'", headers=challenge)
+    if creds.scheme.lower() != "bearer":
+        raise ProblemError(401, f"unsupported authorization scheme {creds.scheme!r}; use Bearer", headers=challenge)
+    found = request.app.state.service.tokens.lookup(creds.credentials)
+    if found is None:
+        raise ProblemError(401, "unknown bearer token", headers=challenge)
+    return found
+
+
+def require(role: str, p: Principal, action: str) -> None:
+    if not p.has(role):
+        raise ProblemError(403, f"{action} needs the role {role!r}; user {p.user!r} has {sorted(p.roles) or 'no roles'}")
+
+
+def problems(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI entries for the problem responses a route can give."""
+    descriptions = {400: "Bad request", 401: "Missing or unknown bearer token", 403: "Role missing or not allowed",
+                    404: "No such job", 409: "The job's state does not allow this", 413: "Request body too large",
+                    422: "Invalid request", 429: "Queue full; retry later", 503: "Service unavailable"}
+    out: dict[int | str, dict[str, Any]] = {}
+    for code in codes:
+        entry: dict[str, Any] = {"model": Problem, "description": descriptions.get(code, "Error"),
+                                 "content": {PROBLEM_MEDIA_TYPE: {}}}
+        if code == 429:
+            entry["headers"] = {"Retry-After": {"description": "seconds to wait", "schema": {"type": "integer"}}}
+        if code == 401:
+            entry["headers"] = {"WWW-Authenticate": {"description": "Bearer challenge", "schema": {"type": "string"}}}
+        out[code] = entry
+    return out

@@ -1,0 +1,320 @@
+"""``/v1/jobs``: submit, read, list, stream, cancel, approve, reject, dispatch, stop, audit (CONTRACT.md section 5)."""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import json
+import time
+import uuid
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import Any, AsyncIterator
+
+from fastapi import APIRouter, Body, Depends, Header, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse, StreamingResponse
+
+from schemas.jobs import (
+    CANCELABLE_STATES, EXECUTION_STATES, TERMINAL_STATES, ApproveBody, Job, JobKind, JobList, JobState,
+    JobSubmit, ReasonBody,
+)
+from schemas.plan import plan_sha256
+
+from ..auth import Principal
+from ..context import Service
+from ..problems import ProblemError
+from ..provenance import provenance
+from ..store.repo import Conflict, IdempotencyMismatch
+from .deps import principal, problems, require, service
+from .views import job_view
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+JOB_ID_DOC = "the job id returned by POST /v1/jobs"
+
+
+def _load(svc: Service, job_id: str) -> dict[str, Any]:
+    if len(job_id) > 64:
+        raise ProblemError(404, f"no job {job_id[:64]!r}...")
+    row = svc.store.get(job_id)
+    if row is None:
+        raise ProblemError(404, f"no job with id {job_id!r}")
+    if row["state"] == "approved" and row["approval_expires_at"] is not None \
+            and row["approval_expires_at"] < datetime.now(timezone.utc):
+        svc.store.expire_approvals(job_id)
+        row = svc.store.get(job_id) or row
+    return row
+
+
+def _full(svc: Service, row: dict[str, Any]) -> Job:
+    result = svc.store.result(row["id"]) if row["state"] not in ("queued", "planning") else None
+    return job_view(row, result)
+
+
+# ------------------------------------------------------------------ submit
+def _check_request(svc: Service, body: JobSubmit) -> tuple[str, int | None]:
+    """Validate what pydantic cannot (scenario names, inline scenarios); returns (robot, seed)."""
+    req = body.request
+    robot, seed = "hrp5p", req.seed
+    if isinstance(req.scenario, dict):
+        from pydantic import ValidationError
+
+        from schemas.scenario import Scenario
+
+        try:
+            scenario = Scenario.model_validate(req.scenario)
+        except ValidationError as exc:
+            lines = [f"request.scenario.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()[:10]]
+            raise ProblemError(422, "the inline scenario is invalid: " + "; ".join(lines)) from None
+        robot = scenario.robot
+        seed = seed if seed is not None else scenario.seed
+    elif svc.settings.check_scenario_names:
+        try:
+            from planner.scenarios import builtin_names
+
+            names = builtin_names()
+        except ImportError:
+            names = []
+        if req.scenario not in names:
+            raise ProblemError(422, f"unknown scenario {req.scenario!r}; built-in scenarios: {', '.join(names) or 'none'}"
+                                    " (or send an inline scenario document)")
+    return robot, seed
+
+
+@router.post(
+    "", status_code=202, response_model=Job,
+    summary="Submit a plan or survey job",
+    responses={**problems(401, 403, 409, 413, 422, 429),
+               202: {"description": "Accepted (also for a replay of the same Idempotency-Key)",
+                     "headers": {"Location": {"description": "URL of the job", "schema": {"type": "string"}}}}},
+)
+def submit(
+    response: Response,
+    body: JobSubmit,
+    idempotency_key: str | None = Header(None, alias="Idempotency-Key", max_length=255, min_length=1,
+                                         description="same key + same body = same job (per submitter)"),
+    p: Principal = Depends(principal),
+    svc: Service = Depends(service),
+) -> Job:
+    require("planner", p, "submitting a job")
+    robot, seed = _check_request(svc, body)
+    request = body.request.model_dump(mode="json", exclude_none=True)
+    request_sha = hashlib.sha256(json.dumps({"kind": body.kind, "request": request}, sort_keys=True).encode()).hexdigest()
+    if idempotency_key is not None:
+        existing = svc.store._by_key(p.user, idempotency_key)  # noqa: SLF001 - fast path for replays
+        if existing is not None:
+            try:
+                svc.store._replay(existing, request_sha)  # noqa: SLF001
+            except IdempotencyMismatch as exc:
+                raise ProblemError(409, str(exc)) from None
+            response.headers["Location"] = f"/v1/jobs/{existing['id']}"
+            response.headers["Idempotent-Replayed"] = "true"
+            return _full(svc, existing)
+    depth = svc.store.queue_depth()
+    if depth >= svc.settings.queue_limit:
+        raise ProblemError(429, f"the queue holds {depth} jobs, at its limit of {svc.settings.queue_limit}; "
+                                f"retry in {svc.settings.retry_after_s} s",
+                           headers={"Retry-After": str(svc.settings.retry_after_s)})
+    try:
+        row, created = svc.store.create(
+            job_id=str(uuid.uuid4()), kind=body.kind, submitter=p.user, request=request, request_sha256=request_sha,
+            idempotency_key=idempotency_key, provenance=provenance(robot, seed),
+        )
+    except IdempotencyMismatch as exc:
+        raise ProblemError(409, str(exc)) from None
+    response.headers["Location"] = f"/v1/jobs/{row['id']}"
+    if not created:
+        response.headers["Idempotent-Replayed"] = "true"
+    return _full(svc, row)
+
+
+# ------------------------------------------------------------------- reads
+@router.get("", response_model=JobList, summary="List jobs, newest first", responses=problems(401, 422))
+def list_jobs(
+    state: JobState | None = Query(None), kind: JobKind | None = Query(None),
+    submitter: str | None = Query(None, max_length=128),
+    limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0, le=10_000_000),
+    include_result: bool = Query(False, description="include each job's result document (can be large)"),
+    p: Principal = Depends(principal), svc: Service = Depends(service),
+) -> JobList:
+    rows, total = svc.store.list(state=state, kind=kind, submitter=submitter, limit=limit, offset=offset)
+    jobs = [_full(svc, r) if include_result else job_view(r) for r in rows]
+    return JobList(jobs=jobs, total=total, limit=limit, offset=offset)
+
+
+@router.get("/{job_id}", response_model=Job, summary="One job with its result", responses=problems(401, 404, 422))
+def get_job(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> Job:
+    return _full(svc, _load(svc, job_id))
+
+
+def _sse(event: dict[str, Any]) -> str:
+    payload = {"id": event["id"], "job_id": event["job_id"], "at": event["at"].isoformat(), "kind": event["kind"],
+               "state": event.get("state"), "progress": event.get("progress"), "message": event.get("message"),
+               "data": event.get("data") or {}}
+    return f"id: {event['id']}\nevent: {event['kind']}\ndata: {json.dumps(payload, separators=(',', ':'))}\n\n"
+
+
+@router.get(
+    "/{job_id}/events", summary="Stream the job's events (Server-Sent Events)",
+    response_class=StreamingResponse,
+    responses={200: {"description": "text/event-stream of JobEvent objects (event: state | progress | note | approval "
+                                    "| bridge); the stream ends after a terminal state",
+                     "content": {"text/event-stream": {"schema": {"type": "string"}}}},
+               **problems(401, 404, 422)},
+)
+async def job_events(
+    job_id: str, request: Request,
+    after: int = Query(0, ge=0, le=2**62, description="only events with a larger id (also Last-Event-ID)"),
+    last_event_id: str | None = Header(None, alias="Last-Event-ID", max_length=32),
+    p: Principal = Depends(principal), svc: Service = Depends(service),
+) -> StreamingResponse:
+    await run_in_threadpool(_load, svc, job_id)
+    cursor = after
+    if last_event_id and last_event_id.isdigit():
+        cursor = max(cursor, int(last_event_id))
+
+    async def stream() -> AsyncIterator[str]:
+        nonlocal cursor
+        yield "retry: 1000\n\n"
+        last_sent = time.monotonic()
+        while True:
+            events = await run_in_threadpool(svc.store.events_after, job_id, cursor)
+            finished = False
+            for event in events:
+                cursor = event["id"]
+                yield _sse(event)
+                last_sent = time.monotonic()
+                if event["kind"] == "state" and event.get("state") in TERMINAL_STATES:
+                    finished = True
+            if finished:
+                return
+            if not events:
+                if await request.is_disconnected():
+                    return
+                if time.monotonic() - last_sent > svc.settings.sse_keepalive_s:
+                    yield ": keep-alive\n\n"
+                    last_sent = time.monotonic()
+                await asyncio.sleep(svc.settings.sse_poll_s)
+
+    return StreamingResponse(stream(), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+# ----------------------------------------------------------------- actions
+@router.post("/{job_id}/cancel", status_code=202, response_model=Job, summary="Cancel a job (before dispatch)",
+             responses=problems(401, 403, 404, 409, 422))
+def cancel(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Depends(principal),
+           svc: Service = Depends(service)) -> Job:
+    row = _load(svc, job_id)
+    if row["submitter"] != p.user and not p.has("admin"):
+        raise ProblemError(403, f"only the submitter ({row['submitter']}) or an admin can cancel job {job_id}")
+    if row["state"] not in CANCELABLE_STATES:
+        hint = "; use /stop to stop an execution" if row["state"] in EXECUTION_STATES else ""
+        raise ProblemError(409, f"job {job_id} is {row['state']}: only queued, planning, planned or approved jobs "
+                                f"can be canceled{hint}")
+    try:
+        row = svc.store.request_cancel(job_id, p.user, body.reason if body else None)
+    except Conflict as exc:
+        raise ProblemError(409, str(exc)) from None
+    return _full(svc, row)
+
+
+@router.post("/{job_id}/approve", response_model=Job, summary="Approve a planned job (two-person rule)",
+             responses=problems(401, 403, 404, 409, 422))
+def approve(job_id: str, body: ApproveBody | None = Body(None), p: Principal = Depends(principal),
+            svc: Service = Depends(service)) -> Job:
+    require("approver", p, "approving a plan")
+    row = _load(svc, job_id)
+    if row["submitter"] == p.user:
+        raise ProblemError(403, f"two-person rule: {p.user} submitted job {job_id} and cannot approve it; "
+                                "another approver must")
+    if row["kind"] != "plan":
+        raise ProblemError(409, f"job {job_id} is a {row['kind']} job; only plan jobs are approved")
+    if row["state"] != "planned":
+        raise ProblemError(409, f"job {job_id} is {row['state']}; only a planned job can be approved")
+    sha = row["plan_sha256"]
+    if body is not None and body.plan_sha256 is not None and body.plan_sha256 != sha:
+        raise ProblemError(409, f"the approval names plan {body.plan_sha256} but job {job_id} holds plan {sha}; "
+                                "review the current plan and approve its hash")
+    now = datetime.now(timezone.utc)
+    expires = now + timedelta(seconds=svc.settings.approval_ttl_s)
+    approval = {"approved_by": p.user, "approved_at": now.isoformat(), "expires_at": expires.isoformat(),
+                "plan_sha256": sha, "comment": body.comment if body else None}
+    ok = svc.store.transition(job_id, ["planned"], "approved",
+                              message=f"approved by {p.user} until {expires.isoformat(timespec='seconds')}",
+                              event_kind="state", data={"approval": approval},
+                              approved_by=p.user, approved_at=now, approval_expires_at=expires,
+                              approved_sha256=sha, approval_comment=body.comment if body else None)
+    if not ok:
+        raise ProblemError(409, f"job {job_id} changed state while approving; reload it")
+    return _full(svc, svc.store.get(job_id) or row)
+
+
+@router.post("/{job_id}/reject", response_model=Job, summary="Reject a planned or approved job",
+             responses=problems(401, 403, 404, 409, 422))
+def reject(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Depends(principal),
+           svc: Service = Depends(service)) -> Job:
+    require("approver", p, "rejecting a plan")
+    row = _load(svc, job_id)
+    if row["submitter"] == p.user:
+        raise ProblemError(403, f"two-person rule: {p.user} submitted job {job_id} and cannot review it")
+    if row["state"] not in ("planned", "approved"):
+        raise ProblemError(409, f"job {job_id} is {row['state']}; only a planned or approved job can be rejected")
+    reason = (body.reason if body else None) or "no reason given"
+    ok = svc.store.transition(job_id, ["planned", "approved"], "rejected", message=f"rejected by {p.user}: {reason}",
+                              error={"code": "REJECTED", "message": f"rejected by {p.user}: {reason}"},
+                              data={"by": p.user, "reason": reason})
+    if not ok:
+        raise ProblemError(409, f"job {job_id} changed state while rejecting; reload it")
+    return _full(svc, svc.store.get(job_id) or row)
+
+
+@router.post("/{job_id}/dispatch", status_code=202, response_model=Job,
+             summary="Send an approved plan to the robot (through the safety gate)",
+             responses=problems(401, 403, 404, 409, 422))
+def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> Job:
+    require("operator", p, "dispatching a plan")
+    row = _load(svc, job_id)
+    if row["state"] == "planned" and row["kind"] == "plan":
+        raise ProblemError(409, f"job {job_id} is planned but not approved (or its approval expired); "
+                                "an approver must approve it first")
+    if row["state"] != "approved":
+        raise ProblemError(409, f"job {job_id} is {row['state']}; only an approved plan can be dispatched")
+    plan = svc.store.result(job_id)
+    if plan is None or plan_sha256(plan) != row["approved_sha256"]:
+        raise ProblemError(409, f"the stored plan of job {job_id} no longer matches the approved hash "
+                                f"{row['approved_sha256']}; it cannot be dispatched")
+    if not svc.bridge.controller_alive():
+        why = getattr(svc.bridge, "reason", None)
+        raise ProblemError(409, "no controller is alive" + (f" ({why})" if why else "")
+                           + "; start the controller and retry")
+    if not svc.executions.begin(row, plan, p.user):
+        raise ProblemError(409, f"job {job_id} changed state before dispatch (approval expired or acted on); reload it")
+    return _full(svc, svc.store.get(job_id) or row)
+
+
+@router.post("/{job_id}/stop", status_code=202, response_model=Job, summary="Stop an execution now",
+             responses=problems(401, 403, 404, 409, 422))
+def stop(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Depends(principal),
+         svc: Service = Depends(service)) -> Job:
+    require("operator", p, "stopping an execution")
+    row = _load(svc, job_id)
+    if row["state"] not in EXECUTION_STATES:
+        raise ProblemError(409, f"job {job_id} is {row['state']}; only a dispatching or executing job can be stopped")
+    svc.executions.stop(job_id, p.user)
+    return _full(svc, svc.store.get(job_id) or row)
+
+
+@router.get(
+    "/{job_id}/audit", summary="The job's MCAP audit file", response_class=FileResponse,
+    responses={200: {"description": "MCAP file", "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}},
+               **problems(401, 404, 422)},
+)
+def audit(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> FileResponse:
+    row = _load(svc, job_id)
+    path = row.get("audit_path")
+    if not path or not Path(path).is_file():
+        raise ProblemError(404, f"no audit file for job {job_id}" + ("" if svc.auditor and svc.auditor.enabled
+                                                                     else " (the audit writer is not installed)"))
+    headers = {"X-Audit-Head": row.get("audit_head") or ""}
+    return FileResponse(path, media_type="application/octet-stream", filename=f"{job_id}.mcap", headers=headers)

@@ -1,0 +1,53 @@
+"""``/healthz``, ``/metrics`` and the operator console (``/`` and ``/console/``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fastapi import APIRouter, Depends
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse, HTMLResponse, Response
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+
+from schemas.jobs import Health
+
+from ..context import Service
+from ..problems import ProblemError
+from ..provenance import code_version
+from .deps import problems, service
+
+router = APIRouter(tags=["system"])
+CONSOLE_DIR = Path(__file__).resolve().parent.parent / "console"
+
+PLACEHOLDER = """<!doctype html><html><head><meta charset="utf-8"><title>regrasp service</title></head>
+<body><h1>Regrasp planning service</h1><p>The operator console is not installed
+(service/console/index.html). The API is documented at <a href="/docs">/docs</a>.</p></body></html>"""
+
+
+@router.get("/healthz", response_model=Health, summary="Liveness and readiness", responses=problems(503))
+def healthz(svc: Service = Depends(service)) -> Health:
+    try:
+        depth = svc.store.queue_depth()
+    except Exception as exc:  # noqa: BLE001
+        raise ProblemError(503, f"the job store is unreachable: {type(exc).__name__}: {exc}") from None
+    workers = svc.executor.total_slots() if svc.executor is not None else 0
+    runner_ok = svc.runner is None or (svc.runner._thread is not None and svc.runner._thread.is_alive())  # noqa: SLF001
+    return Health(status="ok" if runner_ok else "degraded", database=svc.store.engine.dialect.name,
+                  executor=svc.executor.name if svc.executor is not None else "none", workers=workers,
+                  queue_depth=depth, controller_alive=svc.bridge.controller_alive(), version=code_version())
+
+
+@router.get("/metrics", summary="Prometheus metrics", response_class=Response,
+            responses={200: {"content": {CONTENT_TYPE_LATEST.split(";")[0]: {"schema": {"type": "string"}}},
+                             "description": "Prometheus text format"}})
+async def metrics(svc: Service = Depends(service)) -> Response:
+    body = await run_in_threadpool(generate_latest, svc.metrics.registry)
+    return Response(body, media_type=CONTENT_TYPE_LATEST)
+
+
+@router.get("/", include_in_schema=False)
+def root() -> Response:
+    index = CONSOLE_DIR / "index.html"
+    if index.is_file():
+        return FileResponse(index, media_type="text/html")
+    return HTMLResponse(PLACEHOLDER)

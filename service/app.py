@@ -1,0 +1,90 @@
+"""The FastAPI application of the planning service (CONTRACT.md section 5)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from contextlib import asynccontextmanager
+from typing import Any, AsyncIterator
+
+from fastapi import FastAPI, Request
+from fastapi.staticfiles import StaticFiles
+
+from .api import jobs as jobs_api
+from .api import system as system_api
+from .auth import TokenStore
+from .bridge import Bridge
+from .context import Service
+from .problems import BodySizeLimit, install_problem_handlers
+from .provenance import code_version
+from .settings import ServiceSettings
+
+log = logging.getLogger("regrasp.api")
+
+DESCRIPTION = """Plans regrasp motions and stability surveys for the HRP-5P humanoid as jobs, with
+approvals (two-person rule, bound to the plan's SHA-256) before anything is dispatched to the robot.
+
+Job states: plan `queued -> planning -> planned -> approved -> dispatching -> executing -> succeeded`;
+survey `queued -> planning -> succeeded`; ends `failed`, `canceled`, `rejected`, `aborted`.
+Errors are RFC 9457 problem documents (`application/problem+json`)."""
+
+
+def create_app(settings: ServiceSettings, *, tokens: TokenStore | None = None, run_workers: bool = True,
+               bridge: Bridge | None = None) -> FastAPI:
+    """Build the app; the job store, workers and audit pump start with the app's lifespan."""
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        svc = Service.build(settings, tokens=tokens, run_workers=run_workers, bridge=bridge)
+        app.state.service = svc
+        svc.start()
+        log.info("service up: %s, %d worker(s), executor %s", svc.store.engine.dialect.name, settings.workers,
+                 settings.executor)
+        try:
+            yield
+        finally:
+            svc.close()
+
+    app = FastAPI(title="Regrasp planning service", version=code_version(), description=DESCRIPTION,
+                  lifespan=lifespan)
+    install_problem_handlers(app)
+    app.include_router(jobs_api.router)
+    app.include_router(system_api.router)
+    if system_api.CONSOLE_DIR.is_dir():
+        app.mount("/console", StaticFiles(directory=system_api.CONSOLE_DIR, html=True), name="console")
+
+    @app.middleware("http")
+    async def _timing(request: Request, call_next: Any) -> Any:
+        start = time.perf_counter()
+        response = await call_next(request)
+        route = request.scope.get("route")
+        path = getattr(route, "path", "unmatched")
+        svc = getattr(request.app.state, "service", None)
+        if svc is not None:
+            svc.metrics.http_latency.labels(request.method, path, str(response.status_code)).observe(
+                time.perf_counter() - start)
+        return response
+
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    _problem_openapi(app)
+    return app
+
+
+def _problem_openapi(app: FastAPI) -> None:
+    """Document problem responses under ``application/problem+json`` only (FastAPI adds application/json)."""
+    original = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is not None:
+            return app.openapi_schema
+        doc = original()
+        for path_item in doc.get("paths", {}).values():
+            for op in path_item.values():
+                for resp in op.get("responses", {}).values():
+                    content = resp.get("content", {})
+                    if "application/problem+json" in content and "application/json" in content:
+                        content["application/problem+json"] = content.pop("application/json")
+        app.openapi_schema = doc
+        return doc
+
+    app.openapi = openapi  # type: ignore[method-assign]

@@ -1,0 +1,82 @@
+"""``regrasp serve``: the HTTP planning service with its worker pool."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import click
+
+from .common import console, fail
+
+
+def _settings_from_flags(config: Path | None, **flags: object):  # type: ignore[no-untyped-def]
+    from pydantic import ValidationError
+
+    from service.settings import load_settings
+
+    try:
+        return load_settings(config, **flags)
+    except (ValidationError, ValueError) as exc:
+        fail(f"invalid service settings: {exc}")
+
+
+@click.command()
+@click.option("--host", default=None, help="Bind address (default 127.0.0.1).")
+@click.option("--port", type=int, default=None, help="Port (default 8000).")
+@click.option("--data-dir", type=click.Path(path_type=Path), default=None, help="Job store and audit files (default ./var).")
+@click.option("--database-url", default=None, help="SQLAlchemy URL of a shared store, e.g. postgresql+psycopg://u:p@h/db.")
+@click.option("--workers", type=int, default=None, help="Planning worker processes (default 2; 0 = API only).")
+@click.option("--dev", is_flag=True, default=False, help="Make demo tokens (loopback only) and print them.")
+@click.option("--executor", type=click.Choice(["local", "ray"]), default=None, help="Where jobs run (default local).")
+@click.option("--ray-address", default=None, help="Ray cluster address (default: a local Ray instance).")
+@click.option("--config", "config", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="Settings file (YAML, JSON or TOML); the environment (REGRASP_*) and flags override it.")
+@click.option("--log-level", default="info", type=click.Choice(["debug", "info", "warning", "error"]))
+def serve(host: str | None, port: int | None, data_dir: Path | None, database_url: str | None, workers: int | None,
+          dev: bool, executor: str | None, ray_address: str | None, config: Path | None, log_level: str) -> None:
+    """Run the HTTP planning service (CONTRACT.md section 5) with its workers."""
+    import logging
+
+    import uvicorn
+
+    from service.app import create_app
+    from service.auth import TokenStore, is_loopback, make_dev_tokens
+
+    settings = _settings_from_flags(config, host=host, port=port, data_dir=data_dir, database_url=database_url,
+                                    workers=workers, executor=executor, ray_address=ray_address,
+                                    dev=dev or None)
+    if settings.executor == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            fail("--executor ray needs Ray: pip install 'hrp-regrasp[ray]'")
+    try:
+        tokens = TokenStore.from_settings(settings)
+    except ValueError as exc:
+        fail(f"cannot load tokens: {exc}")
+    if settings.dev:
+        if not is_loopback(settings.host):
+            fail(f"--dev makes demo tokens and is only allowed on a loopback address, not {settings.host!r}")
+        demo = make_dev_tokens()
+        tokens.add_plain(demo)
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        token_file = settings.data_dir / "dev-tokens.json"
+        fd = os.open(token_file, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as fh:
+            json.dump({entry["user"]: {"token": tok, "roles": entry["roles"]} for tok, entry in demo.items()}, fh, indent=2)
+        console.print("[bold]demo tokens[/] (loopback only; also in " + str(token_file) + "):")
+        for tok, entry in demo.items():
+            console.print(f"  {entry['user']:<6} {','.join(entry['roles']):<18} {tok}", highlight=False)
+    if len(tokens) == 0:
+        console.print("[yellow]warning:[/] no tokens configured: every API call gets 401 "
+                      "(set REGRASP_TOKENS, tokens_file, or use --dev)")
+    logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    app = create_app(settings, tokens=tokens)
+    console.print(f"serving on http://{settings.host}:{settings.port} (console at /, API docs at /docs), "
+                  f"{settings.workers} {settings.executor} worker(s), store {settings.resolved_database_url.split('://')[0]}",
+                  highlight=False)
+    sys.stdout.flush()
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level=log_level, access_log=log_level == "debug")

@@ -1,0 +1,72 @@
+"""The service's shared objects (store, tokens, runner, bridge, ...), built once per app."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+from .auth import TokenStore
+from .bridge import Bridge, make_bridge
+from .execution import Executions
+from .job_audit import JobAuditor
+from .metrics import Metrics
+from .runner import Runner
+from .settings import ServiceSettings
+from .store import JobStore, make_engine, migrate
+
+log = logging.getLogger("regrasp.service")
+
+
+@dataclass
+class Service:
+    settings: ServiceSettings
+    store: JobStore
+    tokens: TokenStore
+    metrics: Metrics
+    bridge: Bridge
+    executions: Executions
+    runner: Runner | None = None
+    executor: Any = None
+    auditor: JobAuditor | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def build(cls, settings: ServiceSettings, *, tokens: TokenStore | None = None, run_workers: bool = True,
+              bridge: Bridge | None = None) -> "Service":
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        engine = make_engine(settings.resolved_database_url, pool_size=20)
+        migrate(engine)
+        store = JobStore(engine)
+        metrics = Metrics(store)
+        bridge = bridge or make_bridge(settings.robot)
+        svc = cls(settings=settings, store=store, tokens=tokens or TokenStore.from_settings(settings),
+                  metrics=metrics, bridge=bridge, executions=Executions(store, bridge, settings))
+        if run_workers and settings.workers > 0:
+            from .executors import make_executor
+
+            svc.executor = make_executor(settings)
+            svc.runner = Runner(store, svc.executor, settings, on_finish=metrics.job_finished)
+        if settings.audit:
+            svc.auditor = JobAuditor(store, settings.audit_dir)
+        return svc
+
+    def start(self) -> None:
+        if self.runner is not None:
+            self.runner.start()
+        if self.auditor is not None:
+            self.auditor.start()
+
+    def close(self) -> None:
+        if self.runner is not None:
+            self.runner.stop()
+        if self.executor is not None:
+            self.executor.close()
+        self.executions.close()
+        try:
+            self.bridge.close()
+        except Exception:  # noqa: BLE001
+            log.exception("closing the bridge failed")
+        if self.auditor is not None:
+            self.auditor.stop()
+        self.store.engine.dispose()

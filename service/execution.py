@@ -1,0 +1,167 @@
+"""Dispatch and execution of approved plans through the robot bridge.
+
+A dispatch moves the job ``approved -> dispatching`` (compare-and-set, so two
+operators cannot dispatch twice), then a thread runs ``bridge.execute``: the
+bridge's safety gate rechecks the plan, segments go to the controller, and the
+bridge's events are stored as job events (so they reach the SSE stream and the
+audit file). The first event past the gate moves the job to ``executing``; the
+outcome ends it ``succeeded``, ``rejected`` (gate veto) or ``aborted``.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from datetime import datetime, timedelta
+from typing import Any
+
+from .bridge import Bridge
+from .runner import LIVE_OWNERS, make_owner_id
+from .settings import ServiceSettings
+from .store.repo import JobStore
+
+log = logging.getLogger("regrasp.execution")
+
+#: Bridge event names that belong to the gate check (before anything moves).
+GATE_EVENT_WORDS = ("gate", "verdict", "check")
+
+
+class Executions:
+    """Runs dispatched jobs on the bridge, one thread each, and stops them on request."""
+
+    def __init__(self, store: JobStore, bridge: Bridge, settings: ServiceSettings) -> None:
+        self.store = store
+        self.bridge = bridge
+        self.settings = settings
+        self.owner = make_owner_id()
+        LIVE_OWNERS.add(self.owner)
+        self._stops: dict[str, threading.Event] = {}
+        self._threads: dict[str, threading.Thread] = {}
+        self._lock = threading.Lock()
+        self._closing = threading.Event()
+        self._renewer = threading.Thread(target=self._renew_loop, name="regrasp-exec-lease", daemon=True)
+        self._renewer.start()
+
+    def begin(self, job: dict[str, Any], plan: dict[str, Any], by: str) -> bool:
+        """Move the job to dispatching and start executing it; False if it was no longer approved."""
+        job_id = job["id"]
+        lease = datetime.now(job["approval_expires_at"].tzinfo) + timedelta(seconds=self.settings.lease_s)
+        if not self.store.transition(job_id, ["approved"], "dispatching", message=f"dispatched by {by}",
+                                     data={"by": by, "plan_sha256": job["approved_sha256"]},
+                                     owner=self.owner, lease_expires_at=lease):
+            return False
+        stop = threading.Event()
+        thread = threading.Thread(target=self._run, args=(job, plan, stop), name=f"exec-{job_id[:8]}", daemon=True)
+        with self._lock:
+            self._stops[job_id] = stop
+            self._threads[job_id] = thread
+        thread.start()
+        return True
+
+    def _run(self, job: dict[str, Any], plan: dict[str, Any], stop: threading.Event) -> None:
+        job_id = job["id"]
+        threshold = self.settings.dispatch_threshold_m
+        if threshold is None:
+            threshold = float(plan.get("threshold_m") or 0.0)
+
+        def on_event(name: str, payload: dict[str, Any]) -> None:
+            try:
+                self.store.add_event(job_id, "bridge", message=str(name),
+                                     data={"event": str(name), "payload": _jsonable(payload)})
+                if not any(w in str(name).lower() for w in GATE_EVENT_WORDS):
+                    self.store.transition(job_id, ["dispatching"], "executing", message="executing on the robot",
+                                          expect_owner=self.owner)
+            except Exception:  # noqa: BLE001 - an event that cannot be stored must not stop the robot's stop path
+                log.exception("storing bridge event %s of job %s failed", name, job_id)
+
+        try:
+            outcome = self.bridge.execute(
+                plan, job_id=job_id, approved_sha256=job["approved_sha256"],
+                approval_expires_at=job["approval_expires_at"], threshold_m=threshold,
+                on_event=on_event, stop_event=stop,
+            )
+            status, reason, verdict = outcome.status, outcome.reason, outcome.verdict
+        except Exception as exc:  # noqa: BLE001 - a bridge fault aborts the execution
+            log.exception("execution of job %s failed", job_id)
+            status, reason, verdict = "aborted", f"bridge error: {type(exc).__name__}: {exc}", None
+        if stop.is_set() and status == "aborted" and not reason:
+            reason = "stopped by an operator"
+        error = None
+        if status == "rejected":
+            error = {"code": "GATE_VETO", "message": reason or "the safety gate vetoed the plan"}
+        elif status == "aborted":
+            error = {"code": "ABORTED", "message": reason or "execution aborted"}
+        message = {"succeeded": "executed", "rejected": f"vetoed by the safety gate: {reason}",
+                   "aborted": f"aborted: {reason}"}.get(status, status)
+        self.store.transition(job_id, ["dispatching", "executing"], status, message=message, error=error,
+                              data={"execution": True, "reason": reason, "verdict": _jsonable(verdict)})
+        with self._lock:
+            self._stops.pop(job_id, None)
+            self._threads.pop(job_id, None)
+
+    def stop(self, job_id: str, by: str) -> bool:
+        """Ask the bridge to stop now; the job ends aborted when execute() returns."""
+        self.store.update_fields(job_id, stop_requested=True)
+        self.store.add_event(job_id, "note", message=f"stop requested by {by}", data={"by": by})
+        with self._lock:
+            stop = self._stops.get(job_id)
+        if stop is not None:
+            stop.set()
+        try:
+            self.bridge.stop(job_id)
+        except Exception:  # noqa: BLE001
+            log.exception("bridge.stop(%s) failed", job_id)
+        return stop is not None
+
+    def _renew_loop(self) -> None:
+        while not self._closing.wait(self.settings.lease_s / 3):
+            with self._lock:
+                running = list(self._threads)
+            try:
+                self.store.renew(self.owner, running, self.settings.lease_s)
+                flags = self.store.flags(running)
+                for job_id, row in flags.items():
+                    if row["stop_requested"]:
+                        with self._lock:
+                            stop = self._stops.get(job_id)
+                        if stop is not None and not stop.is_set():
+                            stop.set()
+                            self.bridge.stop(job_id)
+            except Exception:  # noqa: BLE001
+                log.exception("execution lease renewal failed")
+
+    def close(self) -> None:
+        self._closing.set()
+        with self._lock:
+            stops = list(self._stops.items())
+        for job_id, stop in stops:
+            stop.set()
+            try:
+                self.bridge.stop(job_id)
+            except Exception:  # noqa: BLE001
+                pass
+        for thread in list(self._threads.values()):
+            thread.join(5)
+        LIVE_OWNERS.discard(self.owner)
+
+
+def _jsonable(value: Any) -> Any:
+    """Bridge payloads may hold numpy values or dataclasses: make them JSON."""
+    import json
+
+    try:
+        json.dumps(value, allow_nan=False)
+        return value
+    except (TypeError, ValueError):
+        pass
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if hasattr(value, "tolist"):
+        return _jsonable(value.tolist())
+    if isinstance(value, float):
+        return repr(value)
+    if hasattr(value, "__dict__"):
+        return _jsonable({k: v for k, v in vars(value).items() if not k.startswith("_")})
+    return repr(value)

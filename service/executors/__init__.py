@@ -1,0 +1,5 @@
+"""Executors run claimed jobs somewhere: local spawn worker processes, or a Ray cluster."""
+
+from .base import ExecEvent, Executor, make_executor
+
+__all__ = ["ExecEvent", "Executor", "make_executor"]

@@ -1,0 +1,60 @@
+"""The executor interface the runner drives, whatever runs the jobs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol
+
+from ..settings import ServiceSettings
+
+EventKind = Literal["progress", "done", "error", "canceled"]
+
+
+@dataclass
+class ExecEvent:
+    """Something that happened to a running job: progress, its result, an error, or its stop after a cancel."""
+
+    job_id: str
+    kind: EventKind
+    fraction: float = 0.0
+    message: str = ""
+    result: dict[str, Any] | None = None
+    error: dict[str, Any] | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class Executor(Protocol):
+    """Runs jobs; the runner claims them from the store and feeds them in."""
+
+    name: str
+
+    def free_slots(self) -> int:
+        """How many more jobs can start now (only slots whose worker is ready count)."""
+
+    def total_slots(self) -> int:
+        """Configured parallelism."""
+
+    def start(self, job_id: str, kind: str, request: dict[str, Any]) -> str:
+        """Start a job on a free slot; returns a description of where it runs (e.g. ``local pid 123``)."""
+
+    def cancel(self, job_id: str) -> None:
+        """Ask the job to stop; if it has not stopped after the grace period, kill its worker."""
+
+    def poll(self, timeout: float) -> list[ExecEvent]:
+        """Wait up to ``timeout`` s and return what happened since the last call."""
+
+    def running(self) -> set[str]:
+        """Job ids currently on a slot."""
+
+    def close(self) -> None:
+        """Stop every worker."""
+
+
+def make_executor(settings: ServiceSettings) -> Executor:
+    if settings.executor == "ray":
+        from .ray_executor import RayExecutor
+
+        return RayExecutor(settings)
+    from .local import LocalExecutor
+
+    return LocalExecutor(settings)

@@ -1,0 +1,169 @@
+"""The one call site of the audit trail: job events -> the job's MCAP audit file.
+
+Every state change, request, plan, approval, gate verdict and dispatched segment
+is first an event row in the job store (the system of record). A single pump
+per service tails those rows and hands each to ``service.audit.AuditWriter``
+(another module of this project, used only through ``AuditWriter(path, job_id)``,
+``.record(kind, payload) -> chain head`` and ``.close()``), then stores the chain
+head, the file path and the last recorded event in the job row. If
+``service.audit`` is not installed the pump does nothing and jobs have no audit file.
+
+After a crash the interrupted file is left as it is (it reads up to its last
+record); the job continues in a new file ``<job>.<n>.mcap`` whose first record
+names the previous file and its chain head.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import logging
+import threading
+from pathlib import Path
+from typing import Any
+
+import sqlalchemy as sa
+
+from schemas.jobs import TERMINAL_STATES
+
+from .store.repo import JobStore
+from .store.tables import jobs
+
+log = logging.getLogger("regrasp.audit")
+
+PUMP_PERIOD_S = 0.2
+
+
+def audit_available() -> bool:
+    return importlib.util.find_spec("service.audit") is not None
+
+
+def _writer_class() -> Any:
+    module = importlib.import_module("service.audit")
+    return getattr(module, "AuditWriter")
+
+
+def records_for_event(event: dict[str, Any], job: dict[str, Any], store: JobStore) -> list[tuple[str, dict[str, Any]]]:
+    """The audit records one job event becomes."""
+    data = dict(event.get("data") or {})
+    base = {"event_id": event["id"], "at": event["at"].isoformat(), "job_id": event["job_id"],
+            "message": event.get("message")}
+    kind = event["kind"]
+    out: list[tuple[str, dict[str, Any]]] = []
+    if kind == "state":
+        state = event.get("state")
+        if state == "queued" and "request" in data:
+            out.append(("request", {**base, "kind": job["kind"], "request": data["request"],
+                                    "submitter": data.get("submitter")}))
+        out.append(("state", {**base, "state": state, "data": data}))
+        if state in ("planned", "failed") or (state == "succeeded" and job["kind"] == "survey"):
+            result = store.result(event["job_id"])
+            if result is not None:
+                out.append(("plan" if job["kind"] == "plan" else "survey",
+                            {**base, "plan_sha256": job.get("plan_sha256"), "document": result}))
+        if "approval" in data:
+            out.append(("approval", {**base, **data["approval"]}))
+        if "verdict" in data and data["verdict"] is not None:
+            out.append(("gate_verdict", {**base, "verdict": data["verdict"]}))
+    elif kind == "bridge":
+        out.append((str(data.get("event") or "bridge"), {**base, "data": data.get("payload", data)}))
+    elif kind == "progress":
+        out.append(("progress", {**base, "progress": event.get("progress")}))
+    else:
+        out.append(("log", {**base, "kind": kind, "data": data}))
+    return out
+
+
+class JobAuditor:
+    """Tails the event table and writes one audit file per job (thread inside ``regrasp serve``)."""
+
+    def __init__(self, store: JobStore, audit_dir: Path) -> None:
+        self.store = store
+        self.audit_dir = audit_dir
+        self.enabled = audit_available()
+        self._writers: dict[str, tuple[Any, Path]] = {}
+        self._done_upto: dict[str, int] = {}
+        self._cursor = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        if not self.enabled:
+            log.info("service.audit is not installed: jobs get no audit file")
+            return
+        self.audit_dir.mkdir(parents=True, exist_ok=True)
+        with self.store.engine.connect() as conn:
+            low = conn.execute(sa.select(sa.func.min(sa.func.coalesce(jobs.c.audit_event_id, 0)))
+                               .where(sa.or_(jobs.c.audit_closed.is_(None), jobs.c.audit_closed.is_(False)))).scalar()
+        self._cursor = int(low or 0)
+        self._thread = threading.Thread(target=self._loop, name="regrasp-audit", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5)
+            try:
+                self.pump_once()
+            except Exception:  # noqa: BLE001
+                log.exception("final audit pump failed")
+        for writer, _ in self._writers.values():
+            try:
+                writer.close()
+            except Exception:  # noqa: BLE001
+                log.exception("closing an audit writer failed")
+        self._writers.clear()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(PUMP_PERIOD_S):
+            try:
+                self.pump_once()
+            except Exception:  # noqa: BLE001 - auditing must not stop the service; retried next period
+                log.exception("audit pump failed")
+
+    def pump_once(self) -> int:
+        events = self.store.all_events_after(self._cursor)
+        for event in events:
+            self._cursor = event["id"]
+            job_id = event["job_id"]
+            job = self.store.get(job_id)
+            if job is None:
+                continue
+            done = self._done_upto.get(job_id)
+            if done is None:
+                done = job.get("audit_event_id") or 0
+                self._done_upto[job_id] = done
+            if event["id"] <= done or job.get("audit_closed"):
+                continue
+            writer, path = self._writer(job)
+            head = None
+            for kind, payload in records_for_event(event, job, self.store):
+                head = writer.record(kind, payload)
+            self._done_upto[job_id] = event["id"]
+            fields: dict[str, Any] = {"audit_event_id": event["id"], "audit_path": str(path)}
+            if isinstance(head, str):
+                fields["audit_head"] = head
+            if event["kind"] == "state" and event.get("state") in TERMINAL_STATES:
+                writer.close()
+                self._writers.pop(job_id, None)
+                fields["audit_closed"] = True
+            self.store.update_fields(job_id, **fields)
+        return len(events)
+
+    def _writer(self, job: dict[str, Any]) -> tuple[Any, Path]:
+        job_id = job["id"]
+        if job_id in self._writers:
+            return self._writers[job_id]
+        previous = job.get("audit_path")
+        path = self.audit_dir / f"{job_id}.mcap"
+        n = 1
+        while path.exists():
+            path = self.audit_dir / f"{job_id}.{n}.mcap"
+            n += 1
+        writer = _writer_class()(path, job_id)
+        if previous:
+            writer.record("continued", {"job_id": job_id, "previous_file": previous,
+                                        "previous_head": job.get("audit_head"),
+                                        "reason": "the service restarted; the previous file ends where it stopped"})
+        self._writers[job_id] = (writer, path)
+        return writer, path

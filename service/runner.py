@@ -1,0 +1,267 @@
+"""The runner: claims queued jobs, feeds them to an executor, and records what happens.
+
+One runner per ``regrasp serve`` (a background thread) or ``regrasp worker``
+process. It is the only writer of a claimed job until the job leaves
+``planning``; its lease on the job is renewed while it runs, so another runner
+recovers the job if this one dies (SIGKILL included).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from schemas.plan import plan_sha256
+
+from .executors.base import ExecEvent, Executor
+from .provenance import code_version, library_versions, robot_sha256
+from .settings import ServiceSettings
+from .store.repo import JobStore, this_host
+
+log = logging.getLogger("regrasp.runner")
+
+#: Housekeeping (recovery of stale jobs, approval expiry) period.
+HOUSEKEEPING_S = 0.5
+#: Cancel flags of running jobs are read this often (cancel takes effect within ~this + the grace period).
+FLAG_POLL_S = 0.1
+
+
+def make_owner_id() -> str:
+    """Unique id of a runner: host, pid and a nonce (pids are reused)."""
+    return f"{this_host()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
+
+
+def owner_is_dead(owner: str) -> bool:
+    """True if the owner ran on this host and its process is gone (other hosts: rely on the lease)."""
+    host, _, rest = owner.partition(":")
+    pid_text = rest.partition(":")[0]
+    if host != this_host() or not pid_text.isdigit():
+        return False
+    pid = int(pid_text)
+    if pid == os.getpid():
+        return owner not in LIVE_OWNERS
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    return False
+
+
+#: Owner ids alive in this process (runners and dispatch executions); any other id with our pid is stale.
+LIVE_OWNERS: set[str] = set()
+
+
+@dataclass
+class _Running:
+    job_id: str
+    kind: str
+    started: float
+    deadline: float
+    last_progress_store: float = 0.0
+    pending_progress: tuple[float, str] | None = None
+    cancel_reason: str | None = None  # "canceled" | "timeout"
+
+
+class Runner:
+    """Claims jobs for one executor and moves them through planning to their outcome."""
+
+    def __init__(self, store: JobStore, executor: Executor, settings: ServiceSettings,
+                 *, owner: str | None = None, on_finish: Callable[[str, str, float], None] | None = None) -> None:
+        self.store = store
+        self.executor = executor
+        self.settings = settings
+        self.owner = owner or make_owner_id()
+        LIVE_OWNERS.add(self.owner)
+        self.on_finish = on_finish
+        self._running: dict[str, _Running] = {}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._last_housekeeping = 0.0
+        self._last_flags = 0.0
+        self._last_renew = 0.0
+        self.errors = 0
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self.run_forever, name="regrasp-runner", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        LIVE_OWNERS.discard(self.owner)
+
+    def run_forever(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.step()
+            except Exception:  # noqa: BLE001 - a DB hiccup must not kill the runner
+                self.errors += 1
+                log.exception("runner step failed; retrying")
+                time.sleep(0.5)
+
+    # ----------------------------------------------------------------- step
+    def step(self) -> None:
+        for event in self.executor.poll(self.settings.poll_interval_s):
+            self._handle(event)
+        now = time.monotonic()
+        self._flush_progress(now)
+        if now - self._last_flags >= FLAG_POLL_S:
+            self._last_flags = now
+            self._check_flags_and_deadlines(now)
+        if now - self._last_renew >= self.settings.lease_s / 3:
+            self._last_renew = now
+            self.store.renew(self.owner, list(self._running), self.settings.lease_s)
+        if now - self._last_housekeeping >= HOUSEKEEPING_S:
+            self._last_housekeeping = now
+            for job_id, outcome in self.store.recover(owner_is_dead, self.settings.max_attempts):
+                log.warning("recovered job %s -> %s", job_id, outcome)
+            self.store.expire_approvals()
+        self._claim()
+
+    def _claim(self) -> None:
+        free = self.executor.free_slots()
+        if free <= 0:
+            return
+        extra = {"code_version": code_version(), "library_versions": library_versions()}
+        for job in self.store.claim(self.owner, free, self.settings.lease_s, extra):
+            self._launch(job)
+
+    def _launch(self, job: dict[str, Any]) -> None:
+        job_id = job["id"]
+        now = time.monotonic()
+        self._running[job_id] = _Running(job_id, job["kind"], now, now + self._timeout_s(job))
+        if job["cancel_requested"]:  # canceled between the claim and the start
+            self._running[job_id].cancel_reason = "canceled"
+            self._finish_canceled(job_id, "canceled before it started")
+            return
+        try:
+            where = self.executor.start(job_id, job["kind"], job["request"])
+        except Exception as exc:  # noqa: BLE001
+            self._running.pop(job_id, None)
+            self.store.finish_planning(job_id, self.owner, "failed", message=f"could not start: {exc}",
+                                       error={"code": "ERROR", "message": f"could not start the job: {exc}"})
+            return
+        self.store.add_event(job_id, "note", message=f"running on {where}", data={"worker": where, "runner": self.owner})
+
+    def _timeout_s(self, job: dict[str, Any]) -> float:
+        limit = self.settings.job_timeout_s
+        planner_limit = (job.get("request") or {}).get("time_limit_s")
+        if planner_limit:
+            limit = min(limit, float(planner_limit) + self.settings.timeout_margin_s)
+        return limit
+
+    # --------------------------------------------------------------- events
+    def _handle(self, ev: ExecEvent) -> None:
+        run = self._running.get(ev.job_id)
+        if run is None:
+            return
+        if ev.kind == "progress":
+            run.pending_progress = (ev.fraction, ev.message)
+            return
+        self._running.pop(ev.job_id, None)
+        elapsed = time.monotonic() - run.started
+        if ev.kind == "canceled":
+            if run.cancel_reason == "timeout":
+                msg = f"timed out after {elapsed:.1f} s (limit {run.deadline - run.started:.1f} s)"
+                self._finish(run, "failed", msg, error={"code": "TIMEOUT", "message": msg})
+            else:
+                self._finish_canceled(ev.job_id, ev.message or "canceled", run=run)
+        elif ev.kind == "error":
+            err = dict(ev.error or {"code": "ERROR", "message": "unknown error"})
+            if run.cancel_reason == "canceled" and err.get("code") == "WORKER_CRASHED":
+                self._finish_canceled(ev.job_id, "canceled (its worker was stopped)", run=run)
+                return
+            self._finish(run, "failed", err.get("message", "error"), error=err)
+        else:
+            self._finish_result(run, ev.result)
+
+    def _finish_result(self, run: _Running, result: Any) -> None:
+        if not isinstance(result, dict):
+            msg = f"the handler returned {type(result).__name__}, not a JSON object"
+            self._finish(run, "failed", msg, error={"code": "INVALID_RESULT", "message": msg})
+            return
+        extra: dict[str, Any] = {}
+        scenario = result.get("scenario") if isinstance(result.get("scenario"), dict) else {}
+        if isinstance(result.get("seed"), int):
+            extra["seed"] = result["seed"]
+        elif isinstance(scenario.get("seed"), int):
+            extra["seed"] = scenario["seed"]
+        robot = result.get("robot") if isinstance(result.get("robot"), dict) else {}
+        if robot.get("name"):
+            extra["robot"] = robot["name"]
+            extra["robot_sha256"] = robot.get("urdf_sha256") or robot_sha256(robot["name"])
+        try:
+            sha = plan_sha256(result)
+        except (TypeError, ValueError) as exc:
+            msg = f"the result is not canonical JSON (NaN/Inf or non-JSON values): {exc}"
+            self._finish(run, "failed", msg, error={"code": "INVALID_RESULT", "message": msg})
+            return
+        if run.kind == "plan":
+            if result.get("status") == "infeasible":
+                failure = result.get("failure") or {}
+                err = {"code": str(failure.get("code") or "INFEASIBLE"),
+                       "message": str(failure.get("message") or "no plan meets the constraints")}
+                self._finish(run, "failed", f"infeasible: {err['code']}: {err['message']}", error=err,
+                             result=result, extra=extra)
+            else:
+                extra["plan_sha256"] = sha
+                self._finish(run, "planned", "planned; waiting for approval", result=result, extra=extra,
+                             data={"plan_sha256": sha})
+        else:
+            self._finish(run, "succeeded", "survey finished", result=result, extra=extra)
+
+    def _finish(self, run: _Running, state: str, message: str, *, error: dict[str, Any] | None = None,
+                result: dict[str, Any] | None = None, extra: dict[str, Any] | None = None,
+                data: dict[str, Any] | None = None) -> None:
+        if error is not None:
+            error = {k: v for k, v in error.items() if k in ("code", "message", "traceback")}
+        ok = self.store.finish_planning(run.job_id, self.owner, state, message=message, result=result, error=error,
+                                        extra=extra, data=data)
+        if ok and self.on_finish is not None:
+            self.on_finish(run.kind, state, time.monotonic() - run.started)
+
+    def _finish_canceled(self, job_id: str, message: str, run: _Running | None = None) -> None:
+        run = run or self._running.pop(job_id, None)
+        self._running.pop(job_id, None)
+        if run is None:
+            return
+        self._finish(run, "canceled", message)
+
+    # ------------------------------------------------------- flags/progress
+    def _flush_progress(self, now: float) -> None:
+        for run in self._running.values():
+            if run.pending_progress is not None and now - run.last_progress_store >= self.settings.progress_min_interval_s:
+                fraction, message = run.pending_progress
+                run.pending_progress = None
+                run.last_progress_store = now
+                self.store.report_progress(run.job_id, self.owner, fraction, message)
+
+    def _check_flags_and_deadlines(self, now: float) -> None:
+        if not self._running:
+            return
+        flags = self.store.flags(list(self._running))
+        for job_id, run in list(self._running.items()):
+            row = flags.get(job_id)
+            if row is None or row["state"] != "planning":
+                # Someone else moved the job (recovered after a lost lease): stop our copy.
+                self.executor.cancel(job_id)
+                run.cancel_reason = run.cancel_reason or "lost"
+                continue
+            if run.cancel_reason is None and row["cancel_requested"]:
+                run.cancel_reason = "canceled"
+                self.executor.cancel(job_id)
+            elif run.cancel_reason is None and now >= run.deadline:
+                run.cancel_reason = "timeout"
+                self.executor.cancel(job_id)
+
+    def running_jobs(self) -> list[str]:
+        return list(self._running)

@@ -1,0 +1,357 @@
+"""The job repository: every read and state change of a job goes through here.
+
+Every state change is a compare-and-set (``UPDATE ... WHERE state IN (...)``)
+written in the same transaction as its event row, so two actors (an API replica
+and a runner, or two runners) can never both move one job, and the event
+history is exactly the sequence of states the job went through. Claims use
+``FOR UPDATE SKIP LOCKED`` on PostgreSQL; on SQLite the conditional update is
+enough because SQLite has a single writer.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+from datetime import datetime, timedelta, timezone
+from typing import Any, Callable, Iterable, Sequence
+
+import sqlalchemy as sa
+from sqlalchemy.exc import IntegrityError
+
+from schemas.jobs import TERMINAL_STATES
+
+from .tables import job_events, job_results, jobs
+
+
+def utcnow() -> datetime:
+    return datetime.now(timezone.utc)
+
+
+class Conflict(Exception):
+    """The job is not in a state that allows the action (HTTP 409)."""
+
+
+class IdempotencyMismatch(Exception):
+    """An Idempotency-Key was reused with a different request body."""
+
+
+class JobStore:
+    """All queries of the job store, over one SQLAlchemy engine."""
+
+    def __init__(self, engine: sa.Engine) -> None:
+        self.engine = engine
+        self.is_postgres = engine.dialect.name == "postgresql"
+
+    # ----------------------------------------------------------------- events
+    @staticmethod
+    def _event(conn: sa.Connection, job_id: str, kind: str, *, state: str | None = None,
+               progress: float | None = None, message: str | None = None,
+               data: dict[str, Any] | None = None, at: datetime | None = None) -> None:
+        conn.execute(job_events.insert().values(
+            job_id=job_id, at=at or utcnow(), kind=kind, state=state, progress=progress,
+            message=message, data=data or {},
+        ))
+
+    def add_event(self, job_id: str, kind: str, *, message: str | None = None,
+                  data: dict[str, Any] | None = None) -> None:
+        with self.engine.begin() as conn:
+            self._event(conn, job_id, kind, message=message, data=data)
+
+    def events_after(self, job_id: str, after_id: int = 0, limit: int = 500) -> list[dict[str, Any]]:
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                sa.select(job_events).where(job_events.c.job_id == job_id, job_events.c.id > after_id)
+                .order_by(job_events.c.id).limit(limit)
+            ).mappings().all()
+        return [dict(r) for r in rows]
+
+    def all_events_after(self, after_id: int, limit: int = 1000) -> list[dict[str, Any]]:
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                sa.select(job_events).where(job_events.c.id > after_id).order_by(job_events.c.id).limit(limit)
+            ).mappings().all()
+        return [dict(r) for r in rows]
+
+    # ------------------------------------------------------------------ reads
+    def get(self, job_id: str) -> dict[str, Any] | None:
+        with self.engine.connect() as conn:
+            row = conn.execute(sa.select(jobs).where(jobs.c.id == job_id)).mappings().first()
+        return dict(row) if row else None
+
+    def result(self, job_id: str) -> dict[str, Any] | None:
+        with self.engine.connect() as conn:
+            text = conn.execute(sa.select(job_results.c.result).where(job_results.c.job_id == job_id)).scalar()
+        return None if text is None else json.loads(text)
+
+    def list(self, *, state: str | None = None, kind: str | None = None, submitter: str | None = None,
+             limit: int = 50, offset: int = 0) -> tuple[list[dict[str, Any]], int]:
+        conds = []
+        if state:
+            conds.append(jobs.c.state == state)
+        if kind:
+            conds.append(jobs.c.kind == kind)
+        if submitter:
+            conds.append(jobs.c.submitter == submitter)
+        with self.engine.connect() as conn:
+            total = conn.execute(sa.select(sa.func.count()).select_from(jobs).where(*conds)).scalar_one()
+            rows = conn.execute(
+                sa.select(jobs).where(*conds).order_by(jobs.c.seq.desc()).limit(limit).offset(offset)
+            ).mappings().all()
+        return [dict(r) for r in rows], int(total)
+
+    def count_by_state(self) -> dict[tuple[str, str], int]:
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                sa.select(jobs.c.kind, jobs.c.state, sa.func.count()).group_by(jobs.c.kind, jobs.c.state)
+            ).all()
+        return {(k, s): int(n) for k, s, n in rows}
+
+    def queue_depth(self) -> int:
+        with self.engine.connect() as conn:
+            return int(conn.execute(
+                sa.select(sa.func.count()).select_from(jobs).where(jobs.c.state == "queued")
+            ).scalar_one())
+
+    def ping(self) -> None:
+        with self.engine.connect() as conn:
+            conn.execute(sa.text("SELECT 1"))
+
+    # --------------------------------------------------------------- creation
+    def create(self, *, job_id: str, kind: str, submitter: str, request: dict[str, Any],
+               request_sha256: str, idempotency_key: str | None,
+               provenance: dict[str, Any]) -> tuple[dict[str, Any], bool]:
+        """Insert a queued job; with an idempotency key already used by this submitter, return that job instead."""
+        if idempotency_key is not None:
+            existing = self._by_key(submitter, idempotency_key)
+            if existing is not None:
+                return self._replay(existing, request_sha256), False
+        now = utcnow()
+        values = dict(
+            id=job_id, kind=kind, state="queued", progress=0.0, message="queued", submitter=submitter,
+            request=request, request_sha256=request_sha256, idempotency_key=idempotency_key,
+            cancel_requested=False, stop_requested=False, attempts=0, created_at=now, updated_at=now,
+            **provenance,
+        )
+        try:
+            with self.engine.begin() as conn:
+                conn.execute(jobs.insert().values(**values))
+                self._event(conn, job_id, "state", state="queued", progress=0.0, message=f"{kind} job submitted by {submitter}",
+                            data={"request": request, "submitter": submitter, "idempotency_key": idempotency_key}, at=now)
+        except IntegrityError:
+            if idempotency_key is None:
+                raise
+            existing = self._by_key(submitter, idempotency_key)
+            if existing is None:
+                raise
+            return self._replay(existing, request_sha256), False
+        row = self.get(job_id)
+        assert row is not None
+        return row, True
+
+    def _by_key(self, submitter: str, key: str) -> dict[str, Any] | None:
+        with self.engine.connect() as conn:
+            row = conn.execute(
+                sa.select(jobs).where(jobs.c.submitter == submitter, jobs.c.idempotency_key == key)
+            ).mappings().first()
+        return dict(row) if row else None
+
+    @staticmethod
+    def _replay(existing: dict[str, Any], request_sha256: str) -> dict[str, Any]:
+        if existing["request_sha256"] != request_sha256:
+            raise IdempotencyMismatch(
+                f"Idempotency-Key {existing['idempotency_key']!r} was already used for job {existing['id']} "
+                "with a different request; use a new key for a new request"
+            )
+        return existing
+
+    # ------------------------------------------------------------ transitions
+    def transition(self, job_id: str, from_states: Iterable[str], to_state: str, *,
+                   message: str | None = None, data: dict[str, Any] | None = None,
+                   expect_owner: str | None = None, event_kind: str = "state", **fields: Any) -> bool:
+        """Move a job from one of ``from_states`` to ``to_state`` atomically; False if it was not in one of them."""
+        now = utcnow()
+        values: dict[str, Any] = {"state": to_state, "updated_at": now, **fields}
+        if message is not None:
+            values["message"] = message
+        if to_state in TERMINAL_STATES:
+            values.setdefault("finished_at", now)
+            values.setdefault("owner", None)
+            values.setdefault("lease_expires_at", None)
+        conds = [jobs.c.id == job_id, jobs.c.state.in_(list(from_states))]
+        if expect_owner is not None:
+            conds.append(jobs.c.owner == expect_owner)
+        with self.engine.begin() as conn:
+            n = conn.execute(jobs.update().where(*conds).values(**values)).rowcount
+            if n != 1:
+                return False
+            self._event(conn, job_id, event_kind, state=to_state, progress=values.get("progress"),
+                        message=message, data=data, at=now)
+        return True
+
+    def update_fields(self, job_id: str, **fields: Any) -> None:
+        with self.engine.begin() as conn:
+            conn.execute(jobs.update().where(jobs.c.id == job_id).values(**fields))
+
+    # ------------------------------------------------------------------ claim
+    def claim(self, owner: str, limit: int, lease_s: float, provenance: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+        """Take up to ``limit`` queued jobs, oldest first, for this runner."""
+        if limit <= 0:
+            return []
+        sel = sa.select(jobs.c.seq).where(jobs.c.state == "queued").order_by(jobs.c.seq).limit(limit)
+        if self.is_postgres:
+            sel = sel.with_for_update(skip_locked=True)
+        claimed: list[str] = []
+        now = utcnow()
+        with self.engine.begin() as conn:
+            seqs = conn.execute(sel).scalars().all()
+            for seq in seqs:
+                values = dict(state="planning", owner=owner, lease_expires_at=now + timedelta(seconds=lease_s),
+                              started_at=now, updated_at=now, attempts=jobs.c.attempts + 1,
+                              progress=0.0, message="planning", **(provenance or {}))
+                job_id = conn.execute(
+                    jobs.update().where(jobs.c.seq == seq, jobs.c.state == "queued").values(**values)
+                    .returning(jobs.c.id)
+                ).scalar()
+                if job_id is not None:
+                    claimed.append(job_id)
+                    self._event(conn, job_id, "state", state="planning", progress=0.0,
+                                message="a worker started planning", data={"runner": owner}, at=now)
+        return [r for r in (self.get(j) for j in claimed) if r is not None]
+
+    def renew(self, owner: str, job_ids: Sequence[str], lease_s: float) -> None:
+        if not job_ids:
+            return
+        with self.engine.begin() as conn:
+            conn.execute(jobs.update().where(jobs.c.id.in_(list(job_ids)), jobs.c.owner == owner)
+                         .values(lease_expires_at=utcnow() + timedelta(seconds=lease_s)))
+
+    def flags(self, job_ids: Sequence[str]) -> dict[str, dict[str, Any]]:
+        """State and cancel/stop flags of the given jobs (polled by runners and executions)."""
+        if not job_ids:
+            return {}
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                sa.select(jobs.c.id, jobs.c.state, jobs.c.cancel_requested, jobs.c.stop_requested)
+                .where(jobs.c.id.in_(list(job_ids)))
+            ).mappings().all()
+        return {r["id"]: dict(r) for r in rows}
+
+    def report_progress(self, job_id: str, owner: str, fraction: float, message: str) -> bool:
+        now = utcnow()
+        with self.engine.begin() as conn:
+            n = conn.execute(jobs.update().where(jobs.c.id == job_id, jobs.c.owner == owner, jobs.c.state == "planning")
+                             .values(progress=fraction, message=message, updated_at=now)).rowcount
+            if n == 1:
+                self._event(conn, job_id, "progress", state="planning", progress=fraction, message=message, at=now)
+        return n == 1
+
+    def finish_planning(self, job_id: str, owner: str, to_state: str, *, message: str,
+                        result: dict[str, Any] | None = None, error: dict[str, Any] | None = None,
+                        extra: dict[str, Any] | None = None, data: dict[str, Any] | None = None) -> bool:
+        """End the planning phase (planned, succeeded, failed, canceled) and store the result, in one transaction."""
+        now = utcnow()
+        values: dict[str, Any] = dict(state=to_state, message=message, error=error, updated_at=now, owner=None,
+                                      lease_expires_at=None, **(extra or {}))
+        if to_state in ("planned", "succeeded"):
+            values["progress"] = 1.0
+        if to_state in TERMINAL_STATES:
+            values["finished_at"] = now
+        with self.engine.begin() as conn:
+            n = conn.execute(jobs.update().where(jobs.c.id == job_id, jobs.c.owner == owner, jobs.c.state == "planning")
+                             .values(**values)).rowcount
+            if n != 1:
+                return False
+            if result is not None:
+                conn.execute(job_results.insert().values(
+                    job_id=job_id, result=json.dumps(result, allow_nan=False, separators=(",", ":"))))
+            self._event(conn, job_id, "state", state=to_state, progress=values.get("progress"), message=message,
+                        data={**(data or {}), **({"error": error} if error else {})}, at=now)
+        return True
+
+    # --------------------------------------------------------------- cancel
+    def request_cancel(self, job_id: str, by: str, reason: str | None) -> dict[str, Any]:
+        """Cancel a job: at once unless it is planning, where the runner is asked to stop it."""
+        note = f"canceled by {by}" + (f": {reason}" if reason else "")
+        for _ in range(5):  # a claim can race with us; retry on the new state
+            job = self.get(job_id)
+            if job is None:
+                raise KeyError(job_id)
+            state = job["state"]
+            if state in ("queued", "planned", "approved"):
+                if self.transition(job_id, [state], "canceled", message=note, data={"by": by, "reason": reason},
+                                   cancel_requested=True):
+                    return self.get(job_id) or job
+            elif state == "planning":
+                if job["cancel_requested"]:
+                    return job
+                with self.engine.begin() as conn:
+                    n = conn.execute(jobs.update().where(jobs.c.id == job_id, jobs.c.state == "planning")
+                                     .values(cancel_requested=True, updated_at=utcnow())).rowcount
+                    if n == 1:
+                        self._event(conn, job_id, "note", state="planning", message=f"cancel requested by {by}",
+                                    data={"by": by, "reason": reason})
+                if n == 1:
+                    return self.get(job_id) or job
+            else:
+                raise Conflict(f"job {job_id} is {state}; only a job that is queued, planning, planned or approved "
+                               "can be canceled (use stop during execution)")
+        raise Conflict(f"job {job_id} changed state repeatedly while canceling; try again")
+
+    # ------------------------------------------------------------- recovery
+    def recover(self, is_owner_dead: Callable[[str], bool], max_attempts: int) -> list[tuple[str, str]]:
+        """Account for jobs whose runner or executing process is gone: re-queue, fail, cancel or abort them."""
+        now = utcnow()
+        with self.engine.connect() as conn:
+            rows = conn.execute(
+                sa.select(jobs.c.id, jobs.c.state, jobs.c.owner, jobs.c.lease_expires_at, jobs.c.attempts,
+                          jobs.c.cancel_requested)
+                .where(jobs.c.state.in_(["planning", "dispatching", "executing"]))
+            ).mappings().all()
+        actions: list[tuple[str, str]] = []
+        for r in rows:
+            owner = r["owner"] or ""
+            expired = r["lease_expires_at"] is None or r["lease_expires_at"] < now
+            if not (expired or is_owner_dead(owner)):
+                continue
+            fields = dict(owner=None, lease_expires_at=None)
+            if r["state"] == "planning":
+                if r["cancel_requested"]:
+                    to, msg, extra = "canceled", "canceled (its runner stopped before it could finish)", {}
+                elif r["attempts"] < max_attempts:
+                    to, msg = "queued", (f"re-queued: its runner {owner or '?'} stopped while planning "
+                                          f"(attempt {r['attempts']} of {max_attempts})")
+                    extra = {"progress": 0.0, "started_at": None}
+                else:
+                    to, msg = "failed", (f"interrupted {r['attempts']} times: its runner stopped while planning "
+                                         f"(last runner {owner or '?'})")
+                    extra = {"error": {"code": "INTERRUPTED", "message": msg}}
+            else:
+                to, msg = "aborted", f"execution interrupted: the process that drove it ({owner or '?'}) stopped"
+                extra = {"error": {"code": "INTERRUPTED", "message": msg}}
+            conds_owner = r["owner"]
+            ok = self.transition(r["id"], [r["state"]], to, message=msg, data={"recovered_from": r["state"]},
+                                 expect_owner=conds_owner, **fields, **extra)
+            if ok:
+                actions.append((r["id"], to))
+        return actions
+
+    def expire_approvals(self, job_id: str | None = None) -> list[str]:
+        """Send approved jobs whose approval expired back to planned."""
+        now = utcnow()
+        conds = [jobs.c.state == "approved", jobs.c.approval_expires_at < now]
+        if job_id is not None:
+            conds.append(jobs.c.id == job_id)
+        with self.engine.connect() as conn:
+            ids = conn.execute(sa.select(jobs.c.id).where(*conds)).scalars().all()
+        done = []
+        for jid in ids:
+            if self.transition(jid, ["approved"], "planned", message="approval expired; the plan needs a new approval",
+                               approved_by=None, approved_at=None, approval_expires_at=None,
+                               approved_sha256=None, approval_comment=None,
+                               data={"reason": "approval expired"}):
+                done.append(jid)
+        return done
+
+
+def this_host() -> str:
+    return socket.gethostname()
