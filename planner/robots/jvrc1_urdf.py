@@ -187,9 +187,9 @@ def sole_rectangle(foot: LinkMesh) -> SoleRect:
     """Bounding rectangle of the foot's flat, downward-facing contact faces.
 
     The JVRC-1 sole has a heel pad and a toe pad on one plane (the arch between
-    them is 6 mm higher); the rectangle spans both pads, as a foot on flat ground
-    can tip over any point of their hull's bounding box edge only at its toe corner
-    (see docs/jvrc1.md).
+    them is 6 mm higher), and its toe edge is slanted: the inner toe reaches 32 mm
+    further forward than the outer one. The rectangle spans both pads and the
+    longer toe; docs/jvrc1.md says what this approximates.
     """
     tri = foot.vertices[foot.faces]
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
