@@ -26,9 +26,9 @@ from .robot_model import RobotModel
 from .stances import Stance
 
 Side = Literal["left", "right"]
-#: An attempt stops when its error has not improved by 1 % for this many iterations.
-STALL_ITERATIONS = 12
-STALL_IMPROVEMENT = 0.01
+#: An attempt stops when its error has not improved by 2 % for this many iterations.
+STALL_ITERATIONS = 8
+STALL_IMPROVEMENT = 0.02
 #: Re-solves per iteration with the joints pinned at a limit removed.
 LIMIT_PASSES = 3
 LIMIT_EPS = 1e-9
@@ -41,7 +41,7 @@ class IkSettings(BaseModel):
 
     pos_tol_m: float = Field(1e-3, gt=0, description="TCP position tolerance")
     rot_tol_rad: float = Field(1e-2, gt=0, description="TCP orientation tolerance")
-    max_iterations: int = Field(80, ge=1, description="DLS iterations per attempt")
+    max_iterations: int = Field(50, ge=1, description="DLS iterations per attempt")
     restarts: int = Field(6, ge=0, description="random restarts after the seeded attempt")
     damping: float = Field(1e-2, gt=0, description="DLS damping lambda (m or rad)")
     max_step_rad: float = Field(0.35, gt=0, description="largest joint change per iteration")
@@ -140,6 +140,8 @@ class IkSolver:
         lam2 = s.damping**2
         pmax = rmax = np.inf
         best_score, since_best = np.inf, 0
+        eye = np.eye(6 * len(sides))
+        rest_a = rest[active]
         it = 0
         for it in range(1, s.max_iterations + 1):
             e, J, pmax, rmax = self._errors(q, targets, sides)
@@ -157,11 +159,13 @@ class IkSolver:
             free = np.ones(len(active), dtype=bool)
             for _ in range(LIMIT_PASSES):
                 Ja = Ja_full[:, free]
-                A = Ja @ Ja.T + lam2 * np.eye(Ja.shape[0])
-                dq_free = Ja.T @ np.linalg.solve(A, e)
+                A = Ja @ Ja.T + lam2 * eye
                 if s.nullspace_gain > 0:
-                    pull = s.nullspace_gain * (rest[active][free] - qa[free])
-                    dq_free += pull - Ja.T @ np.linalg.solve(A, Ja @ pull)
+                    pull = s.nullspace_gain * (rest_a[free] - qa[free])
+                    x = np.linalg.solve(A, np.column_stack([e, Ja @ pull]))
+                    dq_free = Ja.T @ (x[:, 0] - x[:, 1]) + pull
+                else:
+                    dq_free = Ja.T @ np.linalg.solve(A, e)
                 dq = np.zeros(len(active))
                 dq[free] = dq_free
                 blocked = free & (((qa <= lo + LIMIT_EPS) & (dq < 0)) | ((qa >= hi - LIMIT_EPS) & (dq > 0)))
