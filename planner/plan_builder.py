@@ -1,0 +1,116 @@
+"""Assemble timed motion pieces into the plan file's trajectory (CONTRACT.md section 3).
+
+The regrasp search returns a sequence of motion pieces (joint-space paths with
+what is held during each). This module times every piece from rest to rest,
+concatenates them at the uniform period, and fills each point with the object
+pose, the system CoM (paper eq. 1), the margin and the cart-table ZMP.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Literal
+
+import numpy as np
+
+from .state_eval import HoldSpec, StateEvaluator
+from .transforms import matrix_to_pose7
+
+GRAVITY = 9.81
+Kind = Literal["transit", "transfer", "handover", "approach", "retreat"]
+
+
+@dataclass
+class MotionPiece:
+    """One stretch of the plan: a joint path and what the hands hold along it.
+
+    ``hold`` says how the object follows the robot while held; when nothing is held
+    the object rests at ``object_pose`` (4x4, world).
+    """
+
+    kind: Kind
+    hand: Literal["left", "right", "both", "none"]
+    waypoints: np.ndarray
+    holding: Literal["none", "left", "right", "both"]
+    hold: HoldSpec | None
+    object_pose: np.ndarray | None = None
+
+
+@dataclass
+class TimedTrajectory:
+    t: np.ndarray
+    Q: np.ndarray
+    holding: list[str]
+    object_pose: np.ndarray  # (M, 4, 4)
+    com: np.ndarray  # (M, 3)
+    margin: np.ndarray  # (M,)
+    zmp: np.ndarray  # (M, 2)
+    segments: list[dict]
+
+
+def zmp_cart_table(com: np.ndarray, dt: float) -> np.ndarray:
+    """ZMP = c_xy - (c_z / g) * c_xy'', with c'' by central finite differences (zero at the ends)."""
+    acc = np.zeros_like(com[:, :2])
+    if len(com) >= 3:
+        acc[1:-1] = (com[2:, :2] - 2 * com[1:-1, :2] + com[:-2, :2]) / (dt * dt)
+    return com[:, :2] - (com[:, 2:3] / GRAVITY) * acc
+
+
+def assemble(
+    pieces: list[MotionPiece],
+    evaluator: StateEvaluator,
+    timing: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    dt: float,
+) -> TimedTrajectory:
+    """Time and concatenate the pieces; every piece starts and ends at rest."""
+    Qs: list[np.ndarray] = []
+    holds: list[str] = []
+    poses: list[np.ndarray] = []
+    coms: list[np.ndarray] = []
+    segments: list[dict] = []
+    count = 0
+    for piece in pieces:
+        _, Q = timing(np.asarray(piece.waypoints, dtype=float))
+        if len(Q) == 0:
+            continue
+        batch = evaluator.evaluate(Q, piece.hold, threshold_m=0.0)
+        if piece.hold is None:
+            pose = np.repeat(np.asarray(piece.object_pose)[None], len(Q), axis=0)
+        else:
+            pose = batch.object_pose
+        if count > 0:
+            # The previous piece's last sample and this piece's first are the same rest state;
+            # keep this piece's copy, since "holding" applies from a point onwards.
+            Qs[-1], poses[-1], coms[-1] = Qs[-1][:-1], poses[-1][:-1], coms[-1][:-1]
+            holds.pop()
+            count -= 1
+        first = count
+        Qs.append(Q)
+        holds += [piece.holding] * len(Q)
+        poses.append(pose)
+        coms.append(batch.com)
+        count += len(Q)
+        segments.append({"kind": piece.kind, "hand": piece.hand, "first": first, "last": count - 1})
+    Q = np.vstack(Qs)
+    com = np.vstack(coms)
+    t = np.arange(len(Q)) * dt
+    return TimedTrajectory(
+        t=t, Q=Q, holding=holds, object_pose=np.concatenate(poses), com=com,
+        margin=evaluator.polygon.margin(com[:, :2]), zmp=zmp_cart_table(com, dt), segments=segments,
+    )
+
+
+def trajectory_points(traj: TimedTrajectory) -> list[dict]:
+    """The plan's ``trajectory`` entries, floats at full precision."""
+    out = []
+    for i in range(len(traj.t)):
+        out.append({
+            "t": float(traj.t[i]),
+            "q": traj.Q[i].tolist(),
+            "holding": traj.holding[i],
+            "object_pose": matrix_to_pose7(traj.object_pose[i]).tolist(),
+            "com": traj.com[i].tolist(),
+            "margin_m": float(traj.margin[i]),
+            "zmp": traj.zmp[i].tolist(),
+        })
+    return out
