@@ -160,7 +160,11 @@ class JobAuditor:
         while path.exists():
             path = self.audit_dir / f"{job_id}.{n}.mcap"
             n += 1
-        writer = _writer_class()(path, job_id)
+        cls = _writer_class()
+        try:
+            writer = cls(path, job_id, robot_name=job.get("robot"))
+        except TypeError:
+            writer = cls(path, job_id)
         if previous:
             writer.record("continued", {"job_id": job_id, "previous_file": previous,
                                         "previous_head": job.get("audit_head"),

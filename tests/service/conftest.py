@@ -1,0 +1,152 @@
+"""Fixtures of the service tests: real `regrasp serve` processes on 127.0.0.1 with test tokens.
+
+The servers run the test job handlers of svc_test_handlers.py (real CPU work
+with progress and cancel polling), so these tests do not depend on the planner.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Iterator
+
+import httpx
+import pytest
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent.parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+from svc_test_handlers import HANDLERS  # noqa: E402
+
+TOKENS = {
+    "tok-alice-planner": {"user": "alice", "roles": ["planner"]},
+    "tok-dave-planner-approver": {"user": "dave", "roles": ["planner", "approver"]},
+    "tok-bob-approver-operator": {"user": "bob", "roles": ["approver", "operator"]},
+    "tok-carol-approver": {"user": "carol", "roles": ["approver"]},
+    "tok-admin-admin": {"user": "admin", "roles": ["admin"]},
+}
+TOKEN = {entry["user"]: tok for tok, entry in TOKENS.items()}
+STARTUP_TIMEOUT_S = 60.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def service_env(**settings: Any) -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(HERE), str(ROOT), env.get("PYTHONPATH", "")])
+    env["REGRASP_TOKENS"] = json.dumps(TOKENS)
+    env["REGRASP_HANDLERS"] = json.dumps(HANDLERS)
+    env["REGRASP_CHECK_SCENARIO_NAMES"] = "false"
+    env["REGRASP_PRELOAD_ROBOT"] = "false"
+    for key, value in settings.items():
+        env[f"REGRASP_{key.upper()}"] = value if isinstance(value, str) else json.dumps(value)
+    return env
+
+
+class Server:
+    """A `regrasp serve` subprocess; ``kill()`` is a real SIGKILL of the server process only."""
+
+    def __init__(self, data_dir: Path, workers: int = 2, port: int | None = None, extra_args: list[str] | None = None,
+                 **settings: Any) -> None:
+        self.data_dir = data_dir
+        self.port = port or free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.args = [sys.executable, "-m", "service.cli.main", "serve", "--port", str(self.port),
+                     "--data-dir", str(data_dir), "--workers", str(workers), "--log-level", "warning",
+                     *(extra_args or [])]
+        self.env = service_env(**settings)
+        self.log_path = data_dir / f"server-{self.port}.log"
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> "Server":
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        self._log = open(self.log_path, "ab")
+        self.proc = subprocess.Popen(self.args, cwd=ROOT, env=self.env, stdout=self._log, stderr=subprocess.STDOUT,
+                                     start_new_session=True)
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"server exited with {self.proc.returncode}: {self.log_path.read_text()[-3000:]}")
+            try:
+                if httpx.get(self.url + "/healthz", timeout=1.0).status_code == 200:
+                    return self
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.1)
+        raise RuntimeError(f"server did not come up: {self.log_path.read_text()[-3000:]}")
+
+    def wait_workers_ready(self, client: "httpx.Client", timeout: float = 60.0) -> None:
+        """Workers load before they claim; a quick job finishing proves they are up."""
+        job = client.post("/v1/jobs", json={"kind": "survey", "request": {"scenario": "quick"}}).json()
+        wait_state(client, job["id"], {"succeeded"}, timeout)
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            os.kill(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(10)
+
+    def stop(self) -> None:
+        if self.proc is None:
+            return
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        try:  # anything left in the server's own session (its workers) goes too
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        self._log.close()
+
+    def client(self, user: str) -> httpx.Client:
+        return httpx.Client(base_url=self.url, headers={"Authorization": f"Bearer {TOKEN[user]}"}, timeout=30.0)
+
+
+def wait_state(client: httpx.Client, job_id: str, states: set[str], timeout: float = 30.0) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout
+    job: dict[str, Any] = {}
+    while time.monotonic() < deadline:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        if job["state"] in states:
+            return job
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} did not reach {states} in {timeout} s: {job.get('state')} {job.get('message')}")
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    srv = Server(tmp_path_factory.mktemp("svc"), workers=2, approval_ttl_s="3", timeout_margin_s="0.5",
+                 max_body_bytes="200000").start()
+    try:
+        with srv.client("admin") as c:
+            srv.wait_workers_ready(c)
+        yield srv
+    finally:
+        srv.stop()
+
+
+@pytest.fixture
+def alice(server: Server) -> Iterator[httpx.Client]:
+    with server.client("alice") as c:
+        yield c
+
+
+@pytest.fixture
+def bob(server: Server) -> Iterator[httpx.Client]:
+    with server.client("bob") as c:
+        yield c
