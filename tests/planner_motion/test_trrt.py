@@ -1,0 +1,181 @@
+"""T-RRT: valid paths (recomputed independently), determinism, cancel, and the survey's exploration counts."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from planner.trrt import ExploreLeg, TrrtSettings, explore, matrix_to_pose7, plan_motion
+
+RESOLUTION = 0.02
+
+
+@pytest.fixture(scope="module")
+def task(robot, upright, evaluator, hold_right, right_active):
+    start = upright.q.copy()
+    goal = upright.q.copy()
+    goal[right_active] = np.clip(
+        [0.1, 0.0, 0.5, 0.2, -0.6, -0.5, 0.3, -1.2, 0.3, 0.2, 0.1, 0.0], robot.lower[right_active], robot.upper[right_active]
+    )
+    mid = 0.5 * (start[right_active] + goal[right_active])
+
+    def validity(Q):
+        b = evaluator.evaluate(Q, hold_right, active=right_active)
+        blocked = np.linalg.norm(Q[:, right_active] - mid, axis=1) < 0.4  # an obstacle on the straight line
+        return b.stable & ~blocked, b.margin
+
+    return start, goal, mid, validity
+
+
+def _dense(path, resolution=RESOLUTION):
+    out = [path[0]]
+    for a, b in zip(path[:-1], path[1:]):
+        n = max(1, int(np.ceil(np.abs(b - a).max() / resolution - 1e-9)))
+        out += [a + (k / n) * (b - a) for k in range(1, n + 1)]
+    return np.array(out)
+
+
+def test_path_found_around_an_obstacle_and_every_state_is_valid(robot, task, right_active, hold_right, independent):
+    start, goal, mid, validity = task
+    res = plan_motion(start, goal, right_active, validity, robot.lower, robot.upper, np.random.default_rng(0))
+    assert res.ok, res.reason
+    assert np.array_equal(res.path[0], start) and np.array_equal(res.path[-1], goal)
+    dense = _dense(res.path)
+    for q in dense:
+        assert independent.margin(q, hold_right) >= 0.03 - 1e-12
+        assert np.linalg.norm(q[right_active] - mid) >= 0.4
+        assert np.all(q >= robot.lower) and np.all(q <= robot.upper)
+    fixed = np.setdiff1d(np.arange(robot.nq), right_active)
+    assert np.all(dense[:, fixed] == start[fixed])
+
+
+def test_same_seed_same_path(robot, task, right_active):
+    start, goal, _, validity = task
+    a = plan_motion(start, goal, right_active, validity, robot.lower, robot.upper, np.random.default_rng(7))
+    b = plan_motion(start, goal, right_active, validity, robot.lower, robot.upper, np.random.default_rng(7))
+    assert a.ok and np.array_equal(a.path, b.path)
+
+
+def test_invalid_goal_and_bad_input_are_reported(robot, task, right_active, upright):
+    start, goal, mid, validity = task
+    bad_goal = start.copy()
+    bad_goal[right_active] = mid
+    res = plan_motion(start, bad_goal, right_active, validity, robot.lower, robot.upper, np.random.default_rng(0))
+    assert res.status == "invalid_goal" and res.path is None
+    other = start.copy()
+    other[robot.arm_indices("left")[0]] += 0.1  # differs in a joint that is not active
+    res = plan_motion(start, other, right_active, validity, robot.lower, robot.upper, np.random.default_rng(0))
+    assert res.status == "bad_input" and "not active" in res.reason
+
+
+def test_iteration_cap_and_cancel(robot, task, right_active):
+    start, goal, mid, _ = task
+
+    def walled(Q):  # the goal is enclosed: no path exists
+        near_goal = np.linalg.norm(Q[:, right_active] - goal[right_active], axis=1)
+        ok = (near_goal < 0.05) | (near_goal > 0.3)
+        return ok, np.zeros(len(Q))
+
+    capped = plan_motion(start, goal, right_active, walled, robot.lower, robot.upper, np.random.default_rng(0), TrrtSettings(max_iterations=20))
+    assert capped.status == "iteration_cap" and capped.stats["rounds"] == 20
+
+    stop = threading.Event()
+    timer = threading.Timer(0.2, stop.set)
+    timer.start()
+    t0 = time.perf_counter()
+    res = plan_motion(start, goal, right_active, walled, robot.lower, robot.upper, np.random.default_rng(0),
+                      TrrtSettings(max_iterations=10**7, time_limit_s=30), should_stop=stop.is_set)
+    elapsed = time.perf_counter() - t0
+    timer.cancel()
+    assert res.status == "canceled"
+    assert elapsed < 1.2  # cancel lands within 1 s of the request at 0.2 s
+
+    stop.set()  # a cancel that arrives before the start
+    res = plan_motion(start, goal, right_active, walled, robot.lower, robot.upper, np.random.default_rng(0), should_stop=stop.is_set)
+    assert res.status == "canceled"
+
+
+def test_margin_cost_biases_towards_stability(robot, upright, evaluator, hold_right, right_active):
+    """The energy-based trees keep a larger mean margin than a flat-cost RRT of the same seed."""
+    start = upright.q.copy()
+    goal = start.copy()
+    goal[right_active] = np.clip(start[right_active] + 0.5, robot.lower[right_active], robot.upper[right_active])
+
+    def validity(Q):
+        b = evaluator.evaluate(Q, hold_right, active=right_active)
+        return b.stable, b.margin
+
+    means = {}
+    for cost in (True, False):
+        ex = explore([ExploreLeg(start, goal, hold_right, right_active)], evaluator, None, 3000, np.random.default_rng(3),
+                     TrrtSettings(margin_cost=cost))
+        means[cost] = ex.margin.mean()
+    assert means[True] > means[False]
+
+
+def test_exploration_counts_and_flags(robot, upright, evaluator, hold_right, right_active, independent):
+    start = upright.q.copy()
+    goal = start.copy()
+    goal[right_active] = np.clip(start[right_active] - 0.3, robot.lower[right_active], robot.upper[right_active])
+
+    def collision_free(Q):  # a fake obstacle: the shoulder pitch may not pass 0.05 rad
+        return Q[:, right_active[4]] < 0.05
+
+    n = 1500
+    ex = explore([ExploreLeg(start, goal, hold_right, right_active)], evaluator, collision_free, n, np.random.default_rng(1))
+    assert ex.status == "done"
+    assert len(ex.q) == len(ex.stable) == len(ex.margin) == len(ex.object_pose) == n
+    assert ex.stats["evaluated"] == n == ex.n_stable + ex.n_unstable
+    assert ex.stats["stable"] == ex.n_stable
+    # A colliding state is never counted, and collisions were rejected (reported in stats).
+    assert np.all(ex.q[:, right_active[4]] < 0.05)
+    assert ex.stats["rejected"]["collision"] > 0
+    assert set(ex.holding) == {"right"}
+    rng = np.random.default_rng(0)
+    for i in rng.choice(n, 40, replace=False):
+        m = independent.margin(ex.q[i], hold_right)
+        assert m == pytest.approx(ex.margin[i], abs=1e-9)
+        assert bool(ex.stable[i]) == (m >= 0.03)
+        T = evaluator.tcp_pose(ex.q[i], "right") @ np.linalg.inv(hold_right.T_obj_tcp)
+        assert np.allclose(ex.object_pose[i], matrix_to_pose7(T[None])[0], atol=1e-9)
+    again = explore([ExploreLeg(start, goal, hold_right, right_active)], evaluator, collision_free, n, np.random.default_rng(1))
+    assert np.array_equal(again.q, ex.q) and np.array_equal(again.stable, ex.stable)
+
+
+def test_exploration_through_a_handover(robot, upright, evaluator, hold_right):
+    """Two legs (right hand to the handover, left hand away from it) with both arms active."""
+    from planner.state_eval import HoldSpec
+
+    both = np.r_[robot.waist_indices(), robot.arm_indices("left"), robot.arm_indices("right")]
+    start = upright.q.copy()
+    hand = start.copy()
+    hand[robot.arm_indices("right")[1]] -= 0.4
+    hand[robot.arm_indices("left")[1]] -= 0.4
+    goal = hand.copy()
+    goal[robot.arm_indices("right")[1]] += 0.4
+    hold_left = HoldSpec("left", hold_right.T_obj_tcp)
+    legs = [ExploreLeg(start, hand, hold_right, both), ExploreLeg(hand, goal, hold_left, both)]
+    ex = explore(legs, evaluator, None, 800, np.random.default_rng(2))
+    assert ex.stats["evaluated"] == 800
+    assert set(np.unique(ex.leg)) == {0, 1}
+    assert set(ex.holding[ex.leg == 0]) == {"right"} and set(ex.holding[ex.leg == 1]) == {"left"}
+    assert len(ex.stats["legs"]) == 2
+
+
+def test_exploration_cancel(robot, upright, evaluator, hold_right, right_active):
+    start = upright.q.copy()
+    goal = start.copy()
+    goal[right_active] += 0.2
+    goal = np.clip(goal, robot.lower, robot.upper)
+    polls = {"n": 0}
+
+    def should_stop():
+        polls["n"] += 1
+        return polls["n"] > 3
+
+    ex = explore([ExploreLeg(start, goal, hold_right, right_active)], evaluator, None, 10**6, np.random.default_rng(0),
+                 should_stop=should_stop)
+    assert ex.status == "canceled" and ex.stats["evaluated"] < 10**6
