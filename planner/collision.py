@@ -201,9 +201,10 @@ class HandGeometry:
         """Bytes that identify the geometry (cache keys)."""
         parts = [f"{self.max_opening_m:.9f}/{self.opening_per_unit:.9f}".encode()]
         for s in self.shapes:
-            parts.append(f"{s.kind}{np.round(s.dims, 9).tolist()}{s.is_finger}".encode())
-            parts.append(np.round(s.T_tcp_shape0, 9).tobytes())
-            parts.append(np.round(s.velocity, 9).tobytes())
+            # "+ 0.0" turns -0.0 into 0.0, so mirrored hands with equal geometry share a signature
+            parts.append(f"{s.kind}{(np.round(s.dims, 9) + 0.0).tolist()}{s.is_finger}".encode())
+            parts.append((np.round(s.T_tcp_shape0, 9) + 0.0).tobytes())
+            parts.append((np.round(s.velocity, 9) + 0.0).tobytes())
         return b"|".join(parts)
 
 
@@ -301,34 +302,33 @@ def _set_tf(o: fcl.CollisionObject, R: np.ndarray, p: np.ndarray) -> None:
 def shapes_collide(
     bodies_a: Sequence[_Body], poses_a: np.ndarray, bodies_b: Sequence[_Body], poses_b: np.ndarray, tolerance: float = 0.0
 ) -> np.ndarray:
-    """Whether any body of set a collides with any of set b, for K pose hypotheses.
+    """Whether any body of set a collides with any body of set b, for K pose hypotheses.
 
-    ``poses_a`` (K, len(a), 4, 4) and ``poses_b`` (K, len(b), 4, 4) are world poses of the
-    bodies' parents (the ``local`` transform of each body is applied here). Used by the
-    grasp and handover filters, which test many hand poses against one object.
+    ``poses_a`` (K, len(a), 4, 4) and ``poses_b`` (K, len(b), 4, 4) or (len(b), 4, 4) are the
+    poses of the bodies' shape frames (their ``local`` transforms already applied). Used by
+    the grasp and handover filters, which test many hand poses against one object.
     """
     K = poses_a.shape[0]
+    poses_b = np.broadcast_to(poses_b, (K, len(bodies_b), 4, 4))
     hit = np.zeros(K, dtype=bool)
     objs_a = [_make_fcl_object(b) for b in bodies_a]
     objs_b = [_make_fcl_object(b) for b in bodies_b]
     for ia, ba in enumerate(bodies_a):
-        Ta = poses_a[:, ia] @ ba.local
-        ca = Ta[:, :3, 3] + np.einsum("kij,j->ki", Ta[:, :3, :3], ba.obb_offset)
+        Ta = poses_a[:, ia]
         for ib, bb in enumerate(bodies_b):
-            Tb = poses_b[:, ib] @ bb.local
-            cb = Tb[:, :3, 3] + np.einsum("kij,j->ki", Tb[:, :3, :3], bb.obb_offset)
-            todo = ~hit
-            depth = np.full(K, -np.inf)
-            idx = np.flatnonzero(todo)
+            idx = np.flatnonzero(~hit)
             if idx.size == 0:
                 return hit
-            depth[idx] = obb_penetration(Ta[idx, :3, :3], ca[idx], np.broadcast_to(ba.half, (idx.size, 3)),
-                                         Tb[idx, :3, :3], cb[idx], np.broadcast_to(bb.half, (idx.size, 3)))
-            cand = depth > tolerance
+            Tb = poses_b[:, ib]
+            ca = Ta[idx, :3, 3] + Ta[idx, :3, :3] @ ba.obb_offset
+            cb = Tb[idx, :3, 3] + Tb[idx, :3, :3] @ bb.obb_offset
+            depth = obb_penetration(Ta[idx, :3, :3], ca, np.broadcast_to(ba.half, (idx.size, 3)),
+                                    Tb[idx, :3, :3], cb, np.broadcast_to(bb.half, (idx.size, 3)))
+            cand = idx[depth > tolerance]
             if ba.kind == "box" and bb.kind == "box":
-                hit |= cand
+                hit[cand] = True
                 continue
-            for k in np.flatnonzero(cand & todo):
+            for k in cand:
                 _set_tf(objs_a[ia], Ta[k, :3, :3], Ta[k, :3, 3])
                 _set_tf(objs_b[ib], Tb[k, :3, :3], Tb[k, :3, 3])
                 if _fcl_collide(objs_a[ia], objs_b[ib], tolerance):
