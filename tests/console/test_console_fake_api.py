@@ -1,0 +1,126 @@
+"""The operator console in headless Chromium against the fake API: token, jobs, plan, survey, actions, live updates."""
+
+from __future__ import annotations
+
+from playwright.sync_api import expect
+
+from .conftest import screenshot
+
+APPROVER = "approver-token-bob"
+OPERATOR = "operator-token-carol"
+PLANNER = "planner-token-alice"
+TIMEOUT_MS = 10_000
+
+
+def _login(page, url: str, token: str) -> None:
+    page.goto(url + "/")
+    page.fill("#token", token)
+    page.click("#token-save")
+
+
+def _open(page, job_id: str) -> None:
+    page.click(f'#jobs tbody tr[data-job-id="{job_id}"]')
+    expect(page.locator("#job-id")).to_have_text(job_id, timeout=TIMEOUT_MS)
+
+
+def test_without_token_the_page_asks_for_one(page, fake_server):
+    url, _ = fake_server
+    page.goto(url + "/")
+    expect(page.locator("#banner")).to_contain_text("Enter a bearer token")
+    expect(page.locator("#health")).to_contain_text("ok")
+    page.fill("#token", "wrong-token-123")
+    page.click("#token-save")
+    expect(page.locator("#banner")).to_contain_text("401")
+    assert page.js_errors == []
+
+
+def test_plan_details_are_drawn(page, fake_server):
+    url, store = fake_server
+    _login(page, url, APPROVER)
+    expect(page.locator("#jobs tbody tr")).to_have_count(2, timeout=TIMEOUT_MS)
+    _open(page, store.plan_id)
+    expect(page.locator("#job-state")).to_have_text("planned")
+    # CoM trace over the support polygon with the threshold drawn
+    expect(page.locator('#com-chart polygon[data-role="support"]')).to_have_count(1)
+    expect(page.locator('#com-chart polygon[data-role="threshold"]')).to_have_count(1)
+    expect(page.locator('#com-chart polyline[data-role="com-trace"]')).to_have_count(1)
+    points = page.locator('#com-chart polyline[data-role="com-trace"]').get_attribute("points")
+    assert len(points.split()) == 400
+    # margins over time with the threshold line and segment bands
+    expect(page.locator('#margin-chart polyline[data-role="margin-line"]')).to_have_count(1)
+    expect(page.locator('#margin-chart line[data-role="threshold-line"]')).to_have_count(1)
+    expect(page.locator("#margin-chart rect[data-segment]")).to_have_count(3)
+    expect(page.locator("#segments tbody tr")).to_have_count(3)
+    expect(page.locator("#plan-summary")).to_contain_text("min margin 80.0 mm")
+    # the threshold polygon is the support polygon shrunk by 60 mm (checked in the page's own code)
+    inner = page.evaluate("regraspConsole.shrinkConvex([[1,1],[-1,1],[-1,-1],[1,-1]], 0.25)")
+    assert sorted(tuple(round(abs(v), 9) for v in p) for p in inner) == [(0.75, 0.75)] * 4
+    expect(page.locator("#btn-approve")).to_be_visible()
+    expect(page.locator("#btn-dispatch")).to_be_hidden()
+    shot = screenshot(page, "console-plan")
+    assert shot.stat().st_size > 10_000
+    assert page.js_errors == []
+
+
+def test_survey_table_and_chart(page, fake_server):
+    url, store = fake_server
+    _login(page, url, PLANNER)
+    survey_id = next(j for j in store.jobs.values() if j["kind"] == "survey")["id"]
+    _open(page, survey_id)
+    rows = page.locator("#survey-table tbody tr")
+    expect(rows).to_have_count(4)
+    expect(page.locator('#survey-table tr[data-hands="left-left"]')).to_contain_text("recommended")
+    expect(page.locator('#survey-table tr[data-hands="left-left"]')).to_contain_text("0.9986")
+    expect(page.locator('#survey-table tr[data-hands="right-left"]')).to_contain_text("no feasible handover")
+    expect(page.locator("#survey-chart rect.bar")).to_have_count(4)
+    expect(page.locator('#survey-chart rect.bar-recommended[data-hands="left-left"]')).to_have_count(1)
+    screenshot(page, "console-survey")
+    assert page.js_errors == []
+
+
+def test_wrong_role_shows_the_problem_detail(page, fake_server):
+    url, store = fake_server
+    _login(page, url, PLANNER)
+    _open(page, store.plan_id)
+    page.click("#btn-approve")
+    expect(page.locator("#problem")).to_contain_text("403")
+    expect(page.locator("#problem")).to_contain_text("needs the role 'approver'")
+    expect(page.locator("#job-state")).to_have_text("planned")
+
+
+def test_approve_then_dispatch_and_the_state_changes_live(page, fake_server):
+    url, store = fake_server
+    _login(page, url, APPROVER)
+    _open(page, store.plan_id)
+    page.click("#btn-approve")
+    expect(page.locator("#job-state")).to_have_text("approved", timeout=TIMEOUT_MS)
+    expect(page.locator("#job-approval")).to_contain_text("bob")
+    # the approver cannot dispatch: the 403 detail is shown
+    page.click("#btn-dispatch")
+    expect(page.locator("#problem")).to_contain_text("needs the role 'operator'")
+    # the operator dispatches; execution progress arrives over SSE
+    page.fill("#token", OPERATOR)
+    page.click("#token-save")
+    _open(page, store.plan_id)
+    page.click("#btn-dispatch")
+    expect(page.locator("#job-state")).to_have_text("executing", timeout=TIMEOUT_MS)
+    expect(page.locator("#live-mode")).to_have_text("SSE")
+    expect(page.locator("#btn-stop")).to_be_visible()
+    expect(page.locator("#job-state")).to_have_text("succeeded", timeout=TIMEOUT_MS)
+    expect(page.locator(f'#jobs tbody tr[data-job-id="{store.plan_id}"]')).to_have_attribute(
+        "data-state", "succeeded", timeout=TIMEOUT_MS)
+    expect(page.locator("#job-progress-bar")).to_have_attribute("style", "width: 100%;")
+    screenshot(page, "console-after-execution")
+    assert page.js_errors == []
+
+
+def test_token_is_kept_in_session_storage_only(page, fake_server):
+    url, _ = fake_server
+    _login(page, url, APPROVER)
+    expect(page.locator("#jobs tbody tr")).to_have_count(2, timeout=TIMEOUT_MS)
+    assert page.evaluate("sessionStorage.getItem('regrasp.token')") == APPROVER
+    assert page.evaluate("localStorage.length") == 0
+    page.reload()
+    expect(page.locator("#jobs tbody tr")).to_have_count(2, timeout=TIMEOUT_MS)
+    page.click("#token-clear")
+    assert page.evaluate("sessionStorage.getItem('regrasp.token')") is None
