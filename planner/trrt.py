@@ -57,7 +57,8 @@ class TrrtSettings(BaseModel):
 
     max_iterations: int = Field(2000, ge=1, description="rounds of batch_size extensions (the deterministic cap)")
     time_limit_s: float = Field(60.0, gt=0, description="safety net only; seeded runs stop on the iteration cap")
-    batch_size: int = Field(8, ge=1, description="extensions checked together per round")
+    batch_size: int = Field(8, ge=1, description="extensions checked together per round (planning)")
+    explore_batch_size: int = Field(64, ge=1, description="extensions checked together per round (exploration)")
     step_rad: float = Field(0.3, gt=0, description="largest extension (Euclidean, active joints)")
     edge_resolution_rad: float = Field(0.02, gt=0, description="largest per-joint change between checked states")
     goal_bias: float = Field(0.05, ge=0, le=1, description="share of samples aimed at the other tree's root")
@@ -162,6 +163,7 @@ class _Search:
         self.extent = float(np.linalg.norm(self.hi - self.lo))
         self.frontier_dist = settings.frontier_threshold * self.extent
         self.connected: tuple[int, int] | None = None
+        self.batch_size = settings.batch_size
         self.turn = 0
         self.stats = dict(rounds=0, extensions=0, invalid_edges=0, transition_rejects=0, refine_rejects=0, connect_attempts=0)
 
@@ -182,7 +184,7 @@ class _Search:
     def propose(self, rng: np.random.Generator) -> list[tuple[int, int, np.ndarray, float]]:
         """A round of candidate extensions: (tree index, nearest node, new point, distance to the sample)."""
         out = []
-        for _ in range(self.s.batch_size):
+        for _ in range(self.batch_size):
             ti = self.turn
             self.turn ^= 1
             tree, other = self.trees[ti], self.trees[ti ^ 1]
@@ -306,6 +308,31 @@ def _try_connect(search: _Search, added: list[tuple[int, int]], check) -> None:
             search.connected = (idx, j) if ti == 0 else (j, idx)
             return
         k += n
+
+
+def make_validity(
+    evaluator: StateEvaluator,
+    hold: HoldSpec | None,
+    active: Sequence[int] | None = None,
+    collision_free: CollisionFree | None = None,
+    threshold_m: float | None = None,
+) -> Validity:
+    """A validity callback for :func:`plan_motion`: margin >= threshold first, then collision on the stable states only.
+
+    The margin test is cheap and vectorised; the collision checker, the costly
+    one, never sees a state that is already unstable. ``threshold_m`` defaults to
+    the evaluator's (0 with ``margin_cost=False`` is the unconstrained planner).
+    """
+    act = None if active is None else np.asarray(active, dtype=int)
+
+    def validity(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        batch = evaluator.evaluate(Q, hold, active=act, threshold_m=threshold_m)
+        valid = batch.stable.copy()
+        if collision_free is not None and valid.any():
+            valid[valid] = np.asarray(collision_free(Q[valid]), dtype=bool)
+        return valid, batch.margin
+
+    return validity
 
 
 def plan_motion(
@@ -500,12 +527,16 @@ def explore(
     """The survey's goal-biased energy-based exploration of a task (CONTRACT.md section 4).
 
     Each leg grows two T-RRT trees (from its start and from its goal, each biased
-    to the other's root); the legs take turns round by round. Every state checked
-    on an edge, in order up to the edge's first failing state, is evaluated:
-    first joint limits and ``collision_free`` (failures are not counted), then
-    stability with ``evaluator`` (counted as stable or unstable, and recorded).
-    Unstable states are never added to a tree. The run stops when ``n_states``
-    states have been evaluated, or on the round cap / time limit / cancel.
+    to the other's root); the legs take turns round by round. An extension is
+    checked as a whole edge (its states at ``edge_resolution_rad``, in one
+    vectorised batch): every state on it is tested for joint limits and with
+    ``collision_free`` (failures are not counted, only reported in ``stats``),
+    and every state that passes is evaluated for stability with ``evaluator``
+    and recorded as stable or unstable. An edge joins the tree only if all its
+    states are valid and the node passes the transition test, so the trees stay
+    in the stable region while the states around it are counted. The run stops
+    when ``n_states`` states have been evaluated (the last batch is truncated to
+    exactly that), or on the round cap / time limit / cancel.
     """
     s = settings or TrrtSettings()
     t0 = time.perf_counter()
@@ -515,7 +546,7 @@ def explore(
         raise ValueError(f"n_states must be >= 1, got {n_states}")
     if not legs:
         raise ValueError("explore needs at least one leg")
-    cap = max_iterations if max_iterations is not None else max(s.max_iterations, 20 * n_states // max(s.batch_size, 1))
+    cap = max_iterations if max_iterations is not None else max(s.max_iterations, 20 * n_states // s.explore_batch_size)
     rec = _Recorder(n_states, nq)
     rejected = dict(joint_limits=0, collision=0)
     searches: list[_Search] = []
@@ -526,31 +557,19 @@ def explore(
         """Validity of the states of consecutive edges; records the evaluated ones."""
         leg = legs[leg_i]
         within = np.all((Q >= lo - 1e-12) & (Q <= hi + 1e-12), axis=1)
+        batch = evaluator.evaluate(Q, leg.hold, active=leg.active)
         free = within.copy()
         if collision_free is not None and within.any():
             free[within] = np.asarray(collision_free(Q[within]), dtype=bool)
-        batch = evaluator.evaluate(Q, leg.hold, active=leg.active)
         valid = free & batch.stable
-        # Per edge: the states up to and including the first failure were evaluated.
-        pose7 = matrix_to_pose7(batch.object_pose) if batch.object_pose is not None else None
+        rejected["joint_limits"] += int((~within).sum())
+        rejected["collision"] += int((within & ~free).sum())
+        keep = free
+        pose7 = matrix_to_pose7(batch.object_pose[keep]) if batch.object_pose is not None else None
         label = leg.hold.label if leg.hold is not None else "none"
-        k = 0
-        keep = np.zeros(len(Q), dtype=bool)
-        for n in lengths:
-            seg_valid = valid[k : k + n]
-            bad = np.flatnonzero(~seg_valid)
-            end = k + (int(bad[0]) + 1 if bad.size else n)
-            for i in range(k, end):
-                if not within[i]:
-                    rejected["joint_limits"] += 1
-                elif not free[i]:
-                    rejected["collision"] += 1
-                else:
-                    keep[i] = True
-            k += n
         if keep.any():
             idx = np.flatnonzero(keep)
-            rec.add(leg_i, label, Q[idx], None if pose7 is None else pose7[idx], batch.stable[idx], batch.margin[idx], batch.com[idx])
+            rec.add(leg_i, label, Q[idx], pose7, batch.stable[idx], batch.margin[idx], batch.com[idx])
         return valid, batch.margin
 
     status = "done"
@@ -561,7 +580,9 @@ def explore(
         if err:
             raise ValueError(f"leg {i}: {err}")
         valid, margin = evaluate_states(i, np.vstack([start, goal]), [1, 1])
-        searches.append(_Search(start, goal, active, lo, hi, float(margin[0]), float(margin[1]), s))
+        search = _Search(start, goal, active, lo, hi, float(margin[0]), float(margin[1]), s)
+        search.batch_size = s.explore_batch_size
+        searches.append(search)
         leg_stats.append(dict(start_valid=bool(valid[0]), goal_valid=bool(valid[1]), connected=False,
                               connected_at_state=None, connected_at_round=None, rounds=0))
 
