@@ -9,7 +9,7 @@ pose, the system CoM (paper eq. 1), the margin and the cart-table ZMP.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Literal
+from typing import Literal
 
 import numpy as np
 
@@ -48,36 +48,67 @@ class TimedTrajectory:
     segments: list[dict]
 
 
-def zmp_cart_table(com: np.ndarray, dt: float) -> np.ndarray:
-    """ZMP = c_xy - (c_z / g) * c_xy'', with c'' by central finite differences (zero at the ends)."""
+def zmp_cart_table(com: np.ndarray, dt: float, holding: list[str] | None = None) -> np.ndarray:
+    """ZMP = c_xy - (c_z / g) * c_xy'', with c'' by central finite differences at ``dt``.
+
+    Where ``holding`` changes, the system's mass changes and its CoM steps (the
+    object's weight moves from the table to the hand); that step is not an
+    acceleration of the robot. The plan is at rest there (every piece starts and ends
+    at rest), so c'' is taken as zero at such points and at the trajectory's ends.
+    """
     acc = np.zeros_like(com[:, :2])
     if len(com) >= 3:
         acc[1:-1] = (com[2:, :2] - 2 * com[1:-1, :2] + com[:-2, :2]) / (dt * dt)
+    if holding is not None and len(holding) >= 2:
+        h = np.asarray(holding)
+        change = np.flatnonzero(h[1:] != h[:-1])  # holding differs between i and i+1
+        acc[np.clip(change, 0, len(acc) - 1)] = 0.0
+        acc[np.clip(change + 1, 0, len(acc) - 1)] = 0.0
     return com[:, :2] - (com[:, 2:3] / GRAVITY) * acc
 
 
-def assemble(
-    pieces: list[MotionPiece],
-    evaluator: StateEvaluator,
-    timing: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
-    dt: float,
-) -> TimedTrajectory:
-    """Time and concatenate the pieces; every piece starts and ends at rest."""
+def _sides(holding: str) -> tuple[str, ...]:
+    return {"none": (), "left": ("left",), "right": ("right",), "both": ("left", "right")}[holding]
+
+
+def assemble(pieces: list[MotionPiece], evaluator: StateEvaluator, dt: float, start_object_pose: np.ndarray) -> TimedTrajectory:
+    """Concatenate timed pieces (each from rest to rest, already sampled at ``dt``).
+
+    The object's state is tracked through the plan, not taken from the pieces: when a
+    hand closes on the object, its grasp is measured from where the object really is
+    and where the TCP really is; when the last hand lets go, the object stays exactly
+    where it was released. So the object never jumps, even though IK reaches key
+    poses only to a tolerance.
+    """
     Qs: list[np.ndarray] = []
     holds: list[str] = []
     poses: list[np.ndarray] = []
     coms: list[np.ndarray] = []
     segments: list[dict] = []
     count = 0
+    current = np.asarray(start_object_pose, dtype=float)
+    grasp: dict[str, np.ndarray] = {}  # side -> T_obj_tcp as actually held
+    holding = "none"
     for piece in pieces:
-        _, Q = timing(np.asarray(piece.waypoints, dtype=float))
+        Q = np.asarray(piece.waypoints, dtype=float)
         if len(Q) == 0:
             continue
-        batch = evaluator.evaluate(Q, piece.hold, threshold_m=0.0)
-        if piece.hold is None:
-            pose = np.repeat(np.asarray(piece.object_pose)[None], len(Q), axis=0)
+        if piece.holding != holding:
+            if holding != "none":  # where the object is at this instant, from a hand that held it
+                side = "left" if holding == "both" else holding
+                current = evaluator.tcp_pose(Q[0], side) @ np.linalg.inv(grasp[side])
+            for side in _sides(piece.holding):
+                if side not in grasp:
+                    grasp[side] = np.linalg.inv(current) @ evaluator.tcp_pose(Q[0], side)
+            grasp = {side: T for side, T in grasp.items() if side in _sides(piece.holding)}
+            holding = piece.holding
+        if holding == "none":
+            hold = None
         else:
-            pose = batch.object_pose
+            side = "left" if holding == "both" else holding
+            hold = HoldSpec(holding, grasp[side])
+        batch = evaluator.evaluate(Q, hold, threshold_m=0.0)
+        pose = np.repeat(current[None], len(Q), axis=0) if hold is None else batch.object_pose
         if count > 0:
             # The previous piece's last sample and this piece's first are the same rest state;
             # keep this piece's copy, since "holding" applies from a point onwards.
@@ -86,7 +117,7 @@ def assemble(
             count -= 1
         first = count
         Qs.append(Q)
-        holds += [piece.holding] * len(Q)
+        holds += [holding] * len(Q)
         poses.append(pose)
         coms.append(batch.com)
         count += len(Q)
@@ -96,7 +127,7 @@ def assemble(
     t = np.arange(len(Q)) * dt
     return TimedTrajectory(
         t=t, Q=Q, holding=holds, object_pose=np.concatenate(poses), com=com,
-        margin=evaluator.polygon.margin(com[:, :2]), zmp=zmp_cart_table(com, dt), segments=segments,
+        margin=evaluator.polygon.margin(com[:, :2]), zmp=zmp_cart_table(com, dt, holds), segments=segments,
     )
 
 

@@ -1,0 +1,655 @@
+"""The CoM-constrained regrasp planner: the paper's planner, one hand configuration at a time.
+
+Pipeline (one task = one scenario and one hand configuration):
+
+1. **Task set-up** (:class:`Task`): robot, stance, object, grasps per hand (cached on
+   disk), placements (start, goal and a few intermediate spots), handover poses,
+   the collision world, IK solvers and the stability evaluator.
+2. **Graph** (:mod:`planner.regrasp_graph`): abstract nodes after cheap checks.
+3. **Lazy validation**: a node's key poses (pre-grasp, grasp, lift; at a handover the
+   exchange) must be IK-feasible, collision-free and stable (margin >= threshold);
+   an edge's motion comes from T-RRT (:mod:`planner.trrt`), is shortcut, and is timed
+   within the velocity/acceleration limits with the ZMP kept inside the polygon
+   (:mod:`planner.timing`). What fails is removed and the search runs again.
+4. **Assembly** (:mod:`planner.plan_builder`): the timed pieces become the plan.
+
+With ``threshold_m == 0`` this is the unconstrained planner: no margin constraint and
+no margin cost (the paper's 0 mm comparison).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Callable, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from schemas.scenario import Scenario
+
+from .collision import CollisionWorld
+from .collision import environment_boxes, hand_geometry
+from .grasps import Grasp, GraspSet, GraspSettings, plan_grasps
+from .handover import HandoverPose, HandoverSettings, handover_poses
+from .placements import instantiate_placements
+from .ik import IkSettings, IkSolver
+from .objects import ObjectModel, build_object
+from .plan_builder import MotionPiece
+from .regrasp_graph import (
+    Canceled,
+    GraphSpec,
+    GraphWeights,
+    HandoverNode,
+    PlacementNode,
+    RegraspGraph,
+    SearchResult,
+    Validation,
+)
+from .robot_model import RobotModel, load_robot
+from .smoothing import SmoothingSettings, shortcut
+from .stances import Stance, solve_stance
+from .state_eval import HoldSpec, StateEvaluator
+from .timing import TimingSettings, time_path
+from .transforms import inverse, pose7_to_matrix
+from .trrt import TrrtSettings, plan_motion
+
+Side = Literal["left", "right"]
+HANDS_OF: dict[str, tuple[Side, Side]] = {
+    "left-left": ("left", "left"),
+    "right-right": ("right", "right"),
+    "left-right": ("left", "right"),
+    "right-left": ("right", "left"),
+}
+
+
+class PlannerSettings(BaseModel):
+    """Every knob of the regrasp planner, with defaults (SI units)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    pregrasp_m: float = Field(0.06, gt=0, description="pre-grasp: back along the approach axis")
+    lift_m: float = Field(0.06, gt=0, description="lift: straight up from the placement")
+    approach_samples: int = Field(8, ge=2, description="states checked along approach and lift")
+    max_grasps: int = Field(60, ge=1, description="grasps per hand kept for the graph (closest to the CoM first)")
+    handover_grasps: int = Field(24, ge=1, description="grasps per hand tried at a handover pose")
+    intermediate_placements: int = Field(6, ge=0, description="table spots x yaws besides start and goal")
+    handover: HandoverSettings = Field(default_factory=HandoverSettings)
+    handover_poses: int = Field(24, ge=0, description="floating poses kept for handovers")
+    weights: GraphWeights = Field(default_factory=GraphWeights)
+    grasp: GraspSettings = Field(default_factory=GraspSettings)
+    ik: IkSettings = Field(default_factory=IkSettings)
+    trrt: TrrtSettings = Field(default_factory=lambda: TrrtSettings(max_iterations=300))
+    smoothing: SmoothingSettings = Field(default_factory=SmoothingSettings)
+    timing: TimingSettings = Field(default_factory=TimingSettings)
+    planning_buffer_m: float = Field(
+        1e-3, ge=0, description="plan to threshold + this, so small IK residuals never bring a point below the threshold")
+
+
+@dataclass
+class KeyPoses:
+    """Validated key configurations of a placement node."""
+
+    q_pre: np.ndarray
+    q_grasp_open: np.ndarray
+    q_grasp: np.ndarray  # jaw closed
+    q_lift: np.ndarray
+    T_obj: np.ndarray  # the object where it rests
+    T_obj_tcp: np.ndarray  # the actual grasp (TCP in the object frame) at q_grasp
+    margin: float
+
+
+@dataclass
+class HandoverPoses:
+    q_giver_at: np.ndarray  # giver at the handover pose, taker arm at home
+    pieces: list[MotionPiece]  # taker transit, approach, close, giver open, retreat, giver home
+    q_after: np.ndarray  # taker holds, giver arm back home
+    T_taker_obj_tcp: np.ndarray  # the taker's grasp relative to the object, as nominal
+    margin: float
+
+
+@dataclass
+class PlannerResult:
+    status: Literal["solved", "infeasible"]
+    hands: str
+    pieces: list[MotionPiece] = field(default_factory=list)
+    cost: float = float("inf")
+    min_margin_m: float | None = None
+    failure_code: str | None = None
+    message: str = ""
+    failures: dict[str, int] = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
+
+
+def _translate(T: np.ndarray, d: np.ndarray, local: bool) -> np.ndarray:
+    out = T.copy()
+    out[:3, 3] += (T[:3, :3] @ d) if local else d
+    return out
+
+
+class Task:
+    """Everything one regrasp task needs, built once and reused across hand configurations."""
+
+    def __init__(self, scenario: Scenario, settings: PlannerSettings | None = None, *,
+                 robot: RobotModel | None = None, threshold_m: float | None = None, seed: int | None = None):
+        t0 = time.perf_counter()
+        self.scenario = scenario
+        self.settings = s = settings or PlannerSettings()
+        self.robot = robot or load_robot(scenario.robot)
+        self.stance: Stance = solve_stance(self.robot, scenario.stance)
+        self.threshold_m = scenario.threshold_m if threshold_m is None else threshold_m
+        self.seed = scenario.seed if seed is None else seed
+        self.constrained = self.threshold_m > 0.0
+        self.obj: ObjectModel = build_object(scenario.object)
+        planning_threshold = self.threshold_m + s.planning_buffer_m if self.constrained else 0.0
+        self.evaluator = StateEvaluator(self.robot, self.stance, planning_threshold, self.obj.mass_kg, self.obj.com_local)
+        self.timings: dict[str, float] = {}
+        self.counters: dict[str, int] = {"ik_solves": 0, "collision_states": 0, "com_states": 0}
+        t1 = time.perf_counter()
+        self.grasps: dict[Side, list[Grasp]] = {}
+        self.all_grasps: dict[Side, list[Grasp]] = {}
+        self.grasp_cache_hit: dict[Side, bool] = {}
+        for side in ("left", "right"):
+            gs = plan_grasps(self.obj, self.robot, side, s.grasp)
+            self.all_grasps[side] = list(gs.grasps)
+            self.grasps[side] = list(gs.grasps)[: s.max_grasps]
+            self.grasp_cache_hit[side] = gs.from_cache
+        self.timings["grasps_s"] = time.perf_counter() - t1
+        self.world = CollisionWorld.from_scenario(
+            self.robot, scenario, self.obj, reference_postures=[(self.stance.base_pose, self.stance.q)],
+            moving_joints=[*self.robot.spec.waist, *[j for a in self.robot.spec.arms.values() for j in a.chain],
+                           *[a.gripper.joint for a in self.robot.spec.arms.values()]],
+        )
+        self.ik = IkSolver(self.robot, self.stance, s.ik)
+        self.ik_arm_only = IkSolver(self.robot, self.stance, s.ik.model_copy(update={"use_waist": False}))
+        self.home = self.stance.q.copy()
+        self.jaw = {side: self.robot.joint_index(self.robot.spec.arms[side].gripper.joint) for side in ("left", "right")}
+        for side in ("left", "right"):
+            self.home[self.jaw[side]] = self.robot.upper[self.jaw[side]]  # jaws open at home
+        self.active = {side: np.concatenate([self.robot.waist_indices(), self.robot.arm_indices(side)]) for side in ("left", "right")}
+        self.arm_only = {side: self.robot.arm_indices(side) for side in ("left", "right")}
+        t2 = time.perf_counter()
+        self.placements, self.start_id, self.goal_id = self._placements()
+        self.handover_poses = self._handover_poses()
+        self.timings["placements_s"] = time.perf_counter() - t2
+        self.timings["setup_s"] = time.perf_counter() - t0
+
+    # -- scene data ---------------------------------------------------------------------------
+    def _placements(self) -> tuple[list[np.ndarray], int, int]:
+        """Start, goal, then a few intermediate resting poses (table spots x yaws, diverse faces)."""
+        sc = self.scenario
+        start, goal = pose7_to_matrix(sc.start_pose), pose7_to_matrix(sc.goal_pose)
+        all_placements = instantiate_placements(self.obj, environment_boxes(sc)[: len(sc.tables)], start, goal,
+                                                world=self.world)
+        spots = [p for p in all_placements if p.kind == "spot"]
+        # Prefer spots near the start-goal line, taking reference faces in turn so regrasps can flip the object.
+        mid = 0.5 * (start[:3, 3] + goal[:3, 3])
+        spots.sort(key=lambda p: float(np.linalg.norm(p.T_world_obj[:2, 3] - mid[:2])))
+        by_ref: dict[int, list] = {}
+        for p in spots:
+            by_ref.setdefault(p.reference, []).append(p)
+        chosen: list[np.ndarray] = []
+        while len(chosen) < self.settings.intermediate_placements and any(by_ref.values()):
+            for ref in sorted(by_ref):
+                if by_ref[ref] and len(chosen) < self.settings.intermediate_placements:
+                    chosen.append(by_ref[ref].pop(0).T_world_obj)
+        return [start, goal, *chosen], 0, 1
+
+    def _handover_poses(self) -> list[HandoverPose]:
+        if not self.settings.handover_poses:
+            return []
+        k = self.settings.handover_grasps
+        right = GraspSet(self.obj.content_hash, "right", tuple(self.all_grasps["right"][:k]), True, 0.0)
+        left = GraspSet(self.obj.content_hash, "left", tuple(self.all_grasps["left"][:k]), True, 0.0)
+        poses = handover_poses(self.obj, right, left, hand_geometry(self.robot, "right"), hand_geometry(self.robot, "left"),
+                               self.stance.base_pose[:3], self.settings.handover)
+        return poses[: self.settings.handover_poses]
+
+    # -- evaluation helpers ---------------------------------------------------------------------
+    def validity(self, hold: HoldSpec | None, free_object: np.ndarray | None, grasping: str | None = None,
+                 active: np.ndarray | None = None) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+        """validity(Q) -> (valid, margin): collision-free and (if constrained) margin >= threshold."""
+        held = []
+        if hold is not None:
+            held = [(hold.tcp_side, hold.T_obj_tcp)]
+            if hold.side == "both":
+                held = [(hold.tcp_side, hold.T_obj_tcp)]
+
+        def check(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            Q = np.atleast_2d(Q)
+            batch = self.evaluator.evaluate(Q, hold, active=active)
+            self.counters["com_states"] += len(Q)
+            ok = batch.stable.copy() if self.constrained else np.ones(len(Q), dtype=bool)
+            if ok.any():
+                idx = np.flatnonzero(ok)
+                res = self.world.check_batch(self.stance.base_pose, Q[idx], held=held,
+                                             free_object_pose=None if held else free_object, grasping=grasping)
+                self.counters["collision_states"] += len(idx)
+                ok[idx] = ~res.collides
+            return ok, batch.margin
+
+        return check
+
+    def classify(self, Q: np.ndarray, hold: HoldSpec | None, free_object: np.ndarray | None,
+                 grasping: str | None = None) -> tuple[str | None, float]:
+        """The first failing cause over states Q (com_margin before collision), and the min margin."""
+        Q = np.atleast_2d(Q)
+        batch = self.evaluator.evaluate(Q, hold)
+        self.counters["com_states"] += len(Q)
+        margin = float(batch.margin.min())
+        if self.constrained and not np.all(batch.stable):
+            return "com_margin", margin
+        held = [(hold.tcp_side, hold.T_obj_tcp)] if hold is not None else []
+        res = self.world.check_batch(self.stance.base_pose, Q, held=held,
+                                     free_object_pose=None if held else free_object, grasping=grasping)
+        self.counters["collision_states"] += len(Q)
+        if res.collides.any():
+            return "collision", margin
+        return None, margin
+
+    def tcp(self, q: np.ndarray, side: Side) -> np.ndarray:
+        return self.evaluator.tcp_pose(q, side)
+
+    def solve_ik(self, side: Side, target: np.ndarray, seed: np.ndarray, rng: np.random.Generator,
+                 arm_only: bool = False) -> np.ndarray | None:
+        """IK for one TCP target. The arm alone is tried first: bending the waist moves the heavy
+        torso and costs CoM margin, so the waist joins only when the arm cannot reach."""
+        self.counters["ik_solves"] += 1
+        res = self.ik_arm_only.solve_arm(side, target, seed, rng, rest_q=self.home)
+        if res.q is None and not arm_only:
+            self.counters["ik_solves"] += 1
+            res = self.ik.solve_arm(side, target, seed, rng, rest_q=self.home)
+        return res.q
+
+    def line(self, a: np.ndarray, b: np.ndarray, n: int | None = None) -> np.ndarray:
+        n = n or self.settings.approach_samples
+        s = np.linspace(0.0, 1.0, n)[:, None]
+        return a[None] * (1 - s) + b[None] * s
+
+    def estimated_margin(self, T_obj: np.ndarray) -> float:
+        """Quick guess of a held state's margin: the home posture plus the object at T_obj (eq. 1)."""
+        robot_com = self.stance.robot_com
+        obj_com = T_obj[:3, :3] @ self.obj.com_local + T_obj[:3, 3]
+        m, M = self.obj.mass_kg, self.robot.total_mass
+        c = (M * robot_com + m * obj_com) / (M + m)
+        return self.stance.polygon.margin_one(float(c[0]), float(c[1]))
+
+
+class HandConfigPlanner:
+    """Plans one hand configuration of a task: graph, lazy validation, motions."""
+
+    def __init__(self, task: Task, hands: str, rng: np.random.Generator):
+        if hands not in HANDS_OF:
+            raise ValueError(f"unknown hands {hands!r}; valid: {', '.join(HANDS_OF)}")
+        self.task = task
+        self.hands = hands
+        self.start_hand, self.goal_hand = HANDS_OF[hands]
+        self.rng = rng
+        self.keyposes: dict[PlacementNode, KeyPoses] = {}
+        self.handovers: dict[HandoverNode, HandoverPoses] = {}
+        self._validated: dict = {}
+        # Why start and goal nodes failed, to tell "the start is out of reach" from "no path".
+        self.start_failures: Counter = Counter()
+        self.goal_failures: Counter = Counter()
+        self.start_ok = False
+        self.goal_ok = False
+
+    # -- graph construction ---------------------------------------------------------------------
+    def _cheap_ok(self, side: Side, T_obj: np.ndarray, grasp: Grasp) -> bool:
+        """Cheap filters before IK: the hand does not come from below the table top, and is in reach."""
+        T_tcp = T_obj @ grasp.T_obj_tcp
+        approach = T_tcp[:3, 2]
+        if approach[2] > 0.3:  # approaching upwards: the palm would be under the object
+            return False
+        shoulder_y = 0.2 if side == "left" else -0.2
+        d = T_tcp[:3, 3] - np.array([0.0, shoulder_y, self.task.stance.base_pose[2] + 0.55])
+        return float(np.linalg.norm(d)) < 0.85
+
+    def graph_spec(self) -> GraphSpec:
+        t = self.task
+        sides: set[Side] = {self.start_hand, self.goal_hand}
+        nodes: list[PlacementNode] = []
+        for p, T in enumerate(t.placements):
+            for side in sides:
+                for g, grasp in enumerate(t.grasps[side]):
+                    if self._cheap_ok(side, T, grasp):
+                        nodes.append(PlacementNode(p, g, side))
+        handovers: list[HandoverNode] = []
+        if self.start_hand != self.goal_hand:
+            giver = self.start_hand
+            for f, hp in enumerate(t.handover_poses):
+                for r, l in hp.pairs:
+                    gi, ti = (int(r), int(l)) if giver == "right" else (int(l), int(r))
+                    handovers.append(HandoverNode(f, gi, ti, giver))
+        positions = {p: tuple(T[:3, 3]) for p, T in enumerate(t.placements)}
+        return GraphSpec(start=t.start_id, goal=t.goal_id, positions=positions, placement_nodes=nodes,
+                         handover_nodes=handovers, start_hand=self.start_hand, goal_hand=self.goal_hand)
+
+    # -- node validation ----------------------------------------------------------------------------
+    def validate_node(self, node) -> Validation:
+        """Validate a node once (cached across searches, e.g. for the K best solutions)."""
+        if node in self._validated:
+            return self._validated[node]
+        if isinstance(node, PlacementNode):
+            v = self._validate_placement(node)
+            t = self.task
+            for pid, hand, counter, flag in ((t.start_id, self.start_hand, self.start_failures, "start_ok"),
+                                             (t.goal_id, self.goal_hand, self.goal_failures, "goal_ok")):
+                if node.placement == pid and node.hand == hand:
+                    if v.ok:
+                        setattr(self, flag, True)
+                    else:
+                        counter[v.cause or "ik"] += 1
+        else:
+            v = self._validate_handover(node)
+        self._validated[node] = v
+        return v
+
+    def _validate_placement(self, node: PlacementNode) -> Validation:
+        t, s = self.task, self.task.settings
+        side = node.hand
+        grasp = t.grasps[side][node.grasp]
+        T_obj = t.placements[node.placement]
+        T_grasp = T_obj @ grasp.T_obj_tcp
+        T_pre = _translate(T_grasp, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
+        T_lift = _translate(T_grasp, np.array([0.0, 0.0, s.lift_m]), local=False)
+        q_grasp = t.solve_ik(side, T_grasp, t.home, self.rng)
+        if q_grasp is None:
+            return Validation(False, "ik", "grasp pose out of reach")
+        q_grasp[t.jaw[side]] = t.robot.upper[t.jaw[side]]
+        q_pre = t.solve_ik(side, T_pre, q_grasp, self.rng)
+        if q_pre is None:
+            return Validation(False, "ik", "pre-grasp pose out of reach")
+        q_lift = t.solve_ik(side, T_lift, q_grasp, self.rng)
+        if q_lift is None:
+            return Validation(False, "ik", "lift pose out of reach")
+        q_closed = q_grasp.copy()
+        q_closed[t.jaw[side]] = grasp.jaw_value
+        q_lift[t.jaw[side]] = grasp.jaw_value
+        T_obj_tcp = inverse(T_obj) @ t.tcp(q_closed, side)
+        hold = HoldSpec(side, T_obj_tcp)
+        # Free-hand states: home -> pre -> grasp (open), object resting.
+        cause, m1 = t.classify(np.vstack([q_pre[None], t.line(q_pre, q_grasp)]), None, T_obj, grasping=side)
+        if cause:
+            return Validation(False, cause, "approach", margin_m=m1)
+        cause, m2 = t.classify(t.line(q_grasp, q_closed, 3), None, T_obj, grasping=side)
+        if cause:
+            return Validation(False, cause, "closing the jaw", margin_m=m2)
+        # Held states: grasp (closed) -> lift.
+        cause, m3 = t.classify(t.line(q_closed, q_lift), hold, None)
+        if cause:
+            return Validation(False, cause, "lift", margin_m=m3)
+        kp = KeyPoses(q_pre=q_pre, q_grasp_open=q_grasp, q_grasp=q_closed, q_lift=q_lift, T_obj=T_obj,
+                      T_obj_tcp=T_obj_tcp, margin=min(m1, m2, m3))
+        self.keyposes[node] = kp
+        return Validation(True, margin_m=kp.margin, payload=kp)
+
+    def _validate_handover(self, node: HandoverNode) -> Validation:
+        t, s = self.task, self.task.settings
+        giver, taker = node.giver, node.taker
+        gg, tg = t.all_grasps[giver][node.giver_grasp], t.all_grasps[taker][node.taker_grasp]
+        T_obj = t.handover_poses[node.pose].T_world_obj
+        T_g = T_obj @ gg.T_obj_tcp
+        T_t = T_obj @ tg.T_obj_tcp
+        self.task.counters["ik_solves"] += 1
+        res = t.ik.solve({giver: T_g, taker: T_t}, t.home, self.rng, rest_q=t.home)
+        if res.q is None:
+            return Validation(False, "ik", "handover pose out of reach for both hands")
+        q_both = res.q
+        q_both[t.jaw[giver]] = gg.jaw_value
+        q_both[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
+        # The giver at the handover pose with the taker arm still at home.
+        q_giver_at = q_both.copy()
+        q_giver_at[t.arm_only[taker]] = t.home[t.arm_only[taker]]
+        T_pre_t = _translate(T_t, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
+        q_taker_pre = t.solve_ik(taker, T_pre_t, q_both, self.rng, arm_only=True)
+        if q_taker_pre is None:
+            return Validation(False, "ik", "taker pre-grasp out of reach")
+        q_taker_pre[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
+        T_pre_g = _translate(T_g, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
+        q_giver_pre = t.solve_ik(giver, T_pre_g, q_both, self.rng, arm_only=True)
+        if q_giver_pre is None:
+            return Validation(False, "ik", "giver retreat out of reach")
+        # The giver's grasp as the hand really holds it at the handover.
+        G_g = inverse(T_obj) @ t.tcp(q_both, giver)
+        hold_g = HoldSpec(giver, G_g)
+        cause, m0 = t.classify(q_giver_at, hold_g, None)
+        if cause:
+            return Validation(False, cause, "giver at the handover pose", margin_m=m0)
+        # Taker: home -> pre-grasp (T-RRT, arm only), approach, close.
+        q_taker_pre_full = q_giver_at.copy()
+        q_taker_pre_full[t.arm_only[taker]] = q_taker_pre[t.arm_only[taker]]
+        approach_end = q_both.copy()
+        motion = self._motion(q_giver_at, q_taker_pre_full, t.arm_only[taker], hold_g, None, grasping=None)
+        if motion is None:
+            return Validation(False, "motion", "taker cannot reach its pre-grasp at the handover")
+        cause, m1 = t.classify(t.line(q_taker_pre_full, approach_end), hold_g, None)
+        if cause:
+            return Validation(False, cause, "taker approach", margin_m=m1)
+        q_both_closed = approach_end.copy()
+        q_both_closed[t.jaw[taker]] = tg.jaw_value
+        G_t = inverse(T_obj) @ t.tcp(q_both_closed, taker)
+        hold_both = HoldSpec("both", G_g if giver == "left" else G_t)
+        hold_t = HoldSpec(taker, G_t)
+        q_released = q_both_closed.copy()
+        q_released[t.jaw[giver]] = t.robot.upper[t.jaw[giver]]
+        cause, m2 = t.classify(t.line(q_both_closed, q_released, 3), hold_t, None)
+        if cause:
+            return Validation(False, cause, "exchange", margin_m=m2)
+        # Giver: retreat along its approach axis, then home (arm only).
+        q_giver_back = q_released.copy()
+        q_giver_back[t.arm_only[giver]] = q_giver_pre[t.arm_only[giver]]
+        cause, m3 = t.classify(t.line(q_released, q_giver_back), hold_t, None)
+        if cause:
+            return Validation(False, cause, "giver retreat", margin_m=m3)
+        q_after = q_giver_back.copy()
+        q_after[t.arm_only[giver]] = t.home[t.arm_only[giver]]
+        home_motion = self._motion(q_giver_back, q_after, t.arm_only[giver], hold_t, None, grasping=None)
+        if home_motion is None:
+            return Validation(False, "motion", "giver cannot return home after the handover")
+        q_close_open = approach_end
+        pieces = [
+            MotionPiece("transit", taker, motion, giver, hold_g),
+            MotionPiece("approach", taker, t.line(q_taker_pre_full, q_close_open, 2), giver, hold_g),
+            MotionPiece("handover", "both", t.line(q_close_open, q_both_closed, 2), giver, hold_g),
+            MotionPiece("handover", "both", t.line(q_both_closed, q_released, 2), "both", hold_both),
+            MotionPiece("retreat", giver, t.line(q_released, q_giver_back, 2), taker, hold_t),
+            MotionPiece("transit", giver, home_motion, taker, hold_t),
+        ]
+        hp = HandoverPoses(q_giver_at=q_giver_at, pieces=pieces, q_after=q_after, T_taker_obj_tcp=G_t,
+                           margin=min(m0, m1, m2, m3))
+        self.handovers[node] = hp
+        return Validation(True, margin_m=hp.margin, payload=hp)
+
+    # -- motions --------------------------------------------------------------------------------------
+    def _motion(self, qa: np.ndarray, qb: np.ndarray, active: np.ndarray, hold: HoldSpec | None,
+                free_object: np.ndarray | None, grasping: str | None) -> np.ndarray | None:
+        """A valid joint path qa -> qb (T-RRT, then shortcuts), or None."""
+        t, s = self.task, self.task.settings
+        validity = t.validity(hold, free_object, grasping, active=None)
+        trrt = s.trrt.model_copy(update={"margin_cost": t.constrained})
+        res = plan_motion(qa, qb, active, validity, t.robot.lower, t.robot.upper, self.rng, trrt,
+                          should_stop=self._should_stop)
+        if not res.ok:
+            return None
+        path = res.path
+        if len(path) > 2:
+            path = shortcut(path, validity, self.rng, s.smoothing, should_stop=self._should_stop).path
+        return path
+
+    def _timed(self, piece: MotionPiece) -> MotionPiece | None:
+        """Time a piece; None if the ZMP or the dense margin check cannot be kept."""
+        t = self.task
+        timed = time_path(piece.waypoints, t.robot, t.evaluator, piece.hold, t.settings.timing,
+                          threshold_m=t.evaluator.threshold_m if t.constrained else -np.inf)
+        if not timed.ok:
+            return None
+        piece.waypoints = timed.Q
+        piece.timed = True  # type: ignore[attr-defined]
+        return piece
+
+    def validate_edge(self, a, b, kind: str) -> Validation:
+        t = self.task
+        pieces: list[MotionPiece] = []
+        if a is None:  # home -> first node's pre-grasp
+            kp = self.keyposes[b]
+            path = self._motion(t.home, kp.q_pre, t.active[b.hand], None, kp.T_obj, None)
+            if path is None:
+                return Validation(False, "motion", "home to the first pre-grasp")
+            pieces.append(MotionPiece("transit", b.hand, path, "none", None, kp.T_obj))
+        elif b is None:  # last node: release, retreat, home
+            kp = self.keyposes[a]
+            path = self._motion(kp.q_pre, self._home_from(kp.q_pre, a.hand), t.active[a.hand], None, kp.T_obj, None)
+            if path is None:
+                return Validation(False, "motion", "back home after placing")
+            pieces.append(MotionPiece("transit", a.hand, path, "none", None, kp.T_obj))
+        elif kind == "transit":  # regrasp at the same placement
+            ka, kb = self.keyposes[a], self.keyposes[b]
+            path = self._motion(ka.q_pre, self._with_arm_of(kb.q_pre, ka.q_pre, b.hand), t.active[b.hand], None, ka.T_obj, None)
+            if path is None:
+                return Validation(False, "motion", "regrasp transit")
+            pieces.append(MotionPiece("transit", b.hand, path, "none", None, ka.T_obj))
+        elif kind == "transfer":
+            ka, kb = self.keyposes[a], self.keyposes[b]
+            hold = HoldSpec(a.hand, ka.T_obj_tcp)
+            path = self._motion(ka.q_lift, self._with_arm_of(kb.q_lift, ka.q_lift, a.hand), t.active[a.hand], hold, None, None)
+            if path is None:
+                return Validation(False, "motion", "transfer between placements")
+            pieces.append(MotionPiece("transfer", a.hand, path, a.hand, hold))
+        elif kind == "handover" and isinstance(b, HandoverNode):
+            ka, hp = self.keyposes[a], self.handovers[b]
+            hold = HoldSpec(a.hand, ka.T_obj_tcp)
+            cause, _ = t.classify(hp.q_giver_at, hold, None)
+            if cause:
+                return Validation(False, cause, "giver at the handover with its own grasp")
+            path = self._motion(ka.q_lift, hp.q_giver_at, t.active[a.hand], hold, None, None)
+            if path is None:
+                return Validation(False, "motion", "transfer to the handover pose")
+            pieces.append(MotionPiece("transfer", a.hand, path, a.hand, hold))
+        elif kind == "handover":  # handover node -> placement node of the taker
+            hp, kb = self.handovers[a], self.keyposes[b]
+            hold = HoldSpec(b.hand, hp.T_taker_obj_tcp)
+            target = self._with_arm_of(kb.q_lift, hp.q_after, b.hand)
+            cause, _ = t.classify(target, hold, None)
+            if cause:
+                return Validation(False, cause, "taker at the lift pose with the handover grasp")
+            path = self._motion(hp.q_after, target, t.active[b.hand], hold, None, None)
+            if path is None:
+                return Validation(False, "motion", "transfer from the handover to the goal")
+            pieces.append(MotionPiece("transfer", b.hand, path, b.hand, hold))
+        else:  # pragma: no cover - the graph only makes the kinds above
+            return Validation(False, "motion", f"unknown edge kind {kind}")
+        timed = []
+        for p in pieces:
+            tp = self._timed(p)
+            if tp is None:
+                return Validation(False, "com_margin" if t.constrained else "motion", "timing: ZMP or dense margin")
+            timed.append(tp)
+        return Validation(True, payload=timed)
+
+    def _with_arm_of(self, q_target: np.ndarray, q_current: np.ndarray, side: Side) -> np.ndarray:
+        """q_target for the waist and ``side``'s arm and jaw; everything else as in q_current."""
+        out = q_current.copy()
+        idx = self.task.active[side]
+        out[idx] = q_target[idx]
+        out[self.task.jaw[side]] = q_target[self.task.jaw[side]]
+        return out
+
+    def _home_from(self, q: np.ndarray, side: Side) -> np.ndarray:
+        out = q.copy()
+        out[self.task.active[side]] = self.task.home[self.task.active[side]]
+        return out
+
+    _should_stop: Callable[[], bool] = staticmethod(lambda: False)
+
+    # -- search and assembly ----------------------------------------------------------------------------
+    def plan(self, *, max_iterations: int, time_limit_s: float, should_stop: Callable[[], bool] = lambda: False,
+             on_iteration: Callable[[int, dict], None] | None = None) -> PlannerResult:
+        t0 = time.perf_counter()
+        self._should_stop = should_stop  # type: ignore[assignment]
+        spec = self.graph_spec()
+        weights = self.task.settings.weights
+        if not self.task.constrained:  # the unconstrained planner: no margin cost either
+            weights = dataclasses.replace(weights, margin=0.0)
+        graph = RegraspGraph(spec, weights)
+        if self.task.constrained:
+            self._seed_margin_estimates(graph)
+        res: SearchResult = graph.search(
+            self.validate_node, self.validate_edge, max_iterations=max_iterations, time_limit_s=time_limit_s,
+            should_stop=should_stop, on_iteration=(lambda i, f: on_iteration(i, dict(f))) if on_iteration else None,
+        )
+        stats = {"graph_nodes": res.graph_nodes, "graph_edges": res.graph_edges, "search_iterations": res.iterations,
+                 "nodes_validated": len(self.keyposes) + len(self.handovers), "time_s": time.perf_counter() - t0}
+        if res.status != "solved":
+            return PlannerResult("infeasible", self.hands, failure_code=res.code, message=res.message,
+                                 failures=dict(res.failures), stats=stats)
+        pieces = self._assemble_pieces(res)
+        return PlannerResult("solved", self.hands, pieces=pieces, cost=res.cost, failures=dict(res.failures), stats=stats)
+
+    def _seed_margin_estimates(self, graph: RegraspGraph) -> None:
+        """Before any IK, weight nodes by a quick margin estimate so the search tries stable ones first."""
+        t = self.task
+        est = {p: t.estimated_margin(T) for p, T in enumerate(t.placements)}
+        for node in list(graph.g.nodes):
+            if isinstance(node, PlacementNode):
+                graph._apply_margin_cost(node, est[node.placement])
+
+    def _assemble_pieces(self, res: SearchResult) -> list[MotionPiece]:
+        """Key-pose moves and planned motions in execution order (the builder tracks the object)."""
+        t = self.task
+        out: list[MotionPiece] = []
+        path = res.path
+        edges = iter([e.payload for e in res.edges])  # timed pieces, one list per hop, in order
+        out.extend(next(edges))  # home -> first pre-grasp
+        for i, node in enumerate(path):
+            if isinstance(node, HandoverNode):
+                out.extend(self._timed_copy(p) for p in self.handovers[node].pieces)
+                out.extend(next(edges))  # handover -> taker's lift pose
+                continue
+            kp = self.keyposes[node]
+            side = node.hand
+            prev = path[i - 1] if i > 0 else None
+            nxt = path[i + 1] if i + 1 < len(path) else None
+            if not self._carried(prev, node):
+                # Pick: approach, close the jaw, lift.
+                out.append(self._timed_copy(MotionPiece("approach", side, t.line(kp.q_pre, kp.q_grasp_open, 2), "none", None)))
+                out.append(self._timed_copy(MotionPiece("approach", side, t.line(kp.q_grasp_open, kp.q_grasp, 2), "none", None)))
+                out.append(self._timed_copy(MotionPiece("transfer", side, t.line(kp.q_grasp, kp.q_lift, 2), side,
+                                                        HoldSpec(side, kp.T_obj_tcp))))
+            if nxt is not None and self._carried(node, nxt):
+                out.extend(next(edges))  # carry to the next placement or to the handover pose
+                continue
+            # Place: lower, open the jaw, retreat; then the regrasp transit or the way home.
+            here = out[-1].waypoints[-1]
+            down = self._with_arm_of(kp.q_grasp, here, side)
+            opened = down.copy()
+            opened[t.jaw[side]] = t.robot.upper[t.jaw[side]]
+            out.append(self._timed_copy(MotionPiece("transfer", side, t.line(here, down, 2), side, HoldSpec(side, kp.T_obj_tcp))))
+            out.append(self._timed_copy(MotionPiece("retreat", side, t.line(down, opened, 2), "none", None)))
+            out.append(self._timed_copy(MotionPiece("retreat", side, t.line(opened, self._with_arm_of(kp.q_pre, opened, side), 2), "none", None)))
+            out.extend(next(edges))
+        return out
+
+    @staticmethod
+    def _carried(a, b) -> bool:
+        """Whether the object stays in hand from node a to node b (transfer or handover)."""
+        if a is None or b is None:
+            return False
+        if isinstance(a, HandoverNode) or isinstance(b, HandoverNode):
+            return True
+        return a.grasp == b.grasp and a.hand == b.hand and a.placement != b.placement
+
+    def _timed_copy(self, piece: MotionPiece) -> MotionPiece:
+        if getattr(piece, "timed", False):
+            return piece
+        tp = self._timed(MotionPiece(piece.kind, piece.hand, piece.waypoints, piece.holding, piece.hold))
+        if tp is None:  # short straight pieces were validated densely already; time them kinematically
+            from .timing import time_parameterize
+
+            _, Q = time_parameterize(piece.waypoints, self.task.robot, self.task.settings.timing)
+            piece.waypoints = Q
+            piece.timed = True  # type: ignore[attr-defined]
+            return piece
+        return tp

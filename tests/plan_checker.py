@@ -1,0 +1,243 @@
+"""An independent checker of plan files (CONTRACT.md section 3).
+
+It trusts none of the planner's numbers: it reloads the URDF into pinocchio,
+recomputes every CoM (the paper's equation 1), margins with shapely, the ZMP, the
+feet, the object's rigidity in the holding hand, and the limits. Tests call
+:func:`check_plan` on every solved plan they produce.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+import yaml
+from shapely.geometry import MultiPoint, Point, Polygon
+
+G = 9.81
+MARGIN_TOL = 1e-4
+
+
+@dataclass
+class CheckReport:
+    errors: list[str] = field(default_factory=list)
+    min_margin: float = np.inf
+
+    def fail(self, msg: str) -> None:
+        if len(self.errors) < 20:
+            self.errors.append(msg)
+
+
+def _urdf_and_spec(robot_name: str):
+    import importlib.resources as res
+
+    data = res.files("planner.robots") / "data"
+    spec = yaml.safe_load((data / f"{robot_name}.yaml").read_text())
+    return str(data / spec["urdf"]), spec
+
+
+def _mimics(urdf: str) -> dict:
+    import xml.etree.ElementTree as ET
+
+    out = {}
+    for j in ET.parse(urdf).getroot().iter("joint"):
+        m = j.find("mimic")
+        if m is not None:
+            out[j.attrib["name"]] = (m.attrib["joint"], float(m.attrib.get("multiplier", 1)), float(m.attrib.get("offset", 0)))
+    return out
+
+
+def _acc_limits(spec: dict, names: list[str]) -> np.ndarray:
+    acc = spec["acceleration_limits"]
+    out = []
+    for n in names:
+        if any(n in f["chain"] for f in spec["feet"].values()):
+            out.append(acc["legs"])
+        elif n in spec["waist"]:
+            out.append(acc["waist"])
+        elif n in spec.get("neck", []):
+            out.append(acc["neck"])
+        elif any(n == a["gripper"]["joint"] for a in spec["arms"].values()):
+            out.append(acc["grippers"])
+        else:
+            out.append(acc["arms"])
+    return np.array(out)
+
+
+def _se3(pose) -> pin.SE3:
+    return pin.XYZQUATToSE3(np.asarray(pose, dtype=float))
+
+
+def _pose_err(a: pin.SE3, b: pin.SE3) -> tuple[float, float]:
+    d = a.inverse() * b
+    return float(np.linalg.norm(d.translation)), float(np.linalg.norm(pin.log3(d.rotation)))
+
+
+def check_plan(plan: dict, *, sample_every: int = 1) -> CheckReport:
+    rep = CheckReport()
+    assert plan["status"] == "solved", plan.get("failure")
+    urdf, spec = _urdf_and_spec(plan["robot"]["name"])
+    model = pin.buildModelFromUrdf(urdf, pin.JointModelFreeFlyer())
+    data = model.createData()
+    mimics = _mimics(urdf)
+    names = plan["robot"]["joint_names"]
+    col = {n: i for i, n in enumerate(names)}
+    base = np.asarray(plan["stance"]["base_pose"], dtype=float)
+    traj = plan["trajectory"]
+    dt = plan["dt_s"]
+    Q = np.array([p["q"] for p in traj])
+    T = np.array([p["t"] for p in traj])
+    holding = [p["holding"] for p in traj]
+    obj = plan["object"]
+    m = obj["mass_kg"]
+    com_local = np.asarray(obj["com_local"])
+    M = pin.computeTotalMass(model)
+    thr = plan["threshold_m"]
+    feet = plan["stance"]["feet"]
+
+    # Support polygon: hull of the sole boxes in contact.
+    corners = []
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(urdf).getroot()
+    boxes = {l.attrib["name"]: l.find("collision/geometry/box") for l in root.iter("link")}
+    for f in feet:
+        if not f["in_contact"]:
+            continue
+        sx, sy, _ = (float(v) for v in boxes[f["frame"]].attrib["size"].split())
+        Mf = _se3(f["pose"])
+        for cx, cy in ((1, 1), (-1, 1), (-1, -1), (1, -1)):
+            corners.append((Mf.act(np.array([cx * sx / 2, cy * sy / 2, 0.0])))[:2])
+    hull = MultiPoint(corners).convex_hull
+    plan_poly = Polygon(plan["support_polygon"])
+    if hull.symmetric_difference(plan_poly).area > 1e-3 * 0.3:  # ~1 mm along the outline
+        rep.fail("support_polygon differs from the hull of the soles in contact")
+
+    def pinq(q):
+        out = np.zeros(model.nq)
+        out[:7] = base
+        for jid in range(2, model.njoints):
+            n = model.names[jid]
+            if n in mimics:
+                master, k, b = mimics[n]
+                out[model.idx_qs[jid]] = k * q[col[master]] + b
+            else:
+                out[model.idx_qs[jid]] = q[col[n]]
+        return out
+
+    def system_com(q, hold, objpose):
+        c = pin.centerOfMass(model, data, pinq(q), False).copy()
+        if hold != "none":
+            oc = _se3(objpose).act(com_local)
+            c = (M * c + m * oc) / (M + m)
+        return c
+
+    def margin(c):
+        p = Point(c[0], c[1])
+        d = hull.exterior.distance(p)
+        return d if hull.contains(p) else -d
+
+    lower = np.array([model.lowerPositionLimit[model.idx_qs[model.getJointId(n)]] for n in names])
+    upper = np.array([model.upperPositionLimit[model.idx_qs[model.getJointId(n)]] for n in names])
+    vel = np.array([model.velocityLimit[model.idx_vs[model.getJointId(n)]] for n in names])
+    acc = _acc_limits(spec, names)
+    if np.any(Q < lower - 1e-9) or np.any(Q > upper + 1e-9):
+        i, j = np.argwhere((Q < lower - 1e-9) | (Q > upper + 1e-9))[0]
+        rep.fail(f"q[{i}] {names[j]}={Q[i, j]:.4f} outside [{lower[j]:.4f}, {upper[j]:.4f}]")
+    if not np.allclose(T, np.arange(len(T)) * dt, atol=1e-9):
+        rep.fail("t is not i * dt_s")
+    V = np.diff(Q, axis=0) / dt
+    if np.any(np.abs(V) > vel * (1 + 1e-6)):
+        i, j = np.argwhere(np.abs(V) > vel * (1 + 1e-6))[0]
+        rep.fail(f"velocity of {names[j]} at {i}: {V[i, j]:.4f} > {vel[j]:.4f}")
+    A = np.diff(Q, 2, axis=0) / dt**2
+    if np.any(np.abs(A) > acc * 1.05):
+        i, j = np.argwhere(np.abs(A) > acc * 1.05)[0]
+        rep.fail(f"acceleration of {names[j]} at {i}: {A[i, j]:.4f} > {acc[j]:.4f}")
+    if np.abs(V[0]).max() > 1e-6 or np.abs(V[-1]).max() > 1e-6:
+        rep.fail("the plan does not start and end at rest")
+
+    coms = np.zeros((len(traj), 3))
+    tcp_ids = {"left": model.getFrameId("l_tcp"), "right": model.getFrameId("r_tcp")}
+    sole_ids = {f["frame"]: model.getFrameId(f["frame"]) for f in feet}
+    rel: dict = {}
+    obj_prev = None
+    for i, p in enumerate(traj):
+        q = Q[i]
+        c = system_com(q, p["holding"], p["object_pose"])
+        coms[i] = c
+        if np.abs(c - np.asarray(p["com"])).max() > 1e-6:
+            rep.fail(f"com at {i} differs from the recomputation by {np.abs(c - np.asarray(p['com'])).max():.2e} m")
+        mg = margin(c)
+        rep.min_margin = min(rep.min_margin, mg)
+        if abs(mg - p["margin_m"]) > 1e-6:
+            rep.fail(f"margin_m at {i} differs from the recomputation ({p['margin_m']:.6f} vs {mg:.6f})")
+        if thr > 0 and mg < thr - MARGIN_TOL:
+            rep.fail(f"margin {mg:.4f} below threshold {thr} at point {i}")
+        if thr > 0 and i + 1 < len(traj) and i % sample_every == 0:
+            mid = 0.5 * (Q[i] + Q[i + 1])
+            for h in {p["holding"], traj[i + 1]["holding"]}:
+                # object pose at the midpoint: rigid with the hand -> interpolate through the hand
+                op = p["object_pose"] if h == p["holding"] else traj[i + 1]["object_pose"]
+                cm = system_com(mid, h, op)
+                if margin(cm) < thr - MARGIN_TOL:
+                    rep.fail(f"margin {margin(cm):.4f} below threshold between points {i} and {i + 1}")
+        pin.framesForwardKinematics(model, data, pinq(q))
+        if i % max(sample_every, 1) == 0:
+            for f in feet:
+                e, _ = _pose_err(data.oMf[sole_ids[f["frame"]]], _se3(f["pose"]))
+                if e > 1e-3:
+                    rep.fail(f"foot {f['frame']} moved {e * 1000:.2f} mm at point {i}")
+        op = _se3(p["object_pose"])
+        h = p["holding"]
+        if h == "none":
+            if obj_prev is not None and traj[i - 1]["holding"] == "none":
+                e, a = _pose_err(obj_prev, op)
+                if e > 1e-6 or a > 1e-6:
+                    rep.fail(f"object moved while not held at point {i}")
+            rel = {}
+        else:
+            for side in (("left", "right") if h == "both" else (h,)):
+                r = data.oMf[tcp_ids[side]].inverse() * op
+                if side in rel:
+                    e, a = _pose_err(rel[side], r)
+                    if e > 2e-3 or a > 0.02:
+                        rep.fail(f"object not rigid in the {side} hand at point {i} ({e * 1000:.2f} mm, {a:.3f} rad)")
+                else:
+                    rel[side] = r
+            rel = {s: v for s, v in rel.items() if s in (("left", "right") if h == "both" else (h,))}
+        obj_prev = op
+    # ZMP: cart-table with central differences within runs of constant holding.
+    accel = np.zeros((len(traj), 2))
+    accel[1:-1] = (coms[2:, :2] - 2 * coms[1:-1, :2] + coms[:-2, :2]) / dt**2
+    h = np.array(holding)
+    change = np.flatnonzero(h[1:] != h[:-1])
+    accel[change] = 0.0
+    accel[np.minimum(change + 1, len(h) - 1)] = 0.0
+    zmp = coms[:, :2] - coms[:, 2:3] / G * accel
+    for i in range(len(traj)):
+        if margin(np.array([*zmp[i], 0.0])) < 0:
+            rep.fail(f"ZMP outside the support polygon at point {i}")
+            break
+        if np.abs(zmp[i] - np.asarray(traj[i]["zmp"])).max() > 1e-6:
+            rep.fail(f"zmp at {i} differs from the recomputation")
+            break
+    e, a = _pose_err(_se3(traj[0]["object_pose"]), _se3(obj["start_pose"]))
+    if e > 5e-3 or a > 0.05:
+        rep.fail(f"object does not start at start_pose ({e * 1000:.1f} mm, {a:.3f} rad)")
+    e, a = _pose_err(_se3(traj[-1]["object_pose"]), _se3(obj["goal_pose"]))
+    if e > 5e-3 or a > 0.05:
+        rep.fail(f"object does not end at goal_pose ({e * 1000:.1f} mm, {a:.3f} rad)")
+    if traj[-1]["holding"] != "none":
+        rep.fail("the object is still held at the end")
+    last = -1
+    for s in plan["segments"]:
+        if s["first"] < last or s["last"] < s["first"]:
+            rep.fail(f"segments out of order at {s}")
+        last = s["last"]
+    if plan["segments"] and plan["segments"][-1]["last"] != len(traj) - 1:
+        rep.fail("segments do not cover the trajectory")
+    if plan.get("min_margin_m") is not None and abs(plan["min_margin_m"] - rep.min_margin) > 1e-6:
+        rep.fail("min_margin_m differs from the recomputed minimum")
+    return rep
