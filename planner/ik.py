@@ -114,19 +114,18 @@ class IkSolver:
         """Stacked local errors (6k,), Jacobian (6k, nv) and the worst position / rotation errors."""
         model, data = self._model, self._data
         qp = self.robot.to_pin_q(self.base_pose, q)
-        pin.computeJointJacobians(model, data, qp)
-        pin.updateFramePlacements(model, data)
+        pin.forwardKinematics(model, data, qp)
         errs, jacs = [], []
         pmax = rmax = 0.0
         for side in sides:
             fid = self._tcp_fid[side]
-            cur = data.oMf[fid]
+            cur = pin.updateFramePlacement(model, data, fid).copy()
             iMd = cur.actInv(targets[side])
             e = pin.log6(iMd).vector
             pmax = max(pmax, float(np.linalg.norm(targets[side].translation - cur.translation)))
             rmax = max(rmax, float(np.linalg.norm(e[3:])))
             errs.append(e)
-            J = pin.getFrameJacobian(model, data, fid, pin.LOCAL)
+            J = pin.computeFrameJacobian(model, data, qp, fid, pin.LOCAL)
             # log6 error is (nearly) J dq for small errors; use the log Jacobian for accuracy further out.
             jacs.append(pin.Jlog6(iMd.inverse()) @ J)
         return np.concatenate(errs), np.vstack(jacs), pmax, rmax
@@ -268,3 +267,14 @@ class IkSolver:
         """World TCP pose (4, 4) of a configuration."""
         pin.forwardKinematics(self._model, self._data, self.robot.to_pin_q(self.base_pose, np.asarray(q, dtype=float)))
         return pin.updateFramePlacement(self._model, self._data, self._tcp_fid[side]).homogeneous.copy()
+
+
+def key_pose_targets(T_world_tcp_grasp: np.ndarray, approach_m: float = 0.05, lift_m: float = 0.05) -> dict[str, np.ndarray]:
+    """The TCP targets of one grasp node: ``pregrasp`` (backed off along the approach axis, the TCP z),
+    ``grasp``, and ``lift`` (raised along the world z), each a (4, 4) world pose."""
+    T = np.asarray(T_world_tcp_grasp, dtype=float)
+    pre = T.copy()
+    pre[:3, 3] = T[:3, 3] - approach_m * T[:3, 2]
+    lift = T.copy()
+    lift[2, 3] += lift_m
+    return {"pregrasp": pre, "grasp": T.copy(), "lift": lift}

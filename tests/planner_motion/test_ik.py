@@ -81,3 +81,15 @@ def test_bad_input_is_reported(robot, upright, ik):
     T = np.eye(4)
     T[0, 0] = np.nan
     assert ik.solve_arm("left", T, upright.q, np.random.default_rng(0)).code == "BAD_INPUT"
+
+
+def test_key_pose_targets_back_off_along_the_approach():
+    from planner.ik import key_pose_targets
+
+    T = np.eye(4)
+    T[:3, :3] = np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]])  # approach (z) along world +x
+    T[:3, 3] = [0.5, -0.2, 0.8]
+    k = key_pose_targets(T, approach_m=0.05, lift_m=0.07)
+    assert np.allclose(k["pregrasp"][:3, 3], [0.45, -0.2, 0.8])
+    assert np.allclose(k["lift"][:3, 3], [0.5, -0.2, 0.87])
+    assert np.allclose(k["grasp"], T) and np.allclose(k["pregrasp"][:3, :3], T[:3, :3])
