@@ -35,8 +35,8 @@ from .stances import Stance
 HoldSide = Literal["left", "right", "both"]
 #: How many reduced kinematic trees one evaluator keeps (one per active joint set / fixed posture).
 REDUCED_CACHE_SIZE = 16
-#: Columns whose values differ by less than this across a batch count as fixed.
-FIXED_COLUMN_TOL = 0.0
+#: Batches up to this size go through pinocchio state by state (no reduced-tree set-up).
+SMALL_BATCH = 16
 
 
 @dataclass(frozen=True)
@@ -149,51 +149,47 @@ class ReducedKinematics:
         q_ref: np.ndarray,
         active: Sequence[int],
         frames: Sequence[str] = (),
+        data: pin.Data | None = None,
     ):
-        model = robot.pin_model
-        data = model.createData()
+        """``data``: a pinocchio scratch buffer to reuse (creating one costs more than the rest)."""
+        st = _statics(robot)
+        if data is None:
+            data = robot.pin_model.createData()
         self.robot = robot
         self.active = np.array(sorted(set(int(a) for a in active)), dtype=int)
         self.q_ref = np.array(q_ref, dtype=float)
         active_set = set(self.active.tolist())
-        pin.forwardKinematics(model, data, robot.to_pin_q(np.asarray(base_pose, float), self.q_ref))
-        oMi = [data.oMi[j].copy() for j in range(model.njoints)]
-        src_of_pinq = {int(p): (int(s), float(m), float(o)) for p, s, m, o in zip(robot.pin_q_index, robot.q_source, robot.q_mult, robot.q_offset)}
+        pin.forwardKinematics(robot.pin_model, data, robot.to_pin_q(np.asarray(base_pose, float), self.q_ref))
+        oMi = list(data.oMi)  # one copy of the vector (each indexed access would copy it again)
 
         # anchor[j]: step index of the nearest moving joint at or above j; -1 = fixed in the world.
-        anchor = [-1] * model.njoints
+        anchor = [-1] * st.njoints
         steps_raw: list[dict] = []
-        for jid in range(1, model.njoints):
-            parent_anchor = anchor[model.parents[jid]] if jid > 1 else -1
-            is_active = False
-            if jid >= 2:
-                col, mult, off = src_of_pinq[int(model.idx_qs[jid])]
-                is_active = col in active_set
-            if not is_active:
+        for jid in range(1, st.njoints):
+            parent_anchor = anchor[st.parents[jid]] if jid > 1 else -1
+            col, mult, off = st.source[jid]
+            if jid < 2 or col not in active_set:
                 anchor[jid] = parent_anchor
                 continue
-            short = model.joints[jid].shortname()
-            if short not in _KINDS:
-                raise ValueError(f"joint {model.names[jid]!r} of type {short} is not supported")
-            kind, ax = _KINDS[short]
-            axis = np.eye(3)[ax] if ax >= 0 else np.array(model.joints[jid].extract().axis, dtype=float)
+            kind, ax, axis = st.kinds[jid]
+            if kind is None:
+                raise ValueError(f"joint {st.names[jid]!r} of type {axis} is not supported")
             parent_frame = oMi[steps_raw[parent_anchor]["jid"]] if parent_anchor >= 0 else pin.SE3.Identity()
-            rel = parent_frame.actInv(oMi[model.parents[jid]] * model.jointPlacements[jid])
+            rel = parent_frame.actInv(oMi[st.parents[jid]] * st.placements[jid])
             R_rel = np.array(rel.rotation)
             steps_raw.append(dict(
-                jid=jid, anchor=parent_anchor, R_rel=None if np.allclose(R_rel, np.eye(3), atol=1e-14) else R_rel,
-                p_rel=np.array(rel.translation), kind=kind, axis_index=ax, axis=axis / np.linalg.norm(axis),
+                jid=jid, anchor=parent_anchor, R_rel=None if np.abs(R_rel - _I3).max() < 1e-14 else R_rel,
+                p_rel=np.array(rel.translation), kind=kind, axis_index=ax, axis=axis,
                 col=col, mult=mult, offset=off, mass=0.0, moment=np.zeros(3),
             ))
             anchor[jid] = len(steps_raw) - 1
 
         fixed_mass, fixed_moment = 0.0, np.zeros(3)
-        for jid in range(1, model.njoints):
-            inertia = model.inertias[jid]
-            m = float(inertia.mass)
+        for jid in range(1, st.njoints):
+            m, lever = st.masses[jid]
             if m <= 0.0:
                 continue
-            c_world = oMi[jid].act(np.array(inertia.lever))
+            c_world = oMi[jid].act(lever)
             a = anchor[jid]
             if a < 0:
                 fixed_mass += m
@@ -214,10 +210,9 @@ class ReducedKinematics:
         ]
         self._frames: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
         for name in frames:
-            fid = robot.frame_id(name)
-            f = model.frames[fid]
-            world = oMi[f.parentJoint] * f.placement
-            a = anchor[f.parentJoint]
+            parent_joint, placement = st.frame(robot, name)
+            world = oMi[parent_joint] * placement
+            a = anchor[parent_joint]
             rel = oMi[self._steps[a].jid].actInv(world) if a >= 0 else world
             self._frames[name] = (a, np.array(rel.rotation), np.array(rel.translation))
 
@@ -289,6 +284,59 @@ class ReducedKinematics:
         return self._com(Rs, ps, n), {f: self._frame(Rs, ps, f, n) for f in names}
 
 
+_I3 = np.eye(3)
+
+
+@dataclass(frozen=True)
+class _Statics:
+    """Per-robot model data read once: pinocchio's vector accessors copy on every index."""
+
+    robot: RobotModel
+    njoints: int
+    names: list
+    parents: list
+    source: list  # per joint id: (wire column, mult, offset); (-1, 1, 0) for the root
+    kinds: list  # per joint id: (kind, axis index, unit axis) or (None, -1, type name)
+    placements: list
+    masses: list  # per joint id: (mass, lever)
+    frames: dict
+
+    def frame(self, robot: RobotModel, name: str) -> tuple[int, pin.SE3]:
+        if name not in self.frames:
+            robot.frame_id(name)  # raises the clear error
+        return self.frames[name]
+
+
+_STATICS: dict[int, _Statics] = {}
+
+
+def _statics(robot: RobotModel) -> _Statics:
+    st = _STATICS.get(id(robot))
+    if st is not None and st.robot is robot:  # the strong reference keeps the id from being reused
+        return st
+    model = robot.pin_model
+    src_of_pinq = {int(p): (int(s), float(m), float(o)) for p, s, m, o in zip(robot.pin_q_index, robot.q_source, robot.q_mult, robot.q_offset)}
+    idx_qs, parents, joints, inertias = list(model.idx_qs), list(model.parents), list(model.joints), list(model.inertias)
+    kinds, source = [], []
+    for jid, jm in enumerate(joints):
+        short = jm.shortname()
+        if short in _KINDS:
+            kind, ax = _KINDS[short]
+            axis = np.eye(3)[ax] if ax >= 0 else np.array(jm.extract().axis, dtype=float)
+            kinds.append((kind, ax, axis / np.linalg.norm(axis)))
+        else:
+            kinds.append((None, -1, short))
+        source.append(src_of_pinq.get(int(idx_qs[jid]), (-1, 1.0, 0.0)) if jid >= 2 else (-1, 1.0, 0.0))
+    frames = {f.name: (int(f.parentJoint), f.placement.copy()) for f in model.frames}
+    st = _Statics(
+        robot=robot, njoints=model.njoints, names=list(model.names), parents=[int(p) for p in parents], source=source, kinds=kinds,
+        placements=[p.copy() for p in model.jointPlacements],
+        masses=[(float(i.mass), np.array(i.lever)) for i in inertias], frames=frames,
+    )
+    _STATICS[id(robot)] = st
+    return st
+
+
 def _affine(p: np.ndarray, R: np.ndarray, v: np.ndarray) -> np.ndarray:
     out = p.copy()
     for j in range(3):
@@ -353,7 +401,7 @@ class StateEvaluator:
         key = (act, np.asarray(q_ref, dtype=float)[fixed].tobytes())
         rk = self._cache.get(key)
         if rk is None:
-            rk = ReducedKinematics(self.robot, self.base_pose, q_ref, act, frames=tuple(self.tcp_frames.values()))
+            rk = ReducedKinematics(self.robot, self.base_pose, q_ref, act, frames=tuple(self.tcp_frames.values()), data=self._data)
             self._cache[key] = rk
             if len(self._cache) > REDUCED_CACHE_SIZE:
                 self._cache.popitem(last=False)
@@ -401,6 +449,8 @@ class StateEvaluator:
         if n == 0:
             empty = np.zeros((0, 3))
             return StateBatch(empty, empty, np.zeros(0), np.zeros(0, bool), None if hold is None else np.zeros((0, 4, 4)))
+        if n <= SMALL_BATCH:
+            return self._evaluate_small(Q, hold, threshold_m)
         if active is None:
             active = np.flatnonzero(np.any(Q != Q[0], axis=0))
         rk = self.kinematics(Q[0], active)
@@ -410,6 +460,21 @@ class StateEvaluator:
         robot_com, frames = rk.com_and_frames(Q, (tcp,))
         R, p = frames[tcp]
         return self._finish(robot_com, self.object_poses(R, p, hold), threshold_m)
+
+    def _evaluate_small(self, Q: np.ndarray, hold: HoldSpec | None, threshold_m: float | None) -> StateBatch:
+        """A few states through pinocchio one by one: cheaper than setting up a reduced tree."""
+        model, data = self.robot.pin_model, self._data
+        n = Q.shape[0]
+        robot_com = np.empty((n, 3))
+        poses = None if hold is None else np.empty((n, 4, 4))
+        fid = None if hold is None else self._tcp_fid[hold.tcp_side]
+        for i in range(n):
+            robot_com[i] = pin.centerOfMass(model, data, self.robot.to_pin_q(self.base_pose, Q[i]), False)
+            if poses is not None:
+                poses[i] = pin.updateFramePlacement(model, data, fid).homogeneous
+        if poses is not None:
+            poses = poses @ hold.T_tcp_obj
+        return self._finish(robot_com, poses, threshold_m)
 
     def evaluate_one(self, q: np.ndarray, hold: HoldSpec | None = None, threshold_m: float | None = None) -> StateOne:
         """One state through pinocchio directly (no batch set-up cost)."""
