@@ -27,21 +27,35 @@ def _short(value: Any, limit: int = 110) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+#: Envelope fields of the service's events, left out of one-line summaries.
+_ENVELOPE = {"event_id", "at", "job_id", "message"}
+
+
 def _event_line(body: dict[str, Any]) -> str:
     kind = body.get("kind", "?")
     payload = body.get("payload") or {}
+    if not isinstance(payload, dict):
+        return f"{kind} {_short(payload)}"
+    message = payload.get("message")
     if kind == "state":
-        text = f"state {payload.get('from')} -> {payload.get('to')}"
-        if payload.get("reason"):
-            text += f"  ({payload['reason']})"
-        if payload.get("actor"):
-            text += f"  by {payload['actor']}"
-        return text
-    if kind in ("plan", "survey") and isinstance(payload, dict):
-        keys = {k: payload.get(k) for k in ("status", "hands", "min_margin_m", "recommended", "plan_sha256") if k in payload}
-        if keys:
-            return f"{kind} {_short(keys)}"
-    return f"{kind} {_short(payload)}"
+        new = payload.get("to", payload.get("state"))
+        old = payload.get("from")
+        text = f"state {old} -> {new}" if old is not None else f"state -> {new}"
+        for key in ("reason", "actor", "by"):
+            if payload.get(key):
+                text += f"  {key}: {payload[key]}"
+        return text + (f"  ({message})" if message else "")
+    if kind in ("plan", "survey"):
+        doc = payload.get("document") if isinstance(payload.get("document"), dict) else payload
+        keys = {k: doc.get(k) for k in ("status", "hands", "min_margin_m", "recommended") if k in doc}
+        if payload.get("plan_sha256"):
+            keys["plan_sha256"] = payload["plan_sha256"]
+        return f"{kind} {_short(keys)}"
+    rest = {k: v for k, v in payload.items() if k not in _ENVELOPE}
+    text = f"{kind}"
+    if message:
+        text += f" {message!r}"
+    return f"{text} {_short(rest)}" if rest else text
 
 
 def timeline(path: str | Path, *, show_all: bool = False, head: str | None = None) -> tuple[list[str], VerifyResult]:

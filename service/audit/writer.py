@@ -653,13 +653,18 @@ class AuditWriter:
 
 def _summarise(payload: Mapping[str, Any], limit: int = 160) -> str:
     """One short line for the Log panel (the full payload is in the event)."""
-    if set(payload) >= {"from", "to"}:
-        text = f"{payload.get('from')} -> {payload.get('to')}"
-        if payload.get("reason"):
-            text += f" ({payload['reason']})"
-        if payload.get("actor"):
-            text += f" by {payload['actor']}"
+    if "to" in payload or "state" in payload:
+        new = payload.get("to", payload.get("state"))
+        text = f"{payload['from']} -> {new}" if payload.get("from") is not None else f"-> {new}"
+        for key in ("reason", "message"):
+            if payload.get(key):
+                text += f" ({payload[key]})"
+        for key in ("actor", "by"):
+            if payload.get(key):
+                text += f" by {payload[key]}"
         return text
+    if isinstance(payload.get("message"), str) and payload["message"]:
+        return payload["message"] if len(payload["message"]) <= limit else payload["message"][: limit - 3] + "..."
     parts = []
     for key, value in payload.items():
         if isinstance(value, (str, int, float, bool)) or value is None:

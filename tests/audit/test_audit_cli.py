@@ -52,7 +52,8 @@ def test_show_prints_a_timeline(tmp_path, hrp5p_urdf):
     write_sample(path, hrp5p_urdf)
     out = _run("show", str(path))
     assert out.exit_code == 0, out.output
-    assert "state None -> queued" in out.output and "by alice" in out.output
+    assert "state -> queued" in out.output and "actor: alice" in out.output
+    assert "state queued -> planning" in out.output
     assert "robot description" in out.output
     assert "/joint_states/plan" in out.output and "INTACT" in out.output
 
