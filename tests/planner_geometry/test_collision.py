@@ -1,0 +1,129 @@
+"""Collision world: known free/colliding states, held object, hands, batch = singles, SAT = fcl."""
+
+from __future__ import annotations
+
+import fcl
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from planner.collision import CollisionWorld, EnvBox, obb_penetration
+from planner.transforms import axis_angle_to_matrix, make_transform
+
+
+def _q(robot, base_q, **joints):
+    q = base_q.copy()
+    for name, value in joints.items():
+        q[robot.joint_index(name)] = value
+    return q
+
+
+def test_stance_postures_are_free(hrp5p, stances, table_box):
+    for name, st in stances.items():
+        world = CollisionWorld(hrp5p, [table_box], reference_postures=[(st.base_pose, st.q)])
+        assert world.check(st.base_pose, st.q) is None, name
+
+
+def test_disabled_pairs_are_neighbours_only(upright_world):
+    d = upright_world.disabled
+    assert ("R_HAND_LINK", "R_WRIST_Y_LINK") in d  # geometric neighbours
+    assert ("L_HAND_LINK", "R_HAND_LINK") not in d  # the hands are checked against each other
+    assert ("CHEST_LINK", "R_UPPER_ARM_LINK") not in d
+
+
+def test_arm_into_torso_collides(hrp5p, stances, upright_world):
+    st = stances["upright"]
+    # shoulder roll swings the right arm across the chest
+    hit = upright_world.check(st.base_pose, _q(hrp5p, st.q, RSR=0.4))
+    assert hit is not None and hit.kind == "self"
+    assert {"CHEST_LINK", "R_UPPER_ARM_LINK"} & {hit.body_a, hit.body_b}
+
+
+def test_hand_into_table_collides(hrp5p, stances, table_box):
+    st = stances["upright"]
+    world = CollisionWorld(hrp5p, [table_box], reference_postures=[(st.base_pose, st.q)])
+    q = _q(hrp5p, st.q, RSP=-0.6, REP=-0.3)  # right arm raised forward, TCP at table height
+    hit = world.check(st.base_pose, q)
+    assert hit is not None and hit.kind == "env" and hit.body_b == "env:table"
+
+
+def test_held_object_vs_table_and_resting_contact(hrp5p, stances, upright_world, drill_grasps):
+    """A held object pushed into the table collides; resting on it (within tolerance) does not."""
+    st = stances["upright"]
+    kin = upright_world.kin
+    g = drill_grasps["right"].grasps[0]
+    Rs, ps = kin.forward(st.base_pose, st.q[None])
+    T_obj = upright_world.object_pose_held(Rs, ps, "right", g.T_obj_tcp)[0]
+    # move a copy of the table so that the held object rests on it, then sinks 1 cm into it
+    low = (upright_world.obj.mesh.vertices @ T_obj[:3, :3].T + T_obj[:3, 3])[:, 2].min()
+    com_xy = (T_obj[:3, :3] @ upright_world.obj.com_local + T_obj[:3, 3])[:2]
+    for depth, expect in ((0.0, None), (0.01, "object-env")):
+        table = EnvBox("shelf", make_transform(p=[com_xy[0], com_xy[1], low - 0.01 + depth]), (0.12, 0.12, 0.02))
+        world = CollisionWorld(hrp5p, [table], upright_world.obj, reference_postures=[(st.base_pose, st.q)])
+        res = world.check_forward(Rs, ps, held=[("right", g.T_obj_tcp)])
+        kinds = None if res.first[0] is None else res.first[0].kind
+        assert kinds == expect
+
+
+def test_grasping_fingers_do_not_count(hrp5p, stances, upright_world, drill_grasps):
+    """Fingers at the resting object (grasp key pose) are skipped; the palm is not."""
+    st = stances["upright"]
+    g = drill_grasps["right"].grasps[0]
+    Rs, ps = upright_world.kin.forward(st.base_pose, _q(hrp5p, st.q, RJAW=g.jaw_value * 0.5)[None])
+    T_obj = upright_world.object_pose_held(Rs, ps, "right", g.T_obj_tcp)[0]
+    # the fingers closed to half the width penetrate the object
+    hit = upright_world.check_forward(Rs, ps, free_object_pose=T_obj).first[0]
+    assert hit is not None and hit.kind == "object" and "FINGER" in hit.body_a
+    assert upright_world.check_forward(Rs, ps, free_object_pose=T_obj, grasping="right").first[0] is None
+
+
+def test_hand_vs_hand(hrp5p, stances, upright_world):
+    """Both wrists brought to the midline in front of the chest: the hands collide."""
+    st = stances["upright"]
+    q = _q(hrp5p, st.q, RSP=-0.9, LSP=-0.9, RSY=0.9, LSY=-0.9, REP=-1.6, LEP=-1.6)
+    hit = upright_world.check(st.base_pose, q)
+    assert hit is not None and hit.kind == "self"
+    assert {hit.body_a[:2], hit.body_b[:2]} == {"L_", "R_"}  # one body of each arm
+
+
+def test_batch_equals_single_and_moving_subset(hrp5p, stances, table_box):
+    st = stances["upright"]
+    rng = np.random.default_rng(4)
+    idx = np.concatenate([hrp5p.arm_indices("left"), hrp5p.arm_indices("right"), hrp5p.waist_indices()])
+    Q = np.repeat(st.q[None], 60, axis=0)
+    Q[:, idx] = rng.uniform(hrp5p.lower[idx], hrp5p.upper[idx], (60, idx.size)) * 0.6 + st.q[idx] * 0.4
+    full = CollisionWorld(hrp5p, [table_box], reference_postures=[(st.base_pose, st.q)])
+    moving = [hrp5p.joint_names[i] for i in idx]
+    sub = CollisionWorld(hrp5p, [table_box], reference_postures=[(st.base_pose, st.q)], moving_joints=moving)
+    assert sub.self_pair_count() < full.self_pair_count()
+    batch = full.check_batch(st.base_pose, Q)
+    assert 0 < batch.collides.sum() < len(Q)
+    singles = np.array([full.check(st.base_pose, q) is not None for q in Q])
+    assert np.array_equal(batch.collides, singles)
+    assert np.array_equal(sub.check_batch(st.base_pose, Q).collides, batch.collides)
+
+
+def test_object_pose_clear(hrp5p, upright_world):
+    on_table = make_transform(p=[0.5, -0.2, 0.75])
+    assert upright_world.object_pose_clear(on_table) is None
+    sunk = make_transform(p=[0.5, -0.2, 0.70])
+    assert upright_world.object_pose_clear(sunk).body_b == "env:table"
+
+
+rot = st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1), st.floats(0, 3.1)).filter(
+    lambda t: np.linalg.norm(t[:3]) > 0.1
+)
+vec = st.tuples(st.floats(-0.1, 0.1), st.floats(-0.1, 0.1), st.floats(-0.1, 0.1))
+ext = st.tuples(st.floats(0.005, 0.08), st.floats(0.005, 0.08), st.floats(0.005, 0.08))
+
+
+@settings(max_examples=200, deadline=None)
+@given(rot, vec, ext, rot, vec, ext)
+def test_sat_agrees_with_fcl(ra, ca, ea, rb, cb, eb):
+    Ra, Rb = axis_angle_to_matrix(np.array(ra[:3]), ra[3]), axis_angle_to_matrix(np.array(rb[:3]), rb[3])
+    d = obb_penetration(Ra[None], np.array([ca]), np.array([ea]), Rb[None], np.array([cb]), np.array([eb]))[0]
+    if abs(d) < 1e-6:
+        return  # touching within round-off: either answer is right
+    oa = fcl.CollisionObject(fcl.Box(*(2 * np.array(ea))), fcl.Transform(Ra, np.array(ca)))
+    ob = fcl.CollisionObject(fcl.Box(*(2 * np.array(eb))), fcl.Transform(Rb, np.array(cb)))
+    assert (fcl.collide(oa, ob, fcl.CollisionRequest(), fcl.CollisionResult()) > 0) == (d > 0)
