@@ -8,9 +8,9 @@ incoming requests both come from here.
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, StringConstraints
 
 from .common import Finite, HandsChoice, OpenModel, StrictModel
 
@@ -35,28 +35,22 @@ ROLES: tuple[str, ...] = ("planner", "approver", "operator", "admin")
 
 #: Longest name accepted for a built-in scenario (names are short file stems).
 MAX_NAME_LEN = 128
+ScenarioName = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN)]
 
 
 class JobRequest(StrictModel):
     """What to plan: a scenario plus the overrides of the ``regrasp plan`` command line."""
 
-    scenario: str | dict[str, Any] = Field(
+    scenario: ScenarioName | dict[str, Any] = Field(
         description="a built-in scenario name, or an inline scenario document (CONTRACT.md section 2)",
     )
-    stance: str | None = Field(None, max_length=MAX_NAME_LEN, description="built-in stance name overriding the scenario's")
+    stance: ScenarioName | None = Field(None, description="built-in stance name overriding the scenario's")
     threshold_m: Finite | None = Field(None, ge=0, le=0.5, description="CoM margin threshold, m; 0 = unconstrained planner")
     hands: HandsChoice | None = Field(None, description="hand configuration overriding the scenario's")
     seed: int | None = Field(None, ge=0, le=2**63 - 1, description="random seed; the same seed gives the same plan")
     states_per_configuration: int | None = Field(None, ge=1, le=1_000_000, description="survey: states evaluated per hand configuration")
     time_limit_s: Finite | None = Field(None, gt=0, le=3600, description="planner safety-net time limit, s")
 
-    @field_validator("scenario")
-    @classmethod
-    def _scenario_shape(cls, value: str | dict[str, Any]) -> str | dict[str, Any]:
-        if isinstance(value, str):
-            if not value or len(value) > MAX_NAME_LEN:
-                raise ValueError(f"a scenario name has 1 to {MAX_NAME_LEN} characters")
-        return value
 
 
 class JobSubmit(StrictModel):

@@ -30,7 +30,8 @@ from .deps import principal, problems, require, service
 from .views import job_view
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
-JOB_ID_DOC = "the job id returned by POST /v1/jobs"
+#: Events read from the store per query of an SSE stream.
+EVENT_PAGE = 500
 
 
 def _load(svc: Service, job_id: str) -> dict[str, Any]:
@@ -84,7 +85,7 @@ def _check_request(svc: Service, body: JobSubmit) -> tuple[str, int | None]:
 @router.post(
     "", status_code=202, response_model=Job,
     summary="Submit a plan or survey job",
-    responses={**problems(401, 403, 409, 413, 422, 429),
+    responses={**problems(400, 401, 403, 409, 413, 422, 429),
                202: {"description": "Accepted (also for a replay of the same Idempotency-Key)",
                      "headers": {"Location": {"description": "URL of the job", "schema": {"type": "string"}}}}},
 )
@@ -166,6 +167,7 @@ async def job_events(
     job_id: str, request: Request,
     after: int = Query(0, ge=0, le=2**62, description="only events with a larger id (also Last-Event-ID)"),
     last_event_id: str | None = Header(None, alias="Last-Event-ID", max_length=32),
+    follow: bool = Query(True, description="keep the stream open for new events (false: send the history and end)"),
     p: Principal = Depends(principal), svc: Service = Depends(service),
 ) -> StreamingResponse:
     await run_in_threadpool(_load, svc, job_id)
@@ -178,7 +180,7 @@ async def job_events(
         yield "retry: 1000\n\n"
         last_sent = time.monotonic()
         while True:
-            events = await run_in_threadpool(svc.store.events_after, job_id, cursor)
+            events = await run_in_threadpool(svc.store.events_after, job_id, cursor, EVENT_PAGE)
             finished = False
             for event in events:
                 cursor = event["id"]
@@ -186,7 +188,7 @@ async def job_events(
                 last_sent = time.monotonic()
                 if event["kind"] == "state" and event.get("state") in TERMINAL_STATES:
                     finished = True
-            if finished:
+            if finished or (not follow and len(events) < EVENT_PAGE):
                 return
             if not events:
                 if await request.is_disconnected():
@@ -202,7 +204,7 @@ async def job_events(
 
 # ----------------------------------------------------------------- actions
 @router.post("/{job_id}/cancel", status_code=202, response_model=Job, summary="Cancel a job (before dispatch)",
-             responses=problems(401, 403, 404, 409, 422))
+             responses=problems(400, 401, 403, 404, 409, 413, 422))
 def cancel(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Depends(principal),
            svc: Service = Depends(service)) -> Job:
     row = _load(svc, job_id)
@@ -220,7 +222,7 @@ def cancel(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Dep
 
 
 @router.post("/{job_id}/approve", response_model=Job, summary="Approve a planned job (two-person rule)",
-             responses=problems(401, 403, 404, 409, 422))
+             responses=problems(400, 401, 403, 404, 409, 413, 422))
 def approve(job_id: str, body: ApproveBody | None = Body(None), p: Principal = Depends(principal),
             svc: Service = Depends(service)) -> Job:
     require("approver", p, "approving a plan")
@@ -251,7 +253,7 @@ def approve(job_id: str, body: ApproveBody | None = Body(None), p: Principal = D
 
 
 @router.post("/{job_id}/reject", response_model=Job, summary="Reject a planned or approved job",
-             responses=problems(401, 403, 404, 409, 422))
+             responses=problems(400, 401, 403, 404, 409, 413, 422))
 def reject(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Depends(principal),
            svc: Service = Depends(service)) -> Job:
     require("approver", p, "rejecting a plan")
@@ -271,7 +273,7 @@ def reject(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Dep
 
 @router.post("/{job_id}/dispatch", status_code=202, response_model=Job,
              summary="Send an approved plan to the robot (through the safety gate)",
-             responses=problems(401, 403, 404, 409, 422))
+             responses=problems(400, 401, 403, 404, 409, 413, 422))
 def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> Job:
     require("operator", p, "dispatching a plan")
     row = _load(svc, job_id)
@@ -294,7 +296,7 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
 
 
 @router.post("/{job_id}/stop", status_code=202, response_model=Job, summary="Stop an execution now",
-             responses=problems(401, 403, 404, 409, 422))
+             responses=problems(400, 401, 403, 404, 409, 413, 422))
 def stop(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Depends(principal),
          svc: Service = Depends(service)) -> Job:
     require("operator", p, "stopping an execution")
