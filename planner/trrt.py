@@ -413,12 +413,17 @@ def _try_connect_direct(search: _Search, check) -> None:
 
 @dataclass(frozen=True)
 class ExploreLeg:
-    """One leg of a task: from ``start`` to ``goal`` holding the object as ``hold``, moving ``active`` columns."""
+    """One leg of a task: from ``start`` to ``goal`` holding the object as ``hold``, moving ``active`` columns.
+
+    ``collision_free`` checks this leg's states (the held object differs per leg); when
+    None, :func:`explore`'s own callback is used.
+    """
 
     start: np.ndarray
     goal: np.ndarray
     hold: HoldSpec | None
     active: np.ndarray
+    collision_free: CollisionFree | None = None
 
 
 @dataclass
@@ -559,8 +564,9 @@ def explore(
         within = np.all((Q >= lo - 1e-12) & (Q <= hi + 1e-12), axis=1)
         batch = evaluator.evaluate(Q, leg.hold, active=leg.active)
         free = within.copy()
-        if collision_free is not None and within.any():
-            free[within] = np.asarray(collision_free(Q[within]), dtype=bool)
+        checker = leg.collision_free if leg.collision_free is not None else collision_free
+        if checker is not None and within.any():
+            free[within] = np.asarray(checker(Q[within]), dtype=bool)
         valid = free & batch.stable
         rejected["joint_limits"] += int((~within).sum())
         rejected["collision"] += int((within & ~free).sum())

@@ -157,9 +157,18 @@ def test_exploration_through_a_handover(robot, upright, evaluator, hold_right):
     goal = hand.copy()
     goal[robot.arm_indices("right")[1]] += 0.4
     hold_left = HoldSpec("left", hold_right.T_obj_tcp)
-    legs = [ExploreLeg(start, hand, hold_right, both), ExploreLeg(hand, goal, hold_left, both)]
+    seen = {0: 0, 1: 0}
+
+    def checker(leg):
+        def collision_free(Q):
+            seen[leg] += len(Q)
+            return np.ones(len(Q), dtype=bool)
+        return collision_free
+
+    legs = [ExploreLeg(start, hand, hold_right, both, checker(0)), ExploreLeg(hand, goal, hold_left, both, checker(1))]
     ex = explore(legs, evaluator, None, 800, np.random.default_rng(2))
     assert ex.stats["evaluated"] == 800
+    assert seen[0] >= int((ex.leg == 0).sum()) > 0 and seen[1] >= int((ex.leg == 1).sum()) > 0  # each leg used its own checker
     assert set(np.unique(ex.leg)) == {0, 1}
     assert set(ex.holding[ex.leg == 0]) == {"right"} and set(ex.holding[ex.leg == 1]) == {"left"}
     assert len(ex.stats["legs"]) == 2
