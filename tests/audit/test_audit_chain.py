@@ -222,3 +222,18 @@ def test_edit_of_the_last_record_is_found_by_its_crc(sample):
     result = verify(path)
     assert result.exit_code == ExitCode.BROKEN
     assert result.where.record_index == index and "CRC" in result.detail
+
+
+def test_zstd_compressed_file_verifies_and_detects_a_flip(tmp_path):
+    from service.audit import AuditSettings
+
+    path = tmp_path / "z.mcap"
+    w = AuditWriter(path, "jz", settings=AuditSettings(compression="zstd"))
+    for i in range(20):
+        w.record("progress", {"i": i, "text": "x" * 200})
+    head = w.close()
+    assert verify(path, head).exit_code == ExitCode.INTACT
+    raw = bytearray(path.read_bytes())
+    raw[len(raw) // 2] ^= 0x04
+    path.write_bytes(bytes(raw))
+    assert verify(path, head).exit_code == ExitCode.BROKEN
