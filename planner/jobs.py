@@ -27,7 +27,6 @@ from .regrasp_graph import Canceled as GraphCanceled
 from .regrasp_planner import HANDS_OF, HandConfigPlanner, PlannerResult, PlannerSettings, Task
 from .scenarios import ScenarioError, load_scenario, with_overrides
 from .stances import StanceError
-from .transforms import matrix_to_pose7
 
 ProgressFn = Callable[[float, str], None]
 StopFn = Callable[[], bool]
@@ -221,6 +220,7 @@ def plan_scenario(
     stats["assembly_s"] = time.perf_counter() - t_asm
     stats["time_s"] = time.perf_counter() - t_start
     stats["failures"] = dict(best.failures)
+    stats["cost"] = best.cost
     progress(0.99, "writing the plan")
     alternatives = [{"hands": r.hands, "cost": r.cost, "min_margin_m": None} for r, _ in solved if r is not best]
     return {

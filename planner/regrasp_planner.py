@@ -73,8 +73,8 @@ class PlannerSettings(BaseModel):
     pregrasp_m: float = Field(0.06, gt=0, description="pre-grasp: back along the approach axis")
     lift_m: float = Field(0.06, gt=0, description="lift: straight up from the placement")
     approach_samples: int = Field(8, ge=2, description="states checked along approach and lift")
-    max_grasps: int = Field(60, ge=1, description="grasps per hand kept for the graph (closest to the CoM first)")
-    handover_grasps: int = Field(24, ge=1, description="grasps per hand tried at a handover pose")
+    max_grasps: int = Field(400, ge=1, description="grasps per hand kept for the graph (closest to the CoM first)")
+    handover_pairs_per_pose: int = Field(32, ge=1, description="grasp pairs kept per handover pose (evenly spread)")
     intermediate_placements: int = Field(6, ge=0, description="table spots x yaws besides start and goal")
     handover: HandoverSettings = Field(default_factory=HandoverSettings)
     handover_poses: int = Field(24, ge=0, description="floating poses kept for handovers")
@@ -84,6 +84,8 @@ class PlannerSettings(BaseModel):
     trrt: TrrtSettings = Field(default_factory=lambda: TrrtSettings(max_iterations=300))
     smoothing: SmoothingSettings = Field(default_factory=SmoothingSettings)
     timing: TimingSettings = Field(default_factory=TimingSettings)
+    arm_only_restarts: int = Field(1, ge=0, description="random restarts of the arm-only IK attempt")
+    ready_height_m: float = Field(0.25, gt=0, description="ready posture: the hand this far above the highest table top")
     planning_buffer_m: float = Field(
         1e-3, ge=0, description="plan to threshold + this, so small IK residuals never bring a point below the threshold")
 
@@ -163,13 +165,15 @@ class Task:
                            *[a.gripper.joint for a in self.robot.spec.arms.values()]],
         )
         self.ik = IkSolver(self.robot, self.stance, s.ik)
-        self.ik_arm_only = IkSolver(self.robot, self.stance, s.ik.model_copy(update={"use_waist": False}))
+        # The arm-only attempt is a cheap first try (few restarts); the waist joins when it fails.
+        self.ik_arm_only = IkSolver(self.robot, self.stance, s.ik.model_copy(update={"use_waist": False, "restarts": s.arm_only_restarts}))
         self.home = self.stance.q.copy()
         self.jaw = {side: self.robot.joint_index(self.robot.spec.arms[side].gripper.joint) for side in ("left", "right")}
         for side in ("left", "right"):
             self.home[self.jaw[side]] = self.robot.upper[self.jaw[side]]  # jaws open at home
         self.active = {side: np.concatenate([self.robot.waist_indices(), self.robot.arm_indices(side)]) for side in ("left", "right")}
         self.arm_only = {side: self.robot.arm_indices(side) for side in ("left", "right")}
+        self.ready = {side: self._ready_posture(side) for side in ("left", "right")}
         t2 = time.perf_counter()
         self.placements, self.start_id, self.goal_id = self._placements()
         self.handover_poses = self._handover_poses()
@@ -197,15 +201,37 @@ class Task:
                     chosen.append(by_ref[ref].pop(0).T_world_obj)
         return [start, goal, *chosen], 0, 1
 
+    def _ready_posture(self, side: Side) -> np.ndarray | None:
+        """A via posture with the hand raised above the tables, in front of the shoulder.
+
+        Most moves between the hanging home posture and a grasp above a table are blocked on the
+        straight line by the table itself; home -> ready -> target usually is not, which spares a
+        tree search.
+        """
+        tops = [b.pose[2] + b.size[2] / 2 for b in self.scenario.tables] or [0.8]
+        y = 0.25 if side == "left" else -0.25
+        T = np.eye(4)
+        T[:3, :3] = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # approach forward, jaws closing along y
+        T[:3, 3] = [0.30, y, max(tops) + self.settings.ready_height_m]
+        res = self.ik_arm_only.solve_arm(side, T, self.home, np.random.default_rng(0), rest_q=self.home)
+        return res.q
+
     def _handover_poses(self) -> list[HandoverPose]:
         if not self.settings.handover_poses:
             return []
-        k = self.settings.handover_grasps
+        k = self.settings.max_grasps
         right = GraspSet(self.obj.content_hash, "right", tuple(self.all_grasps["right"][:k]), True, 0.0)
         left = GraspSet(self.obj.content_hash, "left", tuple(self.all_grasps["left"][:k]), True, 0.0)
         poses = handover_poses(self.obj, right, left, hand_geometry(self.robot, "right"), hand_geometry(self.robot, "left"),
                                self.stance.base_pose[:3], self.settings.handover)
-        return poses[: self.settings.handover_poses]
+        keep = self.settings.handover_pairs_per_pose
+        out = []
+        for hp in poses[: self.settings.handover_poses]:
+            pairs = hp.pairs
+            if len(pairs) > keep:  # evenly spread over the (sorted) pairs: hands at different places
+                pairs = pairs[np.linspace(0, len(pairs) - 1, keep).astype(int)]
+            out.append(HandoverPose(hp.id, hp.T_world_obj, pairs))
+        return out
 
     # -- evaluation helpers ---------------------------------------------------------------------
     def validity(self, hold: HoldSpec | None, free_object: np.ndarray | None, grasping: str | None = None,
@@ -469,6 +495,9 @@ class HandConfigPlanner:
         """A valid joint path qa -> qb (T-RRT, then shortcuts), or None."""
         t, s = self.task, self.task.settings
         validity = t.validity(hold, free_object, grasping, active=None)
+        via = self._via_ready(qa, qb, active, validity)
+        if via is not None:
+            return via
         trrt = s.trrt.model_copy(update={"margin_cost": t.constrained})
         res = plan_motion(qa, qb, active, validity, t.robot.lower, t.robot.upper, self.rng, trrt,
                           should_stop=self._should_stop)
@@ -478,6 +507,30 @@ class HandConfigPlanner:
         if len(path) > 2:
             path = shortcut(path, validity, self.rng, s.smoothing, should_stop=self._should_stop).path
         return path
+
+    def _via_ready(self, qa: np.ndarray, qb: np.ndarray, active: np.ndarray, validity) -> np.ndarray | None:
+        """qa -> qb straight, or through the ready posture of the moving arm, if every state is valid."""
+        t = self.task
+        res = t.settings.trrt.edge_resolution_rad
+        candidates = [[qa, qb]]
+        for side in ("left", "right"):
+            ready = t.ready[side]
+            if ready is None or not np.all(np.isin(t.arm_only[side], active)):
+                continue
+            via = qa.copy()
+            via[t.arm_only[side]] = ready[t.arm_only[side]]
+            via[t.jaw[side]] = qa[t.jaw[side]]
+            candidates.append([qa, via, qb])
+        for waypoints in candidates:
+            states = [qa[None]]
+            for a, b in zip(waypoints[:-1], waypoints[1:]):
+                n = max(int(np.ceil(np.abs(b - a).max() / res)), 1)
+                s = np.linspace(0.0, 1.0, n + 1)[1:, None]
+                states.append(a[None] * (1 - s) + b[None] * s)
+            ok, _ = validity(np.vstack(states))
+            if np.all(ok):
+                return np.array(waypoints)
+        return None
 
     def _timed(self, piece: MotionPiece) -> MotionPiece | None:
         """Time a piece; None if the ZMP or the dense margin check cannot be kept."""

@@ -17,7 +17,7 @@ import pinocchio as pin
 import yaml
 from pydantic import ValidationError
 
-from schemas.stance import FootPlacement, StanceDef, StanceResult
+from schemas.stance import SUPPORT_CENTRE, FootPlacement, StanceDef, StanceResult
 
 from .robot_model import RobotModel, UnknownNameError, center_of_mass
 from .stability import SupportPolygon, support_polygon
@@ -65,18 +65,23 @@ def builtin_stance(robot: RobotModel, name: str) -> StanceDef:
     spec = robot.spec
     fy, h = spec.upright.foot_y_m, spec.upright.pelvis_height_m
     lf, rf = spec.feet["left"].frame, spec.feet["right"].frame
+    # Two-foot stances: like a balance controller, the pelvis is placed so that the CoM of the
+    # standing posture is above the centre of the support polygon.
     if name == "upright":
-        return StanceDef(name=name, feet=[FootPlacement(frame=rf, pose=_pose(0, -fy, 0)), FootPlacement(frame=lf, pose=_pose(0, fy, 0))], pelvis_height_m=h)
+        return StanceDef(name=name, feet=[FootPlacement(frame=rf, pose=_pose(0, -fy, 0)), FootPlacement(frame=lf, pose=_pose(0, fy, 0))],
+                         pelvis_height_m=h, com_over=SUPPORT_CENTRE)
     if name == "staggered":
-        # Right sole 50 mm forward, left sole 200 mm back; the pelvis midway between them.
+        # Right sole 50 mm forward, left sole 200 mm back.
         return StanceDef(
             name=name,
             feet=[FootPlacement(frame=rf, pose=_pose(0.05, -fy, 0)), FootPlacement(frame=lf, pose=_pose(-0.20, fy, 0))],
             pelvis_height_m=h,
             pelvis_offset=[-0.075, 0.0],
+            com_over=SUPPORT_CENTRE,
         )
     if name == "crouched":
-        return StanceDef(name=name, feet=[FootPlacement(frame=rf, pose=_pose(0, -fy, 0)), FootPlacement(frame=lf, pose=_pose(0, fy, 0))], pelvis_height_m=h - 0.15)
+        return StanceDef(name=name, feet=[FootPlacement(frame=rf, pose=_pose(0, -fy, 0)), FootPlacement(frame=lf, pose=_pose(0, fy, 0))],
+                         pelvis_height_m=h - 0.15, com_over=SUPPORT_CENTRE)
     if name == "one-legged":
         return StanceDef(
             name=name,
@@ -166,8 +171,17 @@ def solve_stance(robot: RobotModel, stance: str | StanceDef) -> Stance:
         return base
 
     base = solve_at(offset)
+    soles = []
+    for foot in sdef.feet:
+        M = pin.XYZQUATToSE3(np.array(foot.pose))
+        length, width = sole_size(robot, foot.frame)
+        soles.append((M.rotation, M.translation, length, width, foot.in_contact))
+    polygon = SupportPolygon(support_polygon(soles))
     if sdef.com_over is not None:
-        goal = next(np.array(f.pose[:2]) for f in sdef.feet if f.frame == sdef.com_over)
+        if sdef.com_over == SUPPORT_CENTRE:
+            goal = polygon_centroid(polygon.vertices)
+        else:
+            goal = next(np.array(f.pose[:2]) for f in sdef.feet if f.frame == sdef.com_over)
         for _ in range(50):
             com = center_of_mass(robot, data, base, q)
             delta = goal - com[:2]
@@ -177,17 +191,20 @@ def solve_stance(robot: RobotModel, stance: str | StanceDef) -> Stance:
             base = solve_at(offset)
         else:
             raise StanceError(f"stance {sdef.name!r}: could not bring the CoM above {sdef.com_over}")
-    soles = []
-    for foot in sdef.feet:
-        M = pin.XYZQUATToSE3(np.array(foot.pose))
-        length, width = sole_size(robot, foot.frame)
-        soles.append((M.rotation, M.translation, length, width, foot.in_contact))
-    polygon = SupportPolygon(support_polygon(soles))
     com = center_of_mass(robot, data, base, q)
     return Stance(
         name=sdef.name, definition=sdef, base_pose=base, q=q, feet=tuple(sdef.feet), polygon=polygon,
         robot_com=com, leg_indices=np.array(sorted(set(leg_idx)), dtype=int),
     )
+
+
+def polygon_centroid(vertices: np.ndarray) -> np.ndarray:
+    """Area centroid of a simple polygon (CCW vertices)."""
+    x, y = vertices[:, 0], vertices[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = cross.sum() / 2.0
+    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * area)
 
 
 def sole_size(robot: RobotModel, frame: str) -> tuple[float, float]:

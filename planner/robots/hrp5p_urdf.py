@@ -199,10 +199,11 @@ def build_arm(side: str) -> tuple[list[Link], list[Joint]]:
             link.geoms.append(Geom("sphere", (0.07,), (0.0, 0.0, 0.0)))
         elif suffix == "SY":
             link.inertia_box = (0.1, 0.1, 0.3)
-            link.geoms.append(Geom("cylinder", (0.055, 0.20), (vec[0] / 2, 0.0, -0.15)))
+            link.geoms.append(Geom("cylinder", (0.05, 0.20), (vec[0] / 2, 0.0, -0.15)))
         elif suffix == "EP":
             link.inertia_box = (0.09, 0.09, 0.3)
-            link.geoms.append(Geom("cylinder", (0.05, 0.20), (vec[0] / 2, 0.0, -0.15)))
+            # Forearm: elbow to just above the wrist (the wrist joints are compact; the palm starts below).
+            link.geoms.append(Geom("cylinder", (0.045, 0.17), (vec[0] / 2, 0.0, -0.125)))
         elif suffix == "WRY":
             link.geoms.append(Geom("sphere", (0.05,), (0.0, 0.0, 0.0)))
         elif suffix == "HDY":
@@ -277,7 +278,7 @@ def build_trunk() -> tuple[list[Link], list[Joint]]:
     chest = links[-1]
     chest.com = _v(TORSO_COM_MM)
     chest.inertia_box = (0.30, 0.36, 0.50)
-    chest.geoms.append(Geom("box", (0.30, 0.28, 0.44), (-0.04, 0.0, 0.26)))
+    chest.geoms.append(Geom("box", (0.30, 0.24, 0.44), (-0.04, 0.0, 0.26)))
     parent, offset = "CHEST_LINK", _v(NECK_FROM_CHEST_MM)
     for (suffix, axis, lo, hi), child in zip(NECK, ["NECK_Y_LINK", "HEAD_LINK"]):
         links.append(Link(child, mass=NECK_LINK_MASS_KG, inertia_box=(0.08, 0.08, 0.08)))

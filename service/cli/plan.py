@@ -1,0 +1,125 @@
+"""``regrasp plan``: plan a regrasp task and write the plan file (CONTRACT.md section 3)."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import click
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from .common import console, fail
+
+HANDS = click.Choice(["auto", "left-left", "right-right", "left-right", "right-left"])
+
+
+def run_with_progress(label: str, fn):
+    """Run fn(progress_callback) under a rich progress bar."""
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                  TimeElapsedColumn(), TextColumn("{task.fields[msg]}"), console=console, transient=True) as bar:
+        task = bar.add_task(label, total=1.0, msg="")
+
+        def progress(fraction: float, message: str) -> None:
+            bar.update(task, completed=min(max(fraction, 0.0), 1.0), msg=message[:70])
+
+        return fn(progress)
+
+
+def summary_table(plans: list[tuple[str, dict]]) -> Table:
+    """One column per plan: hands, cost, min margin, regrasps, duration, time spent, failures by cause."""
+    table = Table()
+    table.add_column("")
+    for label, _ in plans:
+        table.add_column(label)
+    rows: dict[str, list[str]] = {k: [] for k in ("status", "hands", "cost", "min margin (mm)", "threshold (mm)",
+                                                    "regrasps", "handovers", "duration (s)", "planning time (s)", "failures by cause")}
+    for _, plan in plans:
+        st = plan.get("stats", {})
+        segs = plan.get("segments", [])
+        traj = plan.get("trajectory", [])
+        picks = sum(1 for s in segs if s["kind"] == "approach") // 2
+        handovers = sum(1 for s in segs if s["kind"] == "handover") // 2
+        failures = st.get("failures") or (plan.get("failure") or {}).get("counts", {})
+        rows["status"].append(plan["status"] if plan["status"] == "solved" else f"infeasible ({plan['failure']['code']})")
+        rows["hands"].append(str(plan.get("hands")))
+        rows["cost"].append(f"{st['cost']:.3f}" if st.get("cost") is not None else "-")
+        rows["min margin (mm)"].append(f"{plan['min_margin_m'] * 1000:.1f}" if plan.get("min_margin_m") is not None else "-")
+        rows["threshold (mm)"].append(f"{plan['threshold_m'] * 1000:.0f}")
+        rows["regrasps"].append(str(max(picks - 1 - handovers, 0)) if traj else "-")
+        rows["handovers"].append(str(handovers) if traj else "-")
+        rows["duration (s)"].append(f"{traj[-1]['t']:.2f}" if traj else "-")
+        rows["planning time (s)"].append(f"{st.get('time_s') or 0:.2f}")
+        rows["failures by cause"].append(", ".join(f"{k}={v}" for k, v in sorted(failures.items())) or "none")
+    for key, values in rows.items():
+        table.add_row(key, *values)
+    return table
+
+
+def plot_plan(plan: dict, path: Path, compare: dict | None = None) -> Path:
+    import numpy as np
+
+    from service.plots import plot_com_trace
+
+    traces = []
+    if plan["status"] == "solved":
+        traces.append((f"threshold {plan['threshold_m'] * 1000:.0f} mm", np.array([p["com"][:2] for p in plan["trajectory"]]), "tab:blue"))
+    if compare is not None and compare["status"] == "solved":
+        traces.append((f"threshold {compare['threshold_m'] * 1000:.0f} mm", np.array([p["com"][:2] for p in compare["trajectory"]]), "tab:red"))
+    return plot_com_trace(path, title=f"{plan['scenario']['name']} ({plan.get('hands')}): CoM ground trace",
+                          polygon=np.array(plan["support_polygon"]), threshold_m=plan["threshold_m"], traces=traces)
+
+
+@click.command()
+@click.argument("scenario_file", required=False)
+@click.option("--scenario", "scenario_name", help="A built-in scenario name (see `regrasp scenario list`).")
+@click.option("--stance", help="Override the scenario's stance (built-in name or stance YAML).")
+@click.option("--threshold-mm", type=float, help="Override the CoM margin threshold, in millimetres (0 = unconstrained).")
+@click.option("--hands", type=HANDS, help="Hand configuration, or auto (chosen by the stability survey).")
+@click.option("--seed", type=int, help="Random seed (same seed, same plan).")
+@click.option("--solutions", type=click.IntRange(1, 20), default=1, show_default=True, help="Keep the K best solutions.")
+@click.option("--time-limit-s", type=float, help="Safety-net time limit in seconds.")
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="Where to write the plan JSON.")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Write the CoM trace over the support polygon (PNG).")
+@click.option("--compare-threshold-mm", type=float, help="Also plan at this threshold (e.g. 0) and overlay it on the plot.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, solutions, time_limit_s, out_path,
+         plot_path, compare_threshold_mm, quiet) -> None:
+    """Plan a regrasp task: pick, regrasp or hand over, and place, keeping the CoM margin."""
+    from planner.jobs import PlanningInputError, PlanOptions, plan_scenario, resolve_scenario
+
+    if bool(scenario_file) == bool(scenario_name):
+        fail("give a scenario file or --scenario NAME (one of them)")
+    for name, value in (("--threshold-mm", threshold_mm), ("--compare-threshold-mm", compare_threshold_mm)):
+        if value is not None and not (0 <= value <= 500):
+            fail(f"{name} must be between 0 and 500 mm, got {value}")
+    try:
+        sc = resolve_scenario(scenario_file or scenario_name)
+        options = PlanOptions(hands=hands, threshold_m=None if threshold_mm is None else threshold_mm / 1000.0,
+                              seed=seed, solutions=solutions, stance=stance, time_limit_s=time_limit_s)
+        t0 = time.perf_counter()
+        if quiet:
+            doc = plan_scenario(sc, options)
+        else:
+            doc = run_with_progress("planning", lambda p: plan_scenario(sc, options, progress=p))
+        compare = None
+        if compare_threshold_mm is not None:
+            opts2 = PlanOptions(hands=doc.get("hands") or hands, threshold_m=compare_threshold_mm / 1000.0, seed=seed,
+                                stance=stance, time_limit_s=time_limit_s)
+            compare = (plan_scenario(sc, opts2) if quiet else
+                                         run_with_progress("comparison", lambda p: plan_scenario(sc, opts2, progress=p)))
+    except PlanningInputError as exc:
+        fail(str(exc))
+    Path(out_path).write_text(json.dumps(doc, allow_nan=False))
+    plans = [(f"{sc.name}", doc)]
+    if compare is not None:
+        plans.append((f"at {compare_threshold_mm:g} mm", compare))
+    console.print(summary_table(plans))
+    if doc["status"] != "solved":
+        console.print(f"[yellow]infeasible[/] ({doc['failure']['code']}): {doc['failure']['message']}")
+    if plot_path:
+        console.print(f"plot: {plot_plan(doc, Path(plot_path), compare)}")
+    console.print(f"plan written to {Path(out_path).resolve()} ({time.perf_counter() - t0:.1f} s)")
+    if doc["status"] != "solved":
+        raise SystemExit(1)
