@@ -35,8 +35,8 @@ from .robots.spec import Side
 from .robots.urdf_geometry import collision_primitives
 from .transforms import inverse, pose7_to_matrix
 
-#: Margin on the bounding-sphere screen; the SAT and fcl decide exactly afterwards.
-_SPHERE_SLACK_M = 1e-6
+#: Margin on the bounding-box screen; the SAT and fcl decide exactly afterwards.
+_SCREEN_SLACK_M = 1e-6
 #: Guard against the cross-product axes of nearly parallel box edges in the SAT.
 _SAT_EPS = 1e-9
 
@@ -365,7 +365,10 @@ class BatchResult:
 
 
 class CollisionWorld:
-    """Robot + environment boxes + (optionally) the object; immutable after construction.
+    """Robot + environment boxes + (optionally) the object; its shapes are fixed at construction.
+
+    Not thread-safe: the fcl objects hold scratch transforms, so use one world per thread or
+    process (building one takes a few tens of milliseconds).
 
     ``check``/``check_batch`` take the stance's base pose and wire configurations ``q``;
     ``check_forward`` takes a :meth:`BatchKinematics.forward` result computed elsewhere, so a
@@ -427,7 +430,6 @@ class CollisionWorld:
         self._is_box = np.array([b.kind == "box" for b in bodies])
         self._local_R = np.array([b.local[:3, :3] for b in bodies])
         self._local_p = np.array([b.local[:3, 3] + b.local[:3, :3] @ b.obb_offset for b in bodies])
-        self._local_origin = np.array([b.local[:3, 3] for b in bodies])
         self._robot_joints = np.array([b.joint for b in bodies[: self.n_robot]], dtype=int)
         self._uniq_joints, self._joint_slot = np.unique(self._robot_joints, return_inverse=True)
         self._env_slice = slice(self.n_robot, self.n_robot + self.n_env)
@@ -465,13 +467,8 @@ class CollisionWorld:
         """Nearest ancestor link that has collision geometry, per link with geometry."""
         model = self.robot.pin_model
         geom_links = {b.link for b in self.bodies[: self.n_robot]}
-        frames = {f.name: f for f in model.frames}
-        # parent link of each body frame: the frame's parentFrame chain (fixed joints) and joint parents
+        # parent link of each link: walk the frame tree up through joint frames to a body frame
         parent_of: dict[str, str | None] = {}
-        joint_body: dict[int, str] = {}
-        for f in model.frames:
-            if f.type == pin.FrameType.BODY and f.name not in joint_body.values():
-                joint_body.setdefault(int(f.parentJoint), f.name)
         for f in model.frames:
             if f.type != pin.FrameType.BODY:
                 continue
@@ -486,17 +483,17 @@ class CollisionWorld:
             while p is not None and p not in geom_links:
                 p = parent_of.get(p)
             out[link] = p
-        del frames
         return out
 
     def _disabled_self_pairs(self) -> set[tuple[str, str]]:
-        """Pairs of links never checked: geometric neighbours, and pairs touching in the default posture."""
+        """Link pairs never checked, as an SRDF would list them: geometric neighbours (a link and the
+        nearest ancestor that has geometry) and pairs touching in the default posture or in one of
+        the reference postures (computed once here)."""
         gp = self._geometric_parent()
         disabled: set[tuple[str, str]] = set()
         for link, parent in gp.items():
             if parent is not None:
                 disabled.add(tuple(sorted((link, parent))))  # type: ignore[arg-type]
-        # siblings on the same geometric parent that share a joint (e.g. several shapes of one link)
         robot = self.robot
         base = np.array([0, 0, robot.spec.upright.pelvis_height_m, 0, 0, 0, 1.0])
         n = self.n_robot
@@ -580,9 +577,9 @@ class CollisionWorld:
         hits = np.zeros((P, N), dtype=bool)
         if P == 0:
             return hits
-        # screen 1: world axis-aligned boxes of the oriented boxes (one small matmul per body)
+        # screen: world axis-aligned boxes of the oriented boxes (one small matmul per body)
         ext = (np.abs(Rw) @ self._half[: Rw.shape[0], None, :, None])[..., 0]  # (B, N, 3)
-        slack = _SPHERE_SLACK_M - tol[:, None, None]
+        slack = _SCREEN_SLACK_M - tol[:, None, None]
         near = np.all(np.abs(pw[ia] - pw[ib]) < ext[ia] + ext[ib] + slack, axis=2)
         kp, ks = np.nonzero(near)
         if kp.size == 0:
