@@ -18,8 +18,6 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
-import numpy as np
-
 #: The fixed frame of every audit file (the contract's world frame).
 WORLD_FRAME = "world"
 
@@ -80,12 +78,16 @@ def quat_mul(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, floa
 
 
 def quat_rotate(q: Sequence[float], v: Sequence[float]) -> tuple[float, float, float]:
-    x, y, z, w = q
-    u = np.array([x, y, z])
-    vv = np.asarray(v, dtype=float)
-    t = 2.0 * np.cross(u, vv)
-    r = vv + w * t + np.cross(u, t)
-    return float(r[0]), float(r[1]), float(r[2])
+    """Rotate ``v`` by the unit quaternion ``q`` (plain floats: called per joint per sample)."""
+    x, y, z, w = (float(c) for c in q)
+    vx, vy, vz = (float(c) for c in v)
+    # t = 2 u x v ; r = v + w t + u x t
+    tx, ty, tz = 2.0 * (y * vz - z * vy), 2.0 * (z * vx - x * vz), 2.0 * (x * vy - y * vx)
+    return (
+        vx + w * tx + (y * tz - z * ty),
+        vy + w * ty + (z * tx - x * tz),
+        vz + w * tz + (x * ty - y * tx),
+    )
 
 
 def parse_urdf(urdf_text: str) -> UrdfTree:

@@ -98,6 +98,9 @@ class AuditSettings(BaseSettings):
     com_marker_diameter_m: float = 0.04
     #: Derive Foxglove views (plan playback, executed joint states) from ``record`` payloads.
     auto_visualize: bool = True
+    #: Highest rate of /tf for the executed motion (every joint state is still recorded;
+    #: the transforms only animate the model). 0 = a transform for every state.
+    executed_tf_rate_hz: float = 50.0
 
 
 class AuditError(RuntimeError):
@@ -209,6 +212,7 @@ class AuditWriter:
         self._seq = 0
         self._head = GENESIS
         self._closed = False
+        self._last_executed_tf_ns: int | None = None
         self.record(
             KIND_OPEN,
             {
@@ -424,6 +428,7 @@ class AuditWriter:
         prefix: str,
         ns: int,
         velocity: Sequence[float] | None = None,
+        with_tf: bool = True,
     ) -> None:
         if len(joint_names) != len(q):
             raise AuditError(f"{len(joint_names)} joint names but {len(q)} positions")
@@ -438,6 +443,8 @@ class AuditWriter:
                 joint["velocity"] = float(velocity[i])
             joints.append(joint)
         self._emit(topic, fx.JOINT_STATES, {"timestamp": _stamp(ns), "joints": joints}, ns)
+        if not with_tf:
+            return
         positions = {str(n): float(v) for n, v in zip(joint_names, q)}
         tf = self._tf_message(positions, base_pose, prefix, ns)
         if tf is not None:
@@ -460,7 +467,13 @@ class AuditWriter:
         prefix = "" if source == "plan" else EXECUTED_PREFIX
         with self._lock:
             ns = self._now(log_time_ns)
-            self._joint_state_messages(topic, joint_names, q, base_pose, prefix, ns, velocity)
+            with_tf = True
+            rate = self.settings.executed_tf_rate_hz
+            if source == "executed" and rate > 0:
+                with_tf = self._last_executed_tf_ns is None or ns - self._last_executed_tf_ns >= NS_PER_S / rate
+                if with_tf:
+                    self._last_executed_tf_ns = ns
+            self._joint_state_messages(topic, joint_names, q, base_pose, prefix, ns, velocity, with_tf)
             return self._commit()
 
     def transforms(

@@ -98,3 +98,16 @@ def test_record_of_a_plan_document_adds_the_model_and_its_playback(tmp_path):
     assert topics.count("/joint_states/plan") == 6  # 0.1 s at 50 Hz, both ends included
     assert topics.count("/joint_states/executed") == 1
     assert verify(path, head).exit_code == 0
+
+
+def test_executed_states_are_all_recorded_and_tf_is_rate_limited(tmp_path, hrp5p_urdf):
+    path = tmp_path / "a.mcap"
+    w = AuditWriter(path, "j", urdf_text=hrp5p_urdf)
+    t0 = 10**18
+    for i in range(50):  # 200 Hz for 0.25 s
+        w.joint_state(["LCY"], [0.001 * i], source="executed", log_time_ns=t0 + i * 5_000_000)
+    w.close()
+    with open(path, "rb") as f:
+        topics = [c.topic for _s, c, _m in make_reader(f).iter_messages()]
+    assert topics.count("/joint_states/executed") == 50
+    assert topics.count("/tf") == 13  # 50 Hz over 0.25 s: t = 0, 20, ..., 240 ms
