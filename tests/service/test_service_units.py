@@ -1,0 +1,99 @@
+"""In-process checks of settings, tokens, the store's state machine and recovery rules."""
+
+from __future__ import annotations
+
+import json
+import uuid
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+
+import pytest
+
+from service.auth import TokenStore, hash_token, is_loopback, make_dev_tokens
+from service.provenance import provenance
+from service.settings import ServiceSettings, load_settings
+from service.store import JobStore, make_engine, migrate
+
+
+@pytest.fixture
+def store(tmp_path: Path) -> JobStore:
+    engine = make_engine(f"sqlite:///{tmp_path / 'jobs.sqlite'}")
+    migrate(engine)
+    return JobStore(engine)
+
+
+def _new(store: JobStore, key: str | None = None, request: dict | None = None) -> str:
+    row, _ = store.create(job_id=str(uuid.uuid4()), kind="plan", submitter="u", request=request or {"scenario": "x"},
+                          request_sha256=json.dumps(request or {}), idempotency_key=key, provenance=provenance("hrp5p", 1))
+    return row["id"]
+
+
+def test_settings_file_env_and_flags_in_priority_order(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    cfg = tmp_path / "regrasp.yaml"
+    cfg.write_text("workers: 5\nqueue_limit: 7\napproval_ttl_s: 60\n")
+    monkeypatch.setenv("REGRASP_QUEUE_LIMIT", "9")
+    s = load_settings(cfg, workers=3)
+    assert (s.workers, s.queue_limit, s.approval_ttl_s) == (3, 9, 60)
+    monkeypatch.setenv("REGRASP_TOKENS", json.dumps({"secret-token-1": {"user": "ann", "roles": ["planner"]}}))
+    assert ServiceSettings().tokens["secret-token-1"].user == "ann"
+    with pytest.raises(ValueError, match="does not exist"):
+        load_settings(tmp_path / "missing.yaml")
+    monkeypatch.setenv("REGRASP_HANDLERS", json.dumps({"plan": "no-colon"}))
+    with pytest.raises(ValueError, match="module:function"):
+        ServiceSettings()
+
+
+def test_tokens_are_kept_hashed_only() -> None:
+    store = TokenStore.from_plain({"a-very-secret": {"user": "ann", "roles": ["approver"]}})
+    assert store.lookup("a-very-secret").user == "ann" and store.lookup("a-very-secre") is None
+    assert "a-very-secret" not in repr(store.__dict__) and hash_token("a-very-secret") in store._by_hash
+    with pytest.raises(ValueError, match="shorter than 8"):
+        TokenStore.from_plain({"short": {"user": "x", "roles": ["planner"]}})
+    users = {e["user"]: e["roles"] for e in make_dev_tokens().values()}
+    assert users["alice"] == ["planner"] and "approver" in users["bob"] and "operator" in users["bob"]
+    assert is_loopback("127.0.0.1") and is_loopback("::1") and not is_loopback("0.0.0.0")
+
+
+def test_transitions_are_compare_and_set(store: JobStore) -> None:
+    job = _new(store)
+    assert store.transition(job, ["queued"], "canceled", message="x")
+    assert not store.transition(job, ["queued"], "planning")  # already moved
+    assert [e["state"] for e in store.events_after(job)] == ["queued", "canceled"]
+    assert store.get(job)["finished_at"] is not None
+
+
+def test_recovery_requeues_then_fails_and_aborts_executions(store: JobStore) -> None:
+    a, b = _new(store), _new(store)
+    dead = "some-other-host:1:dead"
+    assert [j["id"] for j in store.claim(dead, 2, lease_s=0.0)] == [a, b]
+    store.update_fields(b, state="executing")
+    actions = dict(store.recover(lambda owner: False, max_attempts=2))
+    assert actions == {a: "queued", b: "aborted"}
+    assert store.get(b)["error"]["code"] == "INTERRUPTED"
+    store.claim(dead, 1, lease_s=0.0)
+    assert dict(store.recover(lambda owner: False, max_attempts=2)) == {a: "failed"}
+    assert "interrupted 2 times" in store.get(a)["error"]["message"]
+    # a live lease held by a live owner is left alone
+    c = _new(store)
+    store.claim("live:1:x", 1, lease_s=60)
+    assert store.recover(lambda owner: False, max_attempts=2) == []
+    assert store.get(c)["state"] == "planning"
+
+
+def test_approval_expiry_sends_the_job_back_to_planned(store: JobStore) -> None:
+    job = _new(store)
+    past = datetime.now(timezone.utc) - timedelta(seconds=1)
+    store.update_fields(job, state="approved", approved_by="bob", approved_at=past, approval_expires_at=past,
+                        approved_sha256="0" * 64)
+    assert store.expire_approvals() == [job]
+    row = store.get(job)
+    assert row["state"] == "planned" and row["approved_by"] is None
+
+
+def test_idempotency_mismatch_is_refused(store: JobStore) -> None:
+    from service.store.repo import IdempotencyMismatch
+
+    first = _new(store, key="k", request={"scenario": "a"})
+    assert _new(store, key="k", request={"scenario": "a"}) == first
+    with pytest.raises(IdempotencyMismatch, match="different request"):
+        _new(store, key="k", request={"scenario": "b"})
