@@ -97,6 +97,8 @@ class FakeJobs:
         self.lock = threading.Lock()
         self.jobs: dict[str, dict[str, Any]] = {}
         self.events: list[dict[str, Any]] = []
+        #: False makes the events route answer 404, as a server without SSE would.
+        self.sse_enabled = True
         plan = self._new("plan", "alice", state="planned", result=synthetic_plan())
         plan["plan_sha256"] = "a" * 64
         self._new("survey", "alice", state="succeeded", result=synthetic_survey(), progress=1.0)
@@ -122,6 +124,27 @@ class FakeJobs:
         job["updated_at"] = _now()
         job["audit_head"] = uuid.uuid4().hex * 2
         self._event(job, "state", message)
+
+    def plan_later(self, job_id: str) -> None:
+        """A submitted job plans in the background: planning, then planned (or succeeded for a survey)."""
+        def run() -> None:
+            time.sleep(EXECUTION_STEP_S)
+            with self.lock:
+                job = self.jobs[job_id]
+                self.set_state(job, "planning", "a worker started planning")
+            time.sleep(EXECUTION_STEP_S)
+            with self.lock:
+                job = self.jobs[job_id]
+                if job["state"] != "planning":
+                    return
+                job["progress"] = 1.0
+                if job["kind"] == "plan":
+                    job["result"], job["plan_sha256"] = synthetic_plan(), "b" * 64
+                    self.set_state(job, "planned", "planned; waiting for approval")
+                else:
+                    job["result"] = synthetic_survey()
+                    self.set_state(job, "succeeded", "survey done")
+        threading.Thread(target=run, daemon=True).start()
 
     def execute(self, job_id: str) -> None:
         """Play a short execution in a thread: executing with progress, then succeeded."""
@@ -193,6 +216,8 @@ def create_app() -> FastAPI:
         body = await request.json()
         with store.lock:
             job = store._new(body["kind"], p[0], state="queued")
+            job["request"] = body.get("request", {})
+        store.plan_later(job["id"])
         return JSONResponse(job, status_code=202, headers={"Location": f"/v1/jobs/{job['id']}"})
 
     @app.get("/v1/jobs/{job_id}")
@@ -216,6 +241,8 @@ def create_app() -> FastAPI:
         p = who(request)
         if isinstance(p, JSONResponse):
             return p
+        if not store.sse_enabled:
+            return problem(404, "no event stream here")
         after = int(request.headers.get("last-event-id") or 0)
 
         async def stream():

@@ -124,3 +124,34 @@ def test_token_is_kept_in_session_storage_only(page, fake_server):
     expect(page.locator("#jobs tbody tr")).to_have_count(2, timeout=TIMEOUT_MS)
     page.click("#token-clear")
     assert page.evaluate("sessionStorage.getItem('regrasp.token')") is None
+
+
+def test_without_sse_the_page_polls_and_still_follows_the_job(page, fake_server):
+    url, store = fake_server
+    store.sse_enabled = False
+    with store.lock:
+        job = store.jobs[store.plan_id]
+        job["approval"] = {"approved_by": "bob", "approved_at": "2026-01-01T00:00:00+00:00",
+                           "expires_at": "2026-01-01T00:10:00+00:00", "plan_sha256": job["plan_sha256"]}
+        store.set_state(job, "approved", "approved by bob")
+    _login(page, url, OPERATOR)
+    _open(page, store.plan_id)
+    page.click("#btn-dispatch")
+    expect(page.locator("#live-mode")).to_have_text("polling every 500 ms", timeout=TIMEOUT_MS)
+    expect(page.locator("#job-state")).to_have_text("succeeded", timeout=TIMEOUT_MS)
+    assert page.js_errors == []
+
+
+def test_planner_submits_a_job_from_the_form(page, fake_server):
+    url, store = fake_server
+    _login(page, url, PLANNER)
+    expect(page.locator("#jobs tbody tr")).to_have_count(2, timeout=TIMEOUT_MS)
+    page.click("#submit-box summary")
+    page.fill("#submit-scenario", "staggered")
+    page.fill("#submit-threshold", "40")
+    page.click("#submit-form button[type=submit]")
+    expect(page.locator("#jobs tbody tr")).to_have_count(3, timeout=TIMEOUT_MS)
+    expect(page.locator("#job-state")).to_have_text("planned", timeout=TIMEOUT_MS)
+    new = [j for j in store.jobs.values() if j["request"].get("scenario") == "staggered"]
+    assert len(new) == 1 and new[0]["request"]["threshold_m"] == 0.04
+    expect(page.locator('#com-chart polyline[data-role="com-trace"]')).to_have_count(1)
