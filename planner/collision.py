@@ -535,33 +535,41 @@ class CollisionWorld:
 
     # -- pose computation ------------------------------------------------------------------------
 
-    def _robot_world(self, Rs: list, ps: list) -> tuple[np.ndarray, np.ndarray]:
+    def _robot_world(self, Rs: list, ps: list, out: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """World rotation (n_robot, N, 3, 3) and OBB centre (n_robot, N, 3) of every robot body."""
-        RJ = np.stack([Rs[j] for j in self._uniq_joints])  # (J, 3, 3, N)
-        pJ = np.stack([ps[j] for j in self._uniq_joints])  # (J, 3, N)
+        N = Rs[1].shape[2]
+        J = len(self._uniq_joints)
+        RJ = np.empty((J, N, 3, 3))
+        pJ = np.empty((J, N, 3))
+        for k, j in enumerate(self._uniq_joints):  # a copy per joint beats np.stack's checks
+            RJ[k] = Rs[j].transpose(2, 0, 1)
+            pJ[k] = ps[j].T
         RJ = RJ[self._joint_slot]
-        pJ = pJ[self._joint_slot]
         n = self.n_robot
-        Rw = np.einsum("bijn,bjk->bnik", RJ, self._local_R[:n])
-        pw = np.einsum("bijn,bj->bni", RJ, self._local_p[:n]) + np.moveaxis(pJ, 2, 1)
+        if out is None:
+            out = (np.empty((n, N, 3, 3)), np.empty((n, N, 3)))
+        Rw, pw = out
+        np.matmul(RJ, self._local_R[:n, None], out=Rw)
+        pw[...] = (RJ @ self._local_p[:n, None, :, None])[..., 0] + pJ[self._joint_slot]
         return Rw, pw
 
     def _all_world(self, Rs: list, ps: list, T_obj: np.ndarray | None, N: int) -> tuple[np.ndarray, np.ndarray]:
-        Rr, pr = self._robot_world(Rs, ps)
-        parts_R, parts_p = [Rr], [pr]
+        B, n = len(self.bodies), self.n_robot
+        Rw = np.empty((B, N, 3, 3))
+        pw = np.empty((B, N, 3))
+        self._robot_world(Rs, ps, out=(Rw[:n], pw[:n]))
         if self.n_env:
-            Re = np.broadcast_to(self._local_R[self._env_slice][:, None], (self.n_env, N, 3, 3))
-            pe = np.broadcast_to(self._local_p[self._env_slice][:, None], (self.n_env, N, 3))
-            parts_R.append(Re)
-            parts_p.append(pe)
+            Rw[self._env_slice] = self._local_R[self._env_slice][:, None]
+            pw[self._env_slice] = self._local_p[self._env_slice][:, None]
         if self.n_obj:
             # an absent object gets an identity pose: no pair involving it is tested then
-            T = np.broadcast_to(np.eye(4), (N, 4, 4)) if T_obj is None else T_obj
-            Ro = np.einsum("nij,bjk->bnik", T[:, :3, :3], self._local_R[self._obj_slice])
-            po = np.einsum("nij,bj->bni", T[:, :3, :3], self._local_p[self._obj_slice]) + T[None, :, :3, 3]
-            parts_R.append(Ro)
-            parts_p.append(po)
-        return np.concatenate(parts_R), np.concatenate(parts_p)
+            if T_obj is None:
+                Rw[self._obj_slice] = self._local_R[self._obj_slice][:, None]
+                pw[self._obj_slice] = self._local_p[self._obj_slice][:, None]
+            else:
+                Rw[self._obj_slice] = T_obj[None, :, :3, :3] @ self._local_R[self._obj_slice][:, None]
+                pw[self._obj_slice] = (T_obj[None, :, :3, :3] @ self._local_p[self._obj_slice][:, None, :, None])[..., 0] + T_obj[None, :, :3, 3]
+        return Rw, pw
 
     # -- pair testing ------------------------------------------------------------------------------
 
