@@ -14,6 +14,7 @@ results are deterministic for a seed.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Literal, Mapping, Sequence
@@ -50,6 +51,9 @@ class IkSettings(BaseModel):
     #: A target farther than reach * this from the shoulder is rejected without iterating.
     reach_slack: float = Field(1.05, gt=0)
     restart_noise_rad: float = Field(0.6, gt=0, description="std of the restart perturbation around the seed")
+    restart_max_residual_m: float = Field(
+        0.25, gt=0, description="restart only while the best position residual is below this (farther targets are out of reach)"
+    )
 
 
 @dataclass(frozen=True)
@@ -88,6 +92,8 @@ class IkSolver:
             name: int(self._model.idx_vs[self._model.getJointId(name)]) for name in robot.joint_names
         }
         self._reach = {side: self._arm_reach(side) for side in robot.spec.arms}
+        idx_qs = list(self._model.idx_qs)
+        self._pin_q_col = np.array([int(idx_qs[self._model.getJointId(n)]) for n in robot.joint_names], dtype=int)
         self.solves = 0
         self.total_time_s = 0.0
 
@@ -110,24 +116,26 @@ class IkSolver:
         total += float(np.linalg.norm(model.frames[fid].placement.translation))
         return first, total
 
-    def _errors(self, q: np.ndarray, targets: Mapping[Side, pin.SE3], sides: Sequence[Side]) -> tuple[np.ndarray, np.ndarray, float, float]:
-        """Stacked local errors (6k,), Jacobian (6k, nv) and the worst position / rotation errors."""
+    def _errors(self, qp: np.ndarray, targets: Mapping[Side, pin.SE3], sides: Sequence[Side]) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Stacked local errors (6k,), Jacobian (6k, nv) and the worst position / rotation errors at pinocchio q ``qp``."""
         model, data = self._model, self._data
-        qp = self.robot.to_pin_q(self.base_pose, q)
         pin.forwardKinematics(model, data, qp)
         errs, jacs = [], []
         pmax = rmax = 0.0
         for side in sides:
             fid = self._tcp_fid[side]
-            cur = pin.updateFramePlacement(model, data, fid).copy()
+            cur = pin.updateFramePlacement(model, data, fid)
             iMd = cur.actInv(targets[side])
             e = pin.log6(iMd).vector
-            pmax = max(pmax, float(np.linalg.norm(targets[side].translation - cur.translation)))
-            rmax = max(rmax, float(np.linalg.norm(e[3:])))
+            dp = targets[side].translation - cur.translation
+            pmax = max(pmax, math.sqrt(float(dp @ dp)))
+            rmax = max(rmax, math.sqrt(float(e[3:] @ e[3:])))
             errs.append(e)
             J = pin.computeFrameJacobian(model, data, qp, fid, pin.LOCAL)
             # log6 error is (nearly) J dq for small errors; use the log Jacobian for accuracy further out.
             jacs.append(pin.Jlog6(iMd.inverse()) @ J)
+        if len(sides) == 1:
+            return errs[0], jacs[0], pmax, rmax
         return np.concatenate(errs), np.vstack(jacs), pmax, rmax
 
     def _attempt(self, q0: np.ndarray, rest: np.ndarray, targets: Mapping[Side, pin.SE3], sides: Sequence[Side], active: np.ndarray, vcols: np.ndarray) -> tuple[np.ndarray, int, float, float, bool]:
@@ -136,6 +144,9 @@ class IkSolver:
         q = q0.copy()
         lo, hi = self.robot.lower[active], self.robot.upper[active]
         q[active] = np.clip(q[active], lo, hi)
+        # Iterate on the pinocchio configuration: the active joints are plain (not mimic) joints.
+        qp = self.robot.to_pin_q(self.base_pose, q)
+        pcols = self._pin_q_col[active]
         lam2 = s.damping**2
         pmax = rmax = np.inf
         best_score, since_best = np.inf, 0
@@ -143,7 +154,7 @@ class IkSolver:
         rest_a = rest[active]
         it = 0
         for it in range(1, s.max_iterations + 1):
-            e, J, pmax, rmax = self._errors(q, targets, sides)
+            e, J, pmax, rmax = self._errors(qp, targets, sides)
             if pmax <= s.pos_tol_m and rmax <= s.rot_tol_rad:
                 return q, it, pmax, rmax, True
             score = pmax + 0.1 * rmax
@@ -174,8 +185,10 @@ class IkSolver:
             big = np.abs(dq).max()
             if big > s.max_step_rad:
                 dq *= s.max_step_rad / big
-            q[active] = np.clip(qa + dq, lo, hi)
-        e, J, pmax, rmax = self._errors(q, targets, sides)
+            qa_new = np.clip(qa + dq, lo, hi)
+            q[active] = qa_new
+            qp[pcols] = qa_new
+        e, J, pmax, rmax = self._errors(qp, targets, sides)
         return q, it, pmax, rmax, bool(pmax <= s.pos_tol_m and rmax <= s.rot_tol_rad)
 
     def solve(
@@ -241,11 +254,13 @@ class IkSolver:
                 return IkResult(q=q, reason=None, code=None, iterations=total_it, attempts=attempt + 1, pos_err_m=pe, rot_err_rad=re, elapsed_s=elapsed)
             if pe + re < best[0] + best[1]:
                 best = (pe, re)
+            if best[0] > s.restart_max_residual_m:
+                break
         return self._fail(
             best, "NO_CONVERGENCE",
-            f"IK for {'+'.join(sides)} did not converge within the joint limits after {s.restarts + 1} attempts "
+            f"IK for {'+'.join(sides)} did not converge within the joint limits after {attempt + 1} attempts "
             f"(best residual {best[0] * 1000:.1f} mm, {best[1]:.3f} rad)",
-            total_it, s.restarts + 1, t0,
+            total_it, attempt + 1, t0,
         )
 
     def solve_arm(self, side: Side, T_world_tcp: np.ndarray, seed_q: np.ndarray, rng: np.random.Generator, rest_q: np.ndarray | None = None) -> IkResult:
