@@ -2,15 +2,13 @@
 
 The safety gate is an independent channel: it reads the same files the planner
 ships (``planner/robots/data/NAME.urdf`` and ``NAME.yaml``) but never runs the
-planner's code. The package directory is located with
-``importlib.util.find_spec("planner")``, which finds a top-level package without
-executing it, so ``planner`` never enters ``sys.modules``.
+planner's code. The directory is found next to this package (both are installed
+side by side), so ``planner`` never enters ``sys.modules``.
 """
 
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -30,10 +28,10 @@ class RobotFilesError(ValueError):
 
 def robot_data_dir() -> Path:
     """The directory holding ``*.urdf`` and ``*.yaml`` robot files."""
-    spec = importlib.util.find_spec("planner")
-    if spec is None or not spec.submodule_search_locations:
-        raise RobotFilesError("the robot data files (package 'planner') are not installed")
-    return Path(next(iter(spec.submodule_search_locations))).joinpath(*_DATA_PARTS)
+    path = Path(__file__).resolve().parent.parent.joinpath("planner", *_DATA_PARTS)
+    if not path.is_dir():
+        raise RobotFilesError(f"the robot data files are not installed (no directory {path})")
+    return path
 
 
 def robot_names() -> list[str]:

@@ -1,0 +1,404 @@
+"""The dispatcher: gate, then send time-parameterized segments to the controller and follow them.
+
+Nothing is published on ``cmd/trajectory`` unless the safety gate passed the very
+plan being sent, against the approved hash and the robot's measured state.
+Segments (<= 1 s of points each) go out with ``seq``, ``job_id`` and
+``plan_sha256`` at real-time priority, express, drop on congestion, a few
+segments ahead of the controller's progress. The controller is watched two ways:
+its liveliness token (gone when its session dies) and an application heartbeat
+(a frozen controller keeps its token until the lease ends). Losing either aborts
+the job and sends a stop within the watchdog timeout.
+
+The service calls :meth:`Dispatcher.execute` from a worker thread and gets every
+step through ``on_event(kind, data)``: ``gate``, ``dispatching``, ``segment``,
+``executing``, ``robot_state``, ``controller``, ``stop_sent``, ``finished``.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any, Callable, Literal
+
+import numpy as np
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from schemas.bridge import MAX_SEGMENT_DURATION_S, ExecStatus, GateVerdict, Heartbeat, JointState, Stop, TrajectorySegment
+
+from .gate import Approval, GateSettings, MeasuredState, SafetyGate
+from .settings import BridgeSettings, Keys
+from .zenoh_session import control_publisher, encode, open_session
+
+EventCallback = Callable[[str, dict[str, Any]], None]
+
+
+class DispatchSettings(BaseModel):
+    """Pacing and deadlines of one execution."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    segment_duration_s: float = Field(MAX_SEGMENT_DURATION_S, gt=0, le=MAX_SEGMENT_DURATION_S,
+                                      description="points per segment = this / dt_s (the contract allows 1 s)")
+    lookahead_segments: int = Field(3, ge=1, le=1000, description="segments sent ahead of the one being played")
+    poll_period_s: float = Field(0.005, gt=0, le=0.1, description="how often the execution loop looks at its inputs")
+    progress_timeout_s: float = Field(3.0, gt=0, description="no progress report for this long = fault")
+    ack_timeout_s: float = Field(1.0, gt=0, description="wait for the controller to acknowledge a stop")
+    robot_state_event_period_s: float = Field(0.1, gt=0, description="rate of 'robot_state' events (for the audit)")
+    state_max_age_s: float = Field(0.5, gt=0, description="a measured state older than this is not used by the gate")
+    start_tolerance_rad: float = Field(0.01, gt=0, description="first point vs measured state")
+
+
+class ControllerUnavailableError(RuntimeError):
+    """No controller is alive, or its state is unknown: nothing was started (HTTP 409)."""
+
+
+class BusyError(RuntimeError):
+    """Another execution is running on this dispatcher."""
+
+
+@dataclass
+class ExecutionResult:
+    """How an execution ended: ``succeeded``, ``aborted`` (stopped, lost, fault) or ``rejected`` (gate veto)."""
+
+    status: Literal["succeeded", "aborted", "rejected"]
+    reason: str
+    verdict: GateVerdict | None = None
+    last_index: int | None = None
+    segments_sent: int = 0
+    duration_s: float = 0.0
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"status": self.status, "reason": self.reason, "verdict": self.verdict.model_dump(mode="json") if self.verdict else None,
+                "last_index": self.last_index, "segments_sent": self.segments_sent, "duration_s": self.duration_s,
+                "details": self.details}
+
+
+def split_segments(plan: dict[str, Any], job_id: str, plan_sha256: str, first_seq: int,
+                   segment_duration_s: float = MAX_SEGMENT_DURATION_S) -> list[TrajectorySegment]:
+    """The plan's trajectory cut into consecutive segments of at most ``segment_duration_s``."""
+    dt = float(plan["dt_s"])
+    traj = plan["trajectory"]
+    per = max(1, int(math.floor(segment_duration_s / dt + 1e-9)) + 1)  # points spanning at most the duration
+    starts = list(range(0, len(traj), per))
+    names = list(plan["robot"]["joint_names"])
+    return [
+        TrajectorySegment(
+            job_id=job_id, plan_sha256=plan_sha256, seq=first_seq + k, segment_index=k, segment_count=len(starts),
+            joint_names=names, dt_s=dt, t_from_start=start * dt, first_index=start,
+            points=[p["q"] for p in traj[start:start + per]], holding=[p["holding"] for p in traj[start:start + per]],
+        )
+        for k, start in enumerate(starts)
+    ]
+
+
+class Dispatcher:
+    """One zenoh peer of the bridge for one robot; thread-safe, one execution at a time."""
+
+    def __init__(self, settings: BridgeSettings | None = None, dispatch: DispatchSettings | None = None,
+                 gate: SafetyGate | None = None):
+        self.settings = settings or BridgeSettings()
+        self.dispatch = dispatch or DispatchSettings()
+        self.gate = gate or SafetyGate(GateSettings(start_tolerance_rad=self.dispatch.start_tolerance_rad))
+        self.keys = Keys(self.settings.robot_id)
+        self._lock = threading.Lock()
+        self._run_lock = threading.Lock()
+        self._token_alive = False
+        self._last_heartbeat: float | None = None
+        self._last_heartbeat_msg: Heartbeat | None = None
+        self._joint_state: JointState | None = None
+        self._joint_state_at: float | None = None
+        self._exec: queue.Queue = queue.Queue()
+        self._stop_requests: set[str | None] = set()
+        # seq must grow across jobs and restarts of this process: start from the clock (ms)
+        self._seq = int(time.time() * 1000)
+        self._session = open_session(self.settings)
+        s = self._session
+        self._pub_traj = control_publisher(s, self.keys.trajectory)
+        self._pub_stop = control_publisher(s, self.keys.stop)
+        self._subs = [
+            s.liveliness().declare_subscriber(self.keys.alive, self._on_alive, history=True),
+            s.declare_subscriber(self.keys.heartbeat, self._on_heartbeat),
+            s.declare_subscriber(self.keys.joints, self._on_joints),
+            s.declare_subscriber(self.keys.exec, self._on_exec),
+        ]
+
+    # ------------------------------------------------------------------ telemetry callbacks (zenoh threads)
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            self._token_alive = sample.kind == zenoh.SampleKind.PUT
+
+    def _on_heartbeat(self, sample: zenoh.Sample) -> None:
+        try:
+            hb = Heartbeat.model_validate_json(sample.payload.to_bytes())
+        except ValidationError:
+            return
+        with self._lock:
+            self._last_heartbeat = time.monotonic()
+            self._last_heartbeat_msg = hb
+
+    def _on_joints(self, sample: zenoh.Sample) -> None:
+        try:
+            js = JointState.model_validate_json(sample.payload.to_bytes())
+        except ValidationError:
+            return
+        with self._lock:
+            self._joint_state, self._joint_state_at = js, time.monotonic()
+
+    def _on_exec(self, sample: zenoh.Sample) -> None:
+        try:
+            self._exec.put((time.monotonic(), ExecStatus.model_validate_json(sample.payload.to_bytes())))
+        except ValidationError:
+            pass
+
+    # ------------------------------------------------------------------ status
+    def zid(self) -> str:
+        """This peer's zenoh id (for diagnostics and tests)."""
+        return str(self._session.info.zid()) if self._session is not None else ""
+
+    def controller_problem(self) -> str | None:
+        """Why the controller is not usable now, or None when it is alive (token and fresh heartbeat)."""
+        with self._lock:
+            token, beat = self._token_alive, self._last_heartbeat
+        if not token:
+            return f"no controller: liveliness token {self.keys.alive} is absent"
+        if beat is None:
+            return "no controller heartbeat received yet"
+        age = time.monotonic() - beat
+        if age > self.settings.watchdog_timeout_s:
+            return f"controller heartbeat lost: none for {age * 1000:.0f} ms (watchdog {self.settings.watchdog_timeout_s * 1000:.0f} ms)"
+        return None
+
+    def controller_alive(self) -> bool:
+        return self.controller_problem() is None
+
+    def wait_for_controller(self, timeout_s: float) -> bool:
+        """Wait (bounded) until a controller is alive and its joint state is known."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.controller_alive() and self.measured_state() is not None:
+                return True
+            time.sleep(0.01)
+        return False
+
+    def measured_state(self) -> JointState | None:
+        """The latest joint state, or None when none arrived within ``state_max_age_s``."""
+        with self._lock:
+            js, at = self._joint_state, self._joint_state_at
+        if js is None or at is None or time.monotonic() - at > self.dispatch.state_max_age_s:
+            return None
+        return js
+
+    # ------------------------------------------------------------------ commands
+    def stop(self, job_id: str | None = None, reason: str = "stop requested by operator") -> None:
+        """Publish ``cmd/stop`` now (repeated a few times); a running execution of that job ends aborted."""
+        with self._lock:
+            self._stop_requests.add(job_id)
+        self._send_stop(job_id, reason)
+
+    def _send_stop(self, job_id: str | None, reason: str, repeats: int | None = None) -> None:
+        n = repeats if repeats is not None else self.settings.stop_repeats
+        payload = encode(Stop(job_id=job_id, reason=reason, stamp=time.monotonic()))
+        self._pub_stop.put(payload)
+        if n > 1:
+            def again() -> None:
+                for _ in range(n - 1):
+                    time.sleep(self.settings.stop_repeat_period_s)
+                    try:
+                        self._pub_stop.put(encode(Stop(job_id=job_id, reason=reason, stamp=time.monotonic())))
+                    except Exception:
+                        return
+            threading.Thread(target=again, name="stop-repeat", daemon=True).start()
+
+    def _next_seq(self, count: int) -> int:
+        with self._lock:
+            first = self._seq
+            self._seq += count
+        return first
+
+    # ------------------------------------------------------------------ execution
+    def execute(self, plan: dict[str, Any], *, job_id: str, approved_sha256: str, approval_expires_at: datetime,
+                threshold_m: float | None = None, on_event: EventCallback | None = None,
+                stop_event: threading.Event | None = None) -> ExecutionResult:
+        """Gate the plan, send it, follow it to the end.
+
+        Raises :class:`ControllerUnavailableError` before anything happens when no
+        controller is alive or its state is unknown (the job stays approved), and
+        :class:`BusyError` when another execution runs.
+        """
+        if not self._run_lock.acquire(blocking=False):
+            raise BusyError("another execution is running on this dispatcher")
+        try:
+            return self._execute(plan, job_id, approved_sha256, approval_expires_at, threshold_m, on_event or (lambda k, d: None),
+                                 stop_event or threading.Event())
+        finally:
+            self._run_lock.release()
+
+    def _execute(self, plan: dict[str, Any], job_id: str, approved_sha256: str, expires_at: datetime,
+                 threshold_m: float | None, emit: EventCallback, stop_event: threading.Event) -> ExecutionResult:
+        started = time.monotonic()
+        problem = self.controller_problem()
+        state = self.measured_state()
+        if problem is not None:
+            raise ControllerUnavailableError(problem)
+        if state is None:
+            raise ControllerUnavailableError("the controller's joint state is unknown (no recent state/joints)")
+        with self._lock:
+            self._stop_requests.discard(job_id)
+            self._stop_requests.discard(None)
+        verdict = self.gate.check(
+            plan, approval=Approval(approved_sha256, expires_at),
+            measured=MeasuredState(state.joint_names, state.q, self.dispatch.start_tolerance_rad),
+            threshold_m=threshold_m,
+        )
+        emit("gate", verdict.model_dump(mode="json"))
+        if not verdict.passed:
+            return ExecutionResult("rejected", verdict.summary(), verdict, duration_s=time.monotonic() - started)
+        # Only the gate-passed, hash-checked plan is cut into segments, right now.
+        segments = split_segments(plan, job_id, verdict.plan_sha256 or approved_sha256, 0, self.dispatch.segment_duration_s)
+        first_seq = self._next_seq(len(segments))
+        for seg in segments:
+            seg.seq += first_seq
+        n_points = len(plan["trajectory"])
+        emit("dispatching", {"job_id": job_id, "segments": len(segments), "points": n_points, "dt_s": plan["dt_s"],
+                             "plan_sha256": verdict.plan_sha256, "first_seq": segments[0].seq})
+        self._drain_exec()
+        run = _Run(job_id=job_id, segments=segments, n_points=n_points)
+        try:
+            return self._follow(run, emit, stop_event, verdict, started)
+        except Exception as exc:  # fail safe: whatever broke, the robot is told to stop
+            self._send_stop(job_id, f"bridge error: {exc}")
+            emit("stop_sent", {"job_id": job_id, "reason": f"bridge error: {exc}"})
+            return ExecutionResult("aborted", f"bridge error: {type(exc).__name__}: {exc}", verdict, run.index, run.sent,
+                                   time.monotonic() - started)
+
+    def _drain_exec(self) -> None:
+        while True:
+            try:
+                self._exec.get_nowait()
+            except queue.Empty:
+                return
+
+    def _send_segment(self, run: "_Run", emit: EventCallback) -> None:
+        seg = run.segments[run.sent]
+        self._publish_segment(seg)
+        run.sent += 1
+        emit("segment", {"job_id": run.job_id, "seq": seg.seq, "segment_index": seg.segment_index,
+                         "segment_count": seg.segment_count, "first_index": seg.first_index, "points": len(seg.points),
+                         "t_from_start": seg.t_from_start, "sent_at": time.monotonic()})
+
+    def _publish_segment(self, seg: TrajectorySegment) -> None:
+        """Put one segment on ``cmd/trajectory`` (the only place that does)."""
+        self._pub_traj.put(encode(seg))
+
+    def _abort(self, run: "_Run", emit: EventCallback, reason: str, verdict: GateVerdict, started: float,
+               wait_ack: bool = False) -> ExecutionResult:
+        self._send_stop(run.job_id, reason)
+        emit("stop_sent", {"job_id": run.job_id, "reason": reason})
+        acked = False
+        if wait_ack:
+            deadline = time.monotonic() + self.dispatch.ack_timeout_s
+            while time.monotonic() < deadline and not acked:
+                try:
+                    _, st = self._exec.get(timeout=self.dispatch.poll_period_s)
+                except queue.Empty:
+                    continue
+                acked = st.status == "stopped"
+                if st.index is not None:
+                    run.index = st.index
+        result = ExecutionResult("aborted", reason, verdict, run.index, run.sent, time.monotonic() - started,
+                                 {"stop_acknowledged": acked} if wait_ack else {})
+        emit("finished", result.to_dict())
+        return result
+
+    def _follow(self, run: "_Run", emit: EventCallback, stop_event: threading.Event, verdict: GateVerdict,
+                started: float) -> ExecutionResult:
+        d = self.dispatch
+        ahead = d.lookahead_segments
+        while run.sent < min(len(run.segments), ahead):
+            self._send_segment(run, emit)
+        last_progress = time.monotonic()
+        last_state_event = 0.0
+        executing_announced = False
+        per = len(run.segments[0].points)
+        while True:
+            with self._lock:
+                stop_requested = run.job_id in self._stop_requests or None in self._stop_requests
+            if stop_event.is_set() or stop_requested:
+                return self._abort(run, emit, "stopped by operator", verdict, started, wait_ack=True)
+            problem = self.controller_problem()
+            if problem is not None:
+                return self._abort(run, emit, f"controller lost: {problem}", verdict, started)
+            try:
+                at, st = self._exec.get(timeout=d.poll_period_s)
+            except queue.Empty:
+                st = None
+            now = time.monotonic()
+            if st is not None and st.job_id == run.job_id:
+                if st.index is not None:
+                    run.index = st.index
+                if st.status in ("accepted", "executing", "ignored"):
+                    last_progress = now
+                    if not executing_announced and st.status in ("accepted", "executing"):
+                        executing_announced = True
+                        emit("executing", {"job_id": run.job_id, "index": run.index or 0, "status": st.status})
+                    elif st.status == "executing":
+                        emit("executing", {"job_id": run.job_id, "index": run.index, "status": "executing"})
+                    if st.status == "accepted":
+                        emit("segment", {"job_id": run.job_id, "seq": st.seq, "acknowledged": True, "received_at": st.received_at})
+                    if st.status == "ignored":
+                        emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason})
+                elif st.status == "succeeded":
+                    result = ExecutionResult("succeeded", st.reason or "trajectory executed", verdict, st.index, run.sent,
+                                             now - started)
+                    emit("finished", result.to_dict())
+                    return result
+                elif st.status in ("rejected", "starved", "fault", "stopped"):
+                    emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason})
+                    return self._abort(run, emit, f"controller {st.status}: {st.reason}", verdict, started)
+            elif st is not None and st.status == "rejected" and st.job_id is None:
+                emit("controller", {"job_id": run.job_id, "status": st.status, "reason": st.reason})
+                return self._abort(run, emit, f"controller rejected a command: {st.reason}", verdict, started)
+            # keep the controller fed: stay `lookahead` segments ahead of the one being played
+            playing = (run.index or 0) // per
+            while run.sent < len(run.segments) and run.sent <= playing + ahead:
+                self._send_segment(run, emit)
+            if now - last_progress > d.progress_timeout_s:
+                return self._abort(run, emit, f"no progress from the controller for {d.progress_timeout_s:.1f} s", verdict, started)
+            if now - last_state_event >= d.robot_state_event_period_s:
+                js = self.measured_state()
+                if js is not None:
+                    emit("robot_state", {"stamp": js.stamp, "joint_names": js.joint_names, "q": js.q, "index": js.index})
+                last_state_event = now
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        if self._session is None:
+            return
+        for sub in self._subs:
+            try:
+                sub.undeclare()
+            except Exception:
+                pass
+        self._session.close()
+        self._session = None
+
+    def __enter__(self) -> "Dispatcher":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+@dataclass
+class _Run:
+    job_id: str
+    segments: list[TrajectorySegment]
+    n_points: int
+    sent: int = 0
+    index: int | None = None

@@ -1,0 +1,61 @@
+"""Typed settings of the bridge's zenoh peers (environment prefix ``REGRASP_BRIDGE_``).
+
+Defaults are for one machine (loopback, multicast scouting off). On the robot
+network set the endpoints, e.g. ``REGRASP_BRIDGE_CONNECT='["tcp/10.0.0.2:7447"]'``.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field, field_validator, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+#: The contract's default robot id, the ROBOT part of every key expression.
+DEFAULT_ROBOT_ID = "hrp5p"
+#: Default endpoint of the controller peer (it listens, the bridge connects).
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+class BridgeSettings(BaseSettings):
+    """How a bridge or controller peer opens zenoh, and the liveness timing both follow."""
+
+    model_config = SettingsConfigDict(env_prefix="REGRASP_BRIDGE_", frozen=True, extra="forbid")
+
+    robot_id: str = Field(DEFAULT_ROBOT_ID, pattern=r"^[A-Za-z0-9_\-]+$", description="ROBOT in regrasp/ROBOT/...")
+    listen: list[str] = Field(default_factory=list, description="zenoh endpoints this peer listens on")
+    connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT], description="zenoh endpoints this peer connects to")
+    multicast_scouting: bool = Field(False, description="off: explicit endpoints only (fast, no surprise peers)")
+    lease_s: float = Field(1.0, gt=0, le=60, description="zenoh transport lease: a silent peer is dropped after it")
+    heartbeat_period_s: float = Field(0.05, gt=0, le=1.0, description="controller heartbeat period")
+    watchdog_timeout_s: float = Field(
+        0.25, gt=0, le=5.0,
+        description="no heartbeat for this long = controller lost (0.25 s leaves room to abort and stop within 300 ms)",
+    )
+    stop_repeats: int = Field(3, ge=1, le=20, description="a stop is re-sent this many times until acknowledged")
+    stop_repeat_period_s: float = Field(0.02, gt=0, le=1.0)
+
+    @field_validator("listen", "connect")
+    @classmethod
+    def _endpoints(cls, values: list[str]) -> list[str]:
+        for v in values:
+            if "/" not in v or v.split("/", 1)[0] not in ("tcp", "udp", "tls", "quic", "unixsock-stream", "ws"):
+                raise ValueError(f"endpoint {v!r} is not a zenoh locator like tcp/127.0.0.1:7447")
+        return values
+
+    @model_validator(mode="after")
+    def _check(self) -> "BridgeSettings":
+        if self.watchdog_timeout_s <= 2 * self.heartbeat_period_s:
+            raise ValueError("watchdog_timeout_s must exceed two heartbeat periods, or one late heartbeat aborts a job")
+        return self
+
+
+class Keys:
+    """The key expressions of CONTRACT.md section 6 for one robot id."""
+
+    def __init__(self, robot_id: str = DEFAULT_ROBOT_ID):
+        base = f"regrasp/{robot_id}"
+        self.trajectory = f"{base}/cmd/trajectory"
+        self.stop = f"{base}/cmd/stop"
+        self.joints = f"{base}/state/joints"
+        self.exec = f"{base}/state/exec"
+        self.heartbeat = f"{base}/state/heartbeat"
+        self.alive = f"{base}/alive/controller"

@@ -1,0 +1,105 @@
+"""``regrasp controller-sim``: run the simulated controller peer (CONTRACT.md section 6).
+
+The stance posture is computed here, in the CLI layer, with the planner's stance
+solver (or read from ``--initial-q FILE.json``); ``robot_bridge`` itself never
+imports the planner. Prints one JSON line ``{"ready": true, ...}`` on stdout once
+the peer is up, so scripts and tests can wait for it.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import threading
+from pathlib import Path
+
+import click
+
+from .common import fail
+
+
+def _stance_posture(robot: str, stance: str) -> tuple[list[str], list[float]]:
+    from planner.robot_model import load_robot
+    from planner.stances import StanceError, solve_stance
+
+    try:
+        model = load_robot(robot)
+        st = solve_stance(model, stance)
+    except (StanceError, ValueError) as exc:
+        fail(str(exc))
+    return list(model.joint_names), st.q.tolist()
+
+
+def _initial_q_file(path: str) -> tuple[list[str], list[float]]:
+    try:
+        doc = json.loads(Path(path).read_text())
+        names, q = doc["joint_names"], doc["q"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        fail(f"--initial-q {path}: expected a JSON object with 'joint_names' and 'q': {exc}")
+    if len(names) != len(q):
+        fail(f"--initial-q {path}: {len(names)} joint names for {len(q)} values")
+    return list(names), [float(v) for v in q]
+
+
+@click.command("controller-sim")
+@click.option("--robot", "robot", default="hrp5p", show_default=True, help="Robot model (URDF, limits).")
+@click.option("--robot-id", default=None, help="ROBOT in the key expressions (default: the robot name).")
+@click.option("--stance", default="upright", show_default=True, help="Stance whose posture the controller starts in.")
+@click.option("--initial-q", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="JSON {joint_names, q}: start in this posture instead of solving the stance.")
+@click.option("--speed", type=float, default=1.0, show_default=True, help="Play trajectories K times faster than real time.")
+@click.option("--listen", "listen", multiple=True, help="zenoh endpoint to listen on (repeatable); default tcp/127.0.0.1:7447.")
+@click.option("--connect", "connect", multiple=True, help="zenoh endpoint to connect to (repeatable).")
+@click.option("--drop-rate", type=click.FloatRange(0.0, 1.0), default=0.0, show_default=True,
+              help="Fault: share of incoming commands dropped.")
+@click.option("--delay-ms", type=click.FloatRange(0.0, 10_000.0), default=0.0, show_default=True,
+              help="Fault: delay before each command is handled (ms).")
+@click.option("--crash-after", type=click.IntRange(min=1), default=None,
+              help="Fault: hard exit right after accepting N segments.")
+@click.option("--freeze-heartbeat-after-s", type=click.FloatRange(min=0.0), default=None,
+              help="Fault: stop the heartbeat T s after the first accepted segment, staying alive otherwise.")
+@click.option("--heartbeat-period-s", type=click.FloatRange(min=0.001), default=None, help="Heartbeat period (default 0.05 s).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the drop decisions.")
+def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str | None, speed: float, listen: tuple[str, ...],
+                   connect: tuple[str, ...], drop_rate: float, delay_ms: float, crash_after: int | None,
+                   freeze_heartbeat_after_s: float | None, heartbeat_period_s: float | None, seed: int) -> None:
+    """Run a simulated controller that speaks the bridge protocol until interrupted."""
+    from pydantic import ValidationError
+
+    from robot_bridge.controller_sim import ControllerSimSettings, limits_from_urdf, run_controller
+    from robot_bridge.robot_files import RobotFilesError, robot_files
+    from robot_bridge.settings import BridgeSettings
+
+    try:
+        files = robot_files(robot)
+    except RobotFilesError as exc:
+        fail(str(exc))
+    names, q = _initial_q_file(initial_q) if initial_q else _stance_posture(robot, stance)
+    overrides: dict = {"robot_id": robot_id or robot, "listen": list(listen) or ["tcp/127.0.0.1:7447"], "connect": list(connect)}
+    if heartbeat_period_s is not None:
+        overrides["heartbeat_period_s"] = heartbeat_period_s
+        overrides["watchdog_timeout_s"] = max(0.25, 5 * heartbeat_period_s)
+    try:
+        bridge = BridgeSettings(**overrides)
+        sim = ControllerSimSettings(speed=speed, drop_rate=drop_rate, delay_ms=delay_ms, crash_after=crash_after,
+                                    freeze_heartbeat_after_s=freeze_heartbeat_after_s, seed=seed)
+        limits = limits_from_urdf(str(files.urdf), names)
+    except (ValidationError, ValueError) as exc:
+        fail(str(exc))
+
+    import numpy as np
+
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+
+    def ready(ctl) -> None:
+        click.echo(json.dumps({"ready": True, "robot_id": bridge.robot_id, "listen": bridge.listen, "connect": bridge.connect,
+                               "speed": speed, "joints": len(names)}))
+        sys.stdout.flush()
+
+    try:
+        run_controller(bridge, sim, names, np.array(q), limits, on_ready=ready, stop=stop)
+    except Exception as exc:  # zenoh cannot listen (port taken, bad endpoint): say so
+        fail(f"controller-sim failed: {exc}", code=1)
