@@ -22,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .collision import CollisionWorld, EnvBox
 from .objects import ObjectModel
-from .transforms import matrix_to_pose7, rot_z, rotation_angle
+from .transforms import matrix_to_pose7, pose7_to_matrix, rot_z, rotation_angle
 
 #: Facet normals closer than this are one facet (the hull of a mesh has split coplanar faces).
 _COPLANAR_COS = 1.0 - 1e-9
@@ -231,6 +231,31 @@ def check_resting(
         raise PlacementError(f"{what} overhangs the edge of table {table.name!r}: part of its contact area is off the top")
     refs = refs if refs is not None else reference_poses(obj, settings)
     return RestingInfo(table.name, match_reference(obj, refs, T, settings.match_angle_rad), gap, float(ratio))
+
+
+def _as_env_boxes(tables: Iterable) -> list[EnvBox]:
+    out = []
+    for t in tables:
+        if isinstance(t, EnvBox):
+            out.append(t)
+        else:  # schemas.scenario.BoxDef
+            out.append(EnvBox(t.name, pose7_to_matrix(t.pose), tuple(t.size)))
+    return out
+
+
+def check_resting_pose(
+    obj: ObjectModel,
+    pose: Sequence[float] | np.ndarray,
+    tables: Iterable,
+    settings: PlacementSettings | None = None,
+    what: str = "pose",
+) -> RestingInfo:
+    """:func:`check_resting` for wire data: a pose ``[x, y, z, qx, qy, qz, qw]`` (or 4x4) and the
+    scenario's table boxes (``BoxDef`` or :class:`EnvBox`)."""
+    T = np.asarray(pose, dtype=float)
+    if T.shape == (7,):
+        T = pose7_to_matrix(T)
+    return check_resting(obj, T, _as_env_boxes(tables), settings, what=what)
 
 
 def instantiate_placements(

@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.placements import PlacementError, PlacementSettings, check_resting, instantiate_placements, reference_poses
+from planner.placements import (
+    PlacementError,
+    PlacementSettings,
+    check_resting,
+    check_resting_pose,
+    instantiate_placements,
+    reference_poses,
+)
 from planner.transforms import make_transform, rot_x, rot_z
 
 
@@ -72,3 +79,12 @@ def test_region_limits_spots(drill_obj, table_box):
     for p in pls[2:]:
         c = p.T_world_obj[:3, :3] @ drill_obj.com_local + p.T_world_obj[:3, 3]
         assert p.kind == "spot" and -0.3 - 0.2 <= c[1] <= 0.0 + 0.2
+
+
+def test_check_resting_pose_takes_wire_data(drill_obj):
+    from schemas.scenario import BoxDef
+
+    tables = [BoxDef(name="bench", pose=[0.6, 0.0, 0.73, 0, 0, 0, 1], size=[0.5, 1.4, 0.04])]
+    assert check_resting_pose(drill_obj, [0.5, -0.2, 0.75, 0, 0, 0, 1], tables).table == "bench"
+    with pytest.raises(PlacementError, match="goal pose is not resting on a table: lowest point 50 mm above table 'bench'"):
+        check_resting_pose(drill_obj, [0.5, -0.2, 0.80, 0, 0, 0, 1], tables, what="goal pose")
