@@ -1,0 +1,86 @@
+"""``regrasp gate check PLAN.json``: run the safety gate offline on a plan file.
+
+Offline there is no approval and no robot: the approval/hash checks are skipped
+unless ``--approved-sha256`` is given, and the start-state check is skipped unless
+``--measured-q FILE.json`` is given. Every other check runs exactly as before a
+dispatch. Exit codes: 0 passed, 1 vetoed, 2 unusable input.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+
+import click
+
+from .common import EXIT_USAGE, console, fail
+
+EXIT_VETO = 1
+
+
+@click.group("gate")
+def gate() -> None:
+    """The safety gate (an independent recheck of a plan before it reaches the robot)."""
+
+
+@gate.command("check")
+@click.argument("plan_file", type=click.Path(dir_okay=False))
+@click.option("--threshold-mm", type=float, default=None, help="CoM margin threshold (mm); default: the plan's own.")
+@click.option("--approved-sha256", default=None, help="Also check the plan's hash against this approved one.")
+@click.option("--measured-q", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="JSON {joint_names, q}: also check the first point against this robot state.")
+@click.option("--json", "as_json", is_flag=True, help="Print the verdict as JSON.")
+def check(plan_file: str, threshold_mm: float | None, approved_sha256: str | None, measured_q: str | None, as_json: bool) -> None:
+    """Check PLAN_FILE; exit 0 when it passes, 1 on a veto (naming the check and the first failing sample)."""
+    from rich.markup import escape
+
+    from robot_bridge.gate import Approval, MeasuredState, SafetyGate
+
+    path = Path(plan_file)
+    if plan_file == "-":
+        text = sys.stdin.read()
+    else:
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            fail(f"cannot read plan file {plan_file}: {exc}")
+    try:
+        plan = json.loads(text)
+    except json.JSONDecodeError as exc:
+        fail(f"plan file {plan_file} is not valid JSON: {exc}")
+    if threshold_mm is not None and not (threshold_mm >= 0 and threshold_mm < 1e4):
+        fail(f"--threshold-mm {threshold_mm} must be a finite value >= 0")
+    measured = None
+    if measured_q:
+        try:
+            doc = json.loads(Path(measured_q).read_text())
+            measured = MeasuredState(list(doc["joint_names"]), [float(v) for v in doc["q"]])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            fail(f"--measured-q {measured_q}: expected JSON with 'joint_names' and 'q': {exc}")
+    approval = None
+    if approved_sha256:
+        approval = Approval(approved_sha256.lower(), datetime.now(timezone.utc) + timedelta(minutes=1))
+    verdict = SafetyGate().check(
+        plan, approval=approval, measured=measured, offline=True,
+        threshold_m=None if threshold_mm is None else threshold_mm / 1000.0,
+    )
+    if as_json:
+        click.echo(json.dumps(verdict.model_dump(mode="json"), indent=2, allow_nan=False))
+    else:
+        style = "bold green" if verdict.passed else "bold red"
+        console.print(f"[{style}]{escape(verdict.summary())}[/]", highlight=False, soft_wrap=True)
+        s = verdict.stats
+        if "com_margin" in s and "min_margin_m" in s["com_margin"]:
+            console.print(f"  min CoM margin {s['com_margin']['min_margin_m'] * 1000:.2f} mm "
+                          f"(threshold {verdict.threshold_m * 1000:.2f} mm)", highlight=False)
+        if "zmp" in s and "min_margin_m" in s["zmp"]:
+            console.print(f"  min ZMP margin {s['zmp']['min_margin_m'] * 1000:.2f} mm", highlight=False)
+        console.print(f"  {verdict.samples} samples in {verdict.elapsed_s * 1000:.1f} ms; skipped: {', '.join(verdict.skipped) or 'none'}",
+                      highlight=False)
+        if verdict.plan_sha256:
+            console.print(f"  plan sha256 {verdict.plan_sha256}", highlight=False)
+    if verdict.check == "structure" and not verdict.passed and not isinstance(plan, dict):
+        sys.exit(EXIT_USAGE)
+    sys.exit(0 if verdict.passed else EXIT_VETO)
