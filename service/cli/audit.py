@@ -39,6 +39,8 @@ def verify_cmd(file: str, head: str | None, as_json: bool) -> None:
         result = verify(path, head)
     except ValueError as exc:
         fail(str(exc))
+    except OSError as exc:
+        fail(f"cannot read {file}: {exc.strerror or exc}")
     if as_json:
         print_json(result.to_json())
     else:
@@ -67,6 +69,8 @@ def show_cmd(file: str, show_all: bool, head: str | None) -> None:
         lines, result = timeline(path, show_all=show_all, head=head)
     except ValueError as exc:
         fail(str(exc))
+    except OSError as exc:
+        fail(f"cannot read {file}: {exc.strerror or exc}")
     click.echo(f"audit file {file}  job {result.job_id or '?'}")
     for line in lines:
         click.echo(line)
