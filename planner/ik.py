@@ -45,14 +45,14 @@ class IkSettings(BaseModel):
     max_iterations: int = Field(50, ge=1, description="DLS iterations per attempt")
     restarts: int = Field(6, ge=0, description="random restarts after the seeded attempt")
     damping: float = Field(1e-2, gt=0, description="DLS damping lambda (m or rad)")
-    max_step_rad: float = Field(0.35, gt=0, description="largest joint change per iteration")
+    max_step_rad: float = Field(0.6, gt=0, description="largest joint change per iteration")
     nullspace_gain: float = Field(0.05, ge=0, description="pull towards the rest posture, per iteration")
     use_waist: bool = Field(True, description="let the waist joints help the arm(s)")
     #: A target farther than reach * this from the shoulder is rejected without iterating.
     reach_slack: float = Field(1.05, gt=0)
     restart_noise_rad: float = Field(0.6, gt=0, description="std of the restart perturbation around the seed")
     restart_max_residual_m: float = Field(
-        0.25, gt=0, description="restart only while the best position residual is below this (farther targets are out of reach)"
+        1.0, gt=0, description="restart only while the best position residual is below this (farther targets are out of reach)"
     )
 
 
