@@ -213,6 +213,9 @@ class AuditWriter:
         self._head = GENESIS
         self._closed = False
         self._last_executed_tf_ns: int | None = None
+        #: The plan's stance base pose: the floating base stays there (CONTRACT section 3),
+        #: so executed states without one are placed with it.
+        self._base_pose: list[float] | None = None
         self.record(
             KIND_OPEN,
             {
@@ -465,6 +468,8 @@ class AuditWriter:
             raise AuditError(f"joint state source must be 'plan' or 'executed', got {source!r}")
         topic = TOPIC_JOINTS_PLAN if source == "plan" else TOPIC_JOINTS_EXECUTED
         prefix = "" if source == "plan" else EXECUTED_PREFIX
+        if base_pose is None:
+            base_pose = self._base_pose
         with self._lock:
             ns = self._now(log_time_ns)
             with_tf = True
@@ -611,6 +616,8 @@ class AuditWriter:
             return self.head
         joint_names = list((plan.get("robot") or {}).get("joint_names") or [])
         base_pose = (plan.get("stance") or {}).get("base_pose")
+        if base_pose is not None and len(base_pose) == 7:
+            self._base_pose = [float(v) for v in base_pose]
         threshold = plan.get("threshold_m")
         dt = float(plan.get("dt_s") or 0.0)
         rate = self.settings.plan_playback_rate_hz

@@ -111,3 +111,17 @@ def test_executed_states_are_all_recorded_and_tf_is_rate_limited(tmp_path, hrp5p
         topics = [c.topic for _s, c, _m in make_reader(f).iter_messages()]
     assert topics.count("/joint_states/executed") == 50
     assert topics.count("/tf") == 13  # 50 Hz over 0.25 s: t = 0, 20, ..., 240 ms
+
+
+def test_executed_states_are_placed_at_the_plan_stance(tmp_path, hrp5p_urdf):
+    """The bridge echoes joints only; the floating base stays at the plan's stance pose."""
+    path = tmp_path / "a.mcap"
+    w = AuditWriter(path, "j", urdf_text=hrp5p_urdf)
+    w.plan_playback(tiny_plan())
+    w.record("robot_state", {"data": {"joint_names": ["LCY"], "q": [0.1]}})
+    w.close()
+    with open(path, "rb") as f:
+        tfs = [json.loads(m.data) for _s, _c, m in make_reader(f).iter_messages(topics=["/tf"], log_time_order=False)]
+    base = tfs[-1]["transforms"][0]
+    assert (base["parent_frame_id"], base["child_frame_id"]) == ("world", "executed/PELVIS")
+    assert base["translation"]["z"] == 0.9
