@@ -150,8 +150,9 @@ class IkSolver:
         lam2 = s.damping**2
         pmax = rmax = np.inf
         best_score, since_best = np.inf, 0
-        eye = np.eye(6 * len(sides))
+        lam2_eye = lam2 * np.eye(6 * len(sides))
         rest_a = rest[active]
+        lo_eps, hi_eps = lo + LIMIT_EPS, hi - LIMIT_EPS
         it = 0
         for it in range(1, s.max_iterations + 1):
             e, J, pmax, rmax = self._errors(qp, targets, sides)
@@ -164,32 +165,39 @@ class IkSolver:
                 since_best += 1
                 if since_best >= STALL_ITERATIONS:
                     break
-            Ja_full = J[:, vcols]
+            Ja = J[:, vcols]
             qa = q[active]
-            free = np.ones(len(active), dtype=bool)
-            for _ in range(LIMIT_PASSES):
-                Ja = Ja_full[:, free]
-                A = Ja @ Ja.T + lam2 * eye
-                if s.nullspace_gain > 0:
-                    pull = s.nullspace_gain * (rest_a[free] - qa[free])
-                    x = np.linalg.solve(A, np.column_stack([e, Ja @ pull]))
-                    dq_free = Ja.T @ (x[:, 0] - x[:, 1]) + pull
-                else:
-                    dq_free = Ja.T @ np.linalg.solve(A, e)
-                dq = np.zeros(len(active))
-                dq[free] = dq_free
-                blocked = free & (((qa <= lo + LIMIT_EPS) & (dq < 0)) | ((qa >= hi - LIMIT_EPS) & (dq > 0)))
-                if not blocked.any():
-                    break
-                free &= ~blocked
+            dq = self._dls_step(Ja, e, qa, rest_a, lam2_eye, s.nullspace_gain)
+            at_lo, at_hi = qa <= lo_eps, qa >= hi_eps
+            if at_lo.any() or at_hi.any():
+                # Joints pinned at a limit that the step pushes further are frozen and the step re-solved.
+                free = np.ones(len(active), dtype=bool)
+                for _ in range(LIMIT_PASSES):
+                    blocked = free & ((at_lo & (dq < 0)) | (at_hi & (dq > 0)))
+                    if not blocked.any():
+                        break
+                    free &= ~blocked
+                    dq = np.zeros(len(active))
+                    if free.any():
+                        dq[free] = self._dls_step(Ja[:, free], e, qa[free], rest_a[free], lam2_eye, s.nullspace_gain)
             big = np.abs(dq).max()
             if big > s.max_step_rad:
                 dq *= s.max_step_rad / big
-            qa_new = np.clip(qa + dq, lo, hi)
+            qa_new = np.minimum(np.maximum(qa + dq, lo), hi)
             q[active] = qa_new
             qp[pcols] = qa_new
         e, J, pmax, rmax = self._errors(qp, targets, sides)
         return q, it, pmax, rmax, bool(pmax <= s.pos_tol_m and rmax <= s.rot_tol_rad)
+
+    @staticmethod
+    def _dls_step(Ja: np.ndarray, e: np.ndarray, qa: np.ndarray, rest_a: np.ndarray, lam2_eye: np.ndarray, gain: float) -> np.ndarray:
+        """Damped least-squares step towards the error plus the null-space pull to the rest posture."""
+        A = Ja @ Ja.T + lam2_eye
+        if gain > 0:
+            pull = gain * (rest_a - qa)
+            x = np.linalg.solve(A, np.stack((e, Ja @ pull), axis=1))
+            return Ja.T @ (x[:, 0] - x[:, 1]) + pull
+        return Ja.T @ np.linalg.solve(A, e)
 
     def solve(
         self,
