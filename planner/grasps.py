@@ -60,6 +60,7 @@ class GraspSettings(BaseModel):
     min_width_m: float = Field(0.005, gt=0, description="thinner parts are not grasped")
     dedupe_position_m: float = Field(0.015, ge=0, description="contact pairs whose centres are closer are merged")
     dedupe_angle_rad: float = Field(0.15, ge=0, description="... and whose closing axes differ by less")
+    max_pairs: int = Field(64, ge=1, description="contact pairs kept (closest to the CoM first), bounding time and count")
     seed: int = Field(0, ge=0)
 
     def key(self) -> str:
@@ -123,29 +124,57 @@ def sample_surface(mesh: trimesh.Trimesh, count: int, rng: np.random.Generator) 
     return pts, np.asarray(mesh.face_normals)[faces]
 
 
-def first_hits(mesh: trimesh.Trimesh, origins: np.ndarray, directions: np.ndarray, chunk: int = 256) -> tuple[np.ndarray, np.ndarray]:
-    """Distance and face index of each ray's first hit (inf, -1 when none); Moller-Trumbore in numpy."""
+#: Rays x triangles handled per numpy step (bounds the memory of big meshes to ~100 MB).
+_RAY_TRI_BUDGET = 1_000_000
+
+
+def first_hits(mesh: trimesh.Trimesh, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance and face index of each ray's first hit (inf, -1 when none); Moller-Trumbore in numpy.
+
+    Faces whose bounding sphere misses the ray's line are screened out first (a few cheap
+    products per ray and face), so big meshes cost little more than small ones.
+    """
     tri = np.asarray(mesh.triangles, dtype=float)
-    v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    centre = tri.mean(axis=1)
+    radius2 = np.max(np.sum((tri - centre[:, None, :]) ** 2, axis=2), axis=1) * (1 + 1e-9) + 1e-18
     n = len(origins)
     dist = np.full(n, np.inf)
     face = np.full(n, -1, dtype=int)
+    chunk = max(1, _RAY_TRI_BUDGET // max(len(tri), 1))
     for s in range(0, n, chunk):
         o, d = origins[s:s + chunk], directions[s:s + chunk]
-        p = np.cross(d[:, None, :], e2[None, :, :])
-        det = np.einsum("fk,rfk->rf", e1, p)
+        v = centre[None, :, :] - o[:, None, :]
+        along = np.einsum("rfk,rk->rf", v, d)
+        perp2 = np.einsum("rfk,rfk->rf", v, v) - along ** 2
+        # the line passes through the face's sphere, and the sphere is not behind the origin
+        r_idx, f_idx = np.nonzero((perp2 <= radius2[None, :]) & (along >= -np.sqrt(radius2)[None, :]))
+        if r_idx.size == 0:
+            continue
+        oo, dd = o[r_idx], d[r_idx]
+        v0 = tri[f_idx, 0]
+        e1, e2 = tri[f_idx, 1] - v0, tri[f_idx, 2] - v0
+        p = np.cross(dd, e2)
+        det = np.einsum("ik,ik->i", e1, p)
         ok = np.abs(det) > 1e-14
         inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        tvec = o[:, None, :] - v0[None, :, :]
-        u = np.einsum("rfk,rfk->rf", tvec, p) * inv
-        qv = np.cross(tvec, e1[None, :, :])
-        v = np.einsum("rk,rfk->rf", d, qv) * inv
-        t = np.einsum("fk,rfk->rf", e2, qv) * inv
-        valid = ok & (u >= -1e-9) & (v >= -1e-9) & (u + v <= 1 + 1e-9) & (t > 1e-6)
+        tvec = oo - v0
+        u = np.einsum("ik,ik->i", tvec, p) * inv
+        qv = np.cross(tvec, e1)
+        w = np.einsum("ik,ik->i", dd, qv) * inv
+        t = np.einsum("ik,ik->i", e2, qv) * inv
+        valid = ok & (u >= -1e-9) & (w >= -1e-9) & (u + w <= 1 + 1e-9) & (t > 1e-6)
         t = np.where(valid, t, np.inf)
-        best = np.argmin(t, axis=1)
-        dist[s:s + chunk] = t[np.arange(len(o)), best]
-        face[s:s + chunk] = np.where(np.isfinite(dist[s:s + chunk]), best, -1)
+        # nearest valid hit per ray: sort by (ray, t) and take the first of each ray
+        order = np.lexsort((t, r_idx))
+        r_sorted = r_idx[order]
+        first = np.ones(order.size, dtype=bool)
+        first[1:] = r_sorted[1:] != r_sorted[:-1]
+        rows = r_sorted[first]
+        best_t = t[order][first]
+        best_f = f_idx[order][first]
+        hit = np.isfinite(best_t)
+        dist[s + rows[hit]] = best_t[hit]
+        face[s + rows[hit]] = best_f[hit]
     return dist, face
 
 
@@ -184,6 +213,8 @@ def antipodal_pairs(obj: ObjectModel, hand: HandGeometry, settings: GraspSetting
             if dup.any():
                 continue
         kept.append(int(i))
+        if len(kept) >= settings.max_pairs:
+            break
     return [(centre[i], axis[i], float(width[i])) for i in kept]
 
 
