@@ -346,7 +346,9 @@
             if (!event) continue;
             if (event.id) lastEventId = event.id;
             const terminal = applyEvent(event);
-            refresh();
+            // Progress and robot events are applied inline; the full job (with its possibly
+            // large result) is fetched again only when the state or the approval changes.
+            if (event.event === "state" || event.event === "approval") refresh();
             if (terminal) ended = true;
           }
         }
@@ -394,7 +396,14 @@
     const job = Object.assign({}, state.job);
     if (p.state) job.state = p.state;
     if (typeof p.progress === "number") job.progress = p.progress;
-    if (p.message) job.message = p.message;
+    if (event.event === "bridge") {
+      const d = (p.data && (p.data.payload || p.data)) || {};
+      const seg = (typeof d.segment_index === "number" && typeof d.segment_count === "number")
+        ? " " + (d.segment_index + 1) + "/" + d.segment_count : "";
+      job.message = "robot: " + (p.message || (p.data && p.data.event) || "event") + seg;
+    } else if (p.message) {
+      job.message = p.message;
+    }
     renderJob(job);
     return event.event === "state" && TERMINAL.has(p.state);
   }

@@ -136,3 +136,11 @@ def test_approve_then_dispatch_on_the_real_service(page, real_service, tmp_path)
                     break
             time.sleep(0.2)
         assert result is not None and result.exit_code == 0, result and result.detail
+
+        # The same file through the page's download button.
+        with page.expect_download(timeout=TIMEOUT_MS) as download:
+            page.click("#btn-audit")
+        saved = tmp_path / "from-browser.mcap"
+        download.value.save_as(saved)
+        assert download.value.suggested_filename == f"{job_id}.mcap"
+        assert verify(saved, job["audit_head"]).exit_code == 0
