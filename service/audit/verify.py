@@ -390,6 +390,8 @@ def verify(path: str | Path, head: str | None = None, *, keep_records: bool = Fa
             match = chain.digests.index(head.lower())
             if match is not None:
                 seen = f"; {head[:16]}... is record #{match}, so records after it were added"
+                if not finished:
+                    seen += " (or the writer crashed after writing them but before the head was stored)"
         return result(
             ExitCode.BROKEN,
             f"the chain ends at {chain.head} (record #{chain.seq - 1}), not at the stored head {head}{seen}",
