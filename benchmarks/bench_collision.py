@@ -47,7 +47,7 @@ def bench_checks(states: int) -> None:
     print(f"{'world':10s} {'configs':12s} {'batch':>6s} {'check':>9s} {'FK+check':>9s} {'checks/s':>9s} {'colliding':>9s}")
     for label, mj in (("full", None), ("waist+arms", moving)):
         world = CollisionWorld.from_scenario(robot, sc, obj, reference_postures=[(st.base_pose, st.q)], moving_joints=mj)
-        for spread_label, spread in (("near stance", 0.15), ("uniform", 1.0)):
+        for spread_label, spread in (("near stance", 0.05), ("uniform", 1.0)):
             Q = _configs(robot, st, states, spread, rng)
             for batch in (1, 10, 100, 1000):
                 n = min(states, max(batch, 200 if batch == 1 else states))
