@@ -97,3 +97,19 @@ def test_heavier_object_moves_com_towards_object_com_as_eq1(robot, upright, hold
     assert np.allclose(e2.com - c_obj, expected * (e1.com - c_obj), atol=1e-12)
     if m2 > m1:
         assert np.all(np.linalg.norm(e2.com - c_obj, axis=1) <= np.linalg.norm(e1.com - c_obj, axis=1) + 1e-12)
+
+
+def test_second_model_with_mimic_fingers():
+    """Nothing is specific to one model: JVRC-1 (finger mimic joints with multipliers) is exact too."""
+    from planner.robot_model import center_of_mass, load_robot
+    from planner.stances import solve_stance
+
+    robot = load_robot("jvrc1")
+    stance = solve_stance(robot, "upright")
+    rng = np.random.default_rng(0)
+    Q = rng.uniform(robot.lower, robot.upper, (20, robot.nq))
+    rk = ReducedKinematics(robot, stance.base_pose, Q[0], np.arange(robot.nq))
+    data = robot.create_data()
+    com = rk.com(Q)
+    for i in range(len(Q)):
+        assert np.allclose(com[i], center_of_mass(robot, data, stance.base_pose, Q[i]), atol=1e-9)
