@@ -95,3 +95,30 @@ def test_corrupt_cache_file_is_recomputed(hrp5p, box_obj, tmp_path):
         fh.write(b"not an npz")
     b = plan_grasps(box_obj, hrp5p, "right", GraspSettings(samples=120), cache_directory=tmp_path)
     assert not b.from_cache and np.array_equal(a.poses(), b.poses())
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from planner.objects import build_object  # noqa: E402
+from schemas.scenario import ObjectDef  # noqa: E402
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.tuples(st.floats(0.02, 0.15), st.floats(0.02, 0.15), st.floats(0.02, 0.15)), st.integers(0, 10))
+def test_box_grasp_properties(hrp5p, size, seed):
+    """For any box: each grasp closes along a box axis whose size is the width, the width fits
+    the jaw with its clearance, and the centre is within the torque filter."""
+    obj = build_object(ObjectDef(shape="box", size=list(size), mass_kg=1.0))
+    s = GraspSettings(samples=150, rotations=4, seed=seed)
+    gs = plan_grasps(obj, hrp5p, "right", s, cache=False)
+    hand = hand_geometry(hrp5p, "right")
+    for g in gs.grasps:
+        y = g.T_obj_tcp[:3, 1]
+        axis = int(np.argmax(np.abs(y)))
+        assert abs(abs(y[axis]) - 1.0) < 1e-9
+        assert np.isclose(g.opening_m, size[axis], atol=1e-9)
+        assert s.min_width_m <= g.opening_m <= hand.max_opening_m - 2 * s.clearance_m
+        assert g.com_distance_m <= s.max_com_distance_m + 1e-12
+    if min(size) > hand.max_opening_m - 2 * s.clearance_m:
+        assert len(gs) == 0

@@ -88,3 +88,13 @@ def test_check_resting_pose_takes_wire_data(drill_obj):
     assert check_resting_pose(drill_obj, [0.5, -0.2, 0.75, 0, 0, 0, 1], tables).table == "bench"
     with pytest.raises(PlacementError, match="goal pose is not resting on a table: lowest point 50 mm above table 'bench'"):
         check_resting_pose(drill_obj, [0.5, -0.2, 0.80, 0, 0, 0, 1], tables, what="goal pose")
+
+
+def test_reference_poses_agree_with_trimesh(drill_obj):
+    """Every reference pose is one of trimesh's quasi-static stable poses of the hull."""
+    import trimesh
+
+    Ts, _probs = trimesh.poses.compute_stable_poses(drill_obj.mesh, center_mass=drill_obj.com_local, n_samples=1, threshold=0.0)
+    theirs = [T[:3, :3].T @ np.array([0.0, 0.0, -1.0]) for T in Ts]
+    for r in reference_poses(drill_obj):
+        assert max(float(r.down_local @ d) for d in theirs) > 1 - 1e-6
