@@ -453,6 +453,13 @@ class StateEvaluator:
             return self._evaluate_small(Q, hold, threshold_m)
         if active is None:
             active = np.flatnonzero(np.any(Q != Q[0], axis=0))
+        else:
+            fixed = np.ones(self.robot.nq, dtype=bool)
+            fixed[np.asarray(active, dtype=int)] = False
+            varying = np.flatnonzero(fixed & np.any(Q != Q[0], axis=0))
+            if varying.size:
+                names = ", ".join(self.robot.joint_names[i] for i in varying[:5])
+                raise ValueError(f"joints outside 'active' vary within the batch: {names}")
         rk = self.kinematics(Q[0], active)
         if hold is None:
             return self._finish(rk.com(Q), None, threshold_m)

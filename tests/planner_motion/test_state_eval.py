@@ -113,3 +113,10 @@ def test_second_model_with_mimic_fingers():
     com = rk.com(Q)
     for i in range(len(Q)):
         assert np.allclose(com[i], center_of_mass(robot, data, stance.base_pose, Q[i]), atol=1e-9)
+
+
+def test_active_columns_must_cover_what_varies(robot, evaluator, right_active):
+    Q = _random_states(robot, evaluator.stance.q, right_active, 20, seed=5)
+    Q[3, robot.arm_indices("left")[0]] += 0.1
+    with pytest.raises(ValueError, match="outside 'active'"):
+        evaluator.evaluate(Q, None, active=right_active)
