@@ -133,14 +133,6 @@ class _Tree:
         return out
 
 
-@dataclass
-class _EdgeCheck:
-    """What a round's validity call says about one candidate edge."""
-
-    ok: bool
-    node_margin: float
-
-
 class _Search:
     """Bidirectional T-RRT over one pair of end configurations (one leg of a task)."""
 
@@ -260,11 +252,11 @@ def _check_inputs(start: np.ndarray, goal: np.ndarray, active: np.ndarray, nq: i
     return None
 
 
-def _run_round(search: _Search, rng: np.random.Generator, check: Callable[[np.ndarray, list[int]], tuple[np.ndarray, np.ndarray, np.ndarray]]) -> list[tuple[int, int]]:
-    """Propose, check and add one round of extensions; returns the new (tree, node) pairs.
+def _run_round(search: _Search, rng: np.random.Generator, check: Callable[[np.ndarray, list[int]], tuple[np.ndarray, np.ndarray]]) -> list[tuple[int, int]]:
+    """Exploration round: propose, check whole edges in one call, add; returns the new (tree, node) pairs.
 
-    ``check(Q, edge_lengths)`` returns per state (valid, margin, stop_mask): an
-    edge is accepted when all its states are valid.
+    ``check(Q, edge_lengths)`` returns per state (valid, margin); an edge is
+    accepted when all its states are valid and its node passes the transition test.
     """
     cands = search.propose(rng)
     if not cands:
