@@ -168,8 +168,7 @@ class HandShape:
     link: str
     kind: str
     dims: tuple[float, ...]
-    T_tcp_shape0: np.ndarray  # at jaw value 0
-    velocity: np.ndarray  # d(translation)/d(jaw value) in the TCP frame
+    T_tcp_shape0: np.ndarray  # pose in the TCP frame with the jaw at 0
     is_finger: bool
 
 
@@ -179,32 +178,35 @@ class HandGeometry:
 
     Read from the URDF (link primitives) and pinocchio (link placements), so nothing here
     is specific to one robot: the hand is every link rigidly attached to the TCP's parent
-    joint plus the links moved by the gripper joint and its mimic joints.
+    joint plus the links moved by the gripper joint and its mimic joints (sliding or
+    rotating: the placements come from forward kinematics at the requested jaw value).
     """
 
     side: str
     shapes: tuple[HandShape, ...]
     max_opening_m: float
     opening_per_unit: float
+    robot: RobotModel = field(repr=False, compare=False)
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def at_opening(self, opening_m: float) -> list[tuple[str, str, tuple[float, ...], np.ndarray]]:
         """(link, kind, dims, T_tcp_shape) of every shape with the jaw opened to ``opening_m``."""
-        value = opening_m / self.opening_per_unit
-        out = []
-        for s in self.shapes:
-            T = s.T_tcp_shape0.copy()
-            T[:3, 3] += s.velocity * value
-            out.append((s.link, s.kind, s.dims, T))
-        return out
+        value = round(float(opening_m) / self.opening_per_unit, 12)
+        poses = self._cache.get(value)
+        if poses is None:
+            poses = _hand_shape_poses(self.robot, self.side, value)[1]
+            self._cache[value] = poses
+        return [(s.link, s.kind, s.dims, T.copy()) for s, T in zip(self.shapes, poses)]
 
     def signature(self) -> bytes:
-        """Bytes that identify the geometry (cache keys)."""
+        """Bytes that identify the geometry (cache keys): shapes at the jaw closed and fully open."""
         parts = [f"{self.max_opening_m:.9f}/{self.opening_per_unit:.9f}".encode()]
-        for s in self.shapes:
+        full = [T for *_rest, T in self.at_opening(self.max_opening_m)]
+        for s, T_open in zip(self.shapes, full):
             # "+ 0.0" turns -0.0 into 0.0, so mirrored hands with equal geometry share a signature
             parts.append(f"{s.kind}{(np.round(s.dims, 9) + 0.0).tolist()}{s.is_finger}".encode())
             parts.append((np.round(s.T_tcp_shape0, 9) + 0.0).tobytes())
-            parts.append((np.round(s.velocity, 9) + 0.0).tobytes())
+            parts.append((np.round(T_open, 9) + 0.0).tobytes())
         return b"|".join(parts)
 
 
@@ -227,39 +229,49 @@ def hand_geometry(robot: RobotModel, side: Side) -> HandGeometry:
     """The hand of ``side`` in its TCP frame (see :class:`HandGeometry`); cached per robot model."""
     key = (robot.name, robot.urdf_sha256, side)
     if key not in _HAND_CACHE:
-        _HAND_CACHE[key] = _hand_geometry(robot, side)
+        shapes, _poses = _hand_shape_poses(robot, side, 0.0)
+        if not shapes:
+            raise ValueError(f"robot {robot.name!r}: the {side} hand has no collision primitives")
+        arm = robot.spec.arms[side]
+        _HAND_CACHE[key] = HandGeometry(side, tuple(shapes), arm.gripper.max_opening_m, arm.gripper.opening_per_unit, robot)
     return _HAND_CACHE[key]
 
 
-def _hand_geometry(robot: RobotModel, side: Side) -> HandGeometry:
-    model = robot.pin_model
-    data = model.createData()
-    arm = robot.spec.arms[side]
-    palm_joints, finger_joints = _hand_links(robot, side)
-    q = robot.default_q()
-    jaw = robot.joint_index(arm.gripper.joint)
-    link_joint = {f.name: int(f.parentJoint) for f in model.frames if f.type == pin.FrameType.BODY}
-    shapes = []
-    placements = []
-    for value in (0.0, 1e-2):
-        q[jaw] = value
-        pin.forwardKinematics(model, data, robot.to_pin_q(np.array([0, 0, 0, 0, 0, 0, 1.0]), q))
-        pin.updateFramePlacements(model, data)
-        T_w_tcp = data.oMf[robot.frame_id(arm.tcp)].homogeneous
-        per = {}
+_HAND_SETUP: dict[tuple[str, str, str], tuple] = {}
+
+
+def _hand_setup(robot: RobotModel, side: Side) -> tuple:
+    """What FK of one hand needs, computed once: scratch data, frame ids, the hand's primitives."""
+    key = (robot.name, robot.urdf_sha256, side)
+    if key not in _HAND_SETUP:
+        model = robot.pin_model
+        arm = robot.spec.arms[side]
+        palm_joints, finger_joints = _hand_links(robot, side)
+        link_joint = {f.name: int(f.parentJoint) for f in model.frames if f.type == pin.FrameType.BODY}
+        prims = []
         for prim in collision_primitives(robot.urdf_path):
             jid = link_joint.get(prim.link)
-            if jid is None or jid not in palm_joints | finger_joints:
-                continue
-            T_w_link = data.oMf[model.getFrameId(prim.link)].homogeneous
-            per[(prim.link, id(prim))] = (prim, inverse(T_w_tcp) @ T_w_link @ prim.origin, jid in finger_joints)
-        placements.append(per)
-    for key, (prim, T0, is_finger) in placements[0].items():
-        T1 = placements[1][key][1]
-        shapes.append(HandShape(prim.link, prim.kind, tuple(prim.dims), T0, (T1[:3, 3] - T0[:3, 3]) / 1e-2, is_finger))
-    if not shapes:
-        raise ValueError(f"robot {robot.name!r}: the {side} hand has no collision primitives")
-    return HandGeometry(side, tuple(shapes), arm.gripper.max_opening_m, arm.gripper.opening_per_unit)
+            if jid is not None and jid in palm_joints | finger_joints:
+                prims.append((prim, int(model.getFrameId(prim.link)), jid in finger_joints))
+        _HAND_SETUP[key] = (model.createData(), robot.frame_id(arm.tcp), robot.joint_index(arm.gripper.joint), prims,
+                            robot.default_q())
+    return _HAND_SETUP[key]
+
+
+def _hand_shape_poses(robot: RobotModel, side: Side, jaw_value: float) -> tuple[list[HandShape], list[np.ndarray]]:
+    """The hand's shapes and their poses in the TCP frame at one jaw value (pinocchio FK)."""
+    model = robot.pin_model
+    data, tcp_fid, jaw, prims, q0 = _hand_setup(robot, side)
+    q = q0.copy()
+    q[jaw] = jaw_value
+    pin.forwardKinematics(model, data, robot.to_pin_q(np.array([0, 0, 0, 0, 0, 0, 1.0]), q))
+    T_tcp_w = inverse(pin.updateFramePlacement(model, data, tcp_fid).homogeneous)
+    shapes, poses = [], []
+    for prim, fid, is_finger in prims:
+        T = T_tcp_w @ pin.updateFramePlacement(model, data, fid).homogeneous @ prim.origin
+        shapes.append(HandShape(prim.link, prim.kind, tuple(prim.dims), T, is_finger))
+        poses.append(T)
+    return shapes, poses
 
 
 # ---------------------------------------------------------------------------------------------
