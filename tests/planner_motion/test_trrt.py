@@ -16,10 +16,16 @@ RESOLUTION = 0.02
 @pytest.fixture(scope="module")
 def task(robot, upright, evaluator, hold_right, right_active):
     start = upright.q.copy()
-    goal = upright.q.copy()
-    goal[right_active] = np.clip(
-        [0.1, 0.0, 0.5, 0.2, -0.6, -0.5, 0.3, -1.2, 0.3, 0.2, 0.1, 0.0], robot.lower[right_active], robot.upper[right_active]
-    )
+    # A goal that is stable with the object (the first of a few candidates, so posture changes don't break the test).
+    for cand in ([0.1, 0.0, 0.5, 0.2, -0.6, -0.5, 0.3, -1.2, 0.3, 0.2, 0.1, 0.0],
+                 [0.0, 0.0, 0.6, 0.0, -0.4, -0.3, 0.2, -1.0, 0.0, 0.0, 0.0, 0.0],
+                 [0.05, 0.0, -0.5, 0.1, -0.5, -0.4, 0.0, -1.4, 0.2, 0.0, 0.0, 0.3]):
+        goal = upright.q.copy()
+        goal[right_active] = np.clip(cand, robot.lower[right_active], robot.upper[right_active])
+        if evaluator.evaluate(np.vstack([start, goal]), hold_right).stable.all():
+            break
+    else:
+        pytest.fail("no stable goal candidate")
     mid = 0.5 * (start[right_active] + goal[right_active])
 
     def validity(Q):
