@@ -24,6 +24,7 @@ class Outcome:
     status: str
     reason: str | None = None
     verdict: dict[str, Any] | None = None
+    details: dict[str, Any] | None = None
 
 
 class Bridge(Protocol):
@@ -62,6 +63,15 @@ class DispatcherBridge:
     def __init__(self, dispatcher: Any) -> None:
         self._d = dispatcher
 
+    @property
+    def reason(self) -> str | None:
+        """Why no controller is usable (the dispatcher's own words), for the 409's detail."""
+        problem = getattr(self._d, "controller_problem", None)
+        try:
+            return problem() if callable(problem) else None
+        except Exception:  # noqa: BLE001
+            return None
+
     def controller_alive(self) -> bool:
         try:
             return bool(self._d.controller_alive())
@@ -76,9 +86,12 @@ class DispatcherBridge:
         verdict = getattr(res, "verdict", None) if not isinstance(res, dict) else res.get("verdict")
         if verdict is not None and not isinstance(verdict, dict):
             verdict = _to_dict(verdict)
+        details = res.to_dict() if hasattr(res, "to_dict") else None
+        if isinstance(details, dict):
+            details = {k: v for k, v in details.items() if k not in ("status", "reason", "verdict")}
         if status not in ("succeeded", "aborted", "rejected"):
-            return Outcome("aborted", f"the bridge returned an unknown status {status!r}", verdict)
-        return Outcome(status, reason, verdict)
+            return Outcome("aborted", f"the bridge returned an unknown status {status!r}", verdict, details)
+        return Outcome(status, reason, verdict, details)
 
     def stop(self, job_id: str) -> None:
         self._d.stop(job_id)
@@ -88,7 +101,12 @@ class DispatcherBridge:
 
 
 def _to_dict(obj: Any) -> dict[str, Any]:
-    for attr in ("model_dump", "_asdict", "to_dict"):
+    if hasattr(obj, "model_dump"):
+        try:
+            return dict(obj.model_dump(mode="json"))
+        except Exception:  # noqa: BLE001
+            pass
+    for attr in ("_asdict", "to_dict"):
         if hasattr(obj, attr):
             try:
                 return dict(getattr(obj, attr)())

@@ -22,8 +22,10 @@ from .store.repo import JobStore
 
 log = logging.getLogger("regrasp.execution")
 
-#: Bridge event names that belong to the gate check (before anything moves).
-GATE_EVENT_WORDS = ("gate", "verdict", "check")
+#: Bridge events that mean the robot is being driven (robot_bridge.dispatcher names them so).
+EXECUTING_EVENTS = frozenset({"executing", "segment", "robot_state"})
+#: Exceptions of the bridge raised before anything was sent: the job goes back to approved.
+NOT_STARTED_ERRORS = frozenset({"ControllerUnavailableError", "BusyError"})
 
 
 class Executions:
@@ -68,7 +70,7 @@ class Executions:
             try:
                 self.store.add_event(job_id, "bridge", message=str(name),
                                      data={"event": str(name), "payload": _jsonable(payload)})
-                if not any(w in str(name).lower() for w in GATE_EVENT_WORDS):
+                if str(name) in EXECUTING_EVENTS:
                     self.store.transition(job_id, ["dispatching"], "executing", message="executing on the robot",
                                           expect_owner=self.owner)
             except Exception:  # noqa: BLE001 - an event that cannot be stored must not stop the robot's stop path
@@ -81,9 +83,16 @@ class Executions:
                 on_event=on_event, stop_event=stop,
             )
             status, reason, verdict = outcome.status, outcome.reason, outcome.verdict
+            details = outcome.details
         except Exception as exc:  # noqa: BLE001 - a bridge fault aborts the execution
+            if type(exc).__name__ in NOT_STARTED_ERRORS:
+                self.store.transition(job_id, ["dispatching"], "approved", expect_owner=self.owner, owner=None,
+                                      lease_expires_at=None, message=f"dispatch did not start: {exc}",
+                                      data={"reason": str(exc)})
+                self._forget(job_id)
+                return
             log.exception("execution of job %s failed", job_id)
-            status, reason, verdict = "aborted", f"bridge error: {type(exc).__name__}: {exc}", None
+            status, reason, verdict, details = "aborted", f"bridge error: {type(exc).__name__}: {exc}", None, {}
         if stop.is_set() and status == "aborted" and not reason:
             reason = "stopped by an operator"
         error = None
@@ -94,10 +103,19 @@ class Executions:
         message = {"succeeded": "executed", "rejected": f"vetoed by the safety gate: {reason}",
                    "aborted": f"aborted: {reason}"}.get(status, status)
         self.store.transition(job_id, ["dispatching", "executing"], status, message=message, error=error,
-                              data={"execution": True, "reason": reason, "verdict": _jsonable(verdict)})
+                              data={"execution": True, "reason": reason, "verdict": _jsonable(verdict),
+                                    "details": _jsonable(details)})
+        self._forget(job_id)
+
+    def _forget(self, job_id: str) -> None:
         with self._lock:
             self._stops.pop(job_id, None)
             self._threads.pop(job_id, None)
+
+    def busy_with(self) -> str | None:
+        """The job being executed now, if any (one execution at a time per service)."""
+        with self._lock:
+            return next(iter(self._threads), None)
 
     def stop(self, job_id: str, by: str) -> bool:
         """Ask the bridge to stop now; the job ends aborted when execute() returns."""

@@ -286,9 +286,12 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
     if plan is None or plan_sha256(plan) != row["approved_sha256"]:
         raise ProblemError(409, f"the stored plan of job {job_id} no longer matches the approved hash "
                                 f"{row['approved_sha256']}; it cannot be dispatched")
+    busy = svc.executions.busy_with()
+    if busy is not None:
+        raise ProblemError(409, f"job {busy} is executing on the robot; one execution at a time")
     if not svc.bridge.controller_alive():
         why = getattr(svc.bridge, "reason", None)
-        raise ProblemError(409, "no controller is alive" + (f" ({why})" if why else "")
+        raise ProblemError(409, "no controller is alive" + (f": {why}" if why else "")
                            + "; start the controller and retry")
     if not svc.executions.begin(row, plan, p.user):
         raise ProblemError(409, f"job {job_id} changed state before dispatch (approval expired or acted on); reload it")

@@ -43,8 +43,15 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def service_env(**settings: Any) -> dict[str, str]:
+#: zenoh robot id of the test servers' bridge, so no other test's controller is ever seen.
+BRIDGE_ROBOT_ID = "svctest"
+
+
+def service_env(bridge_port: int | None = None, **settings: Any) -> dict[str, str]:
+    """Environment of a test server: test tokens and handlers, and a private zenoh endpoint for its bridge."""
     env = dict(os.environ)
+    env["REGRASP_BRIDGE_CONNECT"] = json.dumps([f"tcp/127.0.0.1:{bridge_port or free_port()}"])
+    env["REGRASP_BRIDGE_ROBOT_ID"] = BRIDGE_ROBOT_ID
     env["PYTHONPATH"] = os.pathsep.join([str(HERE), str(ROOT), env.get("PYTHONPATH", "")])
     env["REGRASP_TOKENS"] = json.dumps(TOKENS)
     env["REGRASP_HANDLERS"] = json.dumps(HANDLERS)
@@ -59,14 +66,14 @@ class Server:
     """A `regrasp serve` subprocess; ``kill()`` is a real SIGKILL of the server process only."""
 
     def __init__(self, data_dir: Path, workers: int = 2, port: int | None = None, extra_args: list[str] | None = None,
-                 **settings: Any) -> None:
+                 bridge_port: int | None = None, **settings: Any) -> None:
         self.data_dir = data_dir
         self.port = port or free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.args = [sys.executable, "-m", "service.cli.main", "serve", "--port", str(self.port),
                      "--data-dir", str(data_dir), "--workers", str(workers), "--log-level", "warning",
                      *(extra_args or [])]
-        self.env = service_env(**settings)
+        self.env = service_env(bridge_port, **settings)
         self.log_path = data_dir / f"server-{self.port}.log"
         self.proc: subprocess.Popen[bytes] | None = None
 

@@ -5,12 +5,16 @@ These run once the planner's job functions exist (planner.jobs, planner.survey).
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 from typing import Iterator
 
 import httpx
 import pytest
-from conftest import Server, wait_state
+from conftest import BRIDGE_ROBOT_ID, ROOT, Server, free_port, wait_state
 
 pytest.importorskip("planner.jobs", reason="the planner's job functions (planner.jobs) are not installed yet")
 
@@ -21,10 +25,19 @@ from service.settings import DEFAULT_HANDLERS  # noqa: E402
 PLAN_TIMEOUT_S = 240
 
 
+#: The simulated controller plays this many times faster than real time.
+SIM_SPEED = 20
+
+
 @pytest.fixture(scope="module")
-def real_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+def bridge_port() -> int:
+    return free_port()
+
+
+@pytest.fixture(scope="module")
+def real_server(tmp_path_factory: pytest.TempPathFactory, bridge_port: int) -> Iterator[Server]:
     srv = Server(tmp_path_factory.mktemp("real"), workers=2, handlers=DEFAULT_HANDLERS, check_scenario_names="true",
-                 preload_robot="true").start()
+                 preload_robot="true", bridge_port=bridge_port).start()
     try:
         yield srv
     finally:
@@ -51,6 +64,72 @@ def test_plan_job_end_to_end(real_server: Server) -> None:
         assert job["provenance"]["robot_sha256"] == plan["robot"]["urdf_sha256"]
         approved = bob.post(f"/v1/jobs/{job['id']}/approve", json={"plan_sha256": job["plan_sha256"]})
         assert approved.status_code == 200 and approved.json()["state"] == "approved"
+        r = bob.post(f"/v1/jobs/{job['id']}/dispatch")
+        assert r.status_code == 409 and "no controller is alive" in r.json()["detail"]
+        if not (ROOT / "service" / "cli" / "controller_sim.py").is_file():
+            pytest.skip("the simulated controller (regrasp controller-sim) is not installed yet")
+        sim = _start_sim(real_server.data_dir, bridge_port)
+        try:
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline:
+                r = bob.post(f"/v1/jobs/{job['id']}/dispatch")
+                if r.status_code != 409 or "no controller" not in r.json()["detail"]:
+                    break
+                time.sleep(0.3)
+            assert r.status_code == 202, (r.text, (real_server.data_dir / "controller-sim.log").read_text()[-2000:])
+            assert r.json()["state"] in ("dispatching", "executing")
+            done = wait_state(bob, job["id"], {"succeeded", "aborted", "rejected"}, timeout=120)
+            assert done["state"] == "succeeded", (done["message"], done["error"])
+            history = bob.get(f"/v1/jobs/{job['id']}/events", params={"follow": "false"}).text
+            assert '"event":"gate"' in history and '"event":"segment"' in history
+            assert '"state":"executing"' in history
+        finally:
+            sim.send_signal(signal.SIGTERM)
+            try:
+                sim.wait(10)
+            except subprocess.TimeoutExpired:
+                sim.kill()
+
+
+def _start_sim(data_dir: Path, port: int) -> subprocess.Popen[bytes]:
+    log = open(data_dir / "controller-sim.log", "ab")
+    return subprocess.Popen(
+        [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", BRIDGE_ROBOT_ID,
+         "--listen", f"tcp/127.0.0.1:{port}", "--speed", str(SIM_SPEED)],
+        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+
+
+def test_survey_job_runs_the_real_survey_and_cancels_within_1s(real_server: Server) -> None:
+    """A full survey plans every hand configuration (minutes); progress and a prompt cancel prove the wiring."""
+    pytest.importorskip("planner.survey", reason="the survey (planner.survey) is not installed yet")
+    with real_server.client("alice") as alice:
+        r = alice.post("/v1/jobs", json={"kind": "survey", "request": {"scenario": "upright", "seed": 1,
+                                                                      "states_per_configuration": 30}})
+        assert r.status_code == 202
+        job_id = r.json()["id"]
+        deadline = time.monotonic() + PLAN_TIMEOUT_S
+        job = alice.get(f"/v1/jobs/{job_id}").json()
+        while time.monotonic() < deadline and not (job["state"] == "planning" and job["progress"] > 0):
+            if job["state"] not in ("queued", "planning"):
+                break
+            time.sleep(0.1)
+            job = alice.get(f"/v1/jobs/{job_id}").json()
+        if job["state"] == "succeeded":
+            assert job["result"]["schema"] == "regrasp.survey/1"
+            return
+        assert job["state"] == "planning" and job["progress"] > 0, job
+        t0 = time.monotonic()
+        alice.post(f"/v1/jobs/{job_id}/cancel")
+        done = wait_state(alice, job_id, {"canceled", "succeeded", "failed"}, timeout=10)
+        assert done["state"] == "canceled" and time.monotonic() - t0 < 1.0
+
+
+def _start_sim(data_dir: Path, port: int) -> subprocess.Popen[bytes]:
+    log = open(data_dir / "controller-sim.log", "ab")
+    return subprocess.Popen(
+        [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", BRIDGE_ROBOT_ID,
+         "--listen", f"tcp/127.0.0.1:{port}", "--speed", str(SIM_SPEED)],
+        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
 
 
 def test_survey_job_end_to_end(real_server: Server) -> None:
