@@ -319,31 +319,55 @@ def _edges_valid(search: _Search, edges: list[np.ndarray], check, lazy: bool) ->
 
 
 def _run_round_lazy(search: _Search, rng: np.random.Generator, check) -> list[tuple[int, int]]:
-    """Planning round: the new nodes first, then only their edges, coarse to fine (fewer costly checks).
+    """Planning round in two validity calls: first every candidate edge's coarse states (every
+    ``COARSE_STRIDE``-th state and the new node), then the transition test on the nodes that
+    passed, then the remaining states of the accepted edges only.
 
-    The order follows OMPL's T-RRT: motion validity, then the transition test, so
-    an invalid motion never changes the temperature.
+    The collision checker, the costly part of validity, thus never sees the fine states of
+    an edge whose node is invalid, collides on the way, or fails the transition test.
     """
     cands = search.propose(rng)
     if not cands:
         return []
-    nodes = np.array([new for _, _, new, _ in cands])
-    v_nodes, m_nodes = check(search.full(nodes), [1] * len(cands))
     search.stats["extensions"] += len(cands)
-    keep = [i for i in range(len(cands)) if v_nodes[i]]
-    search.stats["invalid_edges"] += len(cands) - len(keep)
-    edges = [search.edge_states(search.trees[cands[i][0]].nodes[cands[i][1]], cands[i][2])[:-1] for i in keep]
-    edge_ok = _edges_valid(search, edges, check, lazy=True)
-    added = []
-    for i, ok in zip(keep, edge_ok):
-        ti, near, new, dist = cands[i]
+    edges = [search.edge_states(search.trees[ti].nodes[near], new) for ti, near, new, _ in cands]
+    coarse_masks = []
+    for e in edges:
+        m = np.zeros(len(e), dtype=bool)
+        m[COARSE_STRIDE - 1 :: COARSE_STRIDE] = True
+        m[-1] = True
+        coarse_masks.append(m)
+    coarse = [e[m] for e, m in zip(edges, coarse_masks)]
+    lengths = [len(c) for c in coarse]
+    valid, margin = check(search.full(np.vstack(coarse)), lengths)
+    accepted = []
+    k = 0
+    for i, ((ti, near, new, dist), n) in enumerate(zip(cands, lengths)):
+        ok = bool(valid[k : k + n].all())
+        node_margin = float(margin[k + n - 1])
+        k += n
         if not ok:
             search.stats["invalid_edges"] += 1
             continue
-        tree = search.trees[ti]
-        if not search.transition(tree, near, new, float(m_nodes[i]), dist, rng):
+        if search.transition(search.trees[ti], near, new, node_margin, dist, rng):
+            accepted.append((i, node_margin))
+    fine = [(i, m, edges[i][~coarse_masks[i]]) for i, m in accepted]
+    todo = [f for f in fine if len(f[2])]
+    fine_ok = {i: True for i, _, _ in fine}
+    if todo:
+        lengths = [len(f[2]) for f in todo]
+        valid, _ = check(search.full(np.vstack([f[2] for f in todo])), lengths)
+        k = 0
+        for (i, _, _), n in zip(todo, lengths):
+            fine_ok[i] = bool(valid[k : k + n].all())
+            k += n
+    added = []
+    for i, node_margin in accepted:
+        if not fine_ok[i]:
+            search.stats["invalid_edges"] += 1
             continue
-        added.append((ti, tree.add(new, near, float(m_nodes[i]))))
+        ti, near, new, _ = cands[i]
+        added.append((ti, search.trees[ti].add(new, near, node_margin)))
     return added
 
 
