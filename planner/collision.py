@@ -550,13 +550,8 @@ class CollisionWorld:
     def _robot_world(self, Rs: list, ps: list, out: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """World rotation (n_robot, N, 3, 3) and OBB centre (n_robot, N, 3) of every robot body."""
         N = Rs[1].shape[2]
-        J = len(self._uniq_joints)
-        RJ = np.empty((J, N, 3, 3))
-        pJ = np.empty((J, N, 3))
-        for k, j in enumerate(self._uniq_joints):  # a copy per joint beats np.stack's checks
-            RJ[k] = Rs[j].transpose(2, 0, 1)
-            pJ[k] = ps[j].T
-        RJ = RJ[self._joint_slot]
+        RJ = np.array([Rs[j] for j in self._uniq_joints]).transpose(0, 3, 1, 2)[self._joint_slot]  # (n, N, 3, 3)
+        pJ = np.array([ps[j] for j in self._uniq_joints]).transpose(0, 2, 1)
         n = self.n_robot
         if out is None:
             out = (np.empty((n, N, 3, 3)), np.empty((n, N, 3)))
