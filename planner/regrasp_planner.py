@@ -74,17 +74,20 @@ class PlannerSettings(BaseModel):
     lift_m: float = Field(0.06, gt=0, description="lift: straight up from the placement")
     approach_samples: int = Field(8, ge=2, description="states checked along approach and lift")
     max_grasps: int = Field(400, ge=1, description="grasps per hand kept for the graph (closest to the CoM first)")
-    handover_pairs_per_pose: int = Field(32, ge=1, description="grasp pairs kept per handover pose (evenly spread)")
+    handover_pairs_per_pose: int = Field(12, ge=1, description="grasp pairs kept per handover pose (evenly spread)")
     intermediate_placements: int = Field(6, ge=0, description="table spots x yaws besides start and goal")
-    handover: HandoverSettings = Field(default_factory=HandoverSettings)
-    handover_poses: int = Field(24, ge=0, description="floating poses kept for handovers")
+    handover: HandoverSettings = Field(default_factory=lambda: HandoverSettings(
+        positions=((0.40, 0.0, 0.30), (0.36, 0.0, 0.38), (0.42, 0.0, 0.22))))
+    handover_poses: int = Field(72, ge=0, description="floating poses kept for handovers")
     weights: GraphWeights = Field(default_factory=GraphWeights)
     grasp: GraspSettings = Field(default_factory=GraspSettings)
-    ik: IkSettings = Field(default_factory=IkSettings)
+    ik: IkSettings = Field(default_factory=lambda: IkSettings(restarts=2, max_iterations=60))
     trrt: TrrtSettings = Field(default_factory=lambda: TrrtSettings(max_iterations=300))
     smoothing: SmoothingSettings = Field(default_factory=SmoothingSettings)
     timing: TimingSettings = Field(default_factory=TimingSettings)
     arm_only_restarts: int = Field(1, ge=0, description="random restarts of the arm-only IK attempt")
+    waist_reach_m: float = Field(0.15, ge=0, description="how much farther the waist lets a hand reach, for the cheap reach filter")
+    screen_valid: int = Field(4, ge=1, description="start/goal nodes validated up front until this many are valid")
     ready_height_m: float = Field(0.25, gt=0, description="ready posture: the hand this far above the highest table top")
     planning_buffer_m: float = Field(
         1e-3, ge=0, description="plan to threshold + this, so small IK residuals never bring a point below the threshold")
@@ -174,6 +177,18 @@ class Task:
         self.active = {side: np.concatenate([self.robot.waist_indices(), self.robot.arm_indices(side)]) for side in ("left", "right")}
         self.arm_only = {side: self.robot.arm_indices(side) for side in ("left", "right")}
         self.ready = {side: self._ready_posture(side) for side in ("left", "right")}
+        self.shoulder, self.reach = {}, {}
+        for side in ("left", "right"):
+            chain = self.robot.spec.arms[side].chain
+            data = self.robot.create_data()
+            import pinocchio as pin
+
+            pin.framesForwardKinematics(self.robot.pin_model, data, self.robot.to_pin_q(self.stance.base_pose, self.home))
+            self.shoulder[side] = data.oMi[self.robot.pin_model.getJointId(chain[1])].translation.copy()
+            # Longest TCP distance from the shoulder over the chain, plus what the waist adds.
+            tcp = data.oMf[self.robot.frame_id(self.robot.spec.arms[side].tcp)].translation
+            links = [data.oMi[self.robot.pin_model.getJointId(j)].translation for j in chain[1:]] + [tcp]
+            self.reach[side] = float(sum(np.linalg.norm(b - a) for a, b in zip(links[:-1], links[1:]))) + s.waist_reach_m
         t2 = time.perf_counter()
         self.placements, self.start_id, self.goal_id = self._placements()
         self.handover_poses = self._handover_poses()
@@ -329,9 +344,12 @@ class HandConfigPlanner:
         approach = T_tcp[:3, 2]
         if approach[2] > 0.3:  # approaching upwards: the palm would be under the object
             return False
-        shoulder_y = 0.2 if side == "left" else -0.2
-        d = T_tcp[:3, 3] - np.array([0.0, shoulder_y, self.task.stance.base_pose[2] + 0.55])
-        return float(np.linalg.norm(d)) < 0.85
+        d = T_tcp[:3, 3] - self.task.shoulder[side]
+        dist = float(np.linalg.norm(d))
+        if dist > self.task.reach[side]:
+            return False
+        # The palm faces away from the shoulder: an approach pointing back at the robot needs a contorted wrist.
+        return float(approach @ d) > -0.3 * dist
 
     def graph_spec(self) -> GraphSpec:
         t = self.task
@@ -381,32 +399,34 @@ class HandConfigPlanner:
         T_grasp = T_obj @ grasp.T_obj_tcp
         T_pre = _translate(T_grasp, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
         T_lift = _translate(T_grasp, np.array([0.0, 0.0, s.lift_m]), local=False)
+        # Cheapest decisive checks first: the grasp pose, then the held object there, then lift, then pre-grasp.
         q_grasp = t.solve_ik(side, T_grasp, t.home, self.rng)
         if q_grasp is None:
             return Validation(False, "ik", "grasp pose out of reach")
         q_grasp[t.jaw[side]] = t.robot.upper[t.jaw[side]]
-        q_pre = t.solve_ik(side, T_pre, q_grasp, self.rng)
-        if q_pre is None:
-            return Validation(False, "ik", "pre-grasp pose out of reach")
-        q_lift = t.solve_ik(side, T_lift, q_grasp, self.rng)
-        if q_lift is None:
-            return Validation(False, "ik", "lift pose out of reach")
         q_closed = q_grasp.copy()
         q_closed[t.jaw[side]] = grasp.jaw_value
-        q_lift[t.jaw[side]] = grasp.jaw_value
         T_obj_tcp = inverse(T_obj) @ t.tcp(q_closed, side)
         hold = HoldSpec(side, T_obj_tcp)
-        # Free-hand states: home -> pre -> grasp (open), object resting.
-        cause, m1 = t.classify(np.vstack([q_pre[None], t.line(q_pre, q_grasp)]), None, T_obj, grasping=side)
-        if cause:
-            return Validation(False, cause, "approach", margin_m=m1)
+        if t.constrained and not t.evaluator.evaluate_one(q_closed, hold).stable:
+            return Validation(False, "com_margin", "holding the object at the grasp pose")
         cause, m2 = t.classify(t.line(q_grasp, q_closed, 3), None, T_obj, grasping=side)
         if cause:
             return Validation(False, cause, "closing the jaw", margin_m=m2)
-        # Held states: grasp (closed) -> lift.
+        q_lift = t.solve_ik(side, T_lift, q_grasp, self.rng)
+        if q_lift is None:
+            return Validation(False, "ik", "lift pose out of reach")
+        q_lift[t.jaw[side]] = grasp.jaw_value
         cause, m3 = t.classify(t.line(q_closed, q_lift), hold, None)
         if cause:
             return Validation(False, cause, "lift", margin_m=m3)
+        q_pre = t.solve_ik(side, T_pre, q_grasp, self.rng)
+        if q_pre is None:
+            return Validation(False, "ik", "pre-grasp pose out of reach")
+        q_pre[t.jaw[side]] = t.robot.upper[t.jaw[side]]
+        cause, m1 = t.classify(np.vstack([q_pre[None], t.line(q_pre, q_grasp)]), None, T_obj, grasping=side)
+        if cause:
+            return Validation(False, cause, "approach", margin_m=m1)
         kp = KeyPoses(q_pre=q_pre, q_grasp_open=q_grasp, q_grasp=q_closed, q_lift=q_lift, T_obj=T_obj,
                       T_obj_tcp=T_obj_tcp, margin=min(m1, m2, m3))
         self.keyposes[node] = kp
@@ -419,8 +439,12 @@ class HandConfigPlanner:
         T_obj = t.handover_poses[node.pose].T_world_obj
         T_g = T_obj @ gg.T_obj_tcp
         T_t = T_obj @ tg.T_obj_tcp
+        # Both arms without the waist first: a turning waist swings the idle arm into the table.
         self.task.counters["ik_solves"] += 1
-        res = t.ik.solve({giver: T_g, taker: T_t}, t.home, self.rng, rest_q=t.home)
+        res = t.ik_arm_only.solve({giver: T_g, taker: T_t}, t.home, self.rng, rest_q=t.home)
+        if res.q is None:
+            self.task.counters["ik_solves"] += 1
+            res = t.ik.solve({giver: T_g, taker: T_t}, t.home, self.rng, rest_q=t.home)
         if res.q is None:
             return Validation(False, "ik", "handover pose out of reach for both hands")
         q_both = res.q
@@ -451,7 +475,7 @@ class HandConfigPlanner:
         motion = self._motion(q_giver_at, q_taker_pre_full, t.arm_only[taker], hold_g, None, grasping=None)
         if motion is None:
             return Validation(False, "motion", "taker cannot reach its pre-grasp at the handover")
-        cause, m1 = t.classify(t.line(q_taker_pre_full, approach_end), hold_g, None)
+        cause, m1 = t.classify(t.line(q_taker_pre_full, approach_end), hold_g, None, grasping=taker)
         if cause:
             return Validation(False, cause, "taker approach", margin_m=m1)
         q_both_closed = approach_end.copy()
@@ -461,13 +485,13 @@ class HandConfigPlanner:
         hold_t = HoldSpec(taker, G_t)
         q_released = q_both_closed.copy()
         q_released[t.jaw[giver]] = t.robot.upper[t.jaw[giver]]
-        cause, m2 = t.classify(t.line(q_both_closed, q_released, 3), hold_t, None)
+        cause, m2 = t.classify(t.line(q_both_closed, q_released, 3), hold_t, None, grasping=giver)
         if cause:
             return Validation(False, cause, "exchange", margin_m=m2)
         # Giver: retreat along its approach axis, then home (arm only).
         q_giver_back = q_released.copy()
         q_giver_back[t.arm_only[giver]] = q_giver_pre[t.arm_only[giver]]
-        cause, m3 = t.classify(t.line(q_released, q_giver_back), hold_t, None)
+        cause, m3 = t.classify(t.line(q_released, q_giver_back), hold_t, None, grasping=giver)
         if cause:
             return Validation(False, cause, "giver retreat", margin_m=m3)
         q_after = q_giver_back.copy()
@@ -622,7 +646,7 @@ class HandConfigPlanner:
              on_iteration: Callable[[int, dict], None] | None = None) -> PlannerResult:
         t0 = time.perf_counter()
         self._should_stop = should_stop  # type: ignore[assignment]
-        spec = self.graph_spec()
+        spec = self.screen(self.graph_spec(), should_stop)
         weights = self.task.settings.weights
         if not self.task.constrained:  # the unconstrained planner: no margin cost either
             weights = dataclasses.replace(weights, margin=0.0)
@@ -640,6 +664,31 @@ class HandConfigPlanner:
                                  failures=dict(res.failures), stats=stats)
         pieces = self._assemble_pieces(res)
         return PlannerResult("solved", self.hands, pieces=pieces, cost=res.cost, failures=dict(res.failures), stats=stats)
+
+    def screen(self, spec: GraphSpec, should_stop: Callable[[], bool] = lambda: False) -> GraphSpec:
+        """Validate start and goal nodes up front, in order of estimated margin, until a few are valid.
+
+        Most failures happen where the object rests at the start and goal; screening them in one
+        pass spares a graph search per failed node. Nodes found invalid leave the spec.
+        """
+        t = self.task
+        est = {p: t.estimated_margin(T) for p, T in enumerate(t.placements)}
+        bad: set = set()
+        for pid, hand in ((t.start_id, self.start_hand), (t.goal_id, self.goal_hand)):
+            cands = [n for n in spec.placement_nodes if n.placement == pid and n.hand == hand]
+            grasp_order = {g: i for i, g in enumerate(sorted({n.grasp for n in cands}))}
+            cands.sort(key=lambda n: (-est[pid], grasp_order[n.grasp]))
+            found = 0
+            for n in cands:
+                if found >= t.settings.screen_valid:
+                    break
+                if should_stop():
+                    raise Canceled()
+                if self.validate_node(n).ok:
+                    found += 1
+                else:
+                    bad.add(n)
+        return dataclasses.replace(spec, placement_nodes=[n for n in spec.placement_nodes if n not in bad])
 
     def _seed_margin_estimates(self, graph: RegraspGraph) -> None:
         """Before any IK, weight nodes by a quick margin estimate so the search tries stable ones first."""

@@ -203,7 +203,7 @@ def build_arm(side: str) -> tuple[list[Link], list[Joint]]:
         elif suffix == "EP":
             link.inertia_box = (0.09, 0.09, 0.3)
             # Forearm: elbow to just above the wrist (the wrist joints are compact; the palm starts below).
-            link.geoms.append(Geom("cylinder", (0.045, 0.17), (vec[0] / 2, 0.0, -0.125)))
+            link.geoms.append(Geom("cylinder", (0.045, 0.14), (vec[0] / 2, 0.0, -0.12)))
         elif suffix == "WRY":
             link.geoms.append(Geom("sphere", (0.05,), (0.0, 0.0, 0.0)))
         elif suffix == "HDY":

@@ -1,0 +1,282 @@
+"""The task stability survey: the paper's RRT-inspired stability ratio per hand configuration.
+
+For each hand configuration the regrasp graph gives the task's key poses (its nodes
+are validated: IK, collision, CoM margin; motions are not planned, which the
+exploration itself does). Every stretch where the object is carried becomes an
+exploration leg: from the pick (lift pose) towards the place (lift pose), or to and
+from the handover pose for ``left-right`` and ``right-left``. The goal-biased
+energy-based exploration (:func:`planner.trrt.explore`) then evaluates states until
+N have been counted: C stable, U unstable, R = C / (C + U) (the paper's equation 2).
+
+Configurations run in parallel in worker processes; each has its own seeded
+generator, so the same seed gives the same counts however they are scheduled.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from schemas.common import HAND_CONFIGS
+from schemas.survey import SURVEY_SCHEMA, SurveyRow, recommend
+from schemas.scenario import Scenario
+
+from .regrasp_graph import Canceled as GraphCanceled
+from .regrasp_graph import HandoverNode, PlacementNode, Validation
+from .regrasp_planner import HandConfigPlanner, PlannerSettings, Task
+from .state_eval import HoldSpec
+from .trrt import ExploreLeg, TrrtSettings, explore
+
+#: Default states per configuration when neither the request nor the scenario says.
+DEFAULT_STATES = 10_000
+#: Node-search effort to find a configuration's key poses.
+KEY_POSE_ITERATIONS = 400
+
+
+class SurveyCanceled(Exception):
+    pass
+
+
+@dataclass
+class ConfigOutcome:
+    hands: str
+    stable: int
+    unstable: int
+    reason: str | None
+    stats: dict
+    q: np.ndarray | None = None
+    holding: np.ndarray | None = None
+    object_pose: np.ndarray | None = None
+    stable_flags: np.ndarray | None = None
+    com: np.ndarray | None = None
+
+    @property
+    def ratio(self) -> float | None:
+        total = self.stable + self.unstable
+        return self.stable / total if total else None
+
+
+def _legs(planner: HandConfigPlanner, path: list) -> list[ExploreLeg]:
+    """One exploration leg per carried stretch of the key-pose path."""
+    t = planner.task
+    legs: list[ExploreLeg] = []
+    for a, b in zip(path[:-1], path[1:]):
+        if not HandConfigPlanner._carried(a, b):
+            continue
+        if isinstance(a, PlacementNode) and isinstance(b, PlacementNode):
+            ka, kb = planner.keyposes[a], planner.keyposes[b]
+            goal = planner._with_arm_of(kb.q_lift, ka.q_lift, a.hand)
+            legs.append(ExploreLeg(ka.q_lift, goal, HoldSpec(a.hand, ka.T_obj_tcp), t.active[a.hand]))
+        elif isinstance(b, HandoverNode):
+            ka, hp = planner.keyposes[a], planner.handovers[b]
+            legs.append(ExploreLeg(ka.q_lift, hp.q_giver_at, HoldSpec(a.hand, ka.T_obj_tcp), t.active[a.hand]))
+        else:
+            hp, kb = planner.handovers[a], planner.keyposes[b]
+            goal = planner._with_arm_of(kb.q_lift, hp.q_after, b.hand)
+            legs.append(ExploreLeg(hp.q_after, goal, HoldSpec(b.hand, hp.T_taker_obj_tcp), t.active[b.hand]))
+    return legs
+
+
+def key_path(planner: HandConfigPlanner, should_stop: Callable[[], bool]) -> tuple[list | None, str | None]:
+    """The cheapest path whose nodes are valid (motions not planned), or the reason there is none."""
+    from .regrasp_graph import RegraspGraph
+
+    graph = RegraspGraph(planner.screen(planner.graph_spec(), should_stop), planner.task.settings.weights)
+    if planner.task.constrained:
+        planner._seed_margin_estimates(graph)
+    res = graph.search(planner.validate_node, lambda a, b, k: Validation(True), max_iterations=KEY_POSE_ITERATIONS,
+                       time_limit_s=planner.task.scenario.limits.time_s, should_stop=should_stop)
+    if res.status != "solved":
+        return None, f"{res.code}: {res.message}"
+    return res.path, None
+
+
+def survey_configuration(task: Task, hands: str, states: int, seed: int,
+                         should_stop: Callable[[], bool] = lambda: False, keep_states: bool = True) -> ConfigOutcome:
+    """Explore one hand configuration and count its stable and unstable states."""
+    t0 = time.perf_counter()
+    rng = np.random.default_rng([seed, HAND_CONFIGS.index(hands), 7])
+    planner = HandConfigPlanner(task, hands, rng)
+    try:
+        path, reason = key_path(planner, should_stop)
+    except GraphCanceled:
+        raise SurveyCanceled() from None
+    if path is None:
+        return ConfigOutcome(hands, 0, 0, f"no feasible grasp or key poses: {reason}", {"time_s": time.perf_counter() - t0})
+    legs = _legs(planner, path)
+    if not legs:
+        return ConfigOutcome(hands, 0, 0, "the key-pose path carries the object nowhere", {"time_s": time.perf_counter() - t0})
+    evaluator = task.evaluator.with_threshold(task.threshold_m)
+    for i, leg in enumerate(legs):
+        held = [(leg.hold.tcp_side, leg.hold.T_obj_tcp)]
+
+        def free(Q: np.ndarray, held=held) -> np.ndarray:
+            return ~task.world.check_batch(task.stance.base_pose, Q, held=held).collides
+
+        legs[i] = ExploreLeg(leg.start, leg.goal, leg.hold, leg.active, free)
+    t1 = time.perf_counter()
+    ex = explore(legs, evaluator, None, states, rng, TrrtSettings(margin_cost=task.constrained), should_stop=should_stop)
+    if ex.status == "canceled":
+        raise SurveyCanceled()
+    stats = dict(ex.stats, key_poses_s=t1 - t0, exploration_s=time.perf_counter() - t1,
+                 states_per_s=ex.stats["evaluated"] / max(time.perf_counter() - t1, 1e-9),
+                 path=[_node_label(n) for n in path], status=ex.status)
+    out = ConfigOutcome(hands, ex.n_stable, ex.n_unstable, None, stats)
+    if ex.status != "done":
+        out.reason = f"exploration stopped early ({ex.status}) after {ex.stats['evaluated']} states"
+    if keep_states:
+        out.q, out.holding, out.object_pose, out.stable_flags, out.com = ex.q, ex.holding, ex.object_pose, ex.stable, ex.com
+    return out
+
+
+def _node_label(n) -> str:
+    if isinstance(n, PlacementNode):
+        return f"placement {n.placement} grasp {n.grasp} {n.hand}"
+    return f"handover pose {n.pose} grasps {n.giver_grasp}->{n.taker_grasp}"
+
+
+# -- worker processes ---------------------------------------------------------------------------
+_WORKER_TASKS: dict[str, Task] = {}
+
+
+def _worker(args: tuple) -> ConfigOutcome:
+    scenario_json, threshold_m, hands, states, seed, settings_json = args
+    key = f"{scenario_json}|{threshold_m}|{settings_json}"
+    task = _WORKER_TASKS.get(key)
+    if task is None:
+        scenario = Scenario.model_validate_json(scenario_json)
+        settings = PlannerSettings.model_validate_json(settings_json) if settings_json else None
+        task = Task(scenario, settings, threshold_m=threshold_m)
+        _WORKER_TASKS.clear()
+        _WORKER_TASKS[key] = task
+    return survey_configuration(task, hands, states, seed)
+
+
+def run_survey(
+    scenario: Scenario,
+    *,
+    states: int | None = None,
+    seed: int | None = None,
+    threshold_m: float | None = None,
+    hands: list[str] | None = None,
+    workers: int | None = None,
+    settings: PlannerSettings | None = None,
+    should_stop: Callable[[], bool] = lambda: False,
+    progress: Callable[[float, str], None] = lambda f, m: None,
+    task: Task | None = None,
+) -> tuple[dict[str, Any], list[ConfigOutcome]]:
+    """The survey document (CONTRACT.md section 4) and the per-configuration outcomes (with states)."""
+    t0 = time.perf_counter()
+    states = states or scenario.survey.states_per_configuration or DEFAULT_STATES
+    if states < 1:
+        raise ValueError(f"states per configuration must be >= 1, got {states}")
+    seed = scenario.seed if seed is None else seed
+    threshold = scenario.threshold_m if threshold_m is None else threshold_m
+    configs = hands or list(HAND_CONFIGS)
+    for h in configs:
+        if h not in HAND_CONFIGS:
+            raise ValueError(f"unknown hands {h!r}; valid: {', '.join(HAND_CONFIGS)}")
+    task = task or Task(scenario, settings, threshold_m=threshold)
+    inradius = task.stance.polygon.inradius
+    outcomes: list[ConfigOutcome]
+    if threshold > inradius:
+        reason = (f"threshold {threshold * 1000:.1f} mm is larger than the support polygon's inradius "
+                  f"{inradius * 1000:.1f} mm in stance {task.stance.name!r}: no state can be stable")
+        outcomes = [ConfigOutcome(h, 0, 0, reason, {}) for h in configs]
+    else:
+        n_workers = min(len(configs), workers if workers is not None else (os.cpu_count() or 1))
+        progress(0.05, f"exploring {len(configs)} hand configurations, {states} states each")
+        if n_workers <= 1:
+            outcomes = []
+            for k, h in enumerate(configs):
+                try:
+                    outcomes.append(survey_configuration(task, h, states, seed, should_stop))
+                except SurveyCanceled:
+                    raise
+                progress(0.05 + 0.9 * (k + 1) / len(configs), f"{h} done")
+        else:
+            import multiprocessing as mp
+
+            sc_json = scenario.model_dump_json(by_alias=True)
+            st_json = settings.model_dump_json() if settings is not None else ""
+            with ProcessPoolExecutor(max_workers=n_workers, mp_context=mp.get_context("spawn")) as pool:
+                futures = [pool.submit(_worker, (sc_json, threshold, h, states, seed, st_json)) for h in configs]
+                outcomes = []
+                for k, f in enumerate(futures):
+                    while True:
+                        try:
+                            outcomes.append(f.result(timeout=0.2))
+                            break
+                        except TimeoutError:
+                            if should_stop():
+                                for g in futures:
+                                    g.cancel()
+                                pool.shutdown(wait=False, cancel_futures=True)
+                                for proc in list(getattr(pool, "_processes", {}).values()):
+                                    proc.kill()
+                                raise SurveyCanceled() from None
+                    progress(0.05 + 0.9 * (k + 1) / len(configs), f"{configs[k]} done")
+    rows = [SurveyRow(hands=o.hands, stable=o.stable, unstable=o.unstable, ratio=o.ratio, reason=o.reason) for o in outcomes]
+    doc = {
+        "schema": SURVEY_SCHEMA,
+        "robot": {"name": task.robot.name, "urdf_sha256": task.robot.urdf_sha256},
+        "stance": task.stance.result().model_dump(),
+        "threshold_m": threshold,
+        "seed": seed,
+        "object": {"name": task.obj.name, "mass_kg": task.obj.mass_kg, "com_local": task.obj.com_local.tolist(),
+                   "start_pose": list(scenario.start_pose), "goal_pose": list(scenario.goal_pose)},
+        "rows": [r.model_dump(exclude_none=False) for r in rows],
+        "recommended": recommend(rows),
+        "stats": {"states_per_configuration": states, "time_s": time.perf_counter() - t0,
+                  "support_polygon": task.stance.polygon.vertices.tolist(),
+                  "configurations": {o.hands: o.stats for o in outcomes}},
+    }
+    return doc, outcomes
+
+
+def write_states(path: str, doc: dict, outcomes: list[ConfigOutcome], task_info: dict) -> int:
+    """Every evaluated state as an .npz (no pickled objects): CONTRACT.md section 4."""
+    parts = [o for o in outcomes if o.q is not None and len(o.q)]
+    nq = len(task_info["joint_names"])
+    if parts:
+        hands = np.concatenate([np.full(len(o.q), o.hands) for o in parts]).astype("U11")
+        q = np.vstack([o.q for o in parts])
+        holding = np.concatenate([o.holding for o in parts]).astype("U5")
+        pose = np.vstack([o.object_pose for o in parts])
+        stable = np.concatenate([o.stable_flags for o in parts]).astype(bool)
+    else:
+        hands, q, holding, pose, stable = np.zeros(0, "U11"), np.zeros((0, nq)), np.zeros(0, "U5"), np.zeros((0, 7)), np.zeros(0, bool)
+    np.savez_compressed(
+        path, hands=hands, q=q, holding=holding, object_pose=pose, stable=stable,
+        base_pose=np.asarray(doc["stance"]["base_pose"]), joint_names=np.asarray(task_info["joint_names"], dtype="U16"),
+        threshold_m=np.float64(doc["threshold_m"]), mass_kg=np.float64(doc["object"]["mass_kg"]),
+        com_local=np.asarray(doc["object"]["com_local"]), support_polygon=np.asarray(doc["stats"]["support_polygon"]),
+    )
+    return len(q)
+
+
+def quick_survey(task: Task, should_stop: Callable[[], bool] = lambda: False, states: int = 1500) -> dict:
+    """A small in-process survey, for ``--hands auto``."""
+    doc, _ = run_survey(task.scenario, states=states, threshold_m=task.threshold_m, workers=1, task=task,
+                        should_stop=should_stop)
+    return doc
+
+
+def run_survey_request(request: dict[str, Any], ctx) -> dict[str, Any]:
+    """The service's survey job (CONTRACT.md section 5)."""
+    from .entry import Canceled
+    from .jobs import resolve_scenario
+
+    scenario = resolve_scenario(request["scenario"], stance=request.get("stance"), threshold_m=request.get("threshold_m"),
+                                seed=request.get("seed"), states_per_configuration=request.get("states_per_configuration"),
+                                time_limit_s=request.get("time_limit_s"))
+    try:
+        doc, _ = run_survey(scenario, workers=1, should_stop=lambda: bool(ctx.cancelled()), progress=ctx.progress)
+    except SurveyCanceled:
+        raise Canceled() from None
+    return doc
