@@ -23,6 +23,7 @@ total mass and the CoM); without it the CoM is the geometric centroid of the sol
 from __future__ import annotations
 
 import hashlib
+import itertools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -212,6 +213,28 @@ def _load_mesh_file(path: Path, scale: float) -> trimesh.Trimesh:
     return mesh
 
 
+def _merge_cells(filled: np.ndarray, grids: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Greedy merge of filled grid cells into boxes: runs along axis 0, then 1, then 2."""
+    shape = filled.shape
+    boxes: list[tuple[np.ndarray, np.ndarray]] = []
+    used = np.zeros(shape, dtype=bool)
+    for i, j, k in np.argwhere(filled):
+        if used[i, j, k]:
+            continue
+        i2 = i
+        while i2 + 1 < shape[0] and filled[i2 + 1, j, k] and not used[i2 + 1, j, k]:
+            i2 += 1
+        j2 = j
+        while j2 + 1 < shape[1] and np.all(filled[i:i2 + 1, j2 + 1, k] & ~used[i:i2 + 1, j2 + 1, k]):
+            j2 += 1
+        k2 = k
+        while k2 + 1 < shape[2] and np.all(filled[i:i2 + 1, j:j2 + 1, k2 + 1] & ~used[i:i2 + 1, j:j2 + 1, k2 + 1]):
+            k2 += 1
+        used[i:i2 + 1, j:j2 + 1, k:k2 + 1] = True
+        boxes.append((np.array([grids[0][i], grids[1][j], grids[2][k]]), np.array([grids[0][i2 + 1], grids[1][j2 + 1], grids[2][k2 + 1]])))
+    return boxes
+
+
 def rectilinear_boxes(mesh: trimesh.Trimesh, max_cells: int = 4096) -> list[tuple[np.ndarray, np.ndarray]] | None:
     """Exact decomposition of a mesh whose faces are all axis-aligned into boxes, else None.
 
@@ -252,22 +275,14 @@ def rectilinear_boxes(mesh: trimesh.Trimesh, max_cells: int = 4096) -> list[tupl
         inside &= np.all((pts[:, 1:] >= lo_yz[f]) & (pts[:, 1:] <= hi_yz[f]), axis=1)
         crossings += inside
     filled = (crossings % 2 == 1).reshape(shape)
+    # greedy merge in each of the 6 axis orders; keep the fewest boxes (fewer collision pairs)
     boxes: list[tuple[np.ndarray, np.ndarray]] = []
-    used = np.zeros(shape, dtype=bool)
-    for i, j, k in np.argwhere(filled):
-        if used[i, j, k]:
-            continue
-        i2 = i
-        while i2 + 1 < shape[0] and filled[i2 + 1, j, k] and not used[i2 + 1, j, k]:
-            i2 += 1
-        j2 = j
-        while j2 + 1 < shape[1] and np.all(filled[i:i2 + 1, j2 + 1, k] & ~used[i:i2 + 1, j2 + 1, k]):
-            j2 += 1
-        k2 = k
-        while k2 + 1 < shape[2] and np.all(filled[i:i2 + 1, j:j2 + 1, k2 + 1] & ~used[i:i2 + 1, j:j2 + 1, k2 + 1]):
-            k2 += 1
-        used[i:i2 + 1, j:j2 + 1, k:k2 + 1] = True
-        boxes.append((np.array([grids[0][i], grids[1][j], grids[2][k]]), np.array([grids[0][i2 + 1], grids[1][j2 + 1], grids[2][k2 + 1]])))
+    for order in itertools.permutations(range(3)):
+        cand = _merge_cells(np.transpose(filled, order), [grids[a] for a in order])
+        inv = np.argsort(order)
+        cand = [(lo[inv], hi[inv]) for lo, hi in cand]
+        if not boxes or len(cand) < len(boxes):
+            boxes = cand
     total = sum(float(np.prod(hi - lo)) for lo, hi in boxes)
     if not boxes or abs(total - float(mesh.volume)) > 1e-6 * max(1.0, abs(float(mesh.volume))) + 1e-12:
         return None  # the decomposition does not reproduce the solid: keep the triangles
