@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import fcl
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -127,3 +128,33 @@ def test_sat_agrees_with_fcl(ra, ca, ea, rb, cb, eb):
     oa = fcl.CollisionObject(fcl.Box(*(2 * np.array(ea))), fcl.Transform(Ra, np.array(ca)))
     ob = fcl.CollisionObject(fcl.Box(*(2 * np.array(eb))), fcl.Transform(Rb, np.array(cb)))
     assert (fcl.collide(oa, ob, fcl.CollisionRequest(), fcl.CollisionResult()) > 0) == (d > 0)
+
+
+def test_handover_needs_both_holders(hrp5p, stances, drill_obj, drill_grasps):
+    """At a handover both hands close on the object: list both holders, or the second hand's
+    fingers count as colliding with the object."""
+    from planner.collision import hand_geometry
+    from planner.handover import handover_poses
+    from planner.ik import IkSolver
+
+    st = stances["upright"]
+    right, left = drill_grasps["right"], drill_grasps["left"]
+    world = CollisionWorld(hrp5p, [], drill_obj, reference_postures=[(st.base_pose, st.q)])
+    poses = handover_poses(drill_obj, right, left, hand_geometry(hrp5p, "right"), hand_geometry(hrp5p, "left"), st.base_pose[:3])
+    ik = IkSolver(hrp5p, st)
+    rng = np.random.default_rng(0)
+    for i, j in poses[0].pairs[::97][:10]:
+        T = poses[0].T_world_obj
+        res = ik.solve_both(T @ left[j].T_obj_tcp, T @ right[i].T_obj_tcp, st.q, rng)
+        if res.q is None:
+            continue
+        q = res.q.copy()
+        q[hrp5p.joint_index("RJAW")] = 0.9 * right[i].jaw_value  # squeezing
+        q[hrp5p.joint_index("LJAW")] = 0.9 * left[j].jaw_value
+        both = world.check(st.base_pose, q, held=[("right", right[i].T_obj_tcp), ("left", left[j].T_obj_tcp)])
+        if both is not None:
+            continue  # this pair's arms collide elsewhere; try another
+        one = world.check(st.base_pose, q, held=[("right", right[i].T_obj_tcp)])
+        assert one is not None and one.kind == "object" and one.body_a.startswith("L_FINGER")
+        return
+    pytest.skip("no IK solution among the sampled handover pairs")
