@@ -29,6 +29,8 @@ import networkx as nx
 
 Hand = Literal["left", "right"]
 SOURCE = ("source",)
+#: A failed edge whose failure belongs to its arriving node: remove the node, not only the edge.
+REMOVE_NODE = "remove-node"
 SINK = ("sink",)
 
 
@@ -285,7 +287,10 @@ class RegraspGraph:
                 v = edge_cache[key]
                 if not v.ok:
                     failures[v.cause or "motion"] += 1
-                    self._remove_hop(a, b, kind)
+                    if v.payload == REMOVE_NODE and b is not None and b in self.g:
+                        self.g.remove_node(b)
+                    else:
+                        self._remove_hop(a, b, kind)
                     bad = True
                     break
                 edge_results.append(v)

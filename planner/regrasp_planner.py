@@ -39,6 +39,7 @@ from .ik import IkSettings, IkSolver
 from .objects import ObjectModel, build_object
 from .plan_builder import MotionPiece
 from .regrasp_graph import (
+    REMOVE_NODE,
     Canceled,
     GraphSpec,
     GraphWeights,
@@ -109,10 +110,13 @@ class KeyPoses:
 @dataclass
 class HandoverPoses:
     q_giver_at: np.ndarray  # giver at the handover pose, taker arm at home
-    pieces: list[MotionPiece]  # taker transit, approach, close, giver open, retreat, giver home
+    #: taker transit, approach, close, giver open, retreat, giver home; the two transits are
+    #: planned (T-RRT) only once a path through this node is otherwise valid
+    pieces: list[MotionPiece]
     q_after: np.ndarray  # taker holds, giver arm back home
     T_taker_obj_tcp: np.ndarray  # the taker's grasp relative to the object, as nominal
     margin: float
+    motions_planned: bool = False
 
 
 @dataclass
@@ -472,9 +476,6 @@ class HandConfigPlanner:
         q_taker_pre_full = q_giver_at.copy()
         q_taker_pre_full[t.arm_only[taker]] = q_taker_pre[t.arm_only[taker]]
         approach_end = q_both.copy()
-        motion = self._motion(q_giver_at, q_taker_pre_full, t.arm_only[taker], hold_g, None, grasping=None)
-        if motion is None:
-            return Validation(False, "motion", "taker cannot reach its pre-grasp at the handover")
         cause, m1 = t.classify(t.line(q_taker_pre_full, approach_end), hold_g, None, grasping=taker)
         if cause:
             return Validation(False, cause, "taker approach", margin_m=m1)
@@ -496,17 +497,14 @@ class HandConfigPlanner:
             return Validation(False, cause, "giver retreat", margin_m=m3)
         q_after = q_giver_back.copy()
         q_after[t.arm_only[giver]] = t.home[t.arm_only[giver]]
-        home_motion = self._motion(q_giver_back, q_after, t.arm_only[giver], hold_t, None, grasping=None)
-        if home_motion is None:
-            return Validation(False, "motion", "giver cannot return home after the handover")
         q_close_open = approach_end
         pieces = [
-            MotionPiece("transit", taker, motion, giver, hold_g),
+            MotionPiece("transit", taker, np.array([q_giver_at, q_taker_pre_full]), giver, hold_g),
             MotionPiece("approach", taker, t.line(q_taker_pre_full, q_close_open, 2), giver, hold_g),
             MotionPiece("handover", "both", t.line(q_close_open, q_both_closed, 2), giver, hold_g),
             MotionPiece("handover", "both", t.line(q_both_closed, q_released, 2), "both", hold_both),
             MotionPiece("retreat", giver, t.line(q_released, q_giver_back, 2), taker, hold_t),
-            MotionPiece("transit", giver, home_motion, taker, hold_t),
+            MotionPiece("transit", giver, np.array([q_giver_back, q_after]), taker, hold_t),
         ]
         hp = HandoverPoses(q_giver_at=q_giver_at, pieces=pieces, q_after=q_after, T_taker_obj_tcp=G_t,
                            margin=min(m0, m1, m2, m3))
@@ -597,6 +595,8 @@ class HandConfigPlanner:
             pieces.append(MotionPiece("transfer", a.hand, path, a.hand, hold))
         elif kind == "handover" and isinstance(b, HandoverNode):
             ka, hp = self.keyposes[a], self.handovers[b]
+            if not self._plan_handover_motions(b):
+                return Validation(False, "motion", "handover transits", payload=REMOVE_NODE)
             hold = HoldSpec(a.hand, ka.T_obj_tcp)
             cause, _ = t.classify(hp.q_giver_at, hold, None)
             if cause:
@@ -625,6 +625,22 @@ class HandConfigPlanner:
                 return Validation(False, "com_margin" if t.constrained else "motion", "timing: ZMP or dense margin")
             timed.append(tp)
         return Validation(True, payload=timed)
+
+    def _plan_handover_motions(self, node: HandoverNode) -> bool:
+        """Plan the taker's way to its pre-grasp and the giver's way home (arm only, waist fixed)."""
+        hp = self.handovers[node]
+        if hp.motions_planned:
+            return True
+        t = self.task
+        for i, piece in ((0, hp.pieces[0]), (5, hp.pieces[5])):
+            side = node.taker if i == 0 else node.giver
+            qa, qb = piece.waypoints[0], piece.waypoints[-1]
+            path = self._motion(qa, qb, t.arm_only[side], piece.hold, None, grasping=None)
+            if path is None:
+                return False
+            piece.waypoints = path
+        hp.motions_planned = True
+        return True
 
     def _with_arm_of(self, q_target: np.ndarray, q_current: np.ndarray, side: Side) -> np.ndarray:
         """q_target for the waist and ``side``'s arm and jaw; everything else as in q_current."""
