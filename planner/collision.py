@@ -8,12 +8,13 @@ What is checked (each pair once, in this order, the first hit reported):
 - the robot against the object, resting or held, except the fingers of the hand that grasps
   or holds it (those touch it by design);
 - robot self-collision, minus the pairs an SRDF would disable: geometric neighbours in the
-  kinematic tree and pairs already touching in the default posture (computed once). The two
-  hands are an ordinary pair, so hand against hand at a handover is covered.
+  kinematic tree and pairs already touching in the default posture or a reference posture
+  such as the stance's (computed once). The two hands are an ordinary pair, so hand against
+  hand at a handover is covered.
 
 How it is fast: every body is bounded by an oriented box. A batch of states is screened with
-bounding spheres, then with the separating-axis test on the oriented boxes, all in numpy
-over (pairs x states). Box-box pairs are decided exactly there (the SAT is exact for boxes);
+the world axis-aligned boxes of those, then with the separating-axis test on the oriented
+boxes, all in numpy over (pairs x states). Box-box pairs are decided exactly there (the SAT is exact for boxes);
 only pairs with a sphere, cylinder, capsule or mesh that pass the screen go to fcl's
 narrow phase, with transforms set from the precomputed arrays.
 """
