@@ -37,6 +37,7 @@ from .collision import HandGeometry, hand_bodies, hand_geometry, object_bodies, 
 from .objects import ObjectModel
 from .robot_model import RobotModel
 from .robots.spec import Side
+from .transforms import inverse
 
 CACHE_ENV = "REGRASP_CACHE_DIR"
 DEFAULT_CACHE_DIR = Path("~/.cache/hrp-regrasp")
@@ -81,8 +82,7 @@ class Grasp:
 
     @property
     def T_tcp_obj(self) -> np.ndarray:
-        from .transforms import inverse
-
+        """The object frame in the TCP frame (what the holding hand carries)."""
         return inverse(self.T_obj_tcp)
 
 
