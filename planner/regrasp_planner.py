@@ -340,6 +340,7 @@ class HandConfigPlanner:
         self.goal_failures: Counter = Counter()
         self.start_ok = False
         self.goal_ok = False
+        self.screen_failures: Counter = Counter()
 
     # -- graph construction ---------------------------------------------------------------------
     def _cheap_ok(self, side: Side, T_obj: np.ndarray, grasp: Grasp) -> bool:
@@ -673,6 +674,7 @@ class HandConfigPlanner:
             self.validate_node, self.validate_edge, max_iterations=max_iterations, time_limit_s=time_limit_s,
             should_stop=should_stop, on_iteration=(lambda i, f: on_iteration(i, dict(f))) if on_iteration else None,
         )
+        res.failures.update(self.screen_failures)
         stats = {"graph_nodes": res.graph_nodes, "graph_edges": res.graph_edges, "search_iterations": res.iterations,
                  "nodes_validated": len(self.keyposes) + len(self.handovers), "time_s": time.perf_counter() - t0}
         if res.status != "solved":
@@ -700,10 +702,12 @@ class HandConfigPlanner:
                     break
                 if should_stop():
                     raise Canceled()
-                if self.validate_node(n).ok:
+                v = self.validate_node(n)
+                if v.ok:
                     found += 1
                 else:
                     bad.add(n)
+                    self.screen_failures[v.cause or "ik"] += 1
         return dataclasses.replace(spec, placement_nodes=[n for n in spec.placement_nodes if n not in bad])
 
     def _seed_margin_estimates(self, graph: RegraspGraph) -> None:
