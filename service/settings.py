@@ -46,6 +46,7 @@ class ServiceSettings(BaseSettings):
     executor: Literal["local", "ray"] = "local"
     ray_address: str | None = Field(None, description="Ray cluster address; default starts a local Ray instance")
     robot: str = Field("hrp5p", description="robot model the workers load once at start")
+    worker_nice: int = Field(10, ge=0, le=19, description="niceness of worker processes, so planning never starves the API")
     preload_robot: bool = Field(True, description="load the robot model in each worker before its first job")
     handlers: dict[str, str] = Field(default_factory=lambda: dict(DEFAULT_HANDLERS))
     check_scenario_names: bool = Field(True, description="refuse unknown built-in scenario names at submit time")

@@ -54,8 +54,14 @@ def _watch_parent(parent_pid: int) -> None:
         time.sleep(PARENT_CHECK_S)
 
 
-def worker_main(conn: Connection, cancel: Event, handlers: dict[str, str], robot: str | None, parent_pid: int) -> None:
+def worker_main(conn: Connection, cancel: Event, handlers: dict[str, str], robot: str | None, parent_pid: int,
+                nice: int = 0) -> None:
     """Entry point of a worker process."""
+    if nice:
+        try:
+            os.nice(nice)  # planning yields the CPU to the API process: submit/poll stay fast under load
+        except OSError:
+            pass
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watch").start()
     from .handlers import canceled_exception_types, resolve
 

@@ -62,7 +62,7 @@ class LocalExecutor:
         slot.cancel = self._ctx.Event()
         robot = self.settings.robot if self.settings.preload_robot else None
         slot.process = self._ctx.Process(
-            target=worker_main, args=(child, slot.cancel, dict(self.settings.handlers), robot, os.getpid()),
+            target=worker_main, args=(child, slot.cancel, dict(self.settings.handlers), robot, os.getpid(), self.settings.worker_nice),
             name=f"regrasp-worker-{slot.index}", daemon=True,
         )
         slot.process.start()

@@ -10,10 +10,12 @@ enough because SQLite has a single writer.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
+import threading
 from datetime import datetime, timedelta, timezone
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import sqlalchemy as sa
 from sqlalchemy.exc import IntegrityError
@@ -35,26 +37,44 @@ class IdempotencyMismatch(Exception):
     """An Idempotency-Key was reused with a different request body."""
 
 
+#: Hot-path statements, built once: SQLAlchemy then reuses their compiled form (the API's latency budget).
+_GET_JOB = sa.select(jobs).where(jobs.c.id == sa.bindparam("job_id"))
+_GET_RESULT = sa.select(job_results.c.result).where(job_results.c.job_id == sa.bindparam("job_id"))
+_QUEUE_DEPTH = sa.select(sa.func.count()).select_from(jobs).where(jobs.c.state == "queued")
+_BY_KEY = sa.select(jobs).where(jobs.c.submitter == sa.bindparam("submitter"),
+                                jobs.c.idempotency_key == sa.bindparam("key"))
+_INSERT_JOB = jobs.insert()
+_INSERT_EVENT = job_events.insert()
+_EVENT_FIELDS = ("job_id", "at", "kind", "state", "progress", "message", "data")
+
+
 class JobStore:
     """All queries of the job store, over one SQLAlchemy engine."""
 
     def __init__(self, engine: sa.Engine) -> None:
         self.engine = engine
         self.is_postgres = engine.dialect.name == "postgresql"
+        # SQLite has one writer; threads of this process queue on a lock instead of on SQLite's busy
+        # handler, which backs off by sleeping up to 100 ms (ruinous for the API's latency under load).
+        self._write_lock: Any = threading.Lock() if engine.dialect.name == "sqlite" else contextlib.nullcontext()
+
+    @contextlib.contextmanager
+    def _begin(self) -> Iterator[sa.Connection]:
+        """A write transaction (serialised within this process on SQLite)."""
+        with self._write_lock, self.engine.begin() as conn:
+            yield conn
 
     # ----------------------------------------------------------------- events
     @staticmethod
     def _event(conn: sa.Connection, job_id: str, kind: str, *, state: str | None = None,
                progress: float | None = None, message: str | None = None,
                data: dict[str, Any] | None = None, at: datetime | None = None) -> None:
-        conn.execute(job_events.insert().values(
-            job_id=job_id, at=at or utcnow(), kind=kind, state=state, progress=progress,
-            message=message, data=data or {},
-        ))
+        conn.execute(_INSERT_EVENT, {"job_id": job_id, "at": at or utcnow(), "kind": kind, "state": state,
+                                     "progress": progress, "message": message, "data": data or {}})
 
     def add_event(self, job_id: str, kind: str, *, message: str | None = None,
                   data: dict[str, Any] | None = None) -> None:
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             self._event(conn, job_id, kind, message=message, data=data)
 
     def events_after(self, job_id: str, after_id: int = 0, limit: int = 500) -> list[dict[str, Any]]:
@@ -75,12 +95,12 @@ class JobStore:
     # ------------------------------------------------------------------ reads
     def get(self, job_id: str) -> dict[str, Any] | None:
         with self.engine.connect() as conn:
-            row = conn.execute(sa.select(jobs).where(jobs.c.id == job_id)).mappings().first()
+            row = conn.execute(_GET_JOB, {"job_id": job_id}).mappings().first()
         return dict(row) if row else None
 
     def result(self, job_id: str) -> dict[str, Any] | None:
         with self.engine.connect() as conn:
-            text = conn.execute(sa.select(job_results.c.result).where(job_results.c.job_id == job_id)).scalar()
+            text = conn.execute(_GET_RESULT, {"job_id": job_id}).scalar()
         return None if text is None else json.loads(text)
 
     def list(self, *, state: str | None = None, kind: str | None = None, submitter: str | None = None,
@@ -108,9 +128,7 @@ class JobStore:
 
     def queue_depth(self) -> int:
         with self.engine.connect() as conn:
-            return int(conn.execute(
-                sa.select(sa.func.count()).select_from(jobs).where(jobs.c.state == "queued")
-            ).scalar_one())
+            return int(conn.execute(_QUEUE_DEPTH).scalar_one())
 
     def ping(self) -> None:
         with self.engine.connect() as conn:
@@ -126,15 +144,16 @@ class JobStore:
             if existing is not None:
                 return self._replay(existing, request_sha256), False
         now = utcnow()
-        values = dict(
+        values = {c.name: None for c in jobs.columns if c.name != "seq"}
+        values.update(
             id=job_id, kind=kind, state="queued", progress=0.0, message="queued", submitter=submitter,
             request=request, request_sha256=request_sha256, idempotency_key=idempotency_key,
             cancel_requested=False, stop_requested=False, attempts=0, created_at=now, updated_at=now,
             **provenance,
         )
         try:
-            with self.engine.begin() as conn:
-                conn.execute(jobs.insert().values(**values))
+            with self._begin() as conn:
+                conn.execute(_INSERT_JOB, values)
                 self._event(conn, job_id, "state", state="queued", progress=0.0, message=f"{kind} job submitted by {submitter}",
                             data={"request": request, "submitter": submitter, "idempotency_key": idempotency_key}, at=now)
         except IntegrityError:
@@ -144,15 +163,11 @@ class JobStore:
             if existing is None:
                 raise
             return self._replay(existing, request_sha256), False
-        row = self.get(job_id)
-        assert row is not None
-        return row, True
+        return {"seq": None, **values}, True
 
     def _by_key(self, submitter: str, key: str) -> dict[str, Any] | None:
         with self.engine.connect() as conn:
-            row = conn.execute(
-                sa.select(jobs).where(jobs.c.submitter == submitter, jobs.c.idempotency_key == key)
-            ).mappings().first()
+            row = conn.execute(_BY_KEY, {"submitter": submitter, "key": key}).mappings().first()
         return dict(row) if row else None
 
     @staticmethod
@@ -180,7 +195,7 @@ class JobStore:
         conds = [jobs.c.id == job_id, jobs.c.state.in_(list(from_states))]
         if expect_owner is not None:
             conds.append(jobs.c.owner == expect_owner)
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             n = conn.execute(jobs.update().where(*conds).values(**values)).rowcount
             if n != 1:
                 return False
@@ -189,7 +204,7 @@ class JobStore:
         return True
 
     def update_fields(self, job_id: str, **fields: Any) -> None:
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             conn.execute(jobs.update().where(jobs.c.id == job_id).values(**fields))
 
     # ------------------------------------------------------------------ claim
@@ -202,7 +217,7 @@ class JobStore:
             sel = sel.with_for_update(skip_locked=True)
         claimed: list[str] = []
         now = utcnow()
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             seqs = conn.execute(sel).scalars().all()
             for seq in seqs:
                 values = dict(state="planning", owner=owner, lease_expires_at=now + timedelta(seconds=lease_s),
@@ -221,7 +236,7 @@ class JobStore:
     def renew(self, owner: str, job_ids: Sequence[str], lease_s: float) -> None:
         if not job_ids:
             return
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             conn.execute(jobs.update().where(jobs.c.id.in_(list(job_ids)), jobs.c.owner == owner)
                          .values(lease_expires_at=utcnow() + timedelta(seconds=lease_s)))
 
@@ -238,7 +253,7 @@ class JobStore:
 
     def report_progress(self, job_id: str, owner: str, fraction: float, message: str) -> bool:
         now = utcnow()
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             n = conn.execute(jobs.update().where(jobs.c.id == job_id, jobs.c.owner == owner, jobs.c.state == "planning")
                              .values(progress=fraction, message=message, updated_at=now)).rowcount
             if n == 1:
@@ -256,7 +271,7 @@ class JobStore:
             values["progress"] = 1.0
         if to_state in TERMINAL_STATES:
             values["finished_at"] = now
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             n = conn.execute(jobs.update().where(jobs.c.id == job_id, jobs.c.owner == owner, jobs.c.state == "planning")
                              .values(**values)).rowcount
             if n != 1:
@@ -284,7 +299,7 @@ class JobStore:
             elif state == "planning":
                 if job["cancel_requested"]:
                     return job
-                with self.engine.begin() as conn:
+                with self._begin() as conn:
                     n = conn.execute(jobs.update().where(jobs.c.id == job_id, jobs.c.state == "planning")
                                      .values(cancel_requested=True, updated_at=utcnow())).rowcount
                     if n == 1:
