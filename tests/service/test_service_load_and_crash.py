@@ -107,7 +107,28 @@ def test_kill_9_of_the_server_mid_job_loses_nothing(tmp_path: Path) -> None:
                 assert listing["total"] == 3  # no duplicate
                 text = c.get(f"/v1/jobs/{ids[0]}/events", params={"follow": "false"}).text
                 assert "re-queued" in text and text.count('"state":"planned"') == 1
+                _check_audit_continuation(c, ids[0], tmp_path)
         finally:
             srv2.stop()
     finally:
         srv.stop()
+
+
+def _check_audit_continuation(c: httpx.Client, job_id: str, data_dir: Path) -> None:
+    """The killed server's audit file reads up to its last record; the job continues in a second file."""
+    try:
+        from service.audit import verify
+    except ImportError:
+        return
+    deadline = time.monotonic() + 5
+    job = c.get(f"/v1/jobs/{job_id}").json()
+    files = sorted((data_dir / "audit").glob(f"{job_id}*.mcap"))
+    while time.monotonic() < deadline and len(files) < 2:
+        time.sleep(0.2)
+        files = sorted((data_dir / "audit").glob(f"{job_id}*.mcap"))
+    assert [f.name for f in files] == [f"{job_id}.1.mcap", f"{job_id}.mcap"]
+    first = verify(data_dir / "audit" / f"{job_id}.mcap")
+    assert first.status == "unfinished" and first.exit_code == 2, first.detail
+    second = verify(data_dir / "audit" / f"{job_id}.1.mcap")
+    assert second.status in ("unfinished", "intact"), second.detail  # still open: the job awaits approval
+    assert job["audit_head"]
