@@ -205,6 +205,7 @@ class ControllerSim:
             self._status(None, None, "rejected", f"malformed segment: {exc.errors()[0]['msg']}", received)
             return
         reply: tuple[str, str] | None = None
+        fatal = True
         crash = False
         with self._lock:
             job = self._job
@@ -214,15 +215,18 @@ class ControllerSim:
                 elif job.state != "executing":
                     reply = ("rejected", f"job {job.job_id} already ended ({job.state})")
                 elif seg.seq != job.last_seq + 1 or seg.segment_index != job.last_index + 1:
+                    # Ahead of a gap: refuse it (never play out of order) but keep the job; the
+                    # bridge re-sends what is missing, and starvation ends the job if it never comes.
                     reply = ("rejected", f"out of order: expected seq {job.last_seq + 1} / segment {job.last_index + 1}, "
                              f"got seq {seg.seq} / segment {seg.segment_index}")
-                    job.state = "rejected"
+                    fatal = False
                 else:
                     reply = self._accept(job, seg)
             elif job is not None and job.state == "executing":
                 reply = ("rejected", f"busy with job {job.job_id}")
             elif seg.segment_index != 0:
                 reply = ("rejected", f"out of order: job {seg.job_id} must start with segment 0, got {seg.segment_index}")
+                fatal = False  # segment 0 may still come (it is sent again)
             else:
                 columns, problem = self._columns(seg)
                 if problem:
@@ -237,7 +241,7 @@ class ControllerSim:
                 if self._first_accept is None:
                     self._first_accept = time.monotonic()
                 crash = self.sim.crash_after is not None and self._accepted >= self.sim.crash_after
-        self._status(seg.job_id, seg.seq, reply[0], reply[1], received)
+        self._status(seg.job_id, seg.seq, reply[0], reply[1], received, fatal=fatal)
         if crash:
             self._exit(CRASH_EXIT_CODE)
 
@@ -348,11 +352,11 @@ class ControllerSim:
         return []
 
     def _status(self, job_id: str | None, seq: int | None, status: str, reason: str, received: float | None,
-                index: int | None = None) -> None:
+                index: int | None = None, fatal: bool = True) -> None:
         if self._session is None:
             return
         self._pub_exec.put(encode(ExecStatus(job_id=job_id, seq=seq, index=index, status=status, reason=reason,
-                                             received_at=received)))
+                                             received_at=received, fatal=fatal)))
 
 
 def run_controller(bridge: BridgeSettings, sim: ControllerSimSettings, joint_names: list[str], q0: np.ndarray,

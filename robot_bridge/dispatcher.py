@@ -42,11 +42,14 @@ class DispatchSettings(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    segment_duration_s: float = Field(MAX_SEGMENT_DURATION_S, gt=0, le=MAX_SEGMENT_DURATION_S,
-                                      description="points per segment = this / dt_s (the contract allows 1 s)")
-    lookahead_segments: int = Field(3, ge=1, le=1000, description="segments sent ahead of the one being played")
+    segment_duration_s: float = Field(0.5, gt=0, le=MAX_SEGMENT_DURATION_S,
+                                      description="time spanned by one segment's points (the contract allows 1 s; "
+                                                  "0.5 s keeps a segment near 40 KB)")
+    lookahead_segments: int = Field(4, ge=1, le=1000, description="segments sent ahead of the one being played")
     poll_period_s: float = Field(0.005, gt=0, le=0.1, description="how often the execution loop looks at its inputs")
     progress_timeout_s: float = Field(3.0, gt=0, description="no progress report for this long = fault")
+    resend_after_s: float = Field(0.1, gt=0, description="re-send a segment the controller has not acknowledged by then")
+    max_resends: int = Field(5, ge=0, le=100, description="re-sends per segment (the controller drops duplicates)")
     ack_timeout_s: float = Field(1.0, gt=0, description="wait for the controller to acknowledge a stop")
     robot_state_event_period_s: float = Field(0.1, gt=0, description="rate of 'robot_state' events (for the audit)")
     state_max_age_s: float = Field(0.5, gt=0, description="a measured state older than this is not used by the gate")
@@ -174,6 +177,11 @@ class Dispatcher:
             return f"controller heartbeat lost: none for {age * 1000:.0f} ms (watchdog {self.settings.watchdog_timeout_s * 1000:.0f} ms)"
         return None
 
+    def last_heartbeat_at(self) -> float | None:
+        """``time.monotonic()`` of the last heartbeat received, or None."""
+        with self._lock:
+            return self._last_heartbeat
+
     def controller_alive(self) -> bool:
         return self.controller_problem() is None
 
@@ -287,6 +295,7 @@ class Dispatcher:
     def _send_segment(self, run: "_Run", emit: EventCallback) -> None:
         seg = run.segments[run.sent]
         self._publish_segment(seg)
+        run.pending[seg.seq] = (time.monotonic(), 0)
         run.sent += 1
         emit("segment", {"job_id": run.job_id, "seq": seg.seq, "segment_index": seg.segment_index,
                          "segment_count": seg.segment_count, "first_index": seg.first_index, "points": len(seg.points),
@@ -342,6 +351,8 @@ class Dispatcher:
             if st is not None and st.job_id == run.job_id:
                 if st.index is not None:
                     run.index = st.index
+                if st.status in ("accepted", "ignored") and st.seq is not None:
+                    run.pending.pop(st.seq, None)
                 if st.status in ("accepted", "executing", "ignored"):
                     last_progress = now
                     if not executing_announced and st.status in ("accepted", "executing"):
@@ -358,12 +369,21 @@ class Dispatcher:
                                              now - started)
                     emit("finished", result.to_dict())
                     return result
+                elif st.status == "rejected" and not st.fatal:
+                    emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason,
+                                        "fatal": False})
                 elif st.status in ("rejected", "starved", "fault", "stopped"):
                     emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason})
                     return self._abort(run, emit, f"controller {st.status}: {st.reason}", verdict, started)
             elif st is not None and st.status == "rejected" and st.job_id is None:
                 emit("controller", {"job_id": run.job_id, "status": st.status, "reason": st.reason})
                 return self._abort(run, emit, f"controller rejected a command: {st.reason}", verdict, started)
+            # a segment lost on the way is sent again (same seq: a duplicate is dropped by the controller)
+            for seq, (sent_at, count) in list(run.pending.items()):
+                if now - sent_at > d.resend_after_s and count < d.max_resends:
+                    self._publish_segment(run.segments[seq - run.segments[0].seq])
+                    run.pending[seq] = (now, count + 1)
+                    emit("segment", {"job_id": run.job_id, "seq": seq, "resent": count + 1})
             # keep the controller fed: stay `lookahead` segments ahead of the one being played
             playing = (run.index or 0) // per
             while run.sent < len(run.segments) and run.sent <= playing + ahead:
@@ -402,3 +422,4 @@ class _Run:
     n_points: int
     sent: int = 0
     index: int | None = None
+    pending: dict[int, tuple[float, int]] = field(default_factory=dict)  # seq -> (last sent, re-sends)

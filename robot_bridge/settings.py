@@ -30,6 +30,11 @@ class BridgeSettings(BaseSettings):
         0.25, gt=0, le=5.0,
         description="no heartbeat for this long = controller lost (0.25 s leaves room to abort and stop within 300 ms)",
     )
+    tx_queue_batches: int = Field(
+        16, ge=1, le=64,
+        description="zenoh real-time transmit queue, in batches of 64 KB: room for a burst of segments, so drop-on-congestion "
+                    "drops only under real congestion",
+    )
     stop_repeats: int = Field(3, ge=1, le=20, description="a stop is re-sent this many times until acknowledged")
     stop_repeat_period_s: float = Field(0.02, gt=0, le=1.0)
 

@@ -66,9 +66,10 @@ class TrajectorySegment(StrictModel):
         for i, p in enumerate(self.points):
             if len(p) != n:
                 raise ValueError(f"points[{i}] has {len(p)} values for {n} joint_names")
-            for j, v in enumerate(p):
-                if not math.isfinite(v):
-                    raise ValueError(f"points[{i}][{j}] ({self.joint_names[j]}) is {v!r}; values must be finite")
+        flat = [v for p in self.points for v in p]
+        if not all(map(math.isfinite, flat)):
+            k = next(k for k, v in enumerate(flat) if not math.isfinite(v))
+            raise ValueError(f"points[{k // n}][{k % n}] ({self.joint_names[k % n]}) is {flat[k]!r}; values must be finite")
         if not math.isfinite(self.t_from_start) or not math.isfinite(self.dt_s):
             raise ValueError("t_from_start and dt_s must be finite")
         if (len(self.points) - 1) * self.dt_s > MAX_SEGMENT_DURATION_S + 1e-9:
@@ -111,6 +112,8 @@ class ExecStatus(OpenModel):
     status: ExecStatusValue
     reason: str = ""
     received_at: float | None = Field(None, description="controller's monotonic clock when the command arrived (s)")
+    fatal: bool = Field(True, description="for 'rejected': False when the job goes on (a segment ahead of a gap, "
+                                          "not buffered; the bridge sends the missing one again)")
 
 
 class Heartbeat(OpenModel):

@@ -146,10 +146,10 @@ def bridge(spawn_controller, spy_factory):
 
     made = []
 
-    def make(*flags: str, speed: float = 4.0, dispatch: DispatchSettings | None = None):
+    def make(*flags: str, speed: float = 4.0, dispatch: DispatchSettings | None = None, dispatcher_cls=Dispatcher):
         ctl = spawn_controller(*flags, speed=speed)
         spy = spy_factory(ctl.robot_id)
-        disp = Dispatcher(BridgeSettings(robot_id=ctl.robot_id, connect=[ctl.endpoint, spy.endpoint]), dispatch)
+        disp = dispatcher_cls(BridgeSettings(robot_id=ctl.robot_id, connect=[ctl.endpoint, spy.endpoint]), dispatch)
         made.append(disp)
         assert disp.wait_for_controller(10.0), disp.controller_problem()
         deadline = time.monotonic() + 5.0

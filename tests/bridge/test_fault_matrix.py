@@ -1,0 +1,284 @@
+"""The fault matrix against the real simulated controller process on loopback.
+
+Each case ends in the right terminal status with its reason; after a veto a spy
+peer on ``cmd/trajectory`` (connected to the dispatcher, which the test checks)
+proves that nothing was sent.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from robot_bridge.dispatcher import ControllerUnavailableError, Dispatcher, DispatchSettings
+
+from .conftest import approval_for
+from .plans import build_plan, edited, true_min_margin
+
+#: Behavioural deadline of the contract, and the fair margin the tests allow on a loaded 2-core machine.
+LOSS_DEADLINE_S = 0.3
+MARGIN_S = 0.2
+
+
+class Recorder:
+    def __init__(self):
+        self.events: list[tuple[float, str, dict]] = []
+        self.lock = threading.Lock()
+
+    def __call__(self, kind: str, data: dict) -> None:
+        with self.lock:
+            self.events.append((time.monotonic(), kind, data))
+
+    def kinds(self) -> list[str]:
+        return [k for _, k, _ in self.events]
+
+    def first(self, kind: str):
+        return next((e for e in self.events if e[1] == kind), None)
+
+
+def run(disp, plan, job_id="job-1", approved_plan=None, expires_in=300.0, on_event=None, stop_event=None, threshold_m=None):
+    sha, exp = approval_for(approved_plan if approved_plan is not None else plan, expires_in)
+    rec = on_event or Recorder()
+    res = disp.execute(plan, job_id=job_id, approved_sha256=sha, approval_expires_at=exp, on_event=rec,
+                       stop_event=stop_event, threshold_m=threshold_m)
+    return res, rec
+
+
+def assert_nothing_sent(disp, spy, rec):
+    assert disp.zid() in spy.peers()
+    time.sleep(0.1)  # anything in flight would have arrived
+    assert spy.trajectory == []
+    assert "segment" not in rec.kinds() and "dispatching" not in rec.kinds()
+
+
+# --------------------------------------------------------------------------- success
+
+
+def test_valid_plan_is_executed(bridge, arm_plan):
+    ctl, disp, spy = bridge(speed=4.0)
+    res, rec = run(disp, arm_plan)
+    assert res.status == "succeeded", res.reason
+    assert res.last_index == len(arm_plan["trajectory"]) - 1
+    kinds = rec.kinds()
+    assert kinds[0] == "gate" and kinds[1] == "dispatching" and "executing" in kinds and kinds[-1] == "finished"
+    assert "robot_state" in kinds
+    time.sleep(0.05)
+    segs = sorted(spy.trajectory, key=lambda s: s["seq"])
+    assert [s["segment_index"] for s in segs] == list(range(segs[0]["segment_count"]))
+    assert all(s["job_id"] == "job-1" and s["plan_sha256"] == res.verdict.plan_sha256 for s in segs)
+    assert all((len(s["points"]) - 1) * s["dt_s"] <= 1.0 + 1e-9 for s in segs)
+    assert np.allclose(np.vstack([s["points"] for s in segs]), [p["q"] for p in arm_plan["trajectory"]], atol=0)
+    # the robot ends at the plan's last posture
+    js = disp.measured_state()
+    assert np.allclose(js.q, arm_plan["trajectory"][-1]["q"], atol=1e-12)
+
+
+def test_duplicated_segments_are_ignored_and_the_job_succeeds(bridge, long_plan):
+    class Duplicating(Dispatcher):
+        def _publish_segment(self, seg):
+            super()._publish_segment(seg)
+            super()._publish_segment(seg)
+
+    ctl, disp, spy = bridge(speed=6.0, dispatcher_cls=Duplicating)
+    res, rec = run(disp, long_plan)
+    assert res.status == "succeeded", res.reason
+    ignored = [d for _, k, d in rec.events if k == "controller" and d["status"] == "ignored"]
+    assert ignored and "stale or duplicated" in ignored[0]["reason"]
+
+
+def test_reordered_segments_are_refused_and_recovered(bridge, long_plan):
+    class Reordering(Dispatcher):
+        """A faulty link: segment 2 overtakes segment 1 (once)."""
+
+        held = None
+        done = False
+
+        def _publish_segment(self, seg):
+            if seg.segment_index == 1 and not self.done:
+                self.held, self.done = seg, True
+                return
+            super()._publish_segment(seg)
+            if self.held is not None and seg.segment_index == 2:
+                super()._publish_segment(self.held)
+                self.held = None
+
+    ctl, disp, spy = bridge(speed=2.0, dispatcher_cls=Reordering)
+    res, rec = run(disp, long_plan)
+    # the controller never plays out of order: it refuses segment 2, takes 1, then 2 again
+    refused = [d for _, k, d in rec.events if k == "controller" and d["status"] == "rejected"]
+    assert refused and "out of order" in refused[0]["reason"] and refused[0]["fatal"] is False
+    assert res.status == "succeeded", res.reason
+    js = disp.measured_state()
+    assert np.allclose(js.q, long_plan["trajectory"][-1]["q"], atol=1e-12)
+
+
+def test_lost_segments_are_sent_again(bridge, long_plan):
+    ctl, disp, spy = bridge("--drop-rate", "0.25", "--seed", "3", speed=2.0)
+    res, rec = run(disp, long_plan)
+    assert res.status == "succeeded", res.reason
+    assert any(k == "segment" and "resent" in d for _, k, d in rec.events)
+
+
+# --------------------------------------------------------------------------- vetoes: nothing is sent
+
+
+def test_nan_waypoint_is_vetoed_and_nothing_sent(bridge, arm_plan):
+    ctl, disp, spy = bridge()
+    bad = edited(arm_plan, lambda p: p["trajectory"][120]["q"].__setitem__(7, float("nan")))
+    res, rec = run(disp, bad, approved_plan=arm_plan)
+    assert res.status == "rejected" and res.verdict.check == "finite"
+    assert res.verdict.point_index == 120 and "nan" in res.reason
+    assert_nothing_sent(disp, spy, rec)
+
+
+def test_plan_edited_after_approval_is_vetoed(bridge, arm_plan):
+    ctl, disp, spy = bridge()
+    changed = edited(arm_plan, lambda p: p.__setitem__("threshold_m", 0.0))
+    res, rec = run(disp, changed, approved_plan=arm_plan)
+    assert res.status == "rejected" and res.verdict.check == "plan_hash" and "changed after approval" in res.reason
+    assert_nothing_sent(disp, spy, rec)
+
+
+def test_expired_approval_is_vetoed(bridge, arm_plan):
+    ctl, disp, spy = bridge()
+    res, rec = run(disp, arm_plan, expires_in=-1.0)
+    assert res.status == "rejected" and res.verdict.check == "approval" and "expired" in res.reason
+    assert_nothing_sent(disp, spy, rec)
+
+
+def test_start_state_mismatch_is_vetoed(bridge):
+    ctl, disp, spy = bridge()
+    # a valid motion, but it starts 0.05 rad away from where the robot stands
+    plan = build_plan({"RSP": -0.3}, duration_s=1.0)
+    j = plan["robot"]["joint_names"].index("RSP")
+    shifted = edited(plan, lambda p: [pt["q"].__setitem__(j, pt["q"][j] - 0.05) for pt in p["trajectory"]])
+    res, rec = run(disp, shifted)
+    assert res.status == "rejected" and res.verdict.check == "start_state" and "RSP" in res.reason
+    assert res.verdict.sample_index == 0
+    assert_nothing_sent(disp, spy, rec)
+
+
+def test_unstable_waypoints_injected_into_a_valid_plan_are_vetoed(bridge):
+    ctl, disp, spy = bridge()
+    plan = build_plan({"RSP": -0.3}, duration_s=2.4, threshold_m=0.06)
+    assert true_min_margin(plan) > 0.06
+    # Inject a forward waist bend (within the joint limits and rates) and keep the plan's
+    # own com/margin_m/zmp fields: the gate must not believe them.
+    wp = plan["robot"]["joint_names"].index("WP")
+    n = len(plan["trajectory"])
+    bump = 0.5 * (1 - np.cos(2 * np.pi * np.arange(n) / (n - 1)))  # rest to rest, peak mid-plan
+    lean = edited(plan, lambda p: [pt["q"].__setitem__(wp, pt["q"][wp] + 0.5 * b) for pt, b in zip(p["trajectory"], bump)])
+    assert true_min_margin(lean) < 0.06 - 1e-4
+    assert all(pt["margin_m"] > 0.06 for pt in lean["trajectory"])  # the plan's numbers still say "fine"
+    res, rec = run(disp, lean)
+    assert res.status == "rejected" and res.verdict.check == "com_margin"
+    assert 0 < res.verdict.point_index < n - 1
+    assert_nothing_sent(disp, spy, rec)
+
+
+def test_no_controller_means_no_dispatch(bridge, arm_plan):
+    ctl, disp, spy = bridge()
+    ctl.kill()
+    deadline = time.monotonic() + 2.0
+    while disp.controller_alive() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not disp.controller_alive()
+    sha, exp = approval_for(arm_plan)
+    rec = Recorder()
+    with pytest.raises(ControllerUnavailableError, match="controller"):
+        disp.execute(arm_plan, job_id="j", approved_sha256=sha, approval_expires_at=exp, on_event=rec)
+    assert rec.events == []
+    assert_nothing_sent(disp, spy, rec)
+
+
+# --------------------------------------------------------------------------- faults during execution
+
+
+def _when_executing(rec: Recorder, min_index: int, action) -> Recorder:
+    """An event callback that runs ``action`` once, when execution passes ``min_index``."""
+    fired = threading.Event()
+
+    def on_event(kind, data):
+        rec(kind, data)
+        if kind == "executing" and (data.get("index") or 0) >= min_index and not fired.is_set():
+            fired.set()
+            rec("test_action", {"at": time.monotonic()})
+            threading.Thread(target=action, daemon=True).start()
+
+    return on_event
+
+
+def test_controller_killed_mid_execution(bridge, long_plan):
+    ctl, disp, spy = bridge(speed=2.0)
+    rec = Recorder()
+    killed = {}
+
+    def kill():
+        killed["at"] = time.monotonic()
+        ctl.proc.kill()
+
+    res, _ = run(disp, long_plan, on_event=_when_executing(rec, 150, kill))
+    assert res.status == "aborted" and "controller lost" in res.reason
+    assert 150 <= res.last_index < len(long_plan["trajectory"]) - 1
+    stop_at = rec.first("stop_sent")[0]
+    assert stop_at - killed["at"] <= LOSS_DEADLINE_S + MARGIN_S
+    assert rec.kinds()[-1] == "finished"
+
+
+def test_heartbeat_stall_aborts_within_the_watchdog(bridge, long_plan):
+    ctl, disp, spy = bridge("--freeze-heartbeat-after-s", "0.3", speed=2.0)
+    res, rec = run(disp, long_plan)
+    assert res.status == "aborted" and "heartbeat" in res.reason
+    assert ctl.proc.poll() is None  # the controller process is still alive, only its heartbeat froze
+    stop_at = rec.first("stop_sent")[0]
+    assert stop_at - disp.last_heartbeat_at() <= LOSS_DEADLINE_S + MARGIN_S
+    # the controller is still reachable, so it received and honoured the stop: it no longer moves
+    time.sleep(0.1)
+    q1 = np.array(disp.measured_state().q)
+    time.sleep(0.1)
+    assert np.array_equal(q1, disp.measured_state().q)
+    assert any(s["job_id"] == "job-1" for s in spy.stops)
+
+
+def test_crash_after_n_segments(bridge, long_plan):
+    ctl, disp, spy = bridge("--crash-after", "2", speed=2.0, dispatch=DispatchSettings(lookahead_segments=1))
+    res, rec = run(disp, long_plan)
+    assert res.status == "aborted" and "controller lost" in res.reason
+    assert ctl.proc.wait(timeout=5) == 3
+
+
+def test_stop_during_execution(bridge, long_plan):
+    ctl, disp, spy = bridge(speed=1.0)
+    rec = Recorder()
+    res, _ = run(disp, long_plan, on_event=_when_executing(rec, 60, lambda: disp.stop("job-1")))
+    assert res.status == "aborted" and res.reason == "stopped by operator"
+    assert res.details["stop_acknowledged"] is True
+    assert res.last_index < len(long_plan["trajectory"]) - 100
+    assert any(s["job_id"] == "job-1" for s in spy.stops)
+    time.sleep(0.05)
+    q1 = np.array(disp.measured_state().q)
+    time.sleep(0.1)
+    assert np.array_equal(q1, disp.measured_state().q)  # holding its posture
+
+
+def test_stop_event_from_the_service(bridge, long_plan):
+    ctl, disp, spy = bridge(speed=1.0)
+    stop = threading.Event()
+    rec = Recorder()
+    res, _ = run(disp, long_plan, on_event=_when_executing(rec, 40, stop.set), stop_event=stop)
+    assert res.status == "aborted" and res.reason == "stopped by operator"
+
+
+def test_all_commands_dropped_ends_without_progress(bridge, arm_plan):
+    ctl, disp, spy = bridge("--drop-rate", "1.0", dispatch=DispatchSettings(progress_timeout_s=0.5))
+    res, rec = run(disp, arm_plan)
+    assert res.status == "aborted" and "no progress" in res.reason
+
+
+def test_delayed_commands_still_execute(bridge, arm_plan):
+    ctl, disp, spy = bridge("--delay-ms", "30", speed=4.0)
+    res, rec = run(disp, arm_plan)
+    assert res.status == "succeeded", res.reason
