@@ -194,3 +194,28 @@ def test_exploration_cancel(robot, upright, evaluator, hold_right, right_active)
     ex = explore([ExploreLeg(start, goal, hold_right, right_active)], evaluator, None, 10**6, np.random.default_rng(0),
                  should_stop=should_stop)
     assert ex.status == "canceled" and ex.stats["evaluated"] < 10**6
+
+
+from hypothesis import given, settings as hsettings, strategies as st  # noqa: E402
+
+
+@hsettings(max_examples=8, deadline=None)
+@given(seed=st.integers(0, 10_000), spread=st.floats(0.1, 1.0))
+def test_plan_is_valid_or_a_named_failure(robot, upright, evaluator, hold_right, right_active, independent, seed, spread):
+    rng = np.random.default_rng(seed)
+    start = upright.q.copy()
+    goal = start.copy()
+    goal[right_active] = np.clip(start[right_active] + rng.uniform(-spread, spread, len(right_active)),
+                                 robot.lower[right_active], robot.upper[right_active])
+
+    def validity(Q):
+        b = evaluator.evaluate(Q, hold_right, active=right_active)
+        return b.stable, b.margin
+
+    res = plan_motion(start, goal, right_active, validity, robot.lower, robot.upper, rng, TrrtSettings(max_iterations=60))
+    assert res.status in ("solved", "iteration_cap", "invalid_goal")
+    if res.ok:
+        for q in _dense(res.path)[:: 7]:
+            assert independent.margin(q, hold_right) >= 0.03 - 1e-12
+    else:
+        assert res.reason and res.path is None
