@@ -1,12 +1,15 @@
 """``regrasp demo``: the main job end to end on the embedded defaults.
 
-It grows with each capability. Today it loads the robot, solves the four
-built-in stances, prints for each the CoM, the support polygon and the margin,
-and writes one picture per stance.
+1. Loads the robot, solves the four built-in stances, prints for each the CoM,
+   the support polygon and the margin, and writes one picture per stance.
+2. Runs the paper's scenario through the real service on loopback: the stability
+   survey, the plan with the recommended hands, the two-person approval, the
+   safety gate, the dispatch to the simulated controller, and the audit file.
 """
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import click
@@ -43,7 +46,12 @@ def stance_step(out: Path, robot_name: str) -> list[dict]:
               help="Directory for the demo's artefacts.")
 @click.option("--robot", "robot_name", default="hrp5p", show_default=True)
 @click.option("--stances-only", is_flag=True, help="Only the first step: solve and draw the stances.")
-def demo(out_dir: str, robot_name: str, stances_only: bool) -> None:
+@click.option("--scenario", default="upright", show_default=True, help="The scenario the demo plans and executes.")
+@click.option("--survey-states", default=400, show_default=True, type=click.IntRange(1, 1_000_000),
+              help="States per hand configuration in the demo's survey.")
+@click.option("--speed", default=10.0, show_default=True, type=click.FloatRange(min=0.1),
+              help="The simulated controller plays K times faster than real time.")
+def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, survey_states: int, speed: float) -> None:
     """Run the main job end to end on the embedded defaults and show its result."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -63,4 +71,34 @@ def demo(out_dir: str, robot_name: str, stances_only: bool) -> None:
             console.print(f"  picture: {r['picture']}")
     if any("error" in r for r in rows):
         fail("some stances could not be solved", code=1)
+    if stances_only:
+        console.print(f"[green]done[/]: artefacts in {out.resolve()}")
+        return
+    from service.demo import DemoSettings, run_demo
+
+    settings = DemoSettings(scenario=scenario, survey_states=survey_states, controller_speed=speed)
+    console.print("[bold]2. The paper's scenario through the service, the gate and the simulated robot[/]")
+    t0 = time.perf_counter()
+    try:
+        res = run_demo(out, settings, say=lambda m: console.print(f"  [dim]{time.perf_counter() - t0:6.1f} s[/] {m}"))
+    except (RuntimeError, TimeoutError) as exc:
+        fail(f"the demo failed: {exc} (logs: {out.resolve()}/service.log, controller-sim.log)", code=1)
+    s = res.summary
+    table = Table("", "")
+    table.add_row("scenario", scenario)
+    table.add_row("R per configuration", ", ".join(f"{h} {r:.3f}" if r is not None else f"{h} n/a" for h, r in s["survey"].items()))
+    table.add_row("recommended hands", str(s["recommended"]))
+    table.add_row("min margin / threshold", f"{s['min_margin_m'] * 1000:.1f} mm / {s['threshold_m'] * 1000:.0f} mm")
+    table.add_row("planning time", f"{s['planning_time_s']:.1f} s")
+    table.add_row("motion duration", f"{s['duration_s']:.1f} s (played {speed:g}x faster by the simulated controller)")
+    table.add_row("execution", s["execution"])
+    table.add_row("audit", s["audit"])
+    table.add_row("demo time", f"{time.perf_counter() - t0:.1f} s")
+    console.print(table)
+    for name, path in res.artefacts.items():
+        console.print(f"  {name}: {path}")
+    console.print("Open the MCAP file in Foxglove (File > Open) to replay the plan and the executed motion.")
+    console.print("Operator console: run [bold]regrasp serve --dev[/] and open http://127.0.0.1:8000/ with a printed token.")
+    if not res.ok:
+        fail(f"execution ended {s['execution']}", code=1)
     console.print(f"[green]done[/]: artefacts in {out.resolve()}")

@@ -1,0 +1,214 @@
+"""The end-to-end demo: the paper's scenario through the real service, gate and simulated robot.
+
+Every component runs for real on loopback: a simulated controller peer (zenoh), the HTTP
+service with its worker processes and SQLite job store, the safety gate and the MCAP audit.
+Three demo users play their roles: alice plans, bob approves (the two-person rule: alice
+cannot approve her own plan), carol operates the robot.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from pydantic import BaseModel, Field
+
+
+class DemoSettings(BaseModel):
+    """What the demo runs and how long it waits (SI units)."""
+
+    scenario: str = "upright"
+    survey_states: int = Field(400, ge=1, description="states per hand configuration in the demo's survey")
+    controller_speed: float = Field(10.0, gt=0, description="the simulated controller plays K times faster than real time")
+    workers: int = Field(2, ge=1)
+    start_timeout_s: float = Field(60.0, gt=0)
+    job_timeout_s: float = Field(300.0, gt=0)
+
+
+@dataclass
+class DemoResult:
+    ok: bool
+    steps: list[tuple[str, str]] = field(default_factory=list)
+    summary: dict[str, Any] = field(default_factory=dict)
+    artefacts: dict[str, str] = field(default_factory=dict)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_for(predicate: Callable[[], bool], timeout: float, what: str, proc: subprocess.Popen | None = None) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc is not None and proc.poll() is not None:
+            raise RuntimeError(f"{what}: the process exited with code {proc.returncode}")
+        try:
+            if predicate():
+                return
+        except Exception:  # noqa: BLE001 - not up yet
+            pass
+        time.sleep(0.1)
+    raise TimeoutError(f"{what} did not come up within {timeout:.0f} s")
+
+
+def _start(cmd: list[str], env: dict[str, str], log: Path) -> subprocess.Popen:
+    handle = open(log, "w")
+    return subprocess.Popen(cmd, env=env, stdout=handle, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        try:
+            os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait(timeout=10)
+        except (ProcessLookupError, subprocess.TimeoutExpired):
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> DemoResult:
+    from service.client import ServiceClient, ServiceError
+
+    out.mkdir(parents=True, exist_ok=True)
+    data_dir = out / "service-data"
+    if data_dir.exists():
+        shutil.rmtree(data_dir)
+    result = DemoResult(ok=False)
+    tokens = {f"demo-alice-{secrets.token_hex(8)}": {"user": "alice", "roles": ["planner"]},
+              f"demo-bob-{secrets.token_hex(8)}": {"user": "bob", "roles": ["approver"]},
+              f"demo-carol-{secrets.token_hex(8)}": {"user": "carol", "roles": ["operator"]}}
+    tok = {v["user"]: k for k, v in tokens.items()}
+    http_port, zenoh_port = free_port(), free_port()
+    endpoint = f"tcp/127.0.0.1:{zenoh_port}"
+    env = dict(os.environ, REGRASP_TOKENS=json.dumps(tokens), REGRASP_BRIDGE_CONNECT=json.dumps([endpoint]),
+               PYTHONUNBUFFERED="1")
+    exe = [sys.executable, "-m", "service.cli.main"]
+    with ExitStack() as stack:
+        say(f"starting the simulated controller (zenoh {endpoint}, {settings.controller_speed:g}x real time)")
+        sim = _start([*exe, "controller-sim", "--stance", _stance_of(settings.scenario), "--speed", str(settings.controller_speed),
+                      "--listen", endpoint], env, out / "controller-sim.log")
+        stack.callback(_stop, sim)
+        say(f"starting the service on http://127.0.0.1:{http_port} ({settings.workers} workers, SQLite in {data_dir})")
+        srv = _start([*exe, "serve", "--host", "127.0.0.1", "--port", str(http_port), "--data-dir", str(data_dir),
+                      "--workers", str(settings.workers)], env, out / "service.log")
+        stack.callback(_stop, srv)
+        base = f"http://127.0.0.1:{http_port}"
+        alice = stack.enter_context(ServiceClient(base, tok["alice"]))
+        bob = stack.enter_context(ServiceClient(base, tok["bob"]))
+        carol = stack.enter_context(ServiceClient(base, tok["carol"]))
+        _wait_for(lambda: alice.health() is not None, settings.start_timeout_s, "the service", srv)
+        result.steps.append(("service", "up"))
+
+        say(f"alice submits the stability survey of scenario {settings.scenario!r} ({settings.survey_states} states per configuration)")
+        job = alice.submit("survey", {"scenario": settings.scenario, "states_per_configuration": settings.survey_states})
+        survey_job = alice.wait(job["id"], timeout=settings.job_timeout_s)
+        if survey_job["state"] != "succeeded":
+            raise RuntimeError(f"survey job ended {survey_job['state']}: {survey_job.get('error')}")
+        survey = survey_job["result"]
+        (out / "survey.json").write_text(json.dumps(survey, indent=1))
+        result.artefacts["survey"] = str(out / "survey.json")
+        hands = survey["recommended"]
+        result.summary["survey"] = {r["hands"]: r["ratio"] for r in survey["rows"]}
+        result.summary["recommended"] = hands
+        result.steps.append(("survey", f"recommended {hands}"))
+
+        say(f"alice submits the plan with the recommended hands {hands}")
+        job = alice.submit("plan", {"scenario": settings.scenario, "hands": hands})
+        plan_job = alice.wait(job["id"], states=("planned", "failed", "canceled"), timeout=settings.job_timeout_s)
+        if plan_job["state"] != "planned":
+            raise RuntimeError(f"plan job ended {plan_job['state']}: {plan_job.get('error')}")
+        plan = plan_job["result"]
+        (out / "plan.json").write_text(json.dumps(plan))
+        result.artefacts["plan"] = str(out / "plan.json")
+        result.summary.update(min_margin_m=plan["min_margin_m"], threshold_m=plan["threshold_m"],
+                              planning_time_s=plan["stats"].get("time_s"), duration_s=plan["trajectory"][-1]["t"])
+        result.steps.append(("plan", f"{plan['hands']}, min margin {plan['min_margin_m'] * 1000:.1f} mm"))
+
+        say("alice tries to approve her own plan (the two-person rule must refuse)")
+        try:
+            alice.approve(plan_job["id"])
+            raise RuntimeError("the submitter was allowed to approve her own plan")
+        except ServiceError as exc:
+            result.steps.append(("two-person rule", f"alice refused ({exc.status})"))
+        say("bob approves the plan (bound to its SHA-256)")
+        from schemas.plan import plan_sha256
+
+        bob.approve(plan_job["id"], plan_sha256=plan_sha256(plan))
+        result.steps.append(("approval", "bob approved"))
+
+        say("carol dispatches: the safety gate rechecks every 5 ms sample, then the segments stream to the controller")
+        _wait_for(lambda: carol.health().get("controller_alive", True), settings.start_timeout_s, "the simulated controller", sim)
+        carol.dispatch(plan_job["id"])
+        done = carol.wait(plan_job["id"], timeout=settings.job_timeout_s)
+        result.summary["execution"] = done["state"]
+        result.steps.append(("execution", done["state"]))
+        audit_path = out / f"job-{plan_job['id']}.mcap"
+        verdict = _download_sealed_audit(carol, plan_job["id"], audit_path, settings.job_timeout_s)
+        result.artefacts["audit"] = str(audit_path)
+        result.summary["audit"] = f"{verdict.status}, {verdict.records} chained records"
+        result.summary["audit_exit_code"] = verdict.exit_code
+        result.ok = done["state"] == "succeeded"
+    _plots(out, plan, survey, result)
+    return result
+
+
+def _download_sealed_audit(client, job_id: str, path: Path, timeout: float):
+    """Download the job's audit file once its writer has sealed it (it trails the job by a moment)."""
+    import httpx
+
+    from service.audit.verify import verify
+
+    deadline = time.monotonic() + timeout
+    verdict = None
+    while time.monotonic() < deadline:
+        try:
+            client.download_audit(job_id, path)
+            verdict = verify(path)
+            if verdict.finished:
+                return verdict
+        except (httpx.HTTPError, OSError, ValueError):
+            pass
+        time.sleep(0.5)
+    if verdict is None:
+        raise TimeoutError(f"the audit file of job {job_id} could not be downloaded within {timeout:.0f} s")
+    return verdict
+
+
+def _stance_of(scenario: str) -> str:
+    from planner.scenarios import load_scenario
+
+    st = load_scenario(scenario).stance
+    return st if isinstance(st, str) else st.name
+
+
+def _plots(out: Path, plan: dict, survey: dict, result: DemoResult) -> None:
+    import numpy as np
+
+    from service.plots import plot_com_trace, plot_margin_over_time, plot_survey_bars
+
+    poly = np.array(plan["support_polygon"])
+    xy = np.array([p["com"][:2] for p in plan["trajectory"]])
+    result.artefacts["com_trace"] = str(plot_com_trace(out / "plan-com-trace.png", title=f"{plan['scenario']['name']} ({plan['hands']})",
+                                                       polygon=poly, threshold_m=plan["threshold_m"],
+                                                       traces=[(f"{plan['threshold_m'] * 1000:.0f} mm", xy, "tab:blue")]))
+    t = np.array([p["t"] for p in plan["trajectory"]])
+    m = np.array([p["margin_m"] for p in plan["trajectory"]])
+    result.artefacts["margin"] = str(plot_margin_over_time(out / "plan-margin.png", title="CoM margin over time",
+                                                           threshold_m=plan["threshold_m"], traces=[("margin", t, m, "tab:blue")]))
+    result.artefacts["survey_chart"] = str(plot_survey_bars(out / "survey-bars.png", title="stability ratio R per hand configuration",
+                                                            rows=survey["rows"]))
