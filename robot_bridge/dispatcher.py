@@ -203,16 +203,18 @@ class Dispatcher:
         return js
 
     # ------------------------------------------------------------------ commands
-    def stop(self, job_id: str | None = None, reason: str = "stop requested by operator") -> None:
-        """Publish ``cmd/stop`` now (repeated a few times); a running execution of that job ends aborted."""
+    def stop(self, job_id: str | None = None, reason: str = "stop requested by operator") -> float:
+        """Publish ``cmd/stop`` now (repeated a few times); a running execution of that job ends aborted.
+
+        Returns the ``time.monotonic()`` at which the first stop was published."""
         with self._lock:
             self._stop_requests.add(job_id)
-        self._send_stop(job_id, reason)
+        return self._send_stop(job_id, reason)
 
-    def _send_stop(self, job_id: str | None, reason: str, repeats: int | None = None) -> None:
+    def _send_stop(self, job_id: str | None, reason: str, repeats: int | None = None) -> float:
         n = repeats if repeats is not None else self.settings.stop_repeats
-        payload = encode(Stop(job_id=job_id, reason=reason, stamp=time.monotonic()))
-        self._pub_stop.put(payload)
+        sent_at = time.monotonic()
+        self._pub_stop.put(encode(Stop(job_id=job_id, reason=reason, stamp=sent_at)))
         if n > 1:
             def again() -> None:
                 for _ in range(n - 1):
@@ -222,6 +224,7 @@ class Dispatcher:
                     except Exception:
                         return
             threading.Thread(target=again, name="stop-repeat", daemon=True).start()
+        return sent_at
 
     def _next_seq(self, count: int) -> int:
         with self._lock:
@@ -230,10 +233,13 @@ class Dispatcher:
         return first
 
     # ------------------------------------------------------------------ execution
-    def execute(self, plan: dict[str, Any], *, job_id: str, approved_sha256: str, approval_expires_at: datetime,
+    def execute(self, plan: dict[str, Any] | bytes, *, job_id: str, approved_sha256: str, approval_expires_at: datetime,
                 threshold_m: float | None = None, on_event: EventCallback | None = None,
                 stop_event: threading.Event | None = None) -> ExecutionResult:
         """Gate the plan, send it, follow it to the end.
+
+        ``plan`` is the plan dict, or its canonical JSON bytes (``schemas.plan.canonical_json``):
+        the bytes are hashed as they are, which saves about a second on a 60 s plan.
 
         Raises :class:`ControllerUnavailableError` before anything happens when no
         controller is alive or its state is unknown (the job stays approved), and
@@ -259,11 +265,13 @@ class Dispatcher:
         with self._lock:
             self._stop_requests.discard(job_id)
             self._stop_requests.discard(None)
-        verdict = self.gate.check(
-            plan, approval=Approval(approved_sha256, expires_at),
-            measured=MeasuredState(state.joint_names, state.q, self.dispatch.start_tolerance_rad),
-            threshold_m=threshold_m,
-        )
+        approval = Approval(approved_sha256, expires_at)
+        measured = MeasuredState(state.joint_names, state.q, self.dispatch.start_tolerance_rad)
+        if isinstance(plan, (bytes, bytearray, str)):
+            verdict, parsed = self.gate.check_json(plan, approval=approval, measured=measured, threshold_m=threshold_m)
+            plan = parsed if parsed is not None else {}
+        else:
+            verdict = self.gate.check(plan, approval=approval, measured=measured, threshold_m=threshold_m)
         emit("gate", verdict.model_dump(mode="json"))
         if not verdict.passed:
             return ExecutionResult("rejected", verdict.summary(), verdict, duration_s=time.monotonic() - started)
@@ -294,12 +302,13 @@ class Dispatcher:
 
     def _send_segment(self, run: "_Run", emit: EventCallback) -> None:
         seg = run.segments[run.sent]
+        sent_at = time.monotonic()
         self._publish_segment(seg)
-        run.pending[seg.seq] = (time.monotonic(), 0)
+        run.pending[seg.seq] = (sent_at, 0)
         run.sent += 1
         emit("segment", {"job_id": run.job_id, "seq": seg.seq, "segment_index": seg.segment_index,
                          "segment_count": seg.segment_count, "first_index": seg.first_index, "points": len(seg.points),
-                         "t_from_start": seg.t_from_start, "sent_at": time.monotonic()})
+                         "t_from_start": seg.t_from_start, "sent_at": sent_at})
 
     def _publish_segment(self, seg: TrajectorySegment) -> None:
         """Put one segment on ``cmd/trajectory`` (the only place that does)."""

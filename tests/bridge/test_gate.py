@@ -285,3 +285,18 @@ def test_gate_cli(tmp_path, plan):
     bad.write_text("{not json")
     out = run(str(bad))
     assert out.returncode == 2 and "not valid JSON" in out.stderr
+
+
+def test_canonical_bytes_fast_path(gate, plan):
+    from schemas.plan import canonical_json
+
+    raw = canonical_json(plan)
+    names, q, _ = stance_state()
+    ok = Approval(plan_sha256(plan), datetime.now(timezone.utc) + timedelta(minutes=5))
+    v, parsed = gate.check_json(raw, approval=ok, measured=MeasuredState(names, q))
+    assert v.passed and parsed == plan and v.plan_sha256 == plan_sha256(plan)
+    # same plan, other bytes (not canonical): the hash check refuses it
+    v, _ = gate.check_json(json.dumps(plan, indent=1).encode(), approval=ok, measured=MeasuredState(names, q))
+    assert not v.passed and v.check == "plan_hash"
+    v, parsed = gate.check_json(b'{"schema": NaN}', offline=True)
+    assert not v.passed and v.check == "structure" and parsed is None
