@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from .collision import HandGeometry, hand_bodies, shapes_collide
+from .collision import CollisionWorld, HandGeometry, hand_bodies, shapes_collide
 from .grasps import GraspSet
 from .objects import ObjectModel
 from .transforms import rot_z
@@ -31,8 +31,9 @@ class HandoverSettings(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     positions: tuple[tuple[float, float, float], ...] = Field(
-        ((0.40, 0.0, 0.25), (0.35, 0.0, 0.35)),
-        description="CoM positions relative to the pelvis position (x forward, z up)",
+        ((0.40, 0.0, 0.25), (0.35, 0.0, 0.35), (0.32, 0.0, 0.45)),
+        description="CoM positions relative to the pelvis position (x forward, z up); heavy objects need "
+        "them close (the CoM shift is mass x distance / total mass), and above the tables",
     )
     up_axes: tuple[tuple[float, float, float], ...] = Field(
         ((0, 0, 1), (0, 0, -1), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0)),
@@ -115,8 +116,10 @@ def handover_poses(
     hand_l: HandGeometry,
     pelvis_position: np.ndarray,
     settings: HandoverSettings | None = None,
+    world: CollisionWorld | None = None,
 ) -> list[HandoverPose]:
-    """Floating poses with their usable grasp pairs; poses without any pair are dropped."""
+    """Floating poses with their usable grasp pairs; poses without any pair are dropped, and
+    with a ``world`` so are poses where the object would touch a table or an obstacle."""
     settings = settings or HandoverSettings()
     pairs = compatible_pairs(right, left, hand_r, hand_l)
     zr = np.array([g.T_obj_tcp[:3, 2] for g in right.grasps]).reshape(-1, 3)
@@ -124,6 +127,8 @@ def handover_poses(
     cos_max = np.cos(settings.max_approach_angle_rad)
     out = []
     for T in floating_poses(obj, pelvis_position, settings):
+        if world is not None and world.object_pose_clear(T) is not None:
+            continue
         R = T[:3, :3]
         ok_r = (zr @ R.T)[:, 0] >= cos_max  # approach axis in the world vs +x
         ok_l = (zl @ R.T)[:, 0] >= cos_max

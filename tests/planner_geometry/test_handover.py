@@ -50,3 +50,18 @@ def test_handover_poses_filter_approach(hrp5p, drill_obj, drill_grasps):
         for i, j in p.pairs[:50]:
             assert (R @ drill_grasps["right"][i].T_obj_tcp[:3, 2])[0] >= limit - 1e-12
             assert (R @ drill_grasps["left"][j].T_obj_tcp[:3, 2])[0] >= limit - 1e-12
+
+
+def test_world_drops_poses_inside_tables(hrp5p, drill_obj, drill_grasps):
+    from planner.collision import CollisionWorld, EnvBox
+    from planner.transforms import make_transform
+
+    hr, hl = hand_geometry(hrp5p, "right"), hand_geometry(hrp5p, "left")
+    s = HandoverSettings(positions=((0.40, 0.0, 0.25),), rolls=2)
+    pelvis = np.array([0.0, 0.0, 0.8])
+    free = handover_poses(drill_obj, drill_grasps["right"], drill_grasps["left"], hr, hl, pelvis, s)
+    # a slab right at the handover height swallows every floating pose
+    slab = EnvBox("slab", make_transform(p=[0.6, 0.0, 1.05]), (0.6, 1.0, 0.06))
+    world = CollisionWorld(hrp5p, [slab], drill_obj)
+    blocked = handover_poses(drill_obj, drill_grasps["right"], drill_grasps["left"], hr, hl, pelvis, s, world=world)
+    assert free and not blocked
