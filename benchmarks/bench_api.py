@@ -26,10 +26,13 @@ import time
 from pathlib import Path
 
 import httpx
+import psutil
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 TOKEN = "bench-token-planner"
+#: Niceness of this benchmark process while it generates load (the server keeps its own priority).
+CLIENT_NICE = 5
 #: A client polls its job this many times after submitting it.
 POLLS_PER_SUBMIT = 3
 sys.path.insert(0, str(HERE))
@@ -57,7 +60,7 @@ def start_server(data_dir: Path, workers: int, executor: str = "local") -> tuple
                             cwd=ROOT, env=env, stdout=open(data_dir / "server.log", "ab"), stderr=subprocess.STDOUT,
                             start_new_session=True)
     url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 120
+    deadline = time.monotonic() + 400  # a local Ray instance takes 5-30 s to start on a loaded machine
     while time.monotonic() < deadline:
         try:
             if httpx.get(url + "/healthz", timeout=1).status_code == 200:
@@ -133,12 +136,19 @@ def bench_latency(args: argparse.Namespace) -> None:
                     if all(c.get(f"/v1/jobs/{j}").json()["state"] == "planning" for j in busy):
                         break
                     time.sleep(0.2)
+                os.nice(CLIENT_NICE)  # the load generator must not starve the server it measures
+                api = psutil.Process(proc.pid)
+                cpu0 = sum(api.cpu_times()[:2])
                 t0 = time.perf_counter()
                 res = asyncio.run(latency_run(url, args.clients, args.rounds, args.think_s))
                 elapsed = time.perf_counter() - t0
+                cpu = sum(api.cpu_times()[:2]) - cpu0
                 n = sum(len(v) for v in res.values())
                 print(f"load: {args.clients} clients, {args.think_s} s between a client's requests -> "
-                      f"{n / elapsed:.0f} requests/s over {elapsed:.1f} s")
+                      f"{n / elapsed:.0f} requests/s over {elapsed:.1f} s; machine load average "
+                      f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+                print(f"API process CPU: {cpu / n * 1000:.2f} ms per request, {cpu / elapsed * 100:.0f}% of one core "
+                      "(it never plans; workers run at nice 10)")
                 sat = asyncio.run(latency_run(url, args.clients, 2, 0.0))
                 n_sat = sum(len(v) for v in sat.values())
                 sat_s = sum(sum(v) for v in sat.values()) / 1000 / args.clients

@@ -251,7 +251,7 @@ class Runner:
         flags = self.store.flags(list(self._running))
         for job_id, run in list(self._running.items()):
             row = flags.get(job_id)
-            if row is None or row["state"] != "planning":
+            if row is None or row["state"] != "planning" or row["owner"] != self.owner:
                 # Someone else moved the job (recovered after a lost lease): stop our copy.
                 self.executor.cancel(job_id)
                 run.cancel_reason = run.cancel_reason or "lost"

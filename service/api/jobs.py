@@ -52,6 +52,15 @@ def _full(svc: Service, row: dict[str, Any]) -> Job:
     return job_view(row, result)
 
 
+def _job_response(svc: Service, row: dict[str, Any], status_code: int = 200,
+                  headers: dict[str, str] | None = None) -> Response:
+    """The job as JSON with its stored result spliced in verbatim: a plan of several MB is never re-parsed."""
+    text = svc.store.result_text(row["id"]) if row["state"] not in ("queued", "planning") else None
+    body = job_view(row).model_dump_json(exclude={"result"})
+    body = body[:-1] + ',"result":' + (text if text is not None else "null") + "}"
+    return Response(body, status_code=status_code, media_type="application/json", headers=headers)
+
+
 # ------------------------------------------------------------------ submit
 def _check_request(svc: Service, body: JobSubmit) -> tuple[str, int | None]:
     """Validate what pydantic cannot (scenario names, inline scenarios); returns (robot, seed)."""
@@ -90,13 +99,12 @@ def _check_request(svc: Service, body: JobSubmit) -> tuple[str, int | None]:
                      "headers": {"Location": {"description": "URL of the job", "schema": {"type": "string"}}}}},
 )
 def submit(
-    response: Response,
     body: JobSubmit,
     idempotency_key: str | None = Header(None, alias="Idempotency-Key", max_length=255, min_length=1,
                                          description="same key + same body = same job (per submitter)"),
     p: Principal = Depends(principal),
     svc: Service = Depends(service),
-) -> Job:
+) -> Response:
     require("planner", p, "submitting a job")
     robot, seed = _check_request(svc, body)
     request = body.request.model_dump(mode="json", exclude_none=True)
@@ -108,9 +116,8 @@ def submit(
                 svc.store._replay(existing, request_sha)  # noqa: SLF001
             except IdempotencyMismatch as exc:
                 raise ProblemError(409, str(exc)) from None
-            response.headers["Location"] = f"/v1/jobs/{existing['id']}"
-            response.headers["Idempotent-Replayed"] = "true"
-            return _full(svc, existing)
+            return _job_response(svc, existing, 202, {"Location": f"/v1/jobs/{existing['id']}",
+                                                      "Idempotent-Replayed": "true"})
     depth = svc.store.queue_depth()
     if depth >= svc.settings.queue_limit:
         raise ProblemError(429, f"the queue holds {depth} jobs, at its limit of {svc.settings.queue_limit}; "
@@ -123,10 +130,10 @@ def submit(
         )
     except IdempotencyMismatch as exc:
         raise ProblemError(409, str(exc)) from None
-    response.headers["Location"] = f"/v1/jobs/{row['id']}"
+    headers = {"Location": f"/v1/jobs/{row['id']}"}
     if not created:
-        response.headers["Idempotent-Replayed"] = "true"
-    return _full(svc, row)
+        headers["Idempotent-Replayed"] = "true"
+    return _job_response(svc, row, 202, headers)
 
 
 # ------------------------------------------------------------------- reads
@@ -144,8 +151,8 @@ def list_jobs(
 
 
 @router.get("/{job_id}", response_model=Job, summary="One job with its result", responses=problems(401, 404, 422))
-def get_job(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> Job:
-    return _full(svc, _load(svc, job_id))
+def get_job(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> Response:
+    return _job_response(svc, _load(svc, job_id))
 
 
 def _sse(event: dict[str, Any]) -> str:
@@ -206,7 +213,7 @@ async def job_events(
 @router.post("/{job_id}/cancel", status_code=202, response_model=Job, summary="Cancel a job (before dispatch)",
              responses=problems(400, 401, 403, 404, 409, 413, 422))
 def cancel(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Depends(principal),
-           svc: Service = Depends(service)) -> Job:
+           svc: Service = Depends(service)) -> Response:
     row = _load(svc, job_id)
     if row["submitter"] != p.user and not p.has("admin"):
         raise ProblemError(403, f"only the submitter ({row['submitter']}) or an admin can cancel job {job_id}")
@@ -218,13 +225,13 @@ def cancel(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Dep
         row = svc.store.request_cancel(job_id, p.user, body.reason if body else None)
     except Conflict as exc:
         raise ProblemError(409, str(exc)) from None
-    return _full(svc, row)
+    return _job_response(svc, row, 202)
 
 
 @router.post("/{job_id}/approve", response_model=Job, summary="Approve a planned job (two-person rule)",
              responses=problems(400, 401, 403, 404, 409, 413, 422))
 def approve(job_id: str, body: ApproveBody | None = Body(None), p: Principal = Depends(principal),
-            svc: Service = Depends(service)) -> Job:
+            svc: Service = Depends(service)) -> Response:
     require("approver", p, "approving a plan")
     row = _load(svc, job_id)
     if row["submitter"] == p.user:
@@ -249,13 +256,13 @@ def approve(job_id: str, body: ApproveBody | None = Body(None), p: Principal = D
                               approved_sha256=sha, approval_comment=body.comment if body else None)
     if not ok:
         raise ProblemError(409, f"job {job_id} changed state while approving; reload it")
-    return _full(svc, svc.store.get(job_id) or row)
+    return _job_response(svc, svc.store.get(job_id) or row)
 
 
 @router.post("/{job_id}/reject", response_model=Job, summary="Reject a planned or approved job",
              responses=problems(400, 401, 403, 404, 409, 413, 422))
 def reject(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Depends(principal),
-           svc: Service = Depends(service)) -> Job:
+           svc: Service = Depends(service)) -> Response:
     require("approver", p, "rejecting a plan")
     row = _load(svc, job_id)
     if row["submitter"] == p.user:
@@ -268,13 +275,13 @@ def reject(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Dep
                               data={"by": p.user, "reason": reason})
     if not ok:
         raise ProblemError(409, f"job {job_id} changed state while rejecting; reload it")
-    return _full(svc, svc.store.get(job_id) or row)
+    return _job_response(svc, svc.store.get(job_id) or row)
 
 
 @router.post("/{job_id}/dispatch", status_code=202, response_model=Job,
              summary="Send an approved plan to the robot (through the safety gate)",
              responses=problems(400, 401, 403, 404, 409, 413, 422))
-def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> Job:
+def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> Response:
     require("operator", p, "dispatching a plan")
     row = _load(svc, job_id)
     if row["state"] == "planned" and row["kind"] == "plan":
@@ -295,19 +302,19 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
                            + "; start the controller and retry")
     if not svc.executions.begin(row, plan, p.user):
         raise ProblemError(409, f"job {job_id} changed state before dispatch (approval expired or acted on); reload it")
-    return _full(svc, svc.store.get(job_id) or row)
+    return _job_response(svc, svc.store.get(job_id) or row, 202)
 
 
 @router.post("/{job_id}/stop", status_code=202, response_model=Job, summary="Stop an execution now",
              responses=problems(400, 401, 403, 404, 409, 413, 422))
 def stop(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Depends(principal),
-         svc: Service = Depends(service)) -> Job:
+         svc: Service = Depends(service)) -> Response:
     require("operator", p, "stopping an execution")
     row = _load(svc, job_id)
     if row["state"] not in EXECUTION_STATES:
         raise ProblemError(409, f"job {job_id} is {row['state']}; only a dispatching or executing job can be stopped")
     svc.executions.stop(job_id, p.user)
-    return _full(svc, svc.store.get(job_id) or row)
+    return _job_response(svc, svc.store.get(job_id) or row, 202)
 
 
 @router.get(

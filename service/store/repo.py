@@ -103,6 +103,11 @@ class JobStore:
             text = conn.execute(_GET_RESULT, {"job_id": job_id}).scalar()
         return None if text is None else json.loads(text)
 
+    def result_text(self, job_id: str) -> str | None:
+        """The stored result document as its JSON text (served verbatim, never re-parsed)."""
+        with self.engine.connect() as conn:
+            return conn.execute(_GET_RESULT, {"job_id": job_id}).scalar()
+
     def list(self, *, state: str | None = None, kind: str | None = None, submitter: str | None = None,
              limit: int = 50, offset: int = 0) -> tuple[list[dict[str, Any]], int]:
         conds = []
@@ -246,7 +251,7 @@ class JobStore:
             return {}
         with self.engine.connect() as conn:
             rows = conn.execute(
-                sa.select(jobs.c.id, jobs.c.state, jobs.c.cancel_requested, jobs.c.stop_requested)
+                sa.select(jobs.c.id, jobs.c.state, jobs.c.owner, jobs.c.cancel_requested, jobs.c.stop_requested)
                 .where(jobs.c.id.in_(list(job_ids)))
             ).mappings().all()
         return {r["id"]: dict(r) for r in rows}
