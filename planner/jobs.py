@@ -184,7 +184,7 @@ def plan_scenario(
         try:
             res = planner.plan(max_iterations=scenario.limits.max_iterations,
                                time_limit_s=max(deadline - time.perf_counter(), 0.01),
-                               should_stop=should_stop, on_iteration=on_iter)
+                               should_stop=should_stop, on_iteration=on_iter, solutions=options.solutions)
         except GraphCanceled:
             raise Canceled() from None
         if res.status == "solved":
@@ -221,8 +221,19 @@ def plan_scenario(
     stats["time_s"] = time.perf_counter() - t_start
     stats["failures"] = dict(best.failures)
     stats["cost"] = best.cost
+    elapsed = stats["time_s"]
+    counters = task.counters
+    stats["rates_per_s"] = {k.replace("_states", "_checks").replace("_solves", "_solves"): v / elapsed for k, v in counters.items()}
     progress(0.99, "writing the plan")
-    alternatives = [{"hands": r.hands, "cost": r.cost, "min_margin_m": None} for r, _ in solved if r is not best]
+    alternatives = []
+    for r, _ in solved:
+        for cost, pieces in ([(r.cost, None)] if r is not best else []) + list(getattr(r, "others", [])):
+            margin = None
+            if pieces is not None:
+                alt = assemble(pieces, task.evaluator, task.settings.timing.dt_s, task.placements[task.start_id])
+                margin = float(alt.margin.min())
+            alternatives.append({"hands": r.hands, "cost": cost, "min_margin_m": margin})
+    alternatives.sort(key=lambda a: a["cost"])
     return {
         "schema": PLAN_SCHEMA,
         "status": "solved",

@@ -341,6 +341,8 @@ class HandConfigPlanner:
         self.start_ok = False
         self.goal_ok = False
         self.screen_failures: Counter = Counter()
+        self._edges: dict = {}
+        self.stage_s: dict[str, float] = {}
 
     # -- graph construction ---------------------------------------------------------------------
     def _cheap_ok(self, side: Side, T_obj: np.ndarray, grasp: Grasp) -> bool:
@@ -660,7 +662,8 @@ class HandConfigPlanner:
 
     # -- search and assembly ----------------------------------------------------------------------------
     def plan(self, *, max_iterations: int, time_limit_s: float, should_stop: Callable[[], bool] = lambda: False,
-             on_iteration: Callable[[int, dict], None] | None = None) -> PlannerResult:
+             on_iteration: Callable[[int, dict], None] | None = None, solutions: int = 1) -> PlannerResult:
+        """The best plan of this hand configuration, and up to ``solutions - 1`` next-best ones."""
         t0 = time.perf_counter()
         self._should_stop = should_stop  # type: ignore[assignment]
         spec = self.screen(self.graph_spec(), should_stop)
@@ -670,18 +673,56 @@ class HandConfigPlanner:
         graph = RegraspGraph(spec, weights)
         if self.task.constrained:
             self._seed_margin_estimates(graph)
-        res: SearchResult = graph.search(
-            self.validate_node, self.validate_edge, max_iterations=max_iterations, time_limit_s=time_limit_s,
-            should_stop=should_stop, on_iteration=(lambda i, f: on_iteration(i, dict(f))) if on_iteration else None,
-        )
-        res.failures.update(self.screen_failures)
-        stats = {"graph_nodes": res.graph_nodes, "graph_edges": res.graph_edges, "search_iterations": res.iterations,
-                 "nodes_validated": len(self.keyposes) + len(self.handovers), "time_s": time.perf_counter() - t0}
-        if res.status != "solved":
-            return PlannerResult("infeasible", self.hands, failure_code=res.code, message=res.message,
-                                 failures=dict(res.failures), stats=stats)
-        pieces = self._assemble_pieces(res)
-        return PlannerResult("solved", self.hands, pieces=pieces, cost=res.cost, failures=dict(res.failures), stats=stats)
+        t_search = time.perf_counter()
+        found: list[SearchResult] = []
+        res: SearchResult | None = None
+        failures: Counter = Counter(self.screen_failures)
+        iterations = 0
+        while len(found) < solutions:
+            remaining = time_limit_s - (time.perf_counter() - t0)
+            if found and remaining <= 0:
+                break
+            res = graph.search(
+                self._timed_node, self._timed_edge, max_iterations=max_iterations, time_limit_s=max(remaining, 0.01),
+                should_stop=should_stop, on_iteration=(lambda i, f: on_iteration(i, dict(f))) if on_iteration else None,
+                banned_paths=[tuple(r.path) for r in found],
+            )
+            failures.update(res.failures)
+            iterations += res.iterations
+            if res.status != "solved":
+                break
+            found.append(res)
+        stage = dict(self.stage_s)
+        stage["search_s"] = max(time.perf_counter() - t_search - sum(stage.values()), 0.0)
+        stats = {"graph_nodes": res.graph_nodes if res else 0, "graph_edges": res.graph_edges if res else 0,
+                 "search_iterations": iterations, "nodes_validated": len(self._validated),
+                 "edges_validated": len(self._edges), "stage_s": stage, "time_s": time.perf_counter() - t0}
+        if not found:
+            return PlannerResult("infeasible", self.hands, failure_code=res.code if res else "NO_PATH",
+                                 message=res.message if res else "", failures=dict(failures), stats=stats)
+        t_asm = time.perf_counter()
+        best = found[0]
+        out = PlannerResult("solved", self.hands, pieces=self._assemble_pieces(best), cost=best.cost,
+                            failures=dict(failures), stats=stats)
+        out.others = [(r.cost, self._assemble_pieces(r)) for r in found[1:]]  # type: ignore[attr-defined]
+        stats["stage_s"]["assembly_s"] = time.perf_counter() - t_asm
+        return out
+
+    def _timed_node(self, node) -> Validation:
+        t0 = time.perf_counter()
+        try:
+            return self.validate_node(node)
+        finally:
+            self.stage_s["nodes_s"] = self.stage_s.get("nodes_s", 0.0) + time.perf_counter() - t0
+
+    def _timed_edge(self, a, b, kind: str) -> Validation:
+        """Edge validation, cached across searches (the K best solutions share their motions)."""
+        key = (a, b, kind)
+        if key not in self._edges:
+            t0 = time.perf_counter()
+            self._edges[key] = self.validate_edge(a, b, kind)
+            self.stage_s["motions_s"] = self.stage_s.get("motions_s", 0.0) + time.perf_counter() - t0
+        return self._edges[key]
 
     def screen(self, spec: GraphSpec, should_stop: Callable[[], bool] = lambda: False) -> GraphSpec:
         """Validate start and goal nodes up front, in order of estimated margin, until a few are valid.

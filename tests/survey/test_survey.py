@@ -1,0 +1,168 @@
+"""The stability survey: counts, recounts, an independent reclassification, properties, bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from click.testing import CliRunner
+from shapely.geometry import Point, Polygon
+
+from planner.collision import CollisionWorld
+from planner.robots.registry import urdf_path
+from planner.scenarios import load_scenario
+from planner.survey import run_survey, write_states
+from service.cli.main import cli
+
+DATA = Path(__file__).parent.parent / "data"
+HANDS = ["right-right", "left-left"]
+STATES = 300
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return load_scenario(DATA / "small-box.yaml")
+
+
+@pytest.fixture(scope="module")
+def surveyed(scenario, tmp_path_factory):
+    doc, outcomes = run_survey(scenario, states=STATES, hands=HANDS, workers=1)
+    path = tmp_path_factory.mktemp("survey") / "states.npz"
+    from planner.robot_model import load_robot
+
+    write_states(str(path), doc, outcomes, {"joint_names": list(load_robot("hrp5p").joint_names)})
+    return doc, outcomes, dict(np.load(path, allow_pickle=False))
+
+
+def test_rows_count_exactly_the_requested_states(surveyed):
+    doc, _, _ = surveyed
+    assert [r["hands"] for r in doc["rows"]] == HANDS
+    for row in doc["rows"]:
+        assert row["reason"] is None, row
+        assert row["stable"] + row["unstable"] == STATES
+        assert row["ratio"] == pytest.approx(row["stable"] / STATES)
+    assert doc["recommended"] in HANDS
+
+
+def test_counts_equal_the_recount_from_states_out(surveyed):
+    doc, _, states = surveyed
+    for row in doc["rows"]:
+        mine = states["hands"] == row["hands"]
+        assert int(states["stable"][mine].sum()) == row["stable"]
+        assert int((~states["stable"][mine]).sum()) == row["unstable"]
+    assert states["q"].shape == (len(states["hands"]), len(states["joint_names"]))
+    assert states["object_pose"].shape == (len(states["hands"]), 7)
+
+
+def _independent_margins(states: dict, mass: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """CoM from the URDF with pinocchio, the object as a point mass (eq. 1), margin with shapely."""
+    model = pin.buildModelFromUrdf(str(urdf_path("hrp5p")), pin.JointModelFreeFlyer())
+    data = model.createData()
+    names = [str(n) for n in states["joint_names"]]
+    m = float(states["mass_kg"]) if mass is None else mass
+    M = pin.computeTotalMass(model)
+    poly = Polygon(states["support_polygon"])
+    coms, margins = [], []
+    for q, pose in zip(states["q"], states["object_pose"]):
+        qp = pin.neutral(model)
+        qp[:7] = states["base_pose"]
+        for jid in range(2, model.njoints):
+            n = model.names[jid]
+            master = n.replace("_MIMIC", "")
+            qp[model.idx_qs[jid]] = q[names.index(master)]
+        c = pin.centerOfMass(model, data, qp)
+        oc = pin.XYZQUATToSE3(pose).act(states["com_local"])
+        s = (M * c + m * oc) / (M + m)
+        p = Point(s[0], s[1])
+        d = poly.exterior.distance(p)
+        coms.append(s)
+        margins.append(d if poly.contains(p) else -d)
+    return np.array(coms), np.array(margins)
+
+
+def test_an_independent_recomputation_agrees_with_the_stable_flags(surveyed):
+    _, _, states = surveyed
+    pick = np.linspace(0, len(states["q"]) - 1, 60).astype(int)
+    sample = {k: (v[pick] if v.ndim and len(v) == len(states["q"]) and k not in ("support_polygon",) else v) for k, v in states.items()}
+    _, margins = _independent_margins(sample)
+    thr = float(states["threshold_m"])
+    near = np.abs(margins - thr) < 1e-9
+    assert np.array_equal((margins >= thr)[~near], sample["stable"][~near])
+
+
+def test_raising_the_threshold_never_makes_a_state_stable(surveyed):
+    _, _, states = surveyed
+    pick = np.arange(0, len(states["q"]), 10)
+    sample = {k: (v[pick] if v.ndim and len(v) == len(states["q"]) and k != "support_polygon" else v) for k, v in states.items()}
+    _, m = _independent_margins(sample)
+    for lo, hi in ((0.0, 0.03), (0.03, 0.06), (0.01, 0.1)):
+        assert not np.any((m >= hi) & (m < lo))
+
+
+def test_a_heavier_object_moves_the_com_towards_the_object_as_equation_1(surveyed):
+    _, _, states = surveyed
+    pick = np.arange(0, len(states["q"]), 25)
+    sample = {k: (v[pick] if v.ndim and len(v) == len(states["q"]) and k != "support_polygon" else v) for k, v in states.items()}
+    light, _ = _independent_margins(sample, mass=1.0)
+    heavy, _ = _independent_margins(sample, mass=9.0)
+    robot, _ = _independent_margins(sample, mass=0.0)
+    M = 101.0
+    obj = np.array([pin.XYZQUATToSE3(p).act(sample["com_local"]) for p in sample["object_pose"]])
+    assert np.allclose(heavy, (M * robot + 9.0 * obj) / (M + 9.0), atol=1e-6)
+    # heavier: strictly closer to the object's CoM (unless already there)
+    assert np.all(np.linalg.norm(heavy - obj, axis=1) <= np.linalg.norm(light - obj, axis=1) + 1e-12)
+
+
+def test_a_colliding_state_is_never_counted(scenario, surveyed):
+    _, outcomes, _ = surveyed
+    from planner.objects import build_object
+    from planner.robot_model import load_robot
+    from planner.stances import solve_stance
+
+    robot = load_robot("hrp5p")
+    stance = solve_stance(robot, scenario.stance)
+    # The stance posture's touching pairs (thighs of bent knees) are disabled, as in the planner.
+    world = CollisionWorld.from_scenario(robot, scenario, build_object(scenario.object),
+                                         reference_postures=[(stance.base_pose, stance.q)])
+    for o in outcomes:
+        side = o.hands.split("-")[0]
+        # Every counted state of a single-arm leg holds the object in one hand: recheck it with that grasp.
+        import planner.transforms as tf
+
+        for q, pose in zip(o.q[::15], o.object_pose[::15]):
+            T_tcp = world.kin.frame(*world.kin.forward(stance.base_pose, q[None]), robot.spec.arms[side].tcp)
+            T = np.eye(4)
+            T[:3, :3], T[:3, 3] = T_tcp[0][0], T_tcp[1][0]
+            T_obj_tcp = tf.inverse(tf.pose7_to_matrix(pose)) @ T
+            assert world.check(stance.base_pose, q, held=[(side, T_obj_tcp)]) is None
+
+
+def test_same_seed_same_counts_in_any_process_layout(scenario, surveyed):
+    doc, _, _ = surveyed
+    again, _ = run_survey(scenario, states=STATES, hands=HANDS, workers=2)
+    assert [(r["stable"], r["unstable"]) for r in again["rows"]] == [(r["stable"], r["unstable"]) for r in doc["rows"]]
+
+
+def test_threshold_beyond_the_polygon_gives_reasons_not_counts(scenario):
+    doc, _ = run_survey(scenario, states=10, hands=HANDS, threshold_m=0.2, workers=1)
+    for row in doc["rows"]:
+        assert row["ratio"] is None and "inradius" in row["reason"]
+    assert doc["recommended"] is None
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--stance", "kneeling"], "built-in stances"),
+    (["--states", "0"], "--states must be at least 1"),
+    (["--threshold-mm", "-5"], "between 0 and 500"),
+])
+def test_bad_input_is_a_clear_usage_error(args, message):
+    res = CliRunner().invoke(cli, ["survey", str(DATA / "small-box.yaml"), *args])
+    assert res.exit_code == 2
+    assert message in res.output
+
+
+def test_unknown_hands_are_rejected(scenario):
+    with pytest.raises(ValueError, match="unknown hands 'both'"):
+        run_survey(scenario, states=10, hands=["both"], workers=1)
