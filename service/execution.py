@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -22,6 +23,8 @@ from .store.repo import JobStore
 
 log = logging.getLogger("regrasp.execution")
 
+#: How often running executions look for a stop requested through another API replica, s.
+STOP_POLL_S = 0.2
 #: Bridge events that mean the robot is being driven (robot_bridge.dispatcher names them so).
 EXECUTING_EVENTS = frozenset({"executing", "segment", "robot_state"})
 #: Exceptions of the bridge raised before anything was sent: the job goes back to approved.
@@ -132,13 +135,19 @@ class Executions:
         return stop is not None
 
     def _renew_loop(self) -> None:
-        while not self._closing.wait(self.settings.lease_s / 3):
+        """Renew the leases of running executions and honour stops requested through another replica."""
+        last_renew = 0.0
+        while not self._closing.wait(STOP_POLL_S):
             with self._lock:
                 running = list(self._threads)
+            if not running:
+                continue
             try:
-                self.store.renew(self.owner, running, self.settings.lease_s)
-                flags = self.store.flags(running)
-                for job_id, row in flags.items():
+                now = time.monotonic()
+                if now - last_renew >= self.settings.lease_s / 3:
+                    last_renew = now
+                    self.store.renew(self.owner, running, self.settings.lease_s)
+                for job_id, row in self.store.flags(running).items():
                     if row["stop_requested"]:
                         with self._lock:
                             stop = self._stops.get(job_id)

@@ -52,6 +52,10 @@ def run(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
         ctx.progress(0.1, "about to crash")
         time.sleep(0.2)
         os.kill(os.getpid(), signal.SIGKILL)
+    if mode == "stand":
+        return stand(request, ctx, float(arg or STAND_DURATION_S))
+    if mode == "standbad":
+        return stand(request, ctx, float(arg or STAND_DURATION_S), bad_joint=True)
     if mode == "error":
         raise RuntimeError("the test handler failed on purpose")
     if mode == "infeasible":
@@ -62,3 +66,47 @@ def run(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
 
 
 HANDLERS = {"plan": "svc_test_handlers:run", "survey": "svc_test_handlers:run"}
+
+
+#: Length of the standing-still plan made by :func:`stand`, s.
+STAND_DURATION_S = 1.0
+
+
+def stand(request: dict[str, Any], ctx: Any, duration_s: float = STAND_DURATION_S,
+          bad_joint: bool = False) -> dict[str, Any]:
+    """A real, gate-valid plan that holds the upright stance posture still (for dispatch tests).
+
+    ``bad_joint`` puts one joint past its URDF limit from the middle on: the gate must veto it.
+    """
+    from planner.robot_model import center_of_mass, load_robot
+    from planner.robots.registry import urdf_sha256
+    from planner.stances import solve_stance
+
+    robot = load_robot("hrp5p")
+    stance = solve_stance(robot, "upright")
+    data = robot.create_data()
+    com = [float(v) for v in center_of_mass(robot, data, stance.base_pose, stance.q)]
+    margin = float(stance.polygon.margin_one(com[0], com[1]))
+    dt = 0.005
+    n = int(round(duration_s / dt)) + 1
+    pose = [0.5, -0.3, 0.9, 0.0, 0.0, 0.0, 1.0]
+    q = [float(v) for v in stance.q]
+    ctx.progress(0.5, "standing")
+    trajectory = [{"t": i * dt, "q": q, "holding": "none", "object_pose": pose, "com": com, "margin_m": margin,
+                   "zmp": com[:2]} for i in range(n)]
+    if bad_joint:
+        q_bad = list(q)
+        q_bad[0] = float(robot.upper[0]) + 0.5
+        for point in trajectory[n // 2:]:
+            point["q"] = q_bad
+    return {
+        "schema": "regrasp.plan/1", "status": "solved", "failure": None,
+        "robot": {"name": "hrp5p", "urdf_sha256": urdf_sha256("hrp5p"), "joint_names": list(robot.joint_names)},
+        "scenario": {"name": "stand"}, "stance": stance.result().model_dump(mode="json"),
+        "support_polygon": stance.polygon.vertices.tolist(),
+        "object": {"name": "box", "mass_kg": 1.0, "com_local": [0.0, 0.0, 0.0], "start_pose": pose, "goal_pose": pose},
+        "threshold_m": 0.0, "hands": "right-right", "dt_s": dt,
+        "trajectory": trajectory,
+        "segments": [{"kind": "transit", "hand": "none", "first": 0, "last": n - 1}],
+        "min_margin_m": margin, "alternatives": [], "stats": {"test": "stand"},
+    }

@@ -1,0 +1,115 @@
+"""Dispatch through the real robot bridge to `regrasp controller-sim` on a private loopback endpoint.
+
+The plans come from the `stand` test handler: real, gate-valid plans that hold the
+upright stance posture (and one that the gate must veto), so the dispatch path is
+tested whatever state the planner is in.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Iterator
+
+import httpx
+import pytest
+from conftest import BRIDGE_ROBOT_ID, ROOT, Server, free_port, wait_state
+
+pytest.importorskip("robot_bridge.dispatcher", reason="the robot bridge (robot_bridge.dispatcher) is not installed yet")
+if not (ROOT / "service" / "cli" / "controller_sim.py").is_file():
+    pytest.skip("the simulated controller (regrasp controller-sim) is not installed yet", allow_module_level=True)
+
+END_STATES = {"succeeded", "aborted", "rejected", "failed"}
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Server, int]]:
+    port = free_port()
+    srv = Server(tmp_path_factory.mktemp("dispatch"), workers=1, bridge_port=port).start()
+    try:
+        yield srv, port
+    finally:
+        srv.stop()
+
+
+@pytest.fixture(scope="module")
+def sim(rig: tuple[Server, int]) -> Iterator[None]:
+    srv, port = rig
+    log = open(srv.data_dir / "controller-sim.log", "ab")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", BRIDGE_ROBOT_ID,
+         "--listen", f"tcp/127.0.0.1:{port}", "--speed", "1"], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not httpx.get(srv.url + "/healthz").json()["controller_alive"]:
+            assert proc.poll() is None, (srv.data_dir / "controller-sim.log").read_text()[-2000:]
+            time.sleep(0.2)
+        yield
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def _approved(srv: Server, scenario: str) -> str:
+    with srv.client("alice") as alice, srv.client("bob") as bob:
+        job = alice.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": scenario}}).json()
+        planned = wait_state(alice, job["id"], {"planned", "failed"}, timeout=60)
+        assert planned["state"] == "planned", planned["error"]
+        r = bob.post(f"/v1/jobs/{job['id']}/approve", json={"plan_sha256": planned["plan_sha256"]})
+        assert r.status_code == 200, r.text
+        return job["id"]
+
+
+def test_no_controller_409(rig: tuple[Server, int]) -> None:
+    srv, _ = rig
+    job_id = _approved(srv, "stand-1")
+    with srv.client("bob") as bob:
+        r = bob.post(f"/v1/jobs/{job_id}/dispatch")
+        assert r.status_code == 409 and "no controller is alive" in r.json()["detail"]
+        assert bob.get(f"/v1/jobs/{job_id}").json()["state"] == "approved"
+
+
+def test_dispatch_executes_to_success(rig: tuple[Server, int], sim: None) -> None:
+    srv, _ = rig
+    job_id = _approved(srv, "stand-1")
+    with srv.client("bob") as bob:
+        r = bob.post(f"/v1/jobs/{job_id}/dispatch")
+        assert r.status_code == 202 and r.json()["state"] in ("dispatching", "executing"), r.text
+        done = wait_state(bob, job_id, END_STATES, timeout=30)
+        assert done["state"] == "succeeded", (done["message"], done["error"])
+        history = bob.get(f"/v1/jobs/{job_id}/events", params={"follow": "false"}).text
+        for expected in ('"event":"gate"', '"event":"segment"', '"state":"dispatching"', '"state":"executing"',
+                         '"state":"succeeded"'):
+            assert expected in history, expected
+
+
+def test_operator_stop_aborts(rig: tuple[Server, int], sim: None) -> None:
+    srv, _ = rig
+    job_id = _approved(srv, "stand-5")
+    with srv.client("bob") as bob, srv.client("alice") as alice:
+        assert bob.post(f"/v1/jobs/{job_id}/dispatch").status_code == 202
+        wait_state(bob, job_id, {"executing"} | END_STATES, timeout=20)
+        assert alice.post(f"/v1/jobs/{job_id}/stop").status_code == 403
+        assert alice.post(f"/v1/jobs/{job_id}/cancel").status_code == 409
+        r = bob.post(f"/v1/jobs/{job_id}/stop", json={"reason": "test"})
+        assert r.status_code == 202
+        done = wait_state(bob, job_id, END_STATES, timeout=10)
+        assert done["state"] == "aborted" and done["error"]["code"] == "ABORTED"
+
+
+def test_gate_veto_rejects(rig: tuple[Server, int], sim: None) -> None:
+    srv, _ = rig
+    job_id = _approved(srv, "standbad-1")
+    with srv.client("bob") as bob:
+        assert bob.post(f"/v1/jobs/{job_id}/dispatch").status_code == 202
+        done = wait_state(bob, job_id, END_STATES, timeout=30)
+        assert done["state"] == "rejected" and done["error"]["code"] == "GATE_VETO"
+        assert "joint_position" in done["error"]["message"] or "limit" in done["error"]["message"], done["error"]
+        history = bob.get(f"/v1/jobs/{job_id}/events", params={"follow": "false"}).text
+        assert '"event":"segment"' not in history  # nothing was sent
