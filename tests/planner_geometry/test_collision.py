@@ -158,3 +158,26 @@ def test_handover_needs_both_holders(hrp5p, stances, drill_obj, drill_grasps):
         assert one is not None and one.kind == "object" and one.body_a.startswith("L_FINGER")
         return
     pytest.skip("no IK solution among the sampled handover pairs")
+
+
+def test_mesh_object_collides_through_its_triangles(hrp5p, stances, tmp_path):
+    """A non-box mesh object (an off-centre sphere, so the OBB offset matters) collides exactly."""
+    import trimesh
+
+    from planner.objects import build_object
+    from schemas.scenario import ObjectDef
+
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.04)
+    sphere.apply_translation([0.10, 0.0, 0.0])  # the mesh frame is 10 cm from the sphere centre
+    sphere.export(tmp_path / "ball.stl")
+    obj = build_object(ObjectDef(shape="mesh", mesh={"path": str(tmp_path / "ball.stl")}, mass_kg=0.3))
+    assert not obj.primitives  # not rectilinear: a BVH in fcl
+    st = stances["upright"]
+    world = CollisionWorld(hrp5p, [], obj, reference_postures=[(st.base_pose, st.q)])
+    Rs, ps = world.kin.forward(st.base_pose, st.q[None])
+    R, p = world.kin.frame(Rs, ps, "R_HAND_LINK")
+    hand = p[0]
+    for offset, expect in ((0.0, True), (0.13, False)):
+        T = make_transform(p=hand + np.array([-0.10, -offset, 0.0]))  # sphere centre at the hand (+ offset)
+        hit = world.check_forward(Rs, ps, free_object_pose=T).first[0]
+        assert (hit is not None and hit.kind == "object") == expect
