@@ -47,8 +47,10 @@ class CollisionSettings(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
+    # 5 mm: a held object put down by IK (1 mm, 0.01 rad over a 0.3 m object: ~4 mm at its far
+    # edge) may sink that much at the place pose; it is also the contract's goal tolerance.
     object_env_tolerance_m: float = Field(
-        0.002, ge=0, description="held object vs table/obstacle: penetration up to this is contact, not collision"
+        0.005, ge=0, description="held object vs table/obstacle: penetration up to this is contact, not collision"
     )
     object_robot_tolerance_m: float = Field(0.0, ge=0, description="object vs robot bodies (fingers of the holding hand are skipped)")
     self_tolerance_m: float = Field(0.0, ge=0, description="robot vs robot")
