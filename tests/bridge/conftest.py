@@ -59,33 +59,40 @@ def initial_q_file(tmp_path_factory) -> str:
     return str(path)
 
 
+def start_controller(initial_q_file: str, *flags: str, speed: float = 4.0) -> ControllerProcess:
+    """Start ``regrasp controller-sim`` on a free loopback port and wait (bounded) for its ready line."""
+    port = free_port()
+    robot_id = f"t{uuid.uuid4().hex[:10]}"
+    endpoint = f"tcp/127.0.0.1:{port}"
+    cmd = [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", robot_id, "--initial-q", initial_q_file,
+           "--listen", endpoint, "--speed", str(speed), *flags]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    ctl = ControllerProcess(proc, endpoint, robot_id)
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)
+    deadline = time.monotonic() + READY_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"controller-sim exited {proc.returncode}: {proc.stderr.read()}")
+        if sel.select(timeout=0.1):
+            line = proc.stdout.readline()
+            ctl.lines.append(line)
+            if line.startswith("{") and json.loads(line).get("ready"):
+                return ctl
+    ctl.kill()
+    raise RuntimeError("controller-sim did not become ready in time")
+
+
 @pytest.fixture
 def spawn_controller(initial_q_file):
-    """Start ``regrasp controller-sim`` processes on free loopback ports; all are ended after the test."""
+    """Start controller-sim processes; all are ended after the test."""
     started: list[ControllerProcess] = []
 
     def spawn(*flags: str, speed: float = 4.0) -> ControllerProcess:
-        port = free_port()
-        robot_id = f"t{uuid.uuid4().hex[:10]}"
-        endpoint = f"tcp/127.0.0.1:{port}"
-        cmd = [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", robot_id, "--initial-q", initial_q_file,
-               "--listen", endpoint, "--speed", str(speed), *flags]
-        proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        ctl = ControllerProcess(proc, endpoint, robot_id)
+        ctl = start_controller(initial_q_file, *flags, speed=speed)
         started.append(ctl)
-        sel = selectors.DefaultSelector()
-        sel.register(proc.stdout, selectors.EVENT_READ)
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        while time.monotonic() < deadline:
-            if proc.poll() is not None:
-                raise RuntimeError(f"controller-sim exited {proc.returncode}: {proc.stderr.read()}")
-            if sel.select(timeout=0.1):
-                line = proc.stdout.readline()
-                ctl.lines.append(line)
-                if line.startswith("{") and json.loads(line).get("ready"):
-                    return ctl
-        raise RuntimeError("controller-sim did not become ready in time")
+        return ctl
 
     yield spawn
     for ctl in started:
@@ -105,31 +112,52 @@ class Spy:
         return [str(z) for z in self.session.info.peers_zid()]
 
 
-@pytest.fixture
-def spy_factory():
+def make_spy(robot_id: str) -> Spy:
+    """A spy peer listening on a free port (the dispatcher connects to it)."""
     import zenoh
 
     from robot_bridge.settings import BridgeSettings, Keys
     from robot_bridge.zenoh_session import open_session
 
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = open_session(BridgeSettings(robot_id=robot_id, listen=[endpoint], connect=[]))
+    spy = Spy(session, endpoint)
+    keys = Keys(robot_id)
+    lock = threading.Lock()
+
+    def on_traj(sample: zenoh.Sample) -> None:
+        with lock:
+            spy.trajectory.append(json.loads(sample.payload.to_bytes()))
+
+    def on_stop(sample: zenoh.Sample) -> None:
+        with lock:
+            spy.stops.append(json.loads(sample.payload.to_bytes()))
+
+    spy._subs = [session.declare_subscriber(keys.trajectory, on_traj), session.declare_subscriber(keys.stop, on_stop)]
+    return spy
+
+
+def connect_dispatcher(ctl: ControllerProcess, spy: Spy, dispatch=None, dispatcher_cls=None):
+    """A dispatcher connected to the controller and to the spy; waits (bounded) for both."""
+    from robot_bridge.dispatcher import Dispatcher
+    from robot_bridge.settings import BridgeSettings
+
+    cls = dispatcher_cls or Dispatcher
+    disp = cls(BridgeSettings(robot_id=ctl.robot_id, connect=[ctl.endpoint, spy.endpoint]), dispatch)
+    assert disp.wait_for_controller(10.0), disp.controller_problem()
+    deadline = time.monotonic() + 5.0
+    while disp.zid() not in spy.peers() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert disp.zid() in spy.peers(), "the spy is not connected to the dispatcher"
+    return disp
+
+
+@pytest.fixture
+def spy_factory():
     spies: list[Spy] = []
 
     def make(robot_id: str) -> Spy:
-        endpoint = f"tcp/127.0.0.1:{free_port()}"
-        session = open_session(BridgeSettings(robot_id=robot_id, listen=[endpoint], connect=[]))
-        spy = Spy(session, endpoint)
-        keys = Keys(robot_id)
-        lock = threading.Lock()
-
-        def on_traj(sample: zenoh.Sample) -> None:
-            with lock:
-                spy.trajectory.append(json.loads(sample.payload.to_bytes()))
-
-        def on_stop(sample: zenoh.Sample) -> None:
-            with lock:
-                spy.stops.append(json.loads(sample.payload.to_bytes()))
-
-        spy._subs = [session.declare_subscriber(keys.trajectory, on_traj), session.declare_subscriber(keys.stop, on_stop)]
+        spy = make_spy(robot_id)
         spies.append(spy)
         return spy
 
@@ -141,26 +169,30 @@ def spy_factory():
 @pytest.fixture
 def bridge(spawn_controller, spy_factory):
     """(controller, dispatcher, spy) wired on loopback; the dispatcher connects to both peers."""
-    from robot_bridge.dispatcher import Dispatcher, DispatchSettings
-    from robot_bridge.settings import BridgeSettings
-
     made = []
 
-    def make(*flags: str, speed: float = 4.0, dispatch: DispatchSettings | None = None, dispatcher_cls=Dispatcher):
+    def make(*flags: str, speed: float = 4.0, dispatch=None, dispatcher_cls=None):
         ctl = spawn_controller(*flags, speed=speed)
         spy = spy_factory(ctl.robot_id)
-        disp = dispatcher_cls(BridgeSettings(robot_id=ctl.robot_id, connect=[ctl.endpoint, spy.endpoint]), dispatch)
+        disp = connect_dispatcher(ctl, spy, dispatch, dispatcher_cls)
         made.append(disp)
-        assert disp.wait_for_controller(10.0), disp.controller_problem()
-        deadline = time.monotonic() + 5.0
-        while disp.zid() not in spy.peers() and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert disp.zid() in spy.peers(), "the spy is not connected to the dispatcher"
         return ctl, disp, spy
 
     yield make
     for d in made:
         d.close()
+
+
+@pytest.fixture(scope="module")
+def shared_bridge(initial_q_file):
+    """One controller, spy and dispatcher for tests that never move the robot (the vetoes)."""
+    ctl = start_controller(initial_q_file)
+    spy = make_spy(ctl.robot_id)
+    disp = connect_dispatcher(ctl, spy)
+    yield ctl, disp, spy
+    disp.close()
+    spy.session.close()
+    ctl.terminate()
 
 
 def approval_for(plan: dict, ttl_s: float = 300.0) -> tuple[str, datetime]:

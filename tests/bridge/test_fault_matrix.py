@@ -125,8 +125,8 @@ def test_lost_segments_are_sent_again(bridge, long_plan):
 # --------------------------------------------------------------------------- vetoes: nothing is sent
 
 
-def test_nan_waypoint_is_vetoed_and_nothing_sent(bridge, arm_plan):
-    ctl, disp, spy = bridge()
+def test_nan_waypoint_is_vetoed_and_nothing_sent(shared_bridge, arm_plan):
+    ctl, disp, spy = shared_bridge
     bad = edited(arm_plan, lambda p: p["trajectory"][120]["q"].__setitem__(7, float("nan")))
     res, rec = run(disp, bad, approved_plan=arm_plan)
     assert res.status == "rejected" and res.verdict.check == "finite"
@@ -134,23 +134,23 @@ def test_nan_waypoint_is_vetoed_and_nothing_sent(bridge, arm_plan):
     assert_nothing_sent(disp, spy, rec)
 
 
-def test_plan_edited_after_approval_is_vetoed(bridge, arm_plan):
-    ctl, disp, spy = bridge()
+def test_plan_edited_after_approval_is_vetoed(shared_bridge, arm_plan):
+    ctl, disp, spy = shared_bridge
     changed = edited(arm_plan, lambda p: p.__setitem__("threshold_m", 0.0))
     res, rec = run(disp, changed, approved_plan=arm_plan)
     assert res.status == "rejected" and res.verdict.check == "plan_hash" and "changed after approval" in res.reason
     assert_nothing_sent(disp, spy, rec)
 
 
-def test_expired_approval_is_vetoed(bridge, arm_plan):
-    ctl, disp, spy = bridge()
+def test_expired_approval_is_vetoed(shared_bridge, arm_plan):
+    ctl, disp, spy = shared_bridge
     res, rec = run(disp, arm_plan, expires_in=-1.0)
     assert res.status == "rejected" and res.verdict.check == "approval" and "expired" in res.reason
     assert_nothing_sent(disp, spy, rec)
 
 
-def test_start_state_mismatch_is_vetoed(bridge):
-    ctl, disp, spy = bridge()
+def test_start_state_mismatch_is_vetoed(shared_bridge):
+    ctl, disp, spy = shared_bridge
     # a valid motion, but it starts 0.05 rad away from where the robot stands
     plan = build_plan({"RSP": -0.3}, duration_s=1.0)
     j = plan["robot"]["joint_names"].index("RSP")
@@ -161,8 +161,8 @@ def test_start_state_mismatch_is_vetoed(bridge):
     assert_nothing_sent(disp, spy, rec)
 
 
-def test_unstable_waypoints_injected_into_a_valid_plan_are_vetoed(bridge):
-    ctl, disp, spy = bridge()
+def test_unstable_waypoints_injected_into_a_valid_plan_are_vetoed(shared_bridge):
+    ctl, disp, spy = shared_bridge
     plan = build_plan({"RSP": -0.3}, duration_s=2.4, threshold_m=0.06)
     assert true_min_margin(plan) > 0.06
     # Inject a forward waist bend (within the joint limits and rates) and keep the plan's

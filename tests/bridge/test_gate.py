@@ -272,19 +272,23 @@ def test_any_plan_below_the_margin_is_vetoed(arm, waist, mass, holding, threshol
 
 
 def test_gate_cli(tmp_path, plan):
+    from click.testing import CliRunner
+
+    from service.cli.main import cli
+
     good = tmp_path / "good.json"
     good.write_text(json.dumps(plan))
-    run = lambda *a: subprocess.run([sys.executable, "-m", "service.cli.main", "gate", "check", *a], cwd=REPO,
-                                    capture_output=True, text=True, timeout=60)
-    out = run(str(good), "--json")
-    assert out.returncode == 0, out.stderr
+    runner = CliRunner()
+    out = runner.invoke(cli, ["gate", "check", str(good), "--json"])
+    assert out.exit_code == 0, out.output
     assert json.loads(out.stdout)["passed"] is True
-    out = run(str(good), "--threshold-mm", "500")
-    assert out.returncode == 1 and "com_margin" in out.stdout
+    out = runner.invoke(cli, ["gate", "check", str(good), "--threshold-mm", "500"])
+    assert out.exit_code == 1 and "com_margin" in out.stdout
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
-    out = run(str(bad))
-    assert out.returncode == 2 and "not valid JSON" in out.stderr
+    out = runner.invoke(cli, ["gate", "check", str(bad)])
+    assert out.exit_code == 2
+    assert "not valid JSON" in (out.stderr if hasattr(out, "stderr") else out.output)
 
 
 def test_canonical_bytes_fast_path(gate, plan):
