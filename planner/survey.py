@@ -87,8 +87,7 @@ def key_path(planner: HandConfigPlanner, should_stop: Callable[[], bool]) -> tup
     from .regrasp_graph import RegraspGraph
 
     graph = RegraspGraph(planner.screen(planner.graph_spec(), should_stop), planner.task.settings.weights)
-    if planner.task.constrained:
-        planner._seed_margin_estimates(graph)
+    planner._seed_margin_estimates(graph)
     res = graph.search(planner.validate_node, lambda a, b, k: Validation(True), max_iterations=KEY_POSE_ITERATIONS,
                        time_limit_s=planner.task.scenario.limits.time_s, should_stop=should_stop)
     if res.status != "solved":
@@ -96,35 +95,56 @@ def key_path(planner: HandConfigPlanner, should_stop: Callable[[], bool]) -> tup
     return res.path, None
 
 
-def survey_configuration(task: Task, hands: str, states: int, seed: int,
-                         should_stop: Callable[[], bool] = lambda: False, keep_states: bool = True) -> ConfigOutcome:
-    """Explore one hand configuration and count its stable and unstable states."""
+def survey_configuration(task: Task, hands: str, states: int, seed: int | list[int],
+                         should_stop: Callable[[], bool] = lambda: False, keep_states: bool = True):
+    """Explore one hand configuration and count its stable and unstable states.
+
+    With a list of seeds, the key poses are found once (with the first seed) and the
+    exploration runs once per seed; a list of outcomes is returned.
+    """
+    seeds = [seed] if isinstance(seed, int) else list(seed)
     t0 = time.perf_counter()
-    rng = np.random.default_rng([seed, HAND_CONFIGS.index(hands), 7])
+    rng = np.random.default_rng([seeds[0], HAND_CONFIGS.index(hands), 7])
     planner = HandConfigPlanner(task, hands, rng)
     try:
         path, reason = key_path(planner, should_stop)
     except GraphCanceled:
         raise SurveyCanceled() from None
-    if path is None:
-        return ConfigOutcome(hands, 0, 0, f"no feasible grasp or key poses: {reason}", {"time_s": time.perf_counter() - t0})
-    legs = _legs(planner, path)
-    if not legs:
-        return ConfigOutcome(hands, 0, 0, "the key-pose path carries the object nowhere", {"time_s": time.perf_counter() - t0})
+    t1 = time.perf_counter()
+    outcomes = []
+    legs: list[ExploreLeg] = []
+    if path is not None:
+        legs = _legs(planner, path)
+    for sd in seeds:
+        if path is None:
+            outcomes.append(ConfigOutcome(hands, 0, 0, f"no feasible grasp or key poses: {reason}", {"time_s": t1 - t0}))
+            continue
+        if not legs:
+            outcomes.append(ConfigOutcome(hands, 0, 0, "the key-pose path carries the object nowhere", {"time_s": t1 - t0}))
+            continue
+        outcomes.append(_explore(task, hands, legs, states, sd, path, t1 - t0, should_stop, keep_states))
+    return outcomes[0] if isinstance(seed, int) else outcomes
+
+
+def _explore(task: Task, hands: str, legs: list[ExploreLeg], states: int, seed: int, path: list, key_poses_s: float,
+             should_stop: Callable[[], bool], keep_states: bool) -> ConfigOutcome:
     evaluator = task.evaluator.with_threshold(task.threshold_m)
-    for i, leg in enumerate(legs):
+    checked = []
+    for leg in legs:
         held = [(leg.hold.tcp_side, leg.hold.T_obj_tcp)]
 
         def free(Q: np.ndarray, held=held) -> np.ndarray:
             return ~task.world.check_batch(task.stance.base_pose, Q, held=held).collides
 
-        legs[i] = ExploreLeg(leg.start, leg.goal, leg.hold, leg.active, free)
+        checked.append(ExploreLeg(leg.start, leg.goal, leg.hold, leg.active, free))
+    rng = np.random.default_rng([seed, HAND_CONFIGS.index(hands), 11])
     t1 = time.perf_counter()
-    ex = explore(legs, evaluator, None, states, rng, TrrtSettings(margin_cost=task.constrained), should_stop=should_stop)
+    ex = explore(checked, evaluator, None, states, rng, TrrtSettings(margin_cost=task.constrained), should_stop=should_stop)
     if ex.status == "canceled":
         raise SurveyCanceled()
-    stats = dict(ex.stats, key_poses_s=t1 - t0, exploration_s=time.perf_counter() - t1,
-                 states_per_s=ex.stats["evaluated"] / max(time.perf_counter() - t1, 1e-9),
+    elapsed = time.perf_counter() - t1
+    stats = dict(ex.stats, key_poses_s=key_poses_s, exploration_s=elapsed, seed=seed,
+                 states_per_s=ex.stats["evaluated"] / max(elapsed, 1e-9),
                  path=[_node_label(n) for n in path], status=ex.status)
     out = ConfigOutcome(hands, ex.n_stable, ex.n_unstable, None, stats)
     if ex.status != "done":
@@ -144,8 +164,8 @@ def _node_label(n) -> str:
 _WORKER_TASKS: dict[str, Task] = {}
 
 
-def _worker(args: tuple) -> ConfigOutcome:
-    scenario_json, threshold_m, hands, states, seed, settings_json = args
+def _worker(args: tuple) -> list[ConfigOutcome]:
+    scenario_json, threshold_m, hands, states, seeds, settings_json = args
     key = f"{scenario_json}|{threshold_m}|{settings_json}"
     task = _WORKER_TASKS.get(key)
     if task is None:
@@ -154,7 +174,7 @@ def _worker(args: tuple) -> ConfigOutcome:
         task = Task(scenario, settings, threshold_m=threshold_m)
         _WORKER_TASKS.clear()
         _WORKER_TASKS[key] = task
-    return survey_configuration(task, hands, states, seed)
+    return survey_configuration(task, hands, states, list(seeds))
 
 
 def run_survey(
@@ -171,11 +191,30 @@ def run_survey(
     task: Task | None = None,
 ) -> tuple[dict[str, Any], list[ConfigOutcome]]:
     """The survey document (CONTRACT.md section 4) and the per-configuration outcomes (with states)."""
+    docs = run_survey_seeds(scenario, [scenario.seed if seed is None else seed], states=states, threshold_m=threshold_m,
+                            hands=hands, workers=workers, settings=settings, should_stop=should_stop, progress=progress,
+                            task=task)
+    return docs[0]
+
+
+def run_survey_seeds(
+    scenario: Scenario,
+    seeds: list[int],
+    *,
+    states: int | None = None,
+    threshold_m: float | None = None,
+    hands: list[str] | None = None,
+    workers: int | None = None,
+    settings: PlannerSettings | None = None,
+    should_stop: Callable[[], bool] = lambda: False,
+    progress: Callable[[float, str], None] = lambda f, m: None,
+    task: Task | None = None,
+) -> list[tuple[dict[str, Any], list[ConfigOutcome]]]:
+    """One survey per seed; key poses are found once per configuration and shared by the seeds."""
     t0 = time.perf_counter()
     states = states or scenario.survey.states_per_configuration or DEFAULT_STATES
     if states < 1:
         raise ValueError(f"states per configuration must be >= 1, got {states}")
-    seed = scenario.seed if seed is None else seed
     threshold = scenario.threshold_m if threshold_m is None else threshold_m
     configs = hands or list(HAND_CONFIGS)
     for h in configs:
@@ -187,17 +226,14 @@ def run_survey(
     if threshold > inradius:
         reason = (f"threshold {threshold * 1000:.1f} mm is larger than the support polygon's inradius "
                   f"{inradius * 1000:.1f} mm in stance {task.stance.name!r}: no state can be stable")
-        outcomes = [ConfigOutcome(h, 0, 0, reason, {}) for h in configs]
+        per_config = [[ConfigOutcome(h, 0, 0, reason, {}) for _ in seeds] for h in configs]
     else:
         n_workers = min(len(configs), workers if workers is not None else (os.cpu_count() or 1))
         progress(0.05, f"exploring {len(configs)} hand configurations, {states} states each")
         if n_workers <= 1:
-            outcomes = []
+            per_config = []
             for k, h in enumerate(configs):
-                try:
-                    outcomes.append(survey_configuration(task, h, states, seed, should_stop))
-                except SurveyCanceled:
-                    raise
+                per_config.append(survey_configuration(task, h, states, list(seeds), should_stop))
                 progress(0.05 + 0.9 * (k + 1) / len(configs), f"{h} done")
         else:
             import multiprocessing as mp
@@ -205,12 +241,12 @@ def run_survey(
             sc_json = scenario.model_dump_json(by_alias=True)
             st_json = settings.model_dump_json() if settings is not None else ""
             with ProcessPoolExecutor(max_workers=n_workers, mp_context=mp.get_context("spawn")) as pool:
-                futures = [pool.submit(_worker, (sc_json, threshold, h, states, seed, st_json)) for h in configs]
-                outcomes = []
+                futures = [pool.submit(_worker, (sc_json, threshold, h, states, list(seeds), st_json)) for h in configs]
+                per_config = []
                 for k, f in enumerate(futures):
                     while True:
                         try:
-                            outcomes.append(f.result(timeout=0.2))
+                            per_config.append(f.result(timeout=0.2))
                             break
                         except TimeoutError:
                             if should_stop():
@@ -221,22 +257,26 @@ def run_survey(
                                     proc.kill()
                                 raise SurveyCanceled() from None
                     progress(0.05 + 0.9 * (k + 1) / len(configs), f"{configs[k]} done")
-    rows = [SurveyRow(hands=o.hands, stable=o.stable, unstable=o.unstable, ratio=o.ratio, reason=o.reason) for o in outcomes]
-    doc = {
-        "schema": SURVEY_SCHEMA,
-        "robot": {"name": task.robot.name, "urdf_sha256": task.robot.urdf_sha256},
-        "stance": task.stance.result().model_dump(),
-        "threshold_m": threshold,
-        "seed": seed,
-        "object": {"name": task.obj.name, "mass_kg": task.obj.mass_kg, "com_local": task.obj.com_local.tolist(),
-                   "start_pose": list(scenario.start_pose), "goal_pose": list(scenario.goal_pose)},
-        "rows": [r.model_dump(exclude_none=False) for r in rows],
-        "recommended": recommend(rows),
-        "stats": {"states_per_configuration": states, "time_s": time.perf_counter() - t0,
-                  "support_polygon": task.stance.polygon.vertices.tolist(),
-                  "configurations": {o.hands: o.stats for o in outcomes}},
-    }
-    return doc, outcomes
+    docs = []
+    for i, seed in enumerate(seeds):
+        outcomes = [pc[i] for pc in per_config]
+        rows = [SurveyRow(hands=o.hands, stable=o.stable, unstable=o.unstable, ratio=o.ratio, reason=o.reason) for o in outcomes]
+        doc = {
+            "schema": SURVEY_SCHEMA,
+            "robot": {"name": task.robot.name, "urdf_sha256": task.robot.urdf_sha256},
+            "stance": task.stance.result().model_dump(),
+            "threshold_m": threshold,
+            "seed": seed,
+            "object": {"name": task.obj.name, "mass_kg": task.obj.mass_kg, "com_local": task.obj.com_local.tolist(),
+                       "start_pose": list(scenario.start_pose), "goal_pose": list(scenario.goal_pose)},
+            "rows": [r.model_dump(exclude_none=False) for r in rows],
+            "recommended": recommend(rows),
+            "stats": {"states_per_configuration": states, "time_s": time.perf_counter() - t0,
+                      "support_polygon": task.stance.polygon.vertices.tolist(),
+                      "configurations": {o.hands: o.stats for o in outcomes}},
+        }
+        docs.append((doc, outcomes))
+    return docs
 
 
 def write_states(path: str, doc: dict, outcomes: list[ConfigOutcome], task_info: dict) -> int:

@@ -74,14 +74,11 @@ def _mean_sd(values: list[float]) -> tuple[float | None, float | None]:
 
 def _survey_rows(scenario, settings: PaperSettings, states: int, seeds: tuple[int, ...], stance: str | None = None) -> dict[str, Any]:
     from planner.jobs import resolve_scenario
-    from planner.survey import run_survey
+    from planner.survey import run_survey_seeds
 
-    runs = []
     t0 = time.perf_counter()
-    for seed in seeds:
-        sc = resolve_scenario(scenario, stance=stance, seed=seed, states_per_configuration=states)
-        doc, _ = run_survey(sc, workers=settings.workers)
-        runs.append(doc)
+    sc = resolve_scenario(scenario, stance=stance, states_per_configuration=states)
+    runs = [doc for doc, _ in run_survey_seeds(sc, list(seeds), workers=settings.workers)]
     rows = {}
     for h in HAND_CONFIGS:
         per_seed = [next(r for r in d["rows"] if r["hands"] == h) for d in runs]
