@@ -1,0 +1,63 @@
+"""Planning time per built-in scenario: cold (empty grasp cache) and warm, graph sizes,
+IK/collision/CoM checks per second, the share of time per stage, and threshold 0 vs the
+scenario's threshold (the paper says the constraint keeps planning time comparable).
+
+Run: python benchmarks/bench_planner.py [--scenarios upright,staggered] [--hands right-right] [--repeats 3]
+Targets (2 cores): warm median <= 3 s and cold <= 30 s for each of the paper's four scenarios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+
+from planner.jobs import PlanOptions, plan_scenario
+from planner.scenarios import load_builtin
+
+PAPER = ("upright", "staggered", "crouched", "one-legged")
+DEFAULT_HANDS = {"upright": "left-left", "staggered": "left-left", "crouched": "right-right", "one-legged": "left-left"}
+
+
+def run(name: str, hands: str, threshold: float | None = None) -> dict:
+    t0 = time.perf_counter()
+    doc = plan_scenario(load_builtin(name), PlanOptions(hands=hands, threshold_m=threshold))
+    wall = time.perf_counter() - t0
+    st = doc["stats"]
+    conf = st["configurations"][hands]
+    return {"status": doc["status"], "wall": wall, "nodes": conf.get("graph_nodes"), "edges": conf.get("graph_edges"),
+            "stage": conf.get("stage_s", {}), "setup": st["setup"], "counters": st["counters"],
+            "min_margin": doc.get("min_margin_m")}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scenarios", default=",".join(PAPER))
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--hands", default=None)
+    args = ap.parse_args()
+    print(f"{'scenario':<12} {'hands':<12} {'cold s':>7} {'warm med s':>10} {'0 mm s':>7} {'nodes':>6} {'edges':>7} "
+          f"{'IK/s':>6} {'coll/s':>8} {'CoM/s':>8}  stage shares (warm)")
+    for name in args.scenarios.split(","):
+        hands = args.hands or DEFAULT_HANDS.get(name, "right-right")
+        with tempfile.TemporaryDirectory() as cache:
+            os.environ["REGRASP_CACHE_DIR"] = cache
+            cold = run(name, hands)
+            warm = [run(name, hands) for _ in range(args.repeats)]
+            free = run(name, hands, threshold=0.0)
+        os.environ.pop("REGRASP_CACHE_DIR", None)
+        w = warm[len(warm) // 2]
+        med = statistics.median(r["wall"] for r in warm)
+        c = w["counters"]
+        stages = {**{k: v for k, v in w["setup"].items() if k != "setup_s"}, **w["stage"]}
+        total = sum(stages.values()) or 1.0
+        shares = ", ".join(f"{k.replace('_s', '')} {100 * v / total:.0f}%" for k, v in sorted(stages.items(), key=lambda kv: -kv[1]))
+        print(f"{name:<12} {hands:<12} {cold['wall']:7.2f} {med:10.2f} {free['wall']:7.2f} {w['nodes'] or 0:6d} {w['edges'] or 0:7d} "
+              f"{c['ik_solves'] / w['wall']:6.0f} {c['collision_states'] / w['wall']:8.0f} {c['com_states'] / w['wall']:8.0f}  {shares}"
+              f"   [{w['status']}, 0 mm: {free['status']}]")
+
+
+if __name__ == "__main__":
+    main()
