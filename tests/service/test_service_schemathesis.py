@@ -16,7 +16,7 @@ schemathesis = pytest.importorskip("schemathesis")
 from hypothesis import HealthCheck, settings  # noqa: E402
 
 #: Examples per operation: enough to hit every documented error path, small enough to stay quick.
-MAX_EXAMPLES = 8
+MAX_EXAMPLES = 6
 
 
 @pytest.fixture(scope="module")
