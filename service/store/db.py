@@ -11,6 +11,8 @@ from alembic.config import Config
 #: How long an SQLite writer waits for the lock before failing, ms.
 SQLITE_BUSY_TIMEOUT_MS = 10_000
 MIGRATIONS_DIR = Path(__file__).parent / "migrations"
+#: PostgreSQL advisory lock held while migrating (any constant unique to this application).
+MIGRATION_LOCK_KEY = 0x5E6A5501
 
 
 def make_engine(url: str, *, pool_size: int = 10) -> sa.Engine:
@@ -51,6 +53,9 @@ def alembic_config(engine: sa.Engine) -> Config:
 def migrate(engine: sa.Engine) -> None:
     """Bring the store's schema to the newest revision (idempotent)."""
     with engine.begin() as conn:
+        if engine.dialect.name == "postgresql":
+            # API replicas and workers may start together: one migrates, the others wait for it.
+            conn.execute(sa.text("SELECT pg_advisory_xact_lock(:key)"), {"key": MIGRATION_LOCK_KEY})
         cfg = alembic_config(engine)
         cfg.attributes["connection"] = conn
         command.upgrade(cfg, "head")

@@ -30,17 +30,47 @@ from service.store import JobStore, make_engine, migrate  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def pg_url() -> Iterator[str]:
+def pg_server() -> Iterator[object]:
     data = tempfile.mkdtemp(prefix="regrasp-pg-")  # short path: the server's unix socket lives there
     server = pgserver.get_server(data, cleanup_mode="stop")
-    db = f"regrasp_{uuid.uuid4().hex[:8]}"
-    server.psql(f"CREATE DATABASE {db};")
-    uri = server.get_uri(db)
     try:
-        yield uri.replace("postgresql://", "postgresql+psycopg://", 1)
+        yield server
     finally:
         server.cleanup()
         shutil.rmtree(data, ignore_errors=True)
+
+
+def _new_database(server: object) -> str:
+    db = f"regrasp_{uuid.uuid4().hex[:8]}"
+    server.psql(f"CREATE DATABASE {db};")  # type: ignore[attr-defined]
+    return server.get_uri(db).replace("postgresql://", "postgresql+psycopg://", 1)  # type: ignore[attr-defined]
+
+
+@pytest.fixture(scope="module")
+def pg_url(pg_server: object) -> str:
+    return _new_database(pg_server)
+
+
+def test_replicas_starting_together_migrate_once(pg_server: object) -> None:
+    url = _new_database(pg_server)
+    engines = [make_engine(url) for _ in range(3)]
+    errors: list[BaseException] = []
+
+    def run(engine) -> None:  # type: ignore[no-untyped-def]
+        try:
+            migrate(engine)
+        except BaseException as exc:  # noqa: BLE001
+            errors.append(exc)
+
+    threads = [threading.Thread(target=run, args=(e,)) for e in engines]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert not errors, errors
+    assert JobStore(engines[0]).queue_depth() == 0
+    for e in engines:
+        e.dispose()
 
 
 def test_migrations_and_concurrent_claims_are_exclusive(pg_url: str) -> None:
