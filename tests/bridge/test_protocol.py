@@ -1,0 +1,72 @@
+"""Wire messages, segmenting and the zenoh configuration."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from pydantic import ValidationError
+
+from robot_bridge.dispatcher import split_segments
+from robot_bridge.settings import BridgeSettings, Keys
+from robot_bridge.zenoh_session import make_config
+from schemas.bridge import TrajectorySegment
+
+from .plans import build_plan
+
+
+def _segment(**over):
+    doc = dict(job_id="j", plan_sha256="a" * 64, seq=1, segment_index=0, segment_count=1, joint_names=["A", "B"],
+               dt_s=0.005, t_from_start=0.0, points=[[0.0, 0.0], [0.001, 0.0]], holding=["none", "none"])
+    doc.update(over)
+    return TrajectorySegment(**doc)
+
+
+def test_split_segments_cover_the_plan_in_order():
+    plan = build_plan({"RSP": -0.2}, duration_s=2.3)
+    segs = split_segments(plan, "job", "b" * 64, first_seq=10, segment_duration_s=1.0)
+    assert [s.seq for s in segs] == list(range(10, 10 + len(segs)))
+    assert [s.segment_index for s in segs] == list(range(len(segs)))
+    points = [p for s in segs for p in s.points]
+    assert points == [p["q"] for p in plan["trajectory"]]
+    for s in segs:
+        assert (len(s.points) - 1) * s.dt_s <= 1.0 + 1e-9
+        assert s.t_from_start == pytest.approx(s.first_index * plan["dt_s"])
+        assert s.joint_names == plan["robot"]["joint_names"]
+
+
+def test_segment_validation():
+    _segment()
+    with pytest.raises(ValidationError, match="finite"):
+        _segment(points=[[0.0, float("nan")], [0.0, 0.0]])
+    with pytest.raises(ValidationError, match="at most 1.0 s"):
+        _segment(points=[[0.0, 0.0]] * 202, holding=["none"] * 202)
+    with pytest.raises(ValidationError, match="holding"):
+        _segment(holding=["none"])
+    with pytest.raises(ValidationError, match="segment_index"):
+        _segment(segment_index=1, segment_count=1)
+    with pytest.raises(ValidationError):
+        _segment(extra_field=1)  # commands are strict
+
+
+def test_bridge_settings_and_zenoh_config():
+    s = BridgeSettings(robot_id="hrp5p", listen=["tcp/127.0.0.1:7500"], connect=[])
+    cfg = make_config(s)
+    assert json.loads(cfg.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7500"]
+    assert json.loads(cfg.get_json("transport/link/tx/lease")) == 1000
+    with pytest.raises(ValidationError, match="locator"):
+        BridgeSettings(connect=["127.0.0.1:7447"])
+    with pytest.raises(ValidationError, match="heartbeat"):
+        BridgeSettings(heartbeat_period_s=0.2, watchdog_timeout_s=0.3)
+    k = Keys("hrp5p")
+    assert (k.trajectory, k.stop, k.joints, k.exec, k.heartbeat, k.alive) == (
+        "regrasp/hrp5p/cmd/trajectory", "regrasp/hrp5p/cmd/stop", "regrasp/hrp5p/state/joints",
+        "regrasp/hrp5p/state/exec", "regrasp/hrp5p/state/heartbeat", "regrasp/hrp5p/alive/controller")
+
+
+def test_settings_from_environment(monkeypatch):
+    monkeypatch.setenv("REGRASP_BRIDGE_CONNECT", '["tcp/10.0.0.2:7447"]')
+    monkeypatch.setenv("REGRASP_BRIDGE_ROBOT_ID", "hrp5p-real")
+    s = BridgeSettings()
+    assert s.connect == ["tcp/10.0.0.2:7447"] and s.robot_id == "hrp5p-real"
