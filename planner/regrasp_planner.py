@@ -78,8 +78,8 @@ class PlannerSettings(BaseModel):
     handover_pairs_per_pose: int = Field(12, ge=1, description="grasp pairs kept per handover pose (evenly spread)")
     intermediate_placements: int = Field(6, ge=0, description="table spots x yaws besides start and goal")
     handover: HandoverSettings = Field(default_factory=lambda: HandoverSettings(
-        positions=((0.40, 0.0, 0.30), (0.36, 0.0, 0.38), (0.42, 0.0, 0.22))))
-    handover_poses: int = Field(72, ge=0, description="floating poses kept for handovers")
+        positions=((0.40, 0.0, 0.30), (0.36, 0.0, 0.38), (0.42, 0.0, 0.22), (0.32, 0.0, 0.47))))
+    handover_poses: int = Field(96, ge=0, description="floating poses kept for handovers")
     weights: GraphWeights = Field(default_factory=GraphWeights)
     grasp: GraspSettings = Field(default_factory=GraspSettings)
     ik: IkSettings = Field(default_factory=lambda: IkSettings(restarts=2, max_iterations=60))
@@ -244,7 +244,7 @@ class Task:
         right = GraspSet(self.obj.content_hash, "right", tuple(self.all_grasps["right"][:k]), True, 0.0)
         left = GraspSet(self.obj.content_hash, "left", tuple(self.all_grasps["left"][:k]), True, 0.0)
         poses = handover_poses(self.obj, right, left, hand_geometry(self.robot, "right"), hand_geometry(self.robot, "left"),
-                               self.stance.base_pose[:3], self.settings.handover)
+                               self.stance.base_pose[:3], self.settings.handover, world=self.world)
         keep = self.settings.handover_pairs_per_pose
         out = []
         for hp in poses[: self.settings.handover_poses]:
