@@ -154,7 +154,9 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
         say("carol dispatches: the safety gate rechecks every 5 ms sample, then the segments stream to the controller")
         _wait_for(lambda: carol.health().get("controller_alive", True), settings.start_timeout_s, "the simulated controller", sim)
         carol.dispatch(plan_job["id"])
-        done = carol.wait(plan_job["id"], timeout=settings.job_timeout_s)
+        from schemas.jobs import TERMINAL_STATES
+
+        done = carol.wait(plan_job["id"], states=TERMINAL_STATES, timeout=settings.job_timeout_s)
         result.summary["execution"] = done["state"]
         result.steps.append(("execution", done["state"]))
         audit_path = out / f"job-{plan_job['id']}.mcap"
