@@ -289,6 +289,18 @@ class _Step:
     principal: tuple[int, float] | None
 
 
+def _curvature_bound(model: UrdfModel) -> float:
+    """L such that any link point x(q) along a straight joint-space segment dq bends by at most
+    ``L * (sum_j w_j |dq_j|)**2``: a second derivative of a point with respect to two joint angles
+    is at most its distance to a joint axis (2 x the reach from the root), 1 for prismatic terms."""
+    path = {model.root: 0.0}
+    for j in model.joints:
+        travel = max(abs(j.lower), abs(j.upper)) if j.type == "prismatic" else 0.0
+        path[j.child] = path[j.parent] + float(np.linalg.norm(j.origin_xyz)) + travel
+    reach = max(path[name] + float(np.linalg.norm(link.com_local)) for name, link in model.links.items())
+    return max(2.0 * reach, 1.0)
+
+
 class BatchFK:
     """Batched forward kinematics and CoM of one URDF model over N states.
 
@@ -327,12 +339,20 @@ class BatchFK:
                 principal=_principal(j.axis) if j.type != "fixed" else None,
             ))
         self._steps = tuple(steps)
+        self.column_weight = np.zeros(len(order))  # how many joint angles a column drives (mimics included)
+        for st in steps:
+            if st.src >= 0:
+                self.column_weight[st.src] += abs(st.mult)
+        self.curvature_bound = _curvature_bound(model)
         self._massive = tuple((link.name, link.mass, link.com_local, tuple(int(i) for i in np.flatnonzero(link.com_local)))
                               for link in model.links.values() if link.mass > 0.0)
         self.total_mass = model.total_mass
 
-    def forward(self, base_pose: np.ndarray, Q: np.ndarray) -> tuple[dict, dict]:
-        """World rotations (3, 3, n) and positions (3, n) of every link; n is N, or 1 for a link still in every state."""
+    def forward(self, base_pose: np.ndarray, Q: np.ndarray, still_columns: np.ndarray | None = None) -> tuple[dict, dict]:
+        """World rotations (3, 3, n) and positions (3, n) of every link; n is N, or 1 for a link still in every state.
+
+        ``still_columns`` (bool per column of Q): columns known to hold one value in every state.
+        """
         Q = np.asarray(Q, dtype=float)
         if Q.ndim != 2 or Q.shape[1] != len(self.joint_order):
             raise UrdfError(f"Q must be (N, {len(self.joint_order)}), got {Q.shape}")
@@ -346,7 +366,8 @@ class BatchFK:
         Rs = {self.model.root: R0}
         ps = {self.model.root: p0}
         QT = np.ascontiguousarray(Q.T)
-        still = {}  # column -> bool, whether every state has the same value
+        if still_columns is None:
+            still_columns = np.all(Q == Q[:1], axis=0) if len(Q) else np.ones(Q.shape[1], dtype=bool)
         for st in self._steps:
             j = st.joint
             Rp, pp = Rs[j.parent], ps[j.parent]
@@ -355,10 +376,7 @@ class BatchFK:
                 p = p + Rp[:, i] * j.origin_xyz[i]
             R = Rp if st.origin_identity else _mul(Rp, j.origin_rot)
             if st.src >= 0:
-                if st.src not in still:
-                    column = QT[st.src]
-                    still[st.src] = bool(np.all(column == column[0]))
-                value = QT[st.src][:1] if (still[st.src] and R.shape[2] == 1) else QT[st.src]
+                value = QT[st.src][:1] if (still_columns[st.src] and R.shape[2] == 1) else QT[st.src]
                 if st.mult != 1.0 or st.offset != 0.0:
                     value = value * st.mult + st.offset
                 if j.type == "prismatic":
@@ -410,9 +428,10 @@ class BatchFK:
         n = Q.shape[0] if Q.ndim == 2 else 0
         com = np.empty((n, 3))
         out = {f: (np.empty((n, 3, 3)), np.empty((n, 3))) for f in frames}
+        still = np.all(Q == Q[:1], axis=0) if n else None  # once for the whole batch
         for start in range(0, max(n, 1), CHUNK):
             stop = min(n, start + CHUNK)
-            Rs, ps = self.forward(base if base.ndim == 1 else base[start:stop], Q[start:stop])
+            Rs, ps = self.forward(base if base.ndim == 1 else base[start:stop], Q[start:stop], still)
             m = stop - start
             com[start:stop] = self.com_from(Rs, ps, m)
             for f in frames:

@@ -304,3 +304,27 @@ def test_canonical_bytes_fast_path(gate, plan):
     assert not v.passed and v.check == "plan_hash"
     v, parsed = gate.check_json(b'{"schema": NaN}', offline=True)
     assert not v.passed and v.check == "structure" and parsed is None
+
+
+def test_chord_bound_holds_on_random_segments():
+    """The bound that lets the gate skip exact kinematics at provably safe in-between samples."""
+    from robot_bridge.robot_files import robot_files
+    from robot_bridge.urdf_kinematics import BatchFK, load_urdf
+
+    model = load_urdf(str(robot_files("hrp5p").urdf))
+    fk = BatchFK(model)
+    rng = np.random.default_rng(3)
+    n = 300
+    qa = rng.uniform(np.maximum(model.lower, -2), np.minimum(model.upper, 2), size=(n, len(model.joint_names)))
+    step = rng.normal(size=qa.shape) * rng.choice([0.002, 0.02, 0.2], size=(n, 1))
+    qb = np.clip(qa + step, model.lower, model.upper)
+    base = np.array([0.0, 0.0, 0.8, 0.0, 0.0, 0.0, 1.0])
+    frames = ["l_sole", "r_tcp"]
+    ca, fa = fk.com_and_frames(base, qa, frames)
+    cb, fb = fk.com_and_frames(base, qb, frames)
+    cm, fm = fk.com_and_frames(base, 0.5 * (qa + qb), frames)
+    dq = np.abs(qb - qa) @ fk.column_weight
+    bound = fk.curvature_bound * dq * dq / 8.0
+    assert np.all(np.linalg.norm(cm - 0.5 * (ca + cb), axis=1) <= bound + 1e-12)
+    for f in frames:
+        assert np.all(np.linalg.norm(fm[f][1] - 0.5 * (fa[f][1] + fb[f][1]), axis=1) <= bound + 1e-12)
