@@ -725,7 +725,7 @@ class HandConfigPlanner:
             self.stage_s["motions_s"] = self.stage_s.get("motions_s", 0.0) + time.perf_counter() - t0
         return self._edges[key]
 
-    def screen(self, spec: GraphSpec, should_stop: Callable[[], bool] = lambda: False) -> GraphSpec:
+    def screen(self, spec: GraphSpec, should_stop: Callable[[], bool] = lambda: False, want: int | None = None) -> GraphSpec:
         """Validate start and goal nodes up front, in order of estimated margin, until a few are valid.
 
         Most failures happen where the object rests at the start and goal; screening them in one
@@ -739,7 +739,7 @@ class HandConfigPlanner:
             cands.sort(key=lambda n: n.grasp)  # grasps come sorted by their distance to the CoM
             found = 0
             for n in cands:
-                if found >= t.settings.screen_valid:
+                if found >= (want or t.settings.screen_valid):
                     break
                 if should_stop():
                     raise Canceled()

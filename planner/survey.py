@@ -86,7 +86,7 @@ def key_path(planner: HandConfigPlanner, should_stop: Callable[[], bool]) -> tup
     """The cheapest path whose nodes are valid (motions not planned), or the reason there is none."""
     from .regrasp_graph import RegraspGraph
 
-    graph = RegraspGraph(planner.screen(planner.graph_spec(), should_stop), planner.task.settings.weights)
+    graph = RegraspGraph(planner.screen(planner.graph_spec(), should_stop, want=1), planner.task.settings.weights)
     planner._seed_margin_estimates(graph)
     res = graph.search(planner.validate_node, lambda a, b, k: Validation(True), max_iterations=KEY_POSE_ITERATIONS,
                        time_limit_s=planner.task.scenario.limits.time_s, should_stop=should_stop)

@@ -1,0 +1,82 @@
+"""`regrasp paper --quick`: the report's structure, and every table number against the JSON it came from."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+from click.testing import CliRunner
+
+from service.cli.main import cli
+from service.paper import INCONSISTENCIES, PAPER_TABLES, STANCES
+
+HANDS = ("left-left", "right-right", "left-right", "right-left")
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("paper")
+    res = CliRunner().invoke(cli, ["paper", "--quick", "--out", str(out)], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    return (out / "report.md").read_text(), json.loads((out / "report.json").read_text()), out
+
+
+def _table_rows(md: str, heading: str) -> list[list[str]]:
+    section = md.split(heading, 1)[1]
+    rows = []
+    for line in section.splitlines()[1:]:
+        if line.startswith("#"):
+            break
+        if line.startswith("| ") and not line.startswith("|---"):
+            rows.append([c.strip() for c in line.strip("|").split("|")])
+    return rows
+
+
+def test_every_section_is_there(report):
+    md, data, out = report
+    for heading in ("## Tables I-IV", "## Stance comparison", "## CoM traces", "## The real-robot tasks",
+                    "## Planning time", "## Where we agree and where we differ", "## The paper's own inconsistencies"):
+        assert heading in md
+    for stance in STANCES:
+        assert f"### {stance.capitalize()} stance" in md
+        fig = data["figures"].get(stance)
+        assert fig and (out / fig).read_bytes()[:4] == b"\x89PNG"
+    for issue, _ in INCONSISTENCIES:
+        assert issue in md
+    assert f"{data['timings']['total_s']:.1f} s" in md
+
+
+def test_table_numbers_match_the_json(report):
+    md, data, _ = report
+    for stance in STANCES:
+        t = data["tables"][stance]
+        assert f"{t['states']} states per configuration" in md
+        rows = {r[0]: r for r in _table_rows(md, f"### {stance.capitalize()} stance")[1:] if r[0] in HANDS}
+        assert set(rows) == set(HANDS)
+        for h in HANDS:
+            row = t["rows"][h]
+            assert rows[h][1] == "/".join(map(str, row["stable"]))
+            assert rows[h][2] == "/".join(map(str, row["unstable"]))
+            if row["ratio_mean"] is not None:
+                assert rows[h][3] == f"{row['ratio_mean']:.4f} ± {row['ratio_sd']:.4f}"
+                for c, u, r in zip(row["stable"], row["unstable"], row["ratio"]):
+                    assert r == pytest.approx(c / (c + u))
+            pc, pu, pr = PAPER_TABLES[stance][h]
+            assert rows[h][4:7] == [str(pc), str(pu), f"{pr:.4f}"]
+        assert len(t["seeds"]) >= 2  # a spread over seeds
+
+
+def test_comparison_matrix_and_claims_match_the_json(report):
+    md, data, _ = report
+    matrix = {r[0]: r[1:] for r in _table_rows(md, "## Stance comparison")[1:]}
+    for stance in STANCES:
+        for h, cell in zip(HANDS, matrix[stance]):
+            mean = data["comparison"][stance]["rows"][h]["ratio_mean"]
+            assert cell == (f"{mean:.3f}" if mean is not None else cell)
+    for claim in data["claims"]:
+        assert re.search(re.escape(f"**{claim['verdict']}**: {claim['claim']}"), md)
+    assert len(data["claims"]) >= 5
+    for stance in STANCES:
+        p = data["plans"][stance]
+        assert p["constrained"]["threshold_m"] > 0 and p["unconstrained"]["threshold_m"] == 0.0
