@@ -16,8 +16,6 @@ import uuid
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from schemas.plan import plan_sha256
-
 from .executors.base import ExecEvent, Executor
 from .provenance import code_version, library_versions, robot_sha256
 from .settings import ServiceSettings
@@ -184,48 +182,40 @@ class Runner:
         else:
             self._finish_result(run, ev.result)
 
-    def _finish_result(self, run: _Running, result: Any) -> None:
-        if not isinstance(result, dict):
-            msg = f"the handler returned {type(result).__name__}, not a JSON object"
+    def _finish_result(self, run: _Running, packaged: Any) -> None:
+        """Store a result packaged by the worker (service.results.package): canonical text, hash, summary."""
+        if not isinstance(packaged, dict) or "text" not in packaged:
+            msg = "the executor returned a result that was not packaged"
             self._finish(run, "failed", msg, error={"code": "INVALID_RESULT", "message": msg})
             return
+        summary, sha = packaged["summary"], packaged["sha256"]
         extra: dict[str, Any] = {}
-        scenario = result.get("scenario") if isinstance(result.get("scenario"), dict) else {}
-        if isinstance(result.get("seed"), int):
-            extra["seed"] = result["seed"]
-        elif isinstance(scenario.get("seed"), int):
-            extra["seed"] = scenario["seed"]
-        robot = result.get("robot") if isinstance(result.get("robot"), dict) else {}
-        if robot.get("name"):
-            extra["robot"] = robot["name"]
-            extra["robot_sha256"] = robot.get("urdf_sha256") or robot_sha256(robot["name"])
-        try:
-            sha = plan_sha256(result)
-        except (TypeError, ValueError) as exc:
-            msg = f"the result is not canonical JSON (NaN/Inf or non-JSON values): {exc}"
-            self._finish(run, "failed", msg, error={"code": "INVALID_RESULT", "message": msg})
-            return
+        if summary.get("seed") is not None:
+            extra["seed"] = summary["seed"]
+        if summary.get("robot"):
+            extra["robot"] = summary["robot"]
+            extra["robot_sha256"] = summary.get("robot_sha256") or robot_sha256(summary["robot"])
+        text = packaged["text"]
         if run.kind == "plan":
-            if result.get("status") == "infeasible":
-                failure = result.get("failure") or {}
-                err = {"code": str(failure.get("code") or "INFEASIBLE"),
-                       "message": str(failure.get("message") or "no plan meets the constraints")}
+            if summary.get("status") == "infeasible":
+                err = summary.get("failure") or {"code": "INFEASIBLE", "message": ""}
+                err = {"code": err["code"], "message": err["message"] or "no plan meets the constraints"}
                 self._finish(run, "failed", f"infeasible: {err['code']}: {err['message']}", error=err,
-                             result=result, extra=extra)
+                             result_text=text, extra=extra)
             else:
                 extra["plan_sha256"] = sha
-                self._finish(run, "planned", "planned; waiting for approval", result=result, extra=extra,
+                self._finish(run, "planned", "planned; waiting for approval", result_text=text, extra=extra,
                              data={"plan_sha256": sha})
         else:
-            self._finish(run, "succeeded", "survey finished", result=result, extra=extra)
+            self._finish(run, "succeeded", "survey finished", result_text=text, extra=extra)
 
     def _finish(self, run: _Running, state: str, message: str, *, error: dict[str, Any] | None = None,
-                result: dict[str, Any] | None = None, extra: dict[str, Any] | None = None,
+                result_text: str | None = None, extra: dict[str, Any] | None = None,
                 data: dict[str, Any] | None = None) -> None:
         if error is not None:
             error = {k: v for k, v in error.items() if k in ("code", "message", "traceback")}
-        ok = self.store.finish_planning(run.job_id, self.owner, state, message=message, result=result, error=error,
-                                        extra=extra, data=data)
+        ok = self.store.finish_planning(run.job_id, self.owner, state, message=message, result_text=result_text,
+                                        error=error, extra=extra, data=data)
         if ok and self.on_finish is not None:
             self.on_finish(run.kind, state, time.monotonic() - run.started)
 

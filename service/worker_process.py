@@ -64,6 +64,7 @@ def worker_main(conn: Connection, cancel: Event, handlers: dict[str, str], robot
             pass
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watch").start()
     from .handlers import canceled_exception_types, resolve
+    from .results import InvalidResult, package
 
     lock = threading.Lock()
     table: dict[str, Any] = {}
@@ -96,15 +97,14 @@ def worker_main(conn: Connection, cancel: Event, handlers: dict[str, str], robot
             result = table[kind](request, ctx)
             if cancel.is_set() and result is None:
                 raise canceled_types[0]("canceled")
-            outcome: tuple[Any, ...] = ("done", job_id, result)
+            outcome: tuple[Any, ...] = ("done", job_id, package(result))
         except canceled_types:
             outcome = ("canceled", job_id)
+        except InvalidResult as exc:
+            outcome = ("error", job_id, {"code": "INVALID_RESULT", "message": str(exc)})
         except Exception as exc:  # noqa: BLE001 - every failure becomes the job's error
             code = "INVALID_REQUEST" if isinstance(exc, (ValueError, LookupError)) else "ERROR"
             outcome = ("error", job_id, {"code": code, "message": f"{type(exc).__name__}: {exc}",
                                          "traceback": traceback.format_exc(limit=8)})
         with lock:
-            try:
-                conn.send(outcome)
-            except (ValueError, TypeError) as exc:  # result not picklable
-                conn.send(("error", job_id, {"code": "INVALID_RESULT", "message": f"result cannot be sent: {exc}"}))
+            conn.send(outcome)

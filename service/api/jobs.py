@@ -19,7 +19,6 @@ from schemas.jobs import (
     CANCELABLE_STATES, EXECUTION_STATES, TERMINAL_STATES, ApproveBody, Job, JobKind, JobList, JobState,
     JobSubmit, ReasonBody,
 )
-from schemas.plan import plan_sha256
 
 from ..auth import Principal
 from ..context import Service
@@ -289,8 +288,9 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
                                 "an approver must approve it first")
     if row["state"] != "approved":
         raise ProblemError(409, f"job {job_id} is {row['state']}; only an approved plan can be dispatched")
-    plan = svc.store.result(job_id)
-    if plan is None or plan_sha256(plan) != row["approved_sha256"]:
+    text = svc.store.result_text(job_id)
+    # The stored text is the plan's canonical JSON (service.results), so its hash is the plan's hash.
+    if text is None or hashlib.sha256(text.encode("utf-8")).hexdigest() != row["approved_sha256"]:
         raise ProblemError(409, f"the stored plan of job {job_id} no longer matches the approved hash "
                                 f"{row['approved_sha256']}; it cannot be dispatched")
     busy = svc.executions.busy_with()
@@ -300,6 +300,7 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
         why = getattr(svc.bridge, "reason", None)
         raise ProblemError(409, "no controller is alive" + (f": {why}" if why else "")
                            + "; start the controller and retry")
+    plan = json.loads(text)
     if not svc.executions.begin(row, plan, p.user):
         raise ProblemError(409, f"job {job_id} changed state before dispatch (approval expired or acted on); reload it")
     return _job_response(svc, svc.store.get(job_id) or row, 202)

@@ -63,6 +63,8 @@ class _JobActorImpl:
         return os.getpid()
 
     def run(self, job_id: str, kind: str, request: dict[str, Any]) -> tuple[str, Any]:
+        from ..results import InvalidResult, package
+
         self.cancel_event.clear()
         with self.lock:
             self.latest = None
@@ -70,9 +72,11 @@ class _JobActorImpl:
         try:
             if kind not in self.table:
                 raise LookupError(self.errors.get(kind) or f"no handler for job kind {kind!r}")
-            return "done", self.table[kind](request, ctx)
+            return "done", package(self.table[kind](request, ctx))
         except self.canceled_types:
             return "canceled", None
+        except InvalidResult as exc:
+            return "error", {"code": "INVALID_RESULT", "message": str(exc)}
         except Exception as exc:  # noqa: BLE001
             code = "INVALID_REQUEST" if isinstance(exc, (ValueError, LookupError)) else "ERROR"
             return "error", {"code": code, "message": f"{type(exc).__name__}: {exc}"}

@@ -266,7 +266,7 @@ class JobStore:
         return n == 1
 
     def finish_planning(self, job_id: str, owner: str, to_state: str, *, message: str,
-                        result: dict[str, Any] | None = None, error: dict[str, Any] | None = None,
+                        result_text: str | None = None, error: dict[str, Any] | None = None,
                         extra: dict[str, Any] | None = None, data: dict[str, Any] | None = None) -> bool:
         """End the planning phase (planned, succeeded, failed, canceled) and store the result, in one transaction."""
         now = utcnow()
@@ -281,9 +281,8 @@ class JobStore:
                              .values(**values)).rowcount
             if n != 1:
                 return False
-            if result is not None:
-                conn.execute(job_results.insert().values(
-                    job_id=job_id, result=json.dumps(result, allow_nan=False, separators=(",", ":"))))
+            if result_text is not None:
+                conn.execute(job_results.insert().values(job_id=job_id, result=result_text))
             self._event(conn, job_id, "state", state=to_state, progress=values.get("progress"), message=message,
                         data={**(data or {}), **({"error": error} if error else {})}, at=now)
         return True

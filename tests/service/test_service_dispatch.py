@@ -91,16 +91,18 @@ def test_dispatch_executes_to_success(rig: tuple[Server, int], sim: None) -> Non
 
 def test_operator_stop_aborts(rig: tuple[Server, int], sim: None) -> None:
     srv, _ = rig
-    job_id = _approved(srv, "stand-5")
+    job_id = _approved(srv, "stand-10")
     with srv.client("bob") as bob, srv.client("alice") as alice:
-        assert bob.post(f"/v1/jobs/{job_id}/dispatch").status_code == 202
-        wait_state(bob, job_id, {"executing"} | END_STATES, timeout=20)
+        r = bob.post(f"/v1/jobs/{job_id}/dispatch")
+        assert r.status_code == 202, r.text
+        running = wait_state(bob, job_id, {"executing"} | END_STATES, timeout=30)
+        assert running["state"] == "executing", (running["message"], running["error"])
         assert alice.post(f"/v1/jobs/{job_id}/stop").status_code == 403
         assert alice.post(f"/v1/jobs/{job_id}/cancel").status_code == 409
         r = bob.post(f"/v1/jobs/{job_id}/stop", json={"reason": "test"})
-        assert r.status_code == 202
+        assert r.status_code == 202, r.text
         done = wait_state(bob, job_id, END_STATES, timeout=10)
-        assert done["state"] == "aborted" and done["error"]["code"] == "ABORTED"
+        assert done["state"] == "aborted" and done["error"]["code"] == "ABORTED", (done["message"], done["error"])
 
 
 def test_gate_veto_rejects(rig: tuple[Server, int], sim: None) -> None:

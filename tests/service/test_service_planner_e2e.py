@@ -52,7 +52,7 @@ def test_unknown_scenario_is_refused_at_submit(real_server: Server) -> None:
         assert r.status_code == 422 and "upright" in r.json()["detail"]
 
 
-def test_plan_job_end_to_end(real_server: Server) -> None:
+def test_plan_job_end_to_end(real_server: Server, bridge_port: int) -> None:
     with real_server.client("alice") as alice, real_server.client("bob") as bob:
         r = alice.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "upright", "seed": 1,
                                                                     "time_limit_s": PLANNER_TIME_LIMIT_S}})
