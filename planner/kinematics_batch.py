@@ -99,36 +99,53 @@ class BatchKinematics:
         self._frames = {f.name: (int(f.parentJoint), np.array(f.placement.rotation), np.array(f.placement.translation)) for f in model.frames}
 
     def forward(self, base_pose: np.ndarray, Q: np.ndarray) -> tuple[list, list]:
-        """World rotations ``(3, 3, N)`` and positions ``(3, N)`` of every joint frame, by pinocchio joint id."""
+        """World rotations ``(3, 3, N)`` and positions ``(3, N)`` of every joint frame, by pinocchio joint id.
+
+        A joint whose column (and every ancestor's) is the same in every row is computed once and
+        broadcast: in a plan the legs, the neck and the idle arm never move, so most of the tree is
+        constant across a batch. Broadcast entries are read-only views.
+        """
         Q = np.atleast_2d(np.asarray(Q, dtype=float))
         n = Q.shape[0]
         base_pose = np.asarray(base_pose, dtype=float)
         Rs: list = [None] * self._njoints
         ps: list = [None] * self._njoints
+        const = [False] * self._njoints
         if base_pose.ndim == 1:
-            Rs[1] = np.repeat(quat_to_matrix(base_pose[3:])[:, :, None], n, axis=2)
-            ps[1] = np.repeat(base_pose[:3, None], n, axis=1)
+            Rs[1] = quat_to_matrix(base_pose[3:])[:, :, None].copy()
+            ps[1] = base_pose[:3, None].copy()
+            const[1] = True
         else:
             Rs[1] = np.moveaxis(quat_to_matrix(base_pose[:, 3:]), 0, 2).copy()
             ps[1] = base_pose[:, :3].T.copy()
+        const_cols = np.all(Q == Q[0], axis=0) if n > 1 else np.ones(Q.shape[1], dtype=bool)
         QT = Q.T
         for s in self._steps:
             Rp, pp = Rs[s.parent], ps[s.parent]
+            c = const[s.parent] and bool(const_cols[s.q_col])
+            if not c and Rp.shape[2] == 1 and n > 1:
+                Rp, pp = np.repeat(Rp, n, axis=2), np.repeat(pp, n, axis=1)
             p = _affine(pp, Rp, s.pos0)
             R = _rotate(Rp, s.rot0) if s.rot0 is not None else Rp.copy()
-            theta = QT[s.q_col] * s.mult + s.offset if (s.mult != 1.0 or s.offset != 0.0) else QT[s.q_col]
+            col = QT[s.q_col][:1] if c else QT[s.q_col]
+            theta = col * s.mult + s.offset if (s.mult != 1.0 or s.offset != 0.0) else col
             if s.kind == "R":
-                c, sn = np.cos(theta), np.sin(theta)
+                cs, sn = np.cos(theta), np.sin(theta)
                 i, j = ((1, 2), (2, 0), (0, 1))[s.axis_index]
                 ci = R[:, i].copy()
                 cj = R[:, j]
-                R[:, i] = c * ci + sn * cj
-                R[:, j] = c * cj - sn * ci
+                R[:, i] = cs * ci + sn * cj
+                R[:, j] = cs * cj - sn * ci
             elif s.kind == "RU":
                 R = np.einsum("ijn,jkn->ikn", R, _rodrigues(s.axis, theta))
             else:  # prismatic: move along the rotated axis
                 p = p + theta * _matvec(R, s.axis)
-            Rs[s.jid], ps[s.jid] = R, p
+            Rs[s.jid], ps[s.jid], const[s.jid] = R, p, c
+        if n > 1:
+            for jid in range(1, self._njoints):
+                if Rs[jid] is not None and Rs[jid].shape[2] == 1:
+                    Rs[jid] = np.broadcast_to(Rs[jid], (3, 3, n))
+                    ps[jid] = np.broadcast_to(ps[jid], (3, n))
         return Rs, ps
 
     def com(self, base_pose: np.ndarray, Q: np.ndarray) -> np.ndarray:

@@ -110,3 +110,20 @@ def test_urdf_loads_with_a_free_flyer():
     model = pin.buildModelFromUrdf(str(urdf_path("hrp5p")), pin.JointModelFreeFlyer())
     assert model.names[1] == "root_joint"
     assert model.nq == 7 + 39  # 37 joints + 2 mimic fingers
+
+
+def test_batch_fk_with_a_constant_subtree_matches_pinocchio(hrp5p, stances):
+    """Legs, neck and the idle arm constant across the batch: computed once, broadcast, still exact."""
+    st = stances["upright"]
+    rng = np.random.default_rng(5)
+    Q = np.repeat(st.q[None], 40, axis=0)
+    arm = np.concatenate([hrp5p.waist_indices(), hrp5p.arm_indices("right")])
+    Q[:, arm] = rng.uniform(hrp5p.lower[arm], hrp5p.upper[arm], size=(40, len(arm)))
+    com, frames = BatchKinematics(hrp5p).com_and_frames(st.base_pose, Q, ["r_tcp", "l_tcp", "l_sole"])
+    data = hrp5p.create_data()
+    for i in range(0, 40, 7):
+        assert np.abs(com[i] - center_of_mass(hrp5p, data, st.base_pose, Q[i])).max() < 1e-9
+        rtcp, ltcp, lsole = frame_poses(hrp5p, data, st.base_pose, Q[i], ["r_tcp", "l_tcp", "l_sole"])
+        assert np.abs(frames["r_tcp"][1][i] - rtcp.translation).max() < 1e-9
+        assert np.abs(frames["l_tcp"][0][i] - ltcp.rotation).max() < 1e-9
+        assert np.abs(frames["l_sole"][1][i] - lsole.translation).max() < 1e-9
