@@ -28,6 +28,7 @@ from typing import Literal, Sequence
 import numpy as np
 import pinocchio as pin
 
+from .kinematics_batch import _affine, _matvec, _rodrigues
 from .robot_model import RobotModel
 from .stability import system_com
 from .stances import Stance
@@ -336,27 +337,6 @@ def _statics(robot: RobotModel) -> _Statics:
     _STATICS[id(robot)] = st
     return st
 
-
-def _affine(p: np.ndarray, R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    out = p.copy()
-    for j in range(3):
-        if v[j] != 0.0:
-            out += R[:, j] * v[j]
-    return out
-
-
-def _matvec(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    out = np.zeros((3, R.shape[2]))
-    for j in range(3):
-        if v[j] != 0.0:
-            out += R[:, j] * v[j]
-    return out
-
-
-def _rodrigues(axis: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    c, s = np.cos(theta), np.sin(theta)
-    return np.eye(3)[:, :, None] + s[None, None] * K[:, :, None] + (1 - c)[None, None] * (K @ K)[:, :, None]
 
 
 class StateEvaluator:
