@@ -292,7 +292,7 @@ def render(res: Results) -> str:
             row = t["rows"][h]
             pc, pu, pr = PAPER_TABLES[stance][h]
             if row["ratio_mean"] is None:
-                ours = f"n/a ({row['reason']})"
+                ours = f"n/a ({_short_reason(row['reason'])})"
             else:
                 ours = f"{row['ratio_mean']:.4f} ± {row['ratio_sd']:.4f}"
             lines.append(f"| {h} | {'/'.join(map(str, row['stable']))} | {'/'.join(map(str, row['unstable']))} | {ours} | "
@@ -350,6 +350,18 @@ def render(res: Results) -> str:
               "- **Exploration**: our counts are from our own T-RRT exploration of the carried stretches, with the "
               "sample counts above; the paper's counts come from its implementation and run lengths.", ""]
     return "\n".join(lines)
+
+
+def _short_reason(reason: str | None) -> str:
+    """The failure code of a reason ("... key poses: COM_MARGIN: ..." -> "COM_MARGIN"), else its first words."""
+    if not reason:
+        return "no plan"
+    import re
+
+    m = re.search(r"\b([A-Z][A-Z_]{3,})\b", reason)
+    if m:
+        return m.group(1)
+    return "threshold cannot be met" if "inradius" in reason else reason.split(":")[0][:60]
 
 
 def _fmt_s(v: float | None) -> str:
