@@ -137,13 +137,20 @@ def make_spy(robot_id: str) -> Spy:
     return spy
 
 
-def connect_dispatcher(ctl: ControllerProcess, spy: Spy, dispatch=None, dispatcher_cls=None):
+#: Watchdog of the tests that do not test the watchdog: on a loaded 2-core machine a heartbeat
+#: can be late by several hundred ms, which would abort unrelated cases.
+RELAXED_WATCHDOG_S = 1.0
+
+
+def connect_dispatcher(ctl: ControllerProcess, spy: Spy, dispatch=None, dispatcher_cls=None,
+                       watchdog_timeout_s: float = RELAXED_WATCHDOG_S):
     """A dispatcher connected to the controller and to the spy; waits (bounded) for both."""
     from robot_bridge.dispatcher import Dispatcher
     from robot_bridge.settings import BridgeSettings
 
     cls = dispatcher_cls or Dispatcher
-    disp = cls(BridgeSettings(robot_id=ctl.robot_id, connect=[ctl.endpoint, spy.endpoint]), dispatch)
+    disp = cls(BridgeSettings(robot_id=ctl.robot_id, connect=[ctl.endpoint, spy.endpoint],
+                              watchdog_timeout_s=watchdog_timeout_s), dispatch)
     assert disp.wait_for_controller(10.0), disp.controller_problem()
     deadline = time.monotonic() + 5.0
     while disp.zid() not in spy.peers() and time.monotonic() < deadline:
@@ -171,10 +178,10 @@ def bridge(spawn_controller, spy_factory):
     """(controller, dispatcher, spy) wired on loopback; the dispatcher connects to both peers."""
     made = []
 
-    def make(*flags: str, speed: float = 4.0, dispatch=None, dispatcher_cls=None):
+    def make(*flags: str, speed: float = 4.0, dispatch=None, dispatcher_cls=None, watchdog_timeout_s=RELAXED_WATCHDOG_S):
         ctl = spawn_controller(*flags, speed=speed)
         spy = spy_factory(ctl.robot_id)
-        disp = connect_dispatcher(ctl, spy, dispatch, dispatcher_cls)
+        disp = connect_dispatcher(ctl, spy, dispatch, dispatcher_cls, watchdog_timeout_s)
         made.append(disp)
         return ctl, disp, spy
 

@@ -229,7 +229,11 @@ def test_controller_killed_mid_execution(bridge, long_plan):
 
 
 def test_heartbeat_stall_aborts_within_the_watchdog(bridge, long_plan):
-    ctl, disp, spy = bridge("--freeze-heartbeat-after-s", "0.3", speed=2.0)
+    from robot_bridge.settings import BridgeSettings
+
+    # the production watchdog (0.25 s), so the 300 ms deadline is what is tested
+    ctl, disp, spy = bridge("--freeze-heartbeat-after-s", "0.3", speed=2.0,
+                            watchdog_timeout_s=BridgeSettings().watchdog_timeout_s)
     res, rec = run(disp, long_plan)
     assert res.status == "aborted" and "heartbeat" in res.reason
     assert ctl.proc.poll() is None  # the controller process is still alive, only its heartbeat froze
