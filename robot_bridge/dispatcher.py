@@ -42,10 +42,10 @@ class DispatchSettings(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    segment_duration_s: float = Field(0.5, gt=0, le=MAX_SEGMENT_DURATION_S,
+    segment_duration_s: float = Field(0.25, gt=0, le=MAX_SEGMENT_DURATION_S,
                                       description="time spanned by one segment's points (the contract allows 1 s; "
-                                                  "0.5 s keeps a segment near 40 KB)")
-    lookahead_segments: int = Field(4, ge=1, le=1000, description="segments sent ahead of the one being played")
+                                                  "0.25 s keeps a segment near 20 KB, so it crosses in about a millisecond)")
+    lookahead_segments: int = Field(8, ge=1, le=1000, description="segments sent ahead of the one being played (2 s)")
     poll_period_s: float = Field(0.005, gt=0, le=0.1, description="how often the execution loop looks at its inputs")
     progress_timeout_s: float = Field(3.0, gt=0, description="no progress report for this long = fault")
     resend_after_s: float = Field(0.1, gt=0, description="re-send a segment the controller has not acknowledged by then")
