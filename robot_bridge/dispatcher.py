@@ -104,11 +104,8 @@ class Dispatcher:
     """One zenoh peer of the bridge for one robot; thread-safe, one execution at a time."""
 
     def __init__(self, settings: BridgeSettings | None = None, dispatch: DispatchSettings | None = None,
-                 gate: SafetyGate | None = None, *, robot: str | None = None):
-        """``robot`` sets the robot id of default settings (the environment fills the rest)."""
-        if settings is None:
-            settings = BridgeSettings(robot_id=robot) if robot is not None else BridgeSettings()
-        self.settings = settings
+                 gate: SafetyGate | None = None):
+        self.settings = settings or BridgeSettings()
         self.dispatch = dispatch or DispatchSettings()
         self.gate = gate or SafetyGate(GateSettings(start_tolerance_rad=self.dispatch.start_tolerance_rad))
         self.keys = Keys(self.settings.robot_id)
