@@ -70,8 +70,9 @@ class ServiceClient:
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
         return self._call("POST", "/v1/jobs", json={"kind": kind, "request": request}, headers=headers)
 
-    def get(self, job_id: str) -> dict[str, Any]:
-        return self._call("GET", f"/v1/jobs/{job_id}")
+    def get(self, job_id: str, *, include_result: bool = True) -> dict[str, Any]:
+        params = None if include_result else {"include_result": "false"}
+        return self._call("GET", f"/v1/jobs/{job_id}", params=params)
 
     def list(self, **filters: Any) -> dict[str, Any]:
         return self._call("GET", "/v1/jobs", params={k: v for k, v in filters.items() if v is not None})
@@ -120,9 +121,9 @@ class ServiceClient:
         """Follow the job's events until it reaches one of ``states``; returns the job."""
         wanted = set(states)
         deadline = time.monotonic() + timeout
-        job = self.get(job_id)
+        job = self.get(job_id, include_result=False)
         if job["state"] in wanted:
-            return job
+            return self.get(job_id)
         try:
             for event in self.events(job_id, timeout=timeout):
                 if on_event is not None:
@@ -133,10 +134,10 @@ class ServiceClient:
                     break
         except (httpx.HTTPError, ServiceError):
             pass
-        while time.monotonic() < deadline:  # fallback: poll
-            job = self.get(job_id)
+        while time.monotonic() < deadline:  # fallback: poll (without the result, which can be MBs)
+            job = self.get(job_id, include_result=False)
             if job["state"] in wanted:
-                return job
+                return self.get(job_id)
             time.sleep(0.2)
         raise TimeoutError(f"job {job_id} did not reach {sorted(wanted)} within {timeout} s (now {job['state']})")
 

@@ -9,7 +9,7 @@ from typing import Any
 from .auth import TokenStore
 from .bridge import Bridge, make_bridge
 from .execution import Executions
-from .job_audit import JobAuditor
+from .job_audit import AuditProcess
 from .metrics import Metrics
 from .runner import Runner
 from .settings import ServiceSettings
@@ -28,7 +28,7 @@ class Service:
     executions: Executions
     runner: Runner | None = None
     executor: Any = None
-    auditor: JobAuditor | None = None
+    auditor: AuditProcess | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -48,7 +48,7 @@ class Service:
             svc.executor = make_executor(settings)
             svc.runner = Runner(store, svc.executor, settings, on_finish=metrics.job_finished)
         if settings.audit:
-            svc.auditor = JobAuditor(store, settings.audit_dir)
+            svc.auditor = AuditProcess(settings.resolved_database_url, settings.audit_dir)
         return svc
 
     def start(self) -> None:

@@ -11,6 +11,7 @@ outcome ends it ``succeeded``, ``rejected`` (gate veto) or ``aborted``.
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from datetime import datetime, timedelta
@@ -25,6 +26,8 @@ log = logging.getLogger("regrasp.execution")
 
 #: How often running executions look for a stop requested through another API replica, s.
 STOP_POLL_S = 0.2
+#: How long the end of an execution waits for its queued events to be stored, s.
+EVENT_DRAIN_TIMEOUT_S = 30.0
 #: Bridge events that mean the robot is being driven (robot_bridge.dispatcher names them so).
 EXECUTING_EVENTS = frozenset({"executing", "segment", "robot_state"})
 #: Exceptions of the bridge raised before anything was sent: the job goes back to approved.
@@ -69,15 +72,14 @@ class Executions:
         if threshold is None:
             threshold = float(plan.get("threshold_m") or 0.0)
 
+        # The control path never waits on the database: events are queued here and written by another thread.
+        pending: queue.Queue[tuple[str, Any] | None] = queue.Queue()
+        writer = threading.Thread(target=self._write_events, args=(job_id, pending), name=f"exec-events-{job_id[:8]}",
+                                  daemon=True)
+        writer.start()
+
         def on_event(name: str, payload: dict[str, Any]) -> None:
-            try:
-                self.store.add_event(job_id, "bridge", message=str(name),
-                                     data={"event": str(name), "payload": _jsonable(payload)})
-                if str(name) in EXECUTING_EVENTS:
-                    self.store.transition(job_id, ["dispatching"], "executing", message="executing on the robot",
-                                          expect_owner=self.owner)
-            except Exception:  # noqa: BLE001 - an event that cannot be stored must not stop the robot's stop path
-                log.exception("storing bridge event %s of job %s failed", name, job_id)
+            pending.put((str(name), dict(payload) if isinstance(payload, dict) else payload))
 
         try:
             outcome = self.bridge.execute(
@@ -89,6 +91,8 @@ class Executions:
             details = outcome.details
         except Exception as exc:  # noqa: BLE001 - a bridge fault aborts the execution
             if type(exc).__name__ in NOT_STARTED_ERRORS:
+                pending.put(None)
+                writer.join(EVENT_DRAIN_TIMEOUT_S)
                 self.store.transition(job_id, ["dispatching"], "approved", expect_owner=self.owner, owner=None,
                                       lease_expires_at=None, message=f"dispatch did not start: {exc}",
                                       data={"reason": str(exc)})
@@ -96,6 +100,8 @@ class Executions:
                 return
             log.exception("execution of job %s failed", job_id)
             status, reason, verdict, details = "aborted", f"bridge error: {type(exc).__name__}: {exc}", None, {}
+        pending.put(None)
+        writer.join(EVENT_DRAIN_TIMEOUT_S)
         if stop.is_set() and status == "aborted" and not reason:
             reason = "stopped by an operator"
         error = None
@@ -109,6 +115,23 @@ class Executions:
                               data={"execution": True, "reason": reason, "verdict": _jsonable(verdict),
                                     "details": _jsonable(details)})
         self._forget(job_id)
+
+    def _write_events(self, job_id: str, pending: "queue.Queue[tuple[str, Any] | None]") -> None:
+        """Store the bridge's events in order; the first one showing motion moves the job to executing."""
+        executing = False
+        while True:
+            item = pending.get()
+            if item is None:
+                return
+            name, payload = item
+            try:
+                self.store.add_event(job_id, "bridge", message=name, data={"event": name, "payload": _jsonable(payload)})
+                if not executing and name in EXECUTING_EVENTS:
+                    executing = True
+                    self.store.transition(job_id, ["dispatching"], "executing", message="executing on the robot",
+                                          expect_owner=self.owner)
+            except Exception:  # noqa: BLE001 - a lost event must not stop the others
+                log.exception("storing bridge event %s of job %s failed", name, job_id)
 
     def _forget(self, job_id: str) -> None:
         with self._lock:

@@ -92,12 +92,15 @@ class JobAuditor:
             log.info("service.audit is not installed: jobs get no audit file")
             return
         self.audit_dir.mkdir(parents=True, exist_ok=True)
+        self._cursor = self._start_cursor()
+        self._thread = threading.Thread(target=self._loop, name="regrasp-audit", daemon=True)
+        self._thread.start()
+
+    def _start_cursor(self) -> int:
         with self.store.engine.connect() as conn:
             low = conn.execute(sa.select(sa.func.min(sa.func.coalesce(jobs.c.audit_event_id, 0)))
                                .where(sa.or_(jobs.c.audit_closed.is_(None), jobs.c.audit_closed.is_(False)))).scalar()
-        self._cursor = int(low or 0)
-        self._thread = threading.Thread(target=self._loop, name="regrasp-audit", daemon=True)
-        self._thread.start()
+        return int(low or 0)
 
     def stop(self) -> None:
         self._stop.set()
@@ -120,6 +123,28 @@ class JobAuditor:
                 self.pump_once()
             except Exception:  # noqa: BLE001 - auditing must not stop the service; retried next period
                 log.exception("audit pump failed")
+
+    def run(self, stop: Any, parent_pid: int) -> None:
+        """Pump until ``stop`` is set or the parent process dies (used by the audit process)."""
+        import os
+
+        if not self.enabled:
+            return
+        self.audit_dir.mkdir(parents=True, exist_ok=True)
+        self._cursor = self._start_cursor()
+        while not stop.wait(PUMP_PERIOD_S):
+            if os.getppid() != parent_pid:
+                # The service died (e.g. SIGKILL): leave the files as the crash left them (unfinished).
+                os._exit(3)
+            try:
+                self.pump_once()
+            except Exception:  # noqa: BLE001
+                log.exception("audit pump failed")
+        try:
+            self.pump_once()
+        except Exception:  # noqa: BLE001
+            log.exception("final audit pump failed")
+        self.stop()
 
     def pump_once(self) -> int:
         events = self.store.all_events_after(self._cursor)
@@ -171,3 +196,56 @@ class JobAuditor:
                                         "reason": "the service restarted; the previous file ends where it stopped"})
         self._writers[job_id] = (writer, path)
         return writer, path
+
+
+def _audit_process_main(database_url: str, audit_dir: str, parent_pid: int, stop: Any) -> None:
+    """Entry point of the audit process: the pump runs here, away from the API's GIL.
+
+    Writing a plan's Foxglove playback (thousands of messages) and hashing large
+    records would otherwise stall the API process, whose robot bridge must answer
+    controller heartbeats within a fraction of a second.
+    """
+    import os
+    import signal
+
+    from .store import make_engine
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    engine = make_engine(database_url, pool_size=2)
+    auditor = JobAuditor(JobStore(engine), Path(audit_dir))
+    auditor.run(stop, parent_pid)
+    engine.dispose()
+    os._exit(0)
+
+
+class AuditProcess:
+    """The audit pump in its own spawn process (the default inside ``regrasp serve``)."""
+
+    def __init__(self, database_url: str, audit_dir: Path) -> None:
+        import multiprocessing as mp
+
+        self.enabled = audit_available()
+        self._ctx = mp.get_context("spawn")
+        self._stop = self._ctx.Event()
+        self._args = (database_url, str(audit_dir))
+        self._proc: Any = None
+
+    def start(self) -> None:
+        import os
+
+        if not self.enabled:
+            log.info("service.audit is not installed: jobs get no audit file")
+            return
+        self._proc = self._ctx.Process(target=_audit_process_main, args=(*self._args, os.getpid(), self._stop),
+                                       name="regrasp-audit", daemon=True)
+        self._proc.start()
+
+    def stop(self) -> None:
+        if self._proc is None:
+            return
+        self._stop.set()
+        self._proc.join(10)
+        if self._proc.is_alive():
+            self._proc.kill()
+            self._proc.join(2)

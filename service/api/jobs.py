@@ -150,8 +150,13 @@ def list_jobs(
 
 
 @router.get("/{job_id}", response_model=Job, summary="One job with its result", responses=problems(401, 404, 422))
-def get_job(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> Response:
-    return _job_response(svc, _load(svc, job_id))
+def get_job(job_id: str,
+            include_result: bool = Query(True, description="false: leave out the result (cheap polling of large plans)"),
+            p: Principal = Depends(principal), svc: Service = Depends(service)) -> Response:
+    row = _load(svc, job_id)
+    if not include_result:
+        return Response(job_view(row).model_dump_json(), media_type="application/json")
+    return _job_response(svc, row)
 
 
 def _sse(event: dict[str, Any]) -> str:

@@ -132,9 +132,9 @@ def wait_state(client: httpx.Client, job_id: str, states: set[str], timeout: flo
     deadline = time.monotonic() + timeout
     job: dict[str, Any] = {}
     while time.monotonic() < deadline:
-        job = client.get(f"/v1/jobs/{job_id}").json()
+        job = client.get(f"/v1/jobs/{job_id}", params={"include_result": "false"}).json()
         if job["state"] in states:
-            return job
+            return client.get(f"/v1/jobs/{job_id}").json()
         time.sleep(0.05)
     raise AssertionError(f"job {job_id} did not reach {states} in {timeout} s: {job.get('state')} {job.get('message')}")
 

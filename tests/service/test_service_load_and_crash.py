@@ -120,7 +120,7 @@ def _check_audit_continuation(c: httpx.Client, job_id: str, data_dir: Path) -> N
         from service.audit import verify
     except ImportError:
         return
-    deadline = time.monotonic() + 5
+    deadline = time.monotonic() + 30  # the audit process starts (spawn) and catches up
     job = c.get(f"/v1/jobs/{job_id}").json()
     files = sorted((data_dir / "audit").glob(f"{job_id}*.mcap"))
     while time.monotonic() < deadline and len(files) < 2:

@@ -28,7 +28,7 @@ PLANNER_TIME_LIMIT_S = 300
 
 
 #: The simulated controller plays this many times faster than real time.
-SIM_SPEED = 20
+SIM_SPEED = 5
 
 
 @pytest.fixture(scope="module")
