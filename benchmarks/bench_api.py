@@ -94,6 +94,35 @@ def wait_done(c: httpx.Client, ids: list[str], timeout: float) -> None:
     raise RuntimeError("jobs did not finish in time")
 
 
+def latency_buckets(url: str) -> dict[tuple[str, str], dict[float, float]]:
+    """Cumulative bucket counts of the server's request-latency histogram, by (method, route)."""
+    out: dict[tuple[str, str], dict[float, float]] = {}
+    for line in httpx.get(url + "/metrics").text.splitlines():
+        if not line.startswith("regrasp_http_request_duration_seconds_bucket{"):
+            continue
+        labels, value = line[line.index("{") + 1:line.rindex("}")], float(line.rsplit(" ", 1)[1])
+        fields = dict(part.split("=", 1) for part in labels.split(","))
+        fields = {k: v.strip('"') for k, v in fields.items()}
+        if not fields["status"].startswith("2"):
+            continue
+        le = float("inf") if fields["le"] == "+Inf" else float(fields["le"])
+        key = (fields["method"], fields["route"])
+        out.setdefault(key, {})
+        out[key][le] = out[key].get(le, 0.0) + value
+    return out
+
+
+def bucket_quantile(before: dict[float, float], after: dict[float, float], q: float) -> float:
+    """Upper bound (s) of the bucket holding the q-quantile of the requests between two scrapes."""
+    edges = sorted(after)
+    counts = [after[e] - before.get(e, 0.0) for e in edges]
+    total = counts[-1]
+    for edge, cum in zip(edges, counts):
+        if cum >= q * total:
+            return edge
+    return float("inf")
+
+
 def pct(values: list[float], q: float) -> float:
     values = sorted(values)
     return values[min(len(values) - 1, int(round(q * (len(values) - 1))))]
@@ -139,10 +168,12 @@ def bench_latency(args: argparse.Namespace) -> None:
                 os.nice(CLIENT_NICE)  # the load generator must not starve the server it measures
                 api = psutil.Process(proc.pid)
                 cpu0 = sum(api.cpu_times()[:2])
+                hist0 = latency_buckets(url)
                 t0 = time.perf_counter()
                 res = asyncio.run(latency_run(url, args.clients, args.rounds, args.think_s))
                 elapsed = time.perf_counter() - t0
                 cpu = sum(api.cpu_times()[:2]) - cpu0
+                hist1 = latency_buckets(url)
                 n = sum(len(v) for v in res.values())
                 print(f"load: {args.clients} clients, {args.think_s} s between a client's requests -> "
                       f"{n / elapsed:.0f} requests/s over {elapsed:.1f} s; machine load average "
@@ -155,8 +186,13 @@ def bench_latency(args: argparse.Namespace) -> None:
                 health = c.get("/healthz").json()
                 for j in busy:
                     c.post(f"/v1/jobs/{j}/cancel")
+            for key, label in ((("POST", "/v1/jobs"), "submit"), (("GET", "/v1/jobs/{job_id}"), "poll")):
+                b0, b1 = hist0.get(key, {}), hist1.get(key, {})
+                if b1:
+                    print(f"{label:6s} latency inside the server (histogram bucket bounds): "
+                          f"p50 <= {bucket_quantile(b0, b1, 0.5) * 1000:.0f} ms, p95 <= {bucket_quantile(b0, b1, 0.95) * 1000:.0f} ms")
             for name, values in res.items():
-                print(f"{name:6s} latency, {args.clients} clients, all {args.workers} workers busy: "
+                print(f"{name:6s} latency at the clients, {args.clients} clients, all {args.workers} workers busy: "
                       f"n={len(values)} p50={statistics.median(values):.1f} ms p95={pct(values, 0.95):.1f} ms "
                       f"max={max(values):.1f} ms")
             print(f"saturation (closed loop, no think time): {n_sat} requests, mean latency "
