@@ -40,7 +40,10 @@ class WorkerContext:
         self._last = now
         fraction = min(1.0, max(0.0, float(fraction)))
         with self._lock:
-            self._conn.send(("progress", self._job_id, fraction, str(message)[:500]))
+            try:
+                self._conn.send(("progress", self._job_id, fraction, str(message)[:500]))
+            except (BrokenPipeError, EOFError, OSError):
+                os._exit(3)  # the parent is gone: stop planning at once
 
     def cancelled(self) -> bool:
         return self._cancel.is_set()
@@ -107,4 +110,7 @@ def worker_main(conn: Connection, cancel: Event, handlers: dict[str, str], robot
             outcome = ("error", job_id, {"code": code, "message": f"{type(exc).__name__}: {exc}",
                                          "traceback": traceback.format_exc(limit=8)})
         with lock:
-            conn.send(outcome)
+            try:
+                conn.send(outcome)
+            except (BrokenPipeError, EOFError, OSError):
+                os._exit(3)  # the parent is gone; nobody is waiting for this result

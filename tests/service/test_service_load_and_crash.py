@@ -89,9 +89,13 @@ def test_kill_9_of_the_server_mid_job_loses_nothing(tmp_path: Path) -> None:
     try:
         with srv.client("alice") as c:
             ids = [c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": f"busy-{s}"}}).json()["id"]
-                   for s in (2.5, 0.5, 0.5)]
+                   for s in (4, 0.5, 0.5)]
             wait_state(c, ids[0], {"planning"})
             time.sleep(0.5)
+            if _audit_installed():  # let the audit process open the job's file before the crash
+                deadline = time.monotonic() + 30
+                while time.monotonic() < deadline and not c.get(f"/v1/jobs/{ids[0]}").json()["audit_head"]:
+                    time.sleep(0.1)
             workers = [p.pid for p in psutil.Process(srv.proc.pid).children(recursive=True)]
         srv.kill()
         time.sleep(1.0)  # orphaned workers notice their parent died within 0.2 s
@@ -112,6 +116,14 @@ def test_kill_9_of_the_server_mid_job_loses_nothing(tmp_path: Path) -> None:
             srv2.stop()
     finally:
         srv.stop()
+
+
+def _audit_installed() -> bool:
+    try:
+        import service.audit  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def _check_audit_continuation(c: httpx.Client, job_id: str, data_dir: Path) -> None:
