@@ -12,6 +12,8 @@ from service.cli.main import cli
 from service.paper import INCONSISTENCIES, PAPER_TABLES, STANCES
 
 HANDS = ("left-left", "right-right", "left-right", "right-left")
+#: The quick run plans and surveys every stance for real: minutes, not the suite's 5-minute default.
+pytestmark = pytest.mark.timeout(1500)
 
 
 @pytest.fixture(scope="module")
