@@ -199,7 +199,7 @@ def plan_scenario(
     stats: dict[str, Any] = {
         "time_s": None, "setup": dict(task.timings), "grasp_cache_hit": task.grasp_cache_hit,
         "grasps": {s: len(g) for s, g in task.grasps.items()}, "placements": len(task.placements),
-        "handover_poses": len(task.handover_poses), "seed": scenario.seed,
+        "handover_poses": len(task._handover_cache or []), "seed": scenario.seed,
         "configurations": {r.hands: {"status": r.status, "failures": r.failures, **r.stats} for r, _ in results},
         "counters": dict(task.counters), "library_versions": library_versions(),
     }

@@ -201,7 +201,7 @@ class Task:
             self.reach[side] = float(sum(np.linalg.norm(b - a) for a, b in zip(links[:-1], links[1:]))) + s.waist_reach_m
         t2 = time.perf_counter()
         self.placements, self.start_id, self.goal_id = self._placements()
-        self.handover_poses = self._handover_poses()
+        self._handover_cache: list[HandoverPose] | None = None
         self.timings["placements_s"] = time.perf_counter() - t2
         self.timings["setup_s"] = time.perf_counter() - t0
 
@@ -210,8 +210,8 @@ class Task:
         """Start, goal, then a few intermediate resting poses (table spots x yaws, diverse faces)."""
         sc = self.scenario
         start, goal = pose7_to_matrix(sc.start_pose), pose7_to_matrix(sc.goal_pose)
-        all_placements = instantiate_placements(self.obj, environment_boxes(sc)[: len(sc.tables)], start, goal,
-                                                world=self.world)
+        # Spots are checked against obstacles only when chosen (few are used; checking all is slow).
+        all_placements = instantiate_placements(self.obj, environment_boxes(sc)[: len(sc.tables)], start, goal)
         spots = [p for p in all_placements if p.kind == "spot"]
         # Prefer spots near the start-goal line, taking reference faces in turn so regrasps can flip the object.
         mid = 0.5 * (start[:3, 3] + goal[:3, 3])
@@ -222,8 +222,11 @@ class Task:
         chosen: list[np.ndarray] = []
         while len(chosen) < self.settings.intermediate_placements and any(by_ref.values()):
             for ref in sorted(by_ref):
-                if by_ref[ref] and len(chosen) < self.settings.intermediate_placements:
-                    chosen.append(by_ref[ref].pop(0).T_world_obj)
+                while by_ref[ref] and len(chosen) < self.settings.intermediate_placements:
+                    T = by_ref[ref].pop(0).T_world_obj
+                    if self.world.object_pose_clear(T) is None:
+                        chosen.append(T)
+                        break
         return [start, goal, *chosen], 0, 1
 
     def _ready_posture(self, side: Side) -> np.ndarray | None:
@@ -258,6 +261,15 @@ class Task:
             return None
         ok = Q[high][free]
         return ok[np.argmin(np.abs(ok - self.home).sum(axis=1))]
+
+    @property
+    def handover_poses(self) -> list[HandoverPose]:
+        """Floating poses with compatible grasp pairs, computed on first use (single-arm plans never need them)."""
+        if self._handover_cache is None:
+            t0 = time.perf_counter()
+            self._handover_cache = self._handover_poses()
+            self.timings["handover_poses_s"] = time.perf_counter() - t0
+        return self._handover_cache
 
     def _handover_poses(self) -> list[HandoverPose]:
         if not self.settings.handover_poses:
