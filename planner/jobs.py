@@ -110,22 +110,17 @@ def build_task(scenario: Scenario, settings: PlannerSettings | None = None) -> T
 
 
 def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]:
-    f = res.failures
+    """The failure code: an end (start or goal) no node could hold says so; else the search's own code."""
     if res.failure_code == "TIMEOUT":
         return "TIMEOUT", res.message
-    if planner.start_failures and not planner.start_ok:
-        cause = max(planner.start_failures, key=planner.start_failures.get)
-        if cause == "com_margin":
-            return "NO_STABLE_GRASP", (f"no grasp of the object at its start pose keeps the CoM margin >= the threshold "
-                                       f"with the {planner.start_hand} hand ({dict(planner.start_failures)})")
-        return "START_INVALID", f"the start pose cannot be grasped by the {planner.start_hand} hand: {dict(planner.start_failures)}"
-    if planner.goal_failures and not planner.goal_ok:
-        cause = max(planner.goal_failures, key=planner.goal_failures.get)
-        if cause == "com_margin":
-            return "NO_STABLE_GRASP", (f"no grasp at the goal pose keeps the CoM margin >= the threshold with the "
-                                       f"{planner.goal_hand} hand ({dict(planner.goal_failures)})")
-        return "GOAL_INVALID", f"the goal pose cannot be reached by the {planner.goal_hand} hand: {dict(planner.goal_failures)}"
-    return res.failure_code or "NO_PATH", res.message or f"no valid plan; failures by cause: {dict(f)}"
+    for end, failures, ok, hand in (("start", planner.start_failures, planner.start_ok, planner.start_hand),
+                                    ("goal", planner.goal_failures, planner.goal_ok, planner.goal_hand)):
+        if failures and not ok:
+            if max(failures, key=failures.get) == "com_margin":
+                return "NO_STABLE_GRASP", (f"no grasp of the object at its {end} pose keeps the CoM margin >= the "
+                                           f"threshold with the {hand} hand ({dict(failures)})")
+            return f"{end.upper()}_INVALID", f"the {end} pose cannot be grasped by the {hand} hand: {dict(failures)}"
+    return res.failure_code or "NO_PATH", res.message or f"no valid plan; failures by cause: {dict(res.failures)}"
 
 
 def plan_scenario(
