@@ -19,6 +19,7 @@ import numpy as np
 import pinocchio as pin
 
 from .robot_model import RobotModel
+from .transforms import quat_to_matrix
 
 _AXIS_KIND = {
     "JointModelRX": ("R", 0), "JointModelRY": ("R", 1), "JointModelRZ": ("R", 2),
@@ -41,22 +42,6 @@ class _JointStep:
     offset: float
     mass: float
     lever: np.ndarray
-
-
-def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrices from quaternions ``[qx, qy, qz, qw]``; shape (..., 4) -> (..., 3, 3)."""
-    x, y, z, w = np.moveaxis(np.asarray(quat, dtype=float), -1, 0)
-    out = np.empty(x.shape + (3, 3))
-    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    out[..., 0, 1] = 2 * (x * y - z * w)
-    out[..., 0, 2] = 2 * (x * z + y * w)
-    out[..., 1, 0] = 2 * (x * y + z * w)
-    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    out[..., 1, 2] = 2 * (y * z - x * w)
-    out[..., 2, 0] = 2 * (x * z - y * w)
-    out[..., 2, 1] = 2 * (y * z + x * w)
-    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return out
 
 
 class BatchKinematics:

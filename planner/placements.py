@@ -22,6 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .collision import CollisionWorld, EnvBox
 from .objects import ObjectModel
+from .stability import DegeneratePolygonError, SupportPolygon, convex_hull_ccw
 from .transforms import matrix_to_pose7, pose7_to_matrix, rot_z, rotation_angle
 
 #: Facet normals closer than this are one facet (the hull of a mesh has split coplanar faces).
@@ -85,21 +86,15 @@ class RestingInfo:
     stability_ratio: float
 
 
-def _polygon_signed_distance(poly: np.ndarray, p: np.ndarray) -> float:
-    """Signed distance of ``p`` to the edge of the convex CCW polygon ``poly`` (inside positive)."""
-    best = np.inf
-    for i in range(len(poly)):
-        a, b = poly[i], poly[(i + 1) % len(poly)]
-        e = b - a
-        n = np.array([e[1], -e[0]]) / np.linalg.norm(e)  # outward for CCW
-        best = min(best, float(-(p - a) @ n))
-    return best
-
-
-def _convex_ccw(points: np.ndarray) -> np.ndarray:
-    from .stability import convex_hull_ccw
-
-    return convex_hull_ccw(points)
+def _signed_distance(points: np.ndarray, p: np.ndarray) -> float | None:
+    """Signed distance of ``p`` to the edge of the hull of ``points`` (inside positive), or None if it has no area."""
+    hull = convex_hull_ccw(points)
+    if len(hull) < 3:
+        return None
+    try:
+        return SupportPolygon(hull).margin_one(float(p[0]), float(p[1]))
+    except DegeneratePolygonError:
+        return None
 
 
 def _down_frame(n: np.ndarray) -> np.ndarray:
@@ -137,10 +132,10 @@ def reference_poses(obj: ObjectModel, settings: PlacementSettings | None = None)
         on_plane = verts[np.abs(verts @ n - d) < 1e-7]
         c_proj = com + h * n
         pts2 = (on_plane - c_proj) @ R.T
-        poly = _convex_ccw(pts2[:, :2])
-        if len(poly) < 3:
+        poly = convex_hull_ccw(pts2[:, :2])
+        dist = _signed_distance(poly, np.zeros(2))
+        if dist is None:
             continue
-        dist = _polygon_signed_distance(poly, np.zeros(2))
         ratio = dist / h
         if ratio < settings.stability_ratio:
             continue
@@ -215,13 +210,12 @@ def check_resting(
     if gap < -settings.rest_tolerance_m:
         raise PlacementError(f"{what} is not resting on a table: it sinks {-gap * 1000:.0f} mm into table {table.name!r}")
     contact = hull[hull[:, 2] <= low + settings.rest_tolerance_m][:, :2]
-    poly = _convex_ccw(contact)
     height = float(com[2] - low)
-    if len(poly) < 3:
+    margin = _signed_distance(contact, com[:2])
+    if margin is None:
         raise PlacementError(
             f"{what} is not a resting pose: it touches table {table.name!r} on a point or an edge only (it would tip over)"
         )
-    margin = _polygon_signed_distance(poly, com[:2])
     ratio = margin / height if height > 1e-9 else np.inf
     if margin < 0:
         raise PlacementError(

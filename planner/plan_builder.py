@@ -24,8 +24,8 @@ Kind = Literal["transit", "transfer", "handover", "approach", "retreat"]
 class MotionPiece:
     """One stretch of the plan: a joint path and what the hands hold along it.
 
-    ``hold`` says how the object follows the robot while held; when nothing is held
-    the object rests at ``object_pose`` (4x4, world).
+    ``hold`` says how the object follows the robot while held (for the timing's checks);
+    where the object is, held or resting, :func:`assemble` tracks through the plan.
     """
 
     kind: Kind
@@ -33,7 +33,6 @@ class MotionPiece:
     waypoints: np.ndarray
     holding: Literal["none", "left", "right", "both"]
     hold: HoldSpec | None
-    object_pose: np.ndarray | None = None
 
 
 @dataclass

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Literal
 
 import numpy as np
+import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field
 
 from schemas.scenario import Scenario
@@ -188,12 +189,10 @@ class Task:
         self.arm_only = {side: self.robot.arm_indices(side) for side in ("left", "right")}
         self.ready = {side: self._ready_posture(side) for side in ("left", "right")}
         self.shoulder, self.reach = {}, {}
+        data = self.robot.create_data()
+        pin.framesForwardKinematics(self.robot.pin_model, data, self.robot.to_pin_q(self.stance.base_pose, self.home))
         for side in ("left", "right"):
             chain = self.robot.spec.arms[side].chain
-            data = self.robot.create_data()
-            import pinocchio as pin
-
-            pin.framesForwardKinematics(self.robot.pin_model, data, self.robot.to_pin_q(self.stance.base_pose, self.home))
             self.shoulder[side] = data.oMi[self.robot.pin_model.getJointId(chain[1])].translation.copy()
             # Longest TCP distance from the shoulder over the chain, plus what the waist adds.
             tcp = data.oMf[self.robot.frame_id(self.robot.spec.arms[side].tcp)].translation
@@ -292,11 +291,7 @@ class Task:
     def validity(self, hold: HoldSpec | None, free_object: np.ndarray | None, grasping: str | None = None,
                  active: np.ndarray | None = None) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
         """validity(Q) -> (valid, margin): collision-free and (if constrained) margin >= threshold."""
-        held = []
-        if hold is not None:
-            held = [(hold.tcp_side, hold.T_obj_tcp)]
-            if hold.side == "both":
-                held = [(hold.tcp_side, hold.T_obj_tcp)]
+        held = [(hold.tcp_side, hold.T_obj_tcp)] if hold is not None else []
 
         def check(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             Q = np.atleast_2d(Q)
@@ -640,19 +635,19 @@ class HandConfigPlanner:
             path = self._motion(t.home, kp.q_pre, t.active[b.hand], None, kp.T_obj, None)
             if path is None:
                 return Validation(False, "motion", "home to the first pre-grasp")
-            pieces.append(MotionPiece("transit", b.hand, path, "none", None, kp.T_obj))
+            pieces.append(MotionPiece("transit", b.hand, path, "none", None))
         elif b is None:  # last node: release, retreat, home
             kp = self.keyposes[a]
             path = self._motion(kp.q_pre, self._home_from(kp.q_pre, a.hand), t.active[a.hand], None, kp.T_obj, None)
             if path is None:
                 return Validation(False, "motion", "back home after placing")
-            pieces.append(MotionPiece("transit", a.hand, path, "none", None, kp.T_obj))
+            pieces.append(MotionPiece("transit", a.hand, path, "none", None))
         elif kind == "transit":  # regrasp at the same placement
             ka, kb = self.keyposes[a], self.keyposes[b]
             path = self._motion(ka.q_pre, self._with_arm_of(kb.q_pre, ka.q_pre, b.hand), t.active[b.hand], None, ka.T_obj, None)
             if path is None:
                 return Validation(False, "motion", "regrasp transit")
-            pieces.append(MotionPiece("transit", b.hand, path, "none", None, ka.T_obj))
+            pieces.append(MotionPiece("transit", b.hand, path, "none", None))
         elif kind == "transfer":
             ka, kb = self.keyposes[a], self.keyposes[b]
             hold = HoldSpec(a.hand, ka.T_obj_tcp)

@@ -15,17 +15,23 @@ _EPS = 1e-12
 
 
 def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrix from a quaternion ``[qx, qy, qz, qw]`` (normalised first)."""
+    """Rotation matrices from quaternions ``[qx, qy, qz, qw]`` (normalised first); shape (..., 4) -> (..., 3, 3)."""
     q = np.asarray(quat, dtype=float)
-    n = np.linalg.norm(q)
-    if not np.isfinite(n) or n < _EPS:
-        raise ValueError(f"quaternion {q.tolist()} is not a rotation (norm {n})")
-    x, y, z, w = q / n
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    n = np.linalg.norm(q, axis=-1, keepdims=True)
+    if not np.all(np.isfinite(n)) or np.any(n < _EPS):
+        raise ValueError(f"quaternion {q.tolist()} is not a rotation (norm {np.squeeze(n).tolist()})")
+    x, y, z, w = np.moveaxis(q / n, -1, 0)
+    out = np.empty(x.shape + (3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - z * w)
+    out[..., 0, 2] = 2 * (x * z + y * w)
+    out[..., 1, 0] = 2 * (x * y + z * w)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - x * w)
+    out[..., 2, 0] = 2 * (x * z - y * w)
+    out[..., 2, 1] = 2 * (y * z + x * w)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:

@@ -17,6 +17,19 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Polygon as MplPolygon  # noqa: E402
 
 
+def _save(fig, ax, path: Path, title: str, *, legend: bool = True, grid: bool = True) -> Path:
+    """Title, legend, grid, layout, write the PNG and free the figure."""
+    ax.set_title(title)
+    if legend:
+        ax.legend(loc="best", fontsize=7)
+    if grid:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def shrink_polygon(vertices: np.ndarray, distance: float) -> np.ndarray | None:
     """The polygon shrunk inward by ``distance`` (the region where margin >= distance), or None if empty."""
     from shapely.geometry import Polygon
@@ -63,13 +76,7 @@ def plot_stance(path: Path, *, name: str, feet: list[dict], sole_sizes: dict[str
     ax.set_ylim(-0.3, 0.3)
     ax.set_xlabel("x (m, forward)")
     ax.set_ylabel("y (m, left)")
-    ax.set_title(f"stance: {name}")
-    ax.legend(loc="upper right", fontsize=7)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, ax, path, f"stance: {name}")
 
 
 def plot_com_trace(path: Path, *, title: str, polygon: np.ndarray, threshold_m: float,
@@ -90,13 +97,7 @@ def plot_com_trace(path: Path, *, title: str, polygon: np.ndarray, threshold_m: 
     ax.set_aspect("equal")
     ax.set_xlabel("x (m, forward)")
     ax.set_ylabel("y (m, left)")
-    ax.set_title(title)
-    ax.legend(loc="best", fontsize=7)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, ax, path, title)
 
 
 def plot_margin_over_time(path: Path, *, title: str, threshold_m: float,
@@ -108,13 +109,7 @@ def plot_margin_over_time(path: Path, *, title: str, threshold_m: float,
     ax.axhline(threshold_m * 1000, color="tab:orange", ls="--", label="threshold")
     ax.set_xlabel("t (s)")
     ax.set_ylabel("margin (mm)")
-    ax.set_title(title)
-    ax.legend(fontsize=7)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, ax, path, title)
 
 
 def plot_survey_bars(path: Path, *, title: str, rows: list[dict]) -> Path:
@@ -128,11 +123,7 @@ def plot_survey_bars(path: Path, *, title: str, rows: list[dict]) -> Path:
         ax.text(bar.get_x() + bar.get_width() / 2, bar.get_height() + 0.01, text, ha="center", fontsize=8)
     ax.set_ylim(0, 1.1)
     ax.set_ylabel("R = C / (C + U)")
-    ax.set_title(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, ax, path, title, legend=False, grid=False)
 
 
 def plot_survey_scatter(path: Path, *, title: str, polygon: np.ndarray, threshold_m: float,
@@ -148,10 +139,4 @@ def plot_survey_scatter(path: Path, *, title: str, polygon: np.ndarray, threshol
     ax.scatter(xy[stable, 0], xy[stable, 1], s=2, c="tab:green", label="stable", alpha=0.5)
     ax.scatter(xy[~stable, 0], xy[~stable, 1], s=2, c="tab:red", label="unstable", alpha=0.5)
     ax.set_aspect("equal")
-    ax.set_title(title)
-    ax.legend(fontsize=7)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, ax, path, title)

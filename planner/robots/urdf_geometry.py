@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..transforms import rpy_to_matrix
+
 
 @dataclass(frozen=True)
 class Primitive:
@@ -43,13 +45,7 @@ def _origin(elem: ET.Element | None) -> np.ndarray:
     if elem is None:
         return T
     xyz = [float(v) for v in elem.attrib.get("xyz", "0 0 0").split()]
-    r, p, y = (float(v) for v in elem.attrib.get("rpy", "0 0 0").split())
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    T[:3, :3] = np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
+    T[:3, :3] = rpy_to_matrix(*(float(v) for v in elem.attrib.get("rpy", "0 0 0").split()))
     T[:3, 3] = xyz
     return T
 

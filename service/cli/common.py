@@ -24,3 +24,19 @@ def fail(message: str, code: int = EXIT_USAGE) -> NoReturn:
 
 def print_json(doc: Any) -> None:
     click.echo(json.dumps(doc, indent=2, allow_nan=False))
+
+
+def check_scenario_args(scenario_file: str | None, scenario_name: str | None) -> str:
+    """Exactly one of a scenario file or ``--scenario NAME``; returns it."""
+    if bool(scenario_file) == bool(scenario_name):
+        fail("give a scenario file or --scenario NAME (one of them)")
+    return scenario_file or scenario_name  # type: ignore[return-value]
+
+
+def mm_to_m(flag: str, value_mm: float | None, upper_mm: float = 500.0) -> float | None:
+    """A millimetre flag checked at the edge and converted to metres."""
+    if value_mm is None:
+        return None
+    if not 0 <= value_mm <= upper_mm:
+        fail(f"{flag} must be between 0 and {upper_mm:g} mm, got {value_mm}")
+    return value_mm / 1000.0

@@ -10,7 +10,7 @@ import click
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from .common import console, fail
+from .common import check_scenario_args, console, fail, mm_to_m
 
 HANDS = click.Choice(["auto", "left-left", "right-right", "left-right", "right-left"])
 
@@ -89,26 +89,24 @@ def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, soluti
     """Plan a regrasp task: pick, regrasp or hand over, and place, keeping the CoM margin."""
     from planner.jobs import PlanningInputError, PlanOptions, plan_scenario, resolve_scenario
 
-    if bool(scenario_file) == bool(scenario_name):
-        fail("give a scenario file or --scenario NAME (one of them)")
-    for name, value in (("--threshold-mm", threshold_mm), ("--compare-threshold-mm", compare_threshold_mm)):
-        if value is not None and not (0 <= value <= 500):
-            fail(f"{name} must be between 0 and 500 mm, got {value}")
+    ref = check_scenario_args(scenario_file, scenario_name)
+    threshold_m = mm_to_m("--threshold-mm", threshold_mm)
+    compare_m = mm_to_m("--compare-threshold-mm", compare_threshold_mm)
     try:
-        sc = resolve_scenario(scenario_file or scenario_name)
-        options = PlanOptions(hands=hands, threshold_m=None if threshold_mm is None else threshold_mm / 1000.0,
-                              seed=seed, solutions=solutions, stance=stance, time_limit_s=time_limit_s)
+        sc = resolve_scenario(ref)
+        options = PlanOptions(hands=hands, threshold_m=threshold_m, seed=seed, solutions=solutions, stance=stance,
+                              time_limit_s=time_limit_s)
         t0 = time.perf_counter()
         if quiet:
             doc = plan_scenario(sc, options)
         else:
             doc = run_with_progress("planning", lambda p: plan_scenario(sc, options, progress=p))
         compare = None
-        if compare_threshold_mm is not None:
-            opts2 = PlanOptions(hands=doc.get("hands") or hands, threshold_m=compare_threshold_mm / 1000.0, seed=seed,
+        if compare_m is not None:
+            opts2 = PlanOptions(hands=doc.get("hands") or hands, threshold_m=compare_m, seed=seed,
                                 stance=stance, time_limit_s=time_limit_s)
             compare = (plan_scenario(sc, opts2) if quiet else
-                                         run_with_progress("comparison", lambda p: plan_scenario(sc, opts2, progress=p)))
+                       run_with_progress("comparison", lambda p: plan_scenario(sc, opts2, progress=p)))
     except PlanningInputError as exc:
         fail(str(exc))
     Path(out_path).write_text(json.dumps(doc, allow_nan=False))

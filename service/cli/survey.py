@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from .common import console, fail
+from .common import check_scenario_args, console, fail, mm_to_m
 from .plan import run_with_progress
 
 LABELS = {
@@ -66,20 +66,17 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
     from planner.jobs import PlanningInputError, resolve_scenario
     from planner.survey import run_survey, write_states
 
-    if bool(scenario_file) == bool(scenario_name):
-        fail("give a scenario file or --scenario NAME (one of them)")
+    ref = check_scenario_args(scenario_file, scenario_name)
     if states is not None and states < 1:
         fail(f"--states must be at least 1, got {states}")
-    if threshold_mm is not None and not (0 <= threshold_mm <= 500):
-        fail(f"--threshold-mm must be between 0 and 500 mm, got {threshold_mm}")
+    threshold = mm_to_m("--threshold-mm", threshold_mm)
     if all_stances and stance:
         fail("--all-stances and --stance exclude each other")
-    threshold = None if threshold_mm is None else threshold_mm / 1000.0
     stance_list = STANCES if all_stances else (stance,)
     docs = []
     try:
         for st in stance_list:
-            sc = resolve_scenario(scenario_file or scenario_name, stance=st, threshold_m=threshold, seed=seed,
+            sc = resolve_scenario(ref, stance=st, threshold_m=threshold, seed=seed,
                                   states_per_configuration=states)
             label = f"survey {sc.name} ({sc.stance if isinstance(sc.stance, str) else sc.stance.name})"
             doc, outcomes = run_with_progress(label, lambda p, sc=sc: run_survey(sc, workers=workers, progress=p))
