@@ -26,7 +26,8 @@ from typing import Any, Callable, Literal
 
 import numpy as np
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field, ValidationError
+from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from schemas.bridge import MAX_SEGMENT_DURATION_S, ExecStatus, GateVerdict, Heartbeat, JointState, Stop, TrajectorySegment
 
@@ -37,10 +38,14 @@ from .zenoh_session import control_publisher, encode, open_session
 EventCallback = Callable[[str, dict[str, Any]], None]
 
 
-class DispatchSettings(BaseModel):
-    """Pacing and deadlines of one execution."""
+class DispatchSettings(BaseSettings):
+    """Pacing and deadlines of one execution (environment prefix ``REGRASP_DISPATCH_``).
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    The lookahead is counted in trajectory time; a controller that plays faster than
+    real time (the simulator's ``--speed``) needs proportionally more segments ahead.
+    """
+
+    model_config = SettingsConfigDict(env_prefix="REGRASP_DISPATCH_", frozen=True, extra="forbid")
 
     segment_duration_s: float = Field(0.25, gt=0, le=MAX_SEGMENT_DURATION_S,
                                       description="time spanned by one segment's points (the contract allows 1 s; "

@@ -9,6 +9,7 @@ cannot approve her own plan), carol operates the robot.
 from __future__ import annotations
 
 import json
+import math
 import os
 import secrets
 import shutil
@@ -96,6 +97,7 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
     http_port, zenoh_port = free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{zenoh_port}"
     env = dict(os.environ, REGRASP_TOKENS=json.dumps(tokens), REGRASP_BRIDGE_CONNECT=json.dumps([endpoint]),
+               REGRASP_DISPATCH_LOOKAHEAD_SEGMENTS=str(_lookahead_segments(settings.controller_speed)),
                PYTHONUNBUFFERED="1")
     exe = [sys.executable, "-m", "service.cli.main"]
     with ExitStack() as stack:
@@ -157,8 +159,9 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
         from schemas.jobs import TERMINAL_STATES
 
         done = carol.wait(plan_job["id"], states=TERMINAL_STATES, timeout=settings.job_timeout_s)
-        result.summary["execution"] = done["state"]
-        result.steps.append(("execution", done["state"]))
+        outcome = done["state"] if done["state"] == "succeeded" else f"{done['state']}: {(done.get('error') or {}).get('message')}"
+        result.summary["execution"] = outcome
+        result.steps.append(("execution", outcome))
         audit_path = out / f"job-{plan_job['id']}.mcap"
         verdict = _download_sealed_audit(carol, plan_job["id"], audit_path, settings.job_timeout_s)
         result.artefacts["audit"] = str(audit_path)
@@ -189,6 +192,15 @@ def _download_sealed_audit(client, job_id: str, path: Path, timeout: float):
     if verdict is None:
         raise TimeoutError(f"the audit file of job {job_id} could not be downloaded within {timeout:.0f} s")
     return verdict
+
+
+def _lookahead_segments(speed: float) -> int:
+    """Segments the dispatcher keeps ahead so that a controller playing ``speed`` x real time
+    still has as much wall time buffered as the default gives a real-time one."""
+    from robot_bridge.dispatcher import DispatchSettings
+
+    default = DispatchSettings.model_fields["lookahead_segments"].default
+    return max(default, math.ceil(default * speed))
 
 
 def _stance_of(scenario: str) -> str:

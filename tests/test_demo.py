@@ -15,7 +15,8 @@ def test_demo_runs_end_to_end(tmp_path):
     out = tmp_path / "demo"
     proc = subprocess.run([sys.executable, "-m", "service.cli.main", "demo", "--out", str(out), "--survey-states", "100"],
                           capture_output=True, text=True, timeout=900)
-    assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:]
+    logs = "".join(f"\n--- {log.name}\n" + log.read_text()[-3000:] for log in sorted(out.glob("*.log")))
+    assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:] + logs
     for name in ("upright", "staggered", "crouched", "one-legged"):
         assert (out / f"stance-{name}.png").is_file()
     plan = json.loads((out / "plan.json").read_text())
