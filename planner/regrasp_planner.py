@@ -491,6 +491,13 @@ class HandConfigPlanner:
         # The giver at the handover pose with the taker arm still at home.
         q_giver_at = q_both.copy()
         q_giver_at[t.arm_only[taker]] = t.home[t.arm_only[taker]]
+        # The giver's grasp as the hand really holds it at the handover; checked before the two
+        # pre-grasp IK solves below, since this check fails most often (measured: half the failures).
+        G_g = inverse(T_obj) @ t.tcp(q_both, giver)
+        hold_g = HoldSpec(giver, G_g)
+        cause, m0 = t.classify(q_giver_at, hold_g, None)
+        if cause:
+            return Validation(False, cause, "giver at the handover pose", margin_m=m0)
         T_pre_t = _translate(T_t, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
         q_taker_pre = t.solve_ik(taker, T_pre_t, q_both, self.rng, arm_only=True)
         if q_taker_pre is None:
@@ -500,12 +507,6 @@ class HandConfigPlanner:
         q_giver_pre = t.solve_ik(giver, T_pre_g, q_both, self.rng, arm_only=True)
         if q_giver_pre is None:
             return Validation(False, "ik", "giver retreat out of reach")
-        # The giver's grasp as the hand really holds it at the handover.
-        G_g = inverse(T_obj) @ t.tcp(q_both, giver)
-        hold_g = HoldSpec(giver, G_g)
-        cause, m0 = t.classify(q_giver_at, hold_g, None)
-        if cause:
-            return Validation(False, cause, "giver at the handover pose", margin_m=m0)
         # Taker: home -> pre-grasp (T-RRT, arm only), approach, close.
         q_taker_pre_full = q_giver_at.copy()
         q_taker_pre_full[t.arm_only[taker]] = q_taker_pre[t.arm_only[taker]]
@@ -818,17 +819,12 @@ class HandConfigPlanner:
         and, among grasps, the ones whose approach is usually feasible (a small orientation term)."""
         t = self.task
         est = {p: t.estimated_margin(T) for p, T in enumerate(t.placements)}
-        for node in list(graph.g.nodes):
+        for node in graph.nodes():
             if isinstance(node, PlacementNode):
                 graph._apply_margin_cost(node, est[node.placement])
                 extra = t.settings.approach_weight * (1.5 - self._approach_score(node))
-                if extra == 0.0:
-                    continue
-                for u in graph.g.predecessors(node):
-                    data = graph.g.edges[u, node]
-                    data.setdefault("base_weight", data["weight"])
-                    data["base_weight"] += extra
-                    data["weight"] += extra
+                if extra != 0.0:
+                    graph.add_base_cost(node, extra)
 
     def _assemble_pieces(self, res: SearchResult) -> list[MotionPiece]:
         """Key-pose moves and planned motions in execution order (the builder tracks the object)."""

@@ -54,14 +54,17 @@ def test_failing_nodes_are_removed_and_counted_by_cause():
 
 
 def test_motion_failure_removes_the_edge_and_replans():
+    failed: set[int] = set()  # the grasp of the first transfer tried cannot carry the object anywhere
+
     def edge(a, b, kind):
-        if kind == "transfer" and a.grasp == 0:
+        if kind == "transfer" and (not failed or a.grasp in failed):
+            failed.add(a.grasp)
             return Validation(False, "motion")
         return Validation(True)
 
     res = RegraspGraph(spec()).search(lambda n: Validation(True, margin_m=0.2), edge, max_iterations=100, time_limit_s=5)
     assert res.status == "solved" and res.failures["motion"] >= 1
-    assert all(n.grasp != 0 for n in res.path)
+    assert all(n.grasp not in failed for n in res.path)
 
 
 def test_margin_cost_prefers_the_more_stable_node():
@@ -110,3 +113,14 @@ def test_graph_stays_linear_in_grasps():
     small = RegraspGraph(spec(grasps=tuple(range(10)), placements=(0, 2))).size[1]
     large = RegraspGraph(spec(grasps=tuple(range(100)), placements=(0, 2))).size[1]
     assert large < 12 * small
+
+
+def test_removed_nodes_and_edges_leave_the_search():
+    g = RegraspGraph(spec())
+    nodes, edges = g.size
+    victim = PlacementNode(2, 0, "right")
+    assert victim in g
+    g.remove_node(victim)
+    assert victim not in g and g.size[0] == nodes - 1 and g.size[1] < edges
+    res = g.search(lambda n: Validation(True, margin_m=0.2), ok_edge, max_iterations=50, time_limit_s=5)
+    assert res.status == "solved" and victim not in res.path
