@@ -373,6 +373,8 @@ class HandConfigPlanner:
         self.goal_ok = False
         self.screen_failures: Counter = Counter()
         self._edges: dict = {}
+        #: (handover pose, giver grasp, giver) -> (q, hold, cause, margin) of the giver alone there, or None (no arm-only IK)
+        self._giver_at: dict = {}
         self.stage_s: dict[str, float] = {}
 
     # -- graph construction ---------------------------------------------------------------------
@@ -477,27 +479,47 @@ class HandConfigPlanner:
         T_obj = t.handover_poses[node.pose].T_world_obj
         T_g = T_obj @ gg.T_obj_tcp
         T_t = T_obj @ tg.T_obj_tcp
-        # Both arms without the waist first: a turning waist swings the idle arm into the table.
-        self.task.counters["ik_solves"] += 1
-        res = t.ik_arm_only.solve({giver: T_g, taker: T_t}, t.home, self.rng, rest_q=t.home)
-        if res.q is None:
+        # Arms without the waist first: a turning waist swings the idle arm into the table. With the
+        # waist still the arms are independent, so the giver is solved and checked alone, once per
+        # (pose, giver grasp): most handover nodes fail there (the object or the giver's arm
+        # against the body), and the pairs of a pose share their giver grasps.
+        giver_key = (node.pose, node.giver_grasp, giver)
+        if giver_key not in self._giver_at:
+            q_g = t.solve_ik(giver, T_g, t.home, self.rng, arm_only=True)
+            checked = None
+            if q_g is not None:
+                q_g[t.jaw[giver]] = gg.jaw_value
+                hold = HoldSpec(giver, inverse(T_obj) @ t.tcp(q_g, giver))
+                checked = (q_g, hold, *t.classify(q_g, hold, None))
+            self._giver_at[giver_key] = checked
+        checked = self._giver_at[giver_key]
+        q_both = None
+        if checked is not None:
+            q_g, hold_g, cause, m0 = checked
+            if cause:
+                return Validation(False, cause, "giver at the handover pose", margin_m=m0)
+            q_t = t.solve_ik(taker, T_t, q_g, self.rng, arm_only=True)
+            if q_t is not None:
+                q_both = q_g.copy()
+                q_both[t.arm_only[taker]] = q_t[t.arm_only[taker]]
+        if q_both is None:
+            # Both arms with the waist, which they share.
             self.task.counters["ik_solves"] += 1
             res = t.ik.solve({giver: T_g, taker: T_t}, t.home, self.rng, rest_q=t.home)
-        if res.q is None:
-            return Validation(False, "ik", "handover pose out of reach for both hands")
-        q_both = res.q
-        q_both[t.jaw[giver]] = gg.jaw_value
+            if res.q is None:
+                return Validation(False, "ik", "handover pose out of reach for both hands")
+            q_both = res.q
+            q_both[t.jaw[giver]] = gg.jaw_value
+            hold_g = HoldSpec(giver, inverse(T_obj) @ t.tcp(q_both, giver))
+            q_g = q_both.copy()
+            q_g[t.arm_only[taker]] = t.home[t.arm_only[taker]]
+            cause, m0 = t.classify(q_g, hold_g, None)
+            if cause:
+                return Validation(False, cause, "giver at the handover pose", margin_m=m0)
         q_both[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
         # The giver at the handover pose with the taker arm still at home.
-        q_giver_at = q_both.copy()
-        q_giver_at[t.arm_only[taker]] = t.home[t.arm_only[taker]]
-        # The giver's grasp as the hand really holds it at the handover; checked before the two
-        # pre-grasp IK solves below, since this check fails most often (measured: half the failures).
-        G_g = inverse(T_obj) @ t.tcp(q_both, giver)
-        hold_g = HoldSpec(giver, G_g)
-        cause, m0 = t.classify(q_giver_at, hold_g, None)
-        if cause:
-            return Validation(False, cause, "giver at the handover pose", margin_m=m0)
+        q_giver_at = q_g
+        G_g = hold_g.T_obj_tcp
         T_pre_t = _translate(T_t, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
         q_taker_pre = t.solve_ik(taker, T_pre_t, q_both, self.rng, arm_only=True)
         if q_taker_pre is None:
