@@ -59,6 +59,7 @@ from .transforms import inverse, pose7_to_matrix
 from .trrt import TrrtSettings, plan_motion
 
 Side = Literal["left", "right"]
+HANDS_INDEX: dict[str, int] = {"left": 0, "right": 1}
 HANDS_OF: dict[str, tuple[Side, Side]] = {
     "left-left": ("left", "left"),
     "right-right": ("right", "right"),
@@ -201,6 +202,13 @@ class Task:
         t2 = time.perf_counter()
         self.placements, self.start_id, self.goal_id = self._placements()
         self._handover_cache: list[HandoverPose] | None = None
+        #: Node validations shared by the hand configurations of this task (a node's outcome does not
+        #: depend on the configuration, and each node draws from its own generator, so the outcome
+        #: does not depend on the order either).
+        self.node_cache: dict = {}
+        #: (handover pose, giver grasp, giver) -> (q, hold, cause, margin) of the giver alone there,
+        #: or None when its arm alone cannot reach
+        self.giver_at: dict = {}
         self.timings["placements_s"] = time.perf_counter() - t2
         self.timings["setup_s"] = time.perf_counter() - t0
 
@@ -286,6 +294,12 @@ class Task:
                 pairs = pairs[np.linspace(0, len(pairs) - 1, keep).astype(int)]
             out.append(HandoverPose(hp.id, hp.T_world_obj, pairs))
         return out
+
+    def node_seed(self, node: PlacementNode | HandoverNode) -> list[int]:
+        """The seed of a node's own generator: the task seed and the node's identity."""
+        if isinstance(node, PlacementNode):
+            return [self.seed, 0, node.placement, node.grasp, HANDS_INDEX[node.hand]]
+        return [self.seed, 1, node.pose, node.giver_grasp, node.taker_grasp, HANDS_INDEX[node.giver]]
 
     # -- evaluation helpers ---------------------------------------------------------------------
     def validity(self, hold: HoldSpec | None, free_object: np.ndarray | None, grasping: str | None = None,
@@ -373,8 +387,6 @@ class HandConfigPlanner:
         self.goal_ok = False
         self.screen_failures: Counter = Counter()
         self._edges: dict = {}
-        #: (handover pose, giver grasp, giver) -> (q, hold, cause, margin) of the giver alone there, or None (no arm-only IK)
-        self._giver_at: dict = {}
         self.stage_s: dict[str, float] = {}
 
     # -- graph construction ---------------------------------------------------------------------
@@ -416,9 +428,15 @@ class HandConfigPlanner:
         """Validate a node once (cached across searches, e.g. for the K best solutions)."""
         if node in self._validated:
             return self._validated[node]
+        t = self.task
+        v = t.node_cache.get(node)
+        if v is None:
+            rng = np.random.default_rng(t.node_seed(node))
+            v = self._validate_placement(node, rng) if isinstance(node, PlacementNode) else self._validate_handover(node, rng)
+            t.node_cache[node] = v
+        elif v.ok:  # validated by another hand configuration of this task
+            (self.keyposes if isinstance(node, PlacementNode) else self.handovers)[node] = v.payload
         if isinstance(node, PlacementNode):
-            v = self._validate_placement(node)
-            t = self.task
             for pid, hand, counter, flag in ((t.start_id, self.start_hand, self.start_failures, "start_ok"),
                                              (t.goal_id, self.goal_hand, self.goal_failures, "goal_ok")):
                 if node.placement == pid and node.hand == hand:
@@ -426,12 +444,10 @@ class HandConfigPlanner:
                         setattr(self, flag, True)
                     else:
                         counter[v.cause or "ik"] += 1
-        else:
-            v = self._validate_handover(node)
         self._validated[node] = v
         return v
 
-    def _validate_placement(self, node: PlacementNode) -> Validation:
+    def _validate_placement(self, node: PlacementNode, rng: np.random.Generator) -> Validation:
         t, s = self.task, self.task.settings
         side = node.hand
         grasp = t.grasps[side][node.grasp]
@@ -440,7 +456,7 @@ class HandConfigPlanner:
         T_pre = _translate(T_grasp, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
         T_lift = _translate(T_grasp, np.array([0.0, 0.0, s.lift_m]), local=False)
         # Cheapest decisive checks first: the grasp pose, then the held object there, then lift, then pre-grasp.
-        q_grasp = t.solve_ik(side, T_grasp, t.home, self.rng)
+        q_grasp = t.solve_ik(side, T_grasp, t.home, rng)
         if q_grasp is None:
             return Validation(False, "ik", "grasp pose out of reach")
         q_grasp[t.jaw[side]] = t.robot.upper[t.jaw[side]]
@@ -453,14 +469,14 @@ class HandConfigPlanner:
         cause, m2 = t.classify(t.line(q_grasp, q_closed, 3), None, T_obj, grasping=side)
         if cause:
             return Validation(False, cause, "closing the jaw", margin_m=m2)
-        q_lift = t.solve_ik(side, T_lift, q_grasp, self.rng)
+        q_lift = t.solve_ik(side, T_lift, q_grasp, rng)
         if q_lift is None:
             return Validation(False, "ik", "lift pose out of reach")
         q_lift[t.jaw[side]] = grasp.jaw_value
         cause, m3 = t.classify(t.line(q_closed, q_lift), hold, None)
         if cause:
             return Validation(False, cause, "lift", margin_m=m3)
-        q_pre = t.solve_ik(side, T_pre, q_grasp, self.rng)
+        q_pre = t.solve_ik(side, T_pre, q_grasp, rng)
         if q_pre is None:
             return Validation(False, "ik", "pre-grasp pose out of reach")
         q_pre[t.jaw[side]] = t.robot.upper[t.jaw[side]]
@@ -472,7 +488,7 @@ class HandConfigPlanner:
         self.keyposes[node] = kp
         return Validation(True, margin_m=kp.margin, payload=kp)
 
-    def _validate_handover(self, node: HandoverNode) -> Validation:
+    def _validate_handover(self, node: HandoverNode, rng: np.random.Generator) -> Validation:
         t, s = self.task, self.task.settings
         giver, taker = node.giver, node.taker
         gg, tg = t.all_grasps[giver][node.giver_grasp], t.all_grasps[taker][node.taker_grasp]
@@ -484,28 +500,29 @@ class HandConfigPlanner:
         # (pose, giver grasp): most handover nodes fail there (the object or the giver's arm
         # against the body), and the pairs of a pose share their giver grasps.
         giver_key = (node.pose, node.giver_grasp, giver)
-        if giver_key not in self._giver_at:
-            q_g = t.solve_ik(giver, T_g, t.home, self.rng, arm_only=True)
+        if giver_key not in t.giver_at:
+            q_g = t.solve_ik(giver, T_g, t.home, np.random.default_rng([t.seed, 2, *giver_key[:2], HANDS_INDEX[giver]]),
+                             arm_only=True)
             checked = None
             if q_g is not None:
                 q_g[t.jaw[giver]] = gg.jaw_value
                 hold = HoldSpec(giver, inverse(T_obj) @ t.tcp(q_g, giver))
                 checked = (q_g, hold, *t.classify(q_g, hold, None))
-            self._giver_at[giver_key] = checked
-        checked = self._giver_at[giver_key]
+            t.giver_at[giver_key] = checked
+        checked = t.giver_at[giver_key]
         q_both = None
         if checked is not None:
             q_g, hold_g, cause, m0 = checked
             if cause:
                 return Validation(False, cause, "giver at the handover pose", margin_m=m0)
-            q_t = t.solve_ik(taker, T_t, q_g, self.rng, arm_only=True)
+            q_t = t.solve_ik(taker, T_t, q_g, rng, arm_only=True)
             if q_t is not None:
                 q_both = q_g.copy()
                 q_both[t.arm_only[taker]] = q_t[t.arm_only[taker]]
         if q_both is None:
             # Both arms with the waist, which they share.
             self.task.counters["ik_solves"] += 1
-            res = t.ik.solve({giver: T_g, taker: T_t}, t.home, self.rng, rest_q=t.home)
+            res = t.ik.solve({giver: T_g, taker: T_t}, t.home, rng, rest_q=t.home)
             if res.q is None:
                 return Validation(False, "ik", "handover pose out of reach for both hands")
             q_both = res.q
@@ -521,12 +538,12 @@ class HandConfigPlanner:
         q_giver_at = q_g
         G_g = hold_g.T_obj_tcp
         T_pre_t = _translate(T_t, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
-        q_taker_pre = t.solve_ik(taker, T_pre_t, q_both, self.rng, arm_only=True)
+        q_taker_pre = t.solve_ik(taker, T_pre_t, q_both, rng, arm_only=True)
         if q_taker_pre is None:
             return Validation(False, "ik", "taker pre-grasp out of reach")
         q_taker_pre[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
         T_pre_g = _translate(T_g, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
-        q_giver_pre = t.solve_ik(giver, T_pre_g, q_both, self.rng, arm_only=True)
+        q_giver_pre = t.solve_ik(giver, T_pre_g, q_both, rng, arm_only=True)
         if q_giver_pre is None:
             return Validation(False, "ik", "giver retreat out of reach")
         # Taker: home -> pre-grasp (T-RRT, arm only), approach, close.

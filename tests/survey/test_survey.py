@@ -166,3 +166,24 @@ def test_bad_input_is_a_clear_usage_error(args, message):
 def test_unknown_hands_are_rejected(scenario):
     with pytest.raises(ValueError, match="unknown hands 'both'"):
         run_survey(scenario, states=10, hands=["both"], workers=1)
+
+
+def test_key_poses_do_not_depend_on_which_configuration_ran_first(scenario):
+    """Node validations are shared by a task's hand configurations and each node draws from its own
+    generator, so a configuration finds the same key path whatever was validated before it."""
+    import numpy as np
+
+    from planner.regrasp_planner import HandConfigPlanner, Task
+    from planner.survey import key_path
+
+    def path_of(task, hands):
+        path, reason = key_path(HandConfigPlanner(task, hands, np.random.default_rng(0)), lambda: False)
+        assert path is not None, reason
+        return path
+
+    alone = path_of(Task(scenario), "left-left")
+    shared = Task(scenario)
+    path_of(shared, "right-right")
+    path_of(shared, "left-right")
+    assert len(shared.node_cache) > 0
+    assert path_of(shared, "left-left") == alone
