@@ -21,6 +21,9 @@ import pinocchio as pin
 from .robot_model import RobotModel
 from .transforms import quat_to_matrix
 
+#: Constant-subtree results kept per kinematics object (one per stance posture and moving set in use).
+CONST_CACHE_SIZE = 8
+
 _AXIS_KIND = {
     "JointModelRX": ("R", 0), "JointModelRY": ("R", 1), "JointModelRZ": ("R", 2),
     "JointModelPX": ("P", 0), "JointModelPY": ("P", 1), "JointModelPZ": ("P", 2),
@@ -81,6 +84,8 @@ class BatchKinematics:
         self._root_lever = np.array(root_inertia.lever)
         self.total_mass = float(sum(s.mass for s in steps) + self._root_mass)
         self._njoints = model.njoints
+        self._step_cols = np.array([s.q_col for s in steps], dtype=int)
+        self._const_cache: dict[tuple, dict] = {}
         self._frames = {f.name: (int(f.parentJoint), np.array(f.placement.rotation), np.array(f.placement.translation)) for f in model.frames}
 
     def forward(self, base_pose: np.ndarray, Q: np.ndarray) -> tuple[list, list]:
@@ -105,7 +110,28 @@ class BatchKinematics:
             ps[1] = base_pose[:, :3].T.copy()
         const_cols = np.all(Q == Q[0], axis=0) if n > 1 else np.ones(Q.shape[1], dtype=bool)
         QT = Q.T
+        cached = None
+        if n > 1 and const[1]:
+            # The constant part of the tree (legs, neck, idle arm at the stance) is the same from one
+            # batch to the next: its joint frames are computed once and reused (read-only).
+            for s in self._steps:
+                const[s.jid] = const[s.parent] and bool(const_cols[s.q_col])
+            mask = np.array([const[s.jid] for s in self._steps])
+            cols = self._step_cols[mask]
+            key = (base_pose.tobytes(), mask.tobytes(), Q[0, cols].tobytes())
+            cached = self._const_cache.get(key)
+            if cached is None:
+                cached = self._const_cache[key] = {}
+                if len(self._const_cache) > CONST_CACHE_SIZE:
+                    self._const_cache.pop(next(iter(self._const_cache)))
+                fill = True
+            else:
+                fill = False
+                for jid, (R, p) in cached.items():
+                    Rs[jid], ps[jid] = R, p
         for s in self._steps:
+            if cached is not None and not fill and const[s.jid]:
+                continue
             Rp, pp = Rs[s.parent], ps[s.parent]
             c = const[s.parent] and bool(const_cols[s.q_col])
             if not c and Rp.shape[2] == 1 and n > 1:
@@ -126,6 +152,10 @@ class BatchKinematics:
             else:  # prismatic: move along the rotated axis
                 p = p + theta * _matvec(R, s.axis)
             Rs[s.jid], ps[s.jid], const[s.jid] = R, p, c
+            if c and cached is not None:
+                R.setflags(write=False)
+                p.setflags(write=False)
+                cached[s.jid] = (R, p)
         if n > 1:
             for jid in range(1, self._njoints):
                 if Rs[jid] is not None and Rs[jid].shape[2] == 1:

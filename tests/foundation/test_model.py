@@ -97,6 +97,25 @@ def test_batch_frames_match_pinocchio(hrp5p):
         assert np.abs(frames["r_sole"][1][i] - rsole.translation).max() < 1e-9
 
 
+def test_batches_sharing_a_constant_part_still_match_pinocchio(hrp5p):
+    """The constant part of the tree is reused between batches: a second batch with the same fixed
+    joints but other moving ones, and a third with other fixed values, must still be exact."""
+    rng = np.random.default_rng(5)
+    base = np.array([0.0, 0.0, 0.85, 0, 0, 0, 1.0])
+    kin = BatchKinematics(hrp5p)
+    arm = hrp5p.arm_indices("left")
+    ref = rng.uniform(hrp5p.lower, hrp5p.upper)
+    data = hrp5p.create_data()
+    for fixed in (ref, ref, rng.uniform(hrp5p.lower, hrp5p.upper)):
+        Q = np.repeat(fixed[None], 6, axis=0)
+        Q[:, arm] = rng.uniform(hrp5p.lower[arm], hrp5p.upper[arm], size=(6, len(arm)))
+        _, frames = kin.com_and_frames(base, Q, ["l_tcp", "r_tcp"])
+        for i in range(len(Q)):
+            ltcp, rtcp = frame_poses(hrp5p, data, base, Q[i], ["l_tcp", "r_tcp"])
+            assert np.abs(frames["l_tcp"][1][i] - ltcp.translation).max() < 1e-9
+            assert np.abs(frames["r_tcp"][1][i] - rtcp.translation).max() < 1e-9
+
+
 def test_unknown_names_list_the_valid_ones(hrp5p):
     with pytest.raises(UnknownRobotError, match="valid robots: .*hrp5p"):
         load_robot("hrp6")
