@@ -33,6 +33,8 @@ class DemoSettings(BaseModel):
     survey_states: int = Field(400, ge=1, description="states per hand configuration in the demo's survey")
     controller_speed: float = Field(10.0, gt=0, description="the simulated controller plays K times faster than real time")
     workers: int = Field(2, ge=1)
+    watchdog_timeout_s: float = Field(1.0, gt=0, le=5.0, description="bridge watchdog for the simulated controller "
+                                      "(the robot default is 0.25 s)")
     start_timeout_s: float = Field(60.0, gt=0)
     job_timeout_s: float = Field(300.0, gt=0)
 
@@ -98,6 +100,9 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
     endpoint = f"tcp/127.0.0.1:{zenoh_port}"
     env = dict(os.environ, REGRASP_TOKENS=json.dumps(tokens), REGRASP_BRIDGE_CONNECT=json.dumps([endpoint]),
                REGRASP_DISPATCH_LOOKAHEAD_SEGMENTS=str(_lookahead_segments(settings.controller_speed)),
+               # The simulated controller shares the machine's cores with planning workers; on a loaded
+               # host a 0.25 s heartbeat gap is the scheduler, not a dead controller. A robot keeps 0.25 s.
+               REGRASP_BRIDGE_WATCHDOG_TIMEOUT_S=str(settings.watchdog_timeout_s),
                PYTHONUNBUFFERED="1")
     exe = [sys.executable, "-m", "service.cli.main"]
     with ExitStack() as stack:
