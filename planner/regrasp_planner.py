@@ -226,8 +226,11 @@ class Task:
         # so regrasps can flip the object.
         mid = 0.5 * (start[:3, 3] + goal[:3, 3])
         needed = self.threshold_m + self.settings.planning_buffer_m if self.constrained else -np.inf
-        spots.sort(key=lambda p: (self.estimated_margin(p.T_world_obj) < needed,
-                                  float(np.linalg.norm(p.T_world_obj[:2, 3] - mid[:2]))))
+        if spots:
+            T = np.array([p.T_world_obj for p in spots])
+            unlikely = self.estimated_margins(T) < needed
+            dist = np.linalg.norm(T[:, :2, 3] - mid[:2], axis=1)
+            spots = [spots[k] for k in np.lexsort((dist, unlikely))]
         by_ref: dict[int, list] = {}
         for p in spots:
             by_ref.setdefault(p.reference, []).append(p)
@@ -365,11 +368,14 @@ class Task:
 
     def estimated_margin(self, T_obj: np.ndarray) -> float:
         """Quick guess of a held state's margin: the home posture plus the object at T_obj (eq. 1)."""
-        robot_com = self.stance.robot_com
-        obj_com = T_obj[:3, :3] @ self.obj.com_local + T_obj[:3, 3]
+        return float(self.estimated_margins(np.asarray(T_obj)[None])[0])
+
+    def estimated_margins(self, T_obj: np.ndarray) -> np.ndarray:
+        """:meth:`estimated_margin` of many object poses (N, 4, 4) at once."""
+        obj_com = T_obj[:, :3, :3] @ self.obj.com_local + T_obj[:, :3, 3]
         m, M = self.obj.mass_kg, self.robot.total_mass
-        c = (M * robot_com + m * obj_com) / (M + m)
-        return self.stance.polygon.margin_one(float(c[0]), float(c[1]))
+        c = (M * self.stance.robot_com[None] + m * obj_com) / (M + m)
+        return self.stance.polygon.margin(c[:, :2])
 
 
 class HandConfigPlanner:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from .trrt import COARSE_STRIDE, ShouldStop, Validity
+from .trrt import ShouldStop, Validity, coarse_mask
 
 
 #: Straight-line skips tried per waypoint in the final pass (farthest first).
@@ -28,6 +28,7 @@ class SmoothingSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     iterations: int = Field(60, ge=0, description="random shortcut attempts")
+    batch: int = Field(4, ge=1, description="shortcut attempts checked together per round (the longest valid one is taken)")
     edge_resolution_rad: float = Field(0.02, gt=0, description="largest per-joint change between checked states")
     min_gain: float = Field(1e-3, ge=0, description="ignore shortcuts that save less path length than this (rad)")
 
@@ -72,42 +73,61 @@ def shortcut(
     P = np.asarray(path, dtype=float).copy()
     before = path_length(P)
     tried = accepted = 0
-    for _ in range(s.iterations):
+    drawn = 0
+    while drawn < s.iterations:
         if len(P) < 3 or (should_stop is not None and should_stop()):
             break
         cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
         total = cum[-1]
         if total <= 0:
             break
-        s1, s2 = np.sort(rng.uniform(0.0, total, 2))
-        i, a = _point_at(P, cum, s1)
-        j, b = _point_at(P, cum, s2)
-        if j <= i:
-            continue  # both on one segment: already straight
-        gain = (s2 - s1) - float(np.linalg.norm(b - a))
-        if gain < s.min_gain:
+        # One round: a few random shortcuts of the current path, checked together (two validity
+        # calls per round instead of up to two per shortcut); the longest valid one is taken.
+        cands = []
+        for _ in range(min(s.batch, s.iterations - drawn)):
+            drawn += 1
+            s1, s2 = np.sort(rng.uniform(0.0, total, 2))
+            i, a = _point_at(P, cum, s1)
+            j, b = _point_at(P, cum, s2)
+            if j <= i:
+                continue  # both on one segment: already straight
+            gain = (s2 - s1) - float(np.linalg.norm(b - a))
+            if gain >= s.min_gain:
+                cands.append((gain, i, j, a, b, np.vstack([a[None], _edge_states(a, b, s.edge_resolution_rad)])))
+        if not cands:
             continue
-        tried += 1
-        states = np.vstack([a[None], _edge_states(a, b, s.edge_resolution_rad)])
-        if not _valid_coarse_to_fine(states, validity):
+        tried += len(cands)
+        ok = _all_valid_coarse_to_fine([c[5] for c in cands], validity)
+        valid = [c for c, good in zip(cands, ok) if good]
+        if not valid:
             continue
+        gain, i, j, a, b, _ = max(valid, key=lambda c: c[0])
         accepted += 1
-        P = np.vstack([P[: i + 1], a[None], b[None], P[j + 1 :]])
-        P = _dedupe(P)
+        P = _dedupe(np.vstack([P[: i + 1], a[None], b[None], P[j + 1 :]]))
     P, dropped = _drop_skippable(P, validity, s.edge_resolution_rad)
     return SmoothResult(path=P, length_before=before, length_after=path_length(P),
                         stats=dict(shortcuts_tried=tried, shortcuts_accepted=accepted, waypoints_dropped=dropped))
 
 
-def _valid_coarse_to_fine(states: np.ndarray, validity: Validity) -> bool:
-    """All states valid? Every ``COARSE_STRIDE``-th state first: most failing shortcuts fail there."""
-    coarse = np.zeros(len(states), dtype=bool)
-    coarse[COARSE_STRIDE - 1 :: COARSE_STRIDE] = True
-    coarse[-1] = True
-    if not np.all(validity(states[coarse])[0]):
-        return False
-    rest = states[~coarse]
-    return len(rest) == 0 or bool(np.all(validity(rest)[0]))
+def _all_valid_coarse_to_fine(edges: list[np.ndarray], validity: Validity) -> list[bool]:
+    """Which edges have every state valid: the coarse states (every ``COARSE_STRIDE``-th and the
+    last) of all edges in one call, then the remaining states of the survivors in a second."""
+    masks = [coarse_mask(len(e)) for e in edges]
+    ok = _split_valid([e[m] for e, m in zip(edges, masks)], validity)
+    todo = [k for k, good in enumerate(ok) if good and (~masks[k]).any()]
+    if todo:
+        for k, good in zip(todo, _split_valid([edges[k][~masks[k]] for k in todo], validity)):
+            ok[k] = good
+    return ok
+
+
+def _split_valid(parts: list[np.ndarray], validity: Validity) -> list[bool]:
+    valid = np.asarray(validity(np.vstack(parts))[0], dtype=bool)
+    out, k = [], 0
+    for part in parts:
+        out.append(bool(valid[k : k + len(part)].all()))
+        k += len(part)
+    return out
 
 
 def _dedupe(P: np.ndarray) -> np.ndarray:
@@ -121,7 +141,8 @@ def _dedupe(P: np.ndarray) -> np.ndarray:
 
 
 def _drop_skippable(P: np.ndarray, validity: Validity, resolution: float) -> tuple[np.ndarray, int]:
-    """Greedy pass: from each kept waypoint, jump to the farthest one reachable in a straight valid line."""
+    """Greedy pass: from each kept waypoint, jump to the farthest one reachable in a straight valid line
+    (the candidate jumps of a waypoint are checked together)."""
     if len(P) < 3:
         return P, 0
     out = [0]
@@ -129,10 +150,14 @@ def _drop_skippable(P: np.ndarray, validity: Validity, resolution: float) -> tup
     while i < len(P) - 1:
         nxt = i + 1
         candidates = np.unique(np.linspace(i + 2, len(P) - 1, MAX_SKIP_TRIES).astype(int))[::-1] if i + 2 < len(P) else []
-        for j in candidates:
-            if _valid_coarse_to_fine(_edge_states(P[i], P[j], resolution), validity):
-                nxt = j
-                break
+        if len(candidates):
+            edges = [_edge_states(P[i], P[j], resolution) for j in candidates]
+            masks = [coarse_mask(len(e)) for e in edges]
+            coarse_ok = _split_valid([e[m] for e, m in zip(edges, masks)], validity)
+            for j, e, m, good in zip(candidates, edges, masks, coarse_ok):  # farthest first
+                if good and (m.all() or _split_valid([e[~m]], validity)[0]):
+                    nxt = int(j)
+                    break
         out.append(nxt)
         i = nxt
     return P[out], len(P) - len(out)

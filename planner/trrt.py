@@ -52,6 +52,15 @@ ShouldStop = Callable[[], bool]
 COARSE_STRIDE = 5
 
 
+def coarse_mask(n: int) -> np.ndarray:
+    """The coarse states of an edge of ``n`` states: every ``COARSE_STRIDE``-th and the last
+    (most invalid edges already fail there)."""
+    m = np.zeros(n, dtype=bool)
+    m[COARSE_STRIDE - 1 :: COARSE_STRIDE] = True
+    m[-1] = True
+    return m
+
+
 class TrrtSettings(BaseModel):
     """T-RRT parameters; defaults follow Jaillet et al. / OMPL where those apply."""
 
@@ -301,9 +310,7 @@ def _edges_valid(search: _Search, edges: list[np.ndarray], check, lazy: bool) ->
         for i, e in enumerate(edges):
             if not ok[i]:
                 continue
-            coarse = np.zeros(len(e), dtype=bool)
-            coarse[COARSE_STRIDE - 1 :: COARSE_STRIDE] = True
-            coarse[-1] = True
+            coarse = coarse_mask(len(e))
             sel = coarse if phase == 0 else ~coarse
             if sel.any():
                 picks.append((i, e[sel]))
@@ -331,12 +338,7 @@ def _run_round_lazy(search: _Search, rng: np.random.Generator, check) -> list[tu
         return []
     search.stats["extensions"] += len(cands)
     edges = [search.edge_states(search.trees[ti].nodes[near], new) for ti, near, new, _ in cands]
-    coarse_masks = []
-    for e in edges:
-        m = np.zeros(len(e), dtype=bool)
-        m[COARSE_STRIDE - 1 :: COARSE_STRIDE] = True
-        m[-1] = True
-        coarse_masks.append(m)
+    coarse_masks = [coarse_mask(len(e)) for e in edges]
     coarse = [e[m] for e, m in zip(edges, coarse_masks)]
     lengths = [len(c) for c in coarse]
     valid, margin = check(search.full(np.vstack(coarse)), lengths)
