@@ -16,13 +16,19 @@ HANDS = click.Choice(["auto", "left-left", "right-right", "left-right", "right-l
 
 
 def run_with_progress(label: str, fn):
-    """Run fn(progress_callback) under a rich progress bar."""
+    """Run fn(progress_callback) under a rich progress bar.
+
+    The bar is redrawn by the callback, not by rich's refresh thread: the process stays
+    single-threaded, so the survey can fork its worker processes (see planner.survey).
+    """
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                  TimeElapsedColumn(), TextColumn("{task.fields[msg]}"), console=console, transient=True) as bar:
+                  TimeElapsedColumn(), TextColumn("{task.fields[msg]}"), console=console, transient=True,
+                  auto_refresh=False) as bar:
         task = bar.add_task(label, total=1.0, msg="")
 
         def progress(fraction: float, message: str) -> None:
             bar.update(task, completed=min(max(fraction, 0.0), 1.0), msg=message[:70])
+            bar.refresh()
 
         return fn(progress)
 
