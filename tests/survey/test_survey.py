@@ -187,3 +187,27 @@ def test_key_poses_do_not_depend_on_which_configuration_ran_first(scenario):
     path_of(shared, "left-right")
     assert len(shared.node_cache) > 0
     assert path_of(shared, "left-left") == alone
+
+
+def test_chained_configurations_count_as_when_run_alone(scenario):
+    """Three configurations on two workers: the two picking with the left hand share a worker
+    (left-left first, left-right reusing its validated nodes); counts equal the one-process run."""
+    from planner.survey import _chains
+
+    hands = ["right-right", "left-left", "left-right"]
+    assert _chains(hands, 2) == [[0], [1, 2]]
+    alone, _ = run_survey(scenario, states=200, hands=hands, workers=1)
+    chained, _ = run_survey(scenario, states=200, hands=hands, workers=2)
+    assert [(r["hands"], r["stable"], r["unstable"]) for r in chained["rows"]] == \
+        [(r["hands"], r["stable"], r["unstable"]) for r in alone["rows"]]
+
+
+def test_the_cli_progress_bar_leaves_the_process_single_threaded():
+    """The survey forks its workers only from a single-threaded process (see _pool_context)."""
+    import threading
+
+    from service.cli.plan import run_with_progress
+
+    before = threading.active_count()
+    during = run_with_progress("test", lambda progress: (progress(0.5, "half"), threading.active_count())[1])
+    assert during == before
