@@ -19,6 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from planner.stances import BUILTIN_STANCES as STANCES
 from schemas.common import HAND_CONFIGS
 
 #: The paper's Tables I-IV: (C, U, R) per hand configuration.
@@ -32,7 +33,6 @@ PAPER_TABLES: dict[str, dict[str, tuple[int, int, float]]] = {
     "one-legged": {"left-left": (2628, 0, 1.0), "right-right": (4299, 2401, 0.6416),
                    "left-right": (2558, 2444, 0.5113), "right-left": (1306, 88, 0.9368)},
 }
-STANCES = ("upright", "staggered", "crouched", "one-legged")
 DRILL_TASKS = ("drill-handover", "drill-upright")
 
 

@@ -15,10 +15,15 @@ def audit() -> None:
     """Verify or show an MCAP audit file."""
 
 
+#: Exit code when a file could not be verified at all (missing, unreadable, bad --head): 0, 1 and 2
+#: are the verdicts of CONTRACT section 7, and a script must never read "not checked" as one of them.
+EXIT_NOT_VERIFIED = 3
+
+
 def _existing(path: str) -> Path:
     p = Path(path)
     if not p.is_file():
-        fail(f"audit file {path} does not exist or is not a file")
+        fail(f"audit file {path} does not exist or is not a file", code=EXIT_NOT_VERIFIED)
     return p
 
 
@@ -30,7 +35,8 @@ def _existing(path: str) -> Path:
 def verify_cmd(file: str, head: str | None, as_json: bool) -> None:
     """Check the chain and the MCAP CRCs of FILE.
 
-    Exit 0 intact, 1 broken or edited (says where), 2 intact but unfinished.
+    Exit 0 intact, 1 broken or edited (says where), 2 intact but unfinished, 3 not verified
+    (missing or unreadable file, malformed --head).
     """
     from service.audit import verify
 
@@ -38,9 +44,9 @@ def verify_cmd(file: str, head: str | None, as_json: bool) -> None:
     try:
         result = verify(path, head)
     except ValueError as exc:
-        fail(str(exc))
+        fail(str(exc), code=EXIT_NOT_VERIFIED)
     except OSError as exc:
-        fail(f"cannot read {file}: {exc.strerror or exc}")
+        fail(f"cannot read {file}: {exc.strerror or exc}", code=EXIT_NOT_VERIFIED)
     if as_json:
         print_json(result.to_json())
     else:

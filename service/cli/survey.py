@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from .common import check_scenario_args, console, fail, mm_to_m
+from .common import check_scenario_args, console, err_console, fail, mm_to_m
 from .plan import run_with_progress
 
 LABELS = {
@@ -17,7 +17,6 @@ LABELS = {
     "left-right": "Start from left hand - End with right hand",
     "right-left": "Start from right hand - End with left hand",
 }
-STANCES = ("upright", "staggered", "crouched", "one-legged")
 
 
 def survey_table(doc: dict, title: str) -> Table:
@@ -64,15 +63,20 @@ def _plots(doc: dict, outcomes, directory: Path, prefix: str) -> list[Path]:
 def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, workers, as_json, states_out, all_stances, plot_dir) -> None:
     """Count stable (C) and unstable (U) explored states per hand configuration; R = C / (C + U)."""
     from planner.jobs import PlanningInputError, resolve_scenario
+    from planner.stances import BUILTIN_STANCES
     from planner.survey import run_survey, write_states
 
     ref = check_scenario_args(scenario_file, scenario_name)
+    # With --json, stdout carries the document alone; everything else goes to stderr.
+    info = err_console.print if as_json else console.print
     if states is not None and states < 1:
         fail(f"--states must be at least 1, got {states}")
     threshold = mm_to_m("--threshold-mm", threshold_mm)
     if all_stances and stance:
         fail("--all-stances and --stance exclude each other")
-    stance_list = STANCES if all_stances else (stance,)
+    if all_stances and states_out:
+        fail("--states-out writes the states of one stance; use it without --all-stances")
+    stance_list = BUILTIN_STANCES if all_stances else (stance,)
     docs = []
     try:
         for st in stance_list:
@@ -85,16 +89,20 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
         fail(str(exc))
     except ValueError as exc:
         fail(str(exc))
+    if not all_stances:
+        reasons = {row.get("reason") for row in docs[0][0]["rows"]}
+        if len(reasons) == 1 and "inradius" in (next(iter(reasons)) or ""):
+            fail(next(iter(reasons)))  # no state can be stable: nothing was surveyed
     if states_out:
         from planner.robot_model import load_robot
 
         doc, outcomes = docs[0]
         n = write_states(states_out, doc, outcomes, {"joint_names": list(load_robot(doc["robot"]["name"]).joint_names)})
-        console.print(f"{n} evaluated states written to {Path(states_out).resolve()}", highlight=False)
+        info(f"{n} evaluated states written to {Path(states_out).resolve()}", highlight=False)
     if plot_dir:
         for doc, outcomes in docs:
             for path in _plots(doc, outcomes, Path(plot_dir), f"survey-{doc['stance']['name']}-"):
-                console.print(f"plot: {path}")
+                info(f"plot: {path}")
     if as_json:
         click.echo(json.dumps(docs[0][0] if not all_stances else {"stances": [d for d, _ in docs]}, allow_nan=False))
         return

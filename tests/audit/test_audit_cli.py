@@ -40,11 +40,11 @@ def test_verify_exit_codes(tmp_path, hrp5p_urdf):
 
 def test_verify_bad_arguments_are_clear(tmp_path, hrp5p_urdf):
     missing = _run("verify", str(tmp_path / "nope.mcap"))
-    assert missing.exit_code == 2 and "does not exist" in missing.output
+    assert missing.exit_code == 3 and "does not exist" in missing.output  # 2 means "intact but unfinished"
     path = tmp_path / "a.mcap"
     write_sample(path, None)
     bad_head = _run("verify", str(path), "--head", "xyz")
-    assert bad_head.exit_code == 2 and "64 hex digits" in bad_head.output
+    assert bad_head.exit_code == 3 and "64 hex digits" in bad_head.output
 
 
 def test_show_prints_a_timeline(tmp_path, hrp5p_urdf):

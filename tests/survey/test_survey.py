@@ -163,6 +163,28 @@ def test_bad_input_is_a_clear_usage_error(args, message):
     assert message in res.output
 
 
+def test_json_output_is_one_document_even_with_files_written(tmp_path):
+    import json
+
+    res = CliRunner().invoke(cli, ["survey", str(DATA / "small-box.yaml"), "--states", "40", "--workers", "1",
+                                    "--json", "--states-out", str(tmp_path / "s.npz")])
+    assert res.exit_code == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert {r["hands"] for r in doc["rows"]} == {"left-left", "right-right", "left-right", "right-left"}
+    assert "evaluated states written" in res.stderr and (tmp_path / "s.npz").is_file()
+
+
+def test_cli_threshold_beyond_the_polygon_is_an_error():
+    res = CliRunner().invoke(cli, ["survey", str(DATA / "small-box.yaml"), "--threshold-mm", "200", "--states", "10"])
+    assert res.exit_code == 2 and "inradius" in res.output
+
+
+def test_states_out_with_all_stances_is_refused(tmp_path):
+    res = CliRunner().invoke(cli, ["survey", str(DATA / "small-box.yaml"), "--all-stances", "--states-out", str(tmp_path / "s.npz")])
+    assert res.exit_code == 2 and "one stance" in res.output
+    assert not (tmp_path / "s.npz").exists()
+
+
 def test_unknown_hands_are_rejected(scenario):
     with pytest.raises(ValueError, match="unknown hands 'both'"):
         run_survey(scenario, states=10, hands=["both"], workers=1)
