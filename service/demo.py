@@ -2,8 +2,8 @@
 
 Every component runs for real on loopback: a simulated controller peer (zenoh), the HTTP
 service with its worker processes and SQLite job store, the safety gate and the MCAP audit.
-Three demo users play their roles: alice plans, bob approves (the two-person rule: alice
-cannot approve her own plan), carol operates the robot.
+Three demo users play their roles: alice plans (she may also approve, but the two-person rule
+refuses her own plan), bob approves, carol operates the robot.
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
     if data_dir.exists():
         shutil.rmtree(data_dir)
     result = DemoResult(ok=False)
-    tokens = {f"demo-alice-{secrets.token_hex(8)}": {"user": "alice", "roles": ["planner"]},
+    tokens = {f"demo-alice-{secrets.token_hex(8)}": {"user": "alice", "roles": ["planner", "approver"]},
               f"demo-bob-{secrets.token_hex(8)}": {"user": "bob", "roles": ["approver"]},
               f"demo-carol-{secrets.token_hex(8)}": {"user": "carol", "roles": ["operator"]}}
     tok = {v["user"]: k for k, v in tokens.items()}
@@ -151,11 +151,11 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
             alice.approve(plan_job["id"])
             raise RuntimeError("the submitter was allowed to approve her own plan")
         except ServiceError as exc:
+            if exc.status != 403 or "two-person rule" not in str(exc):
+                raise RuntimeError(f"alice's self-approval was refused for another reason: {exc}") from None
             result.steps.append(("two-person rule", f"alice refused ({exc.status})"))
         say("bob approves the plan (bound to its SHA-256)")
-        from schemas.plan import plan_sha256
-
-        bob.approve(plan_job["id"], plan_sha256=plan_sha256(plan))
+        bob.approve(plan_job["id"], plan_sha256=plan_job["plan_sha256"])
         result.steps.append(("approval", "bob approved"))
 
         say("carol dispatches: the safety gate rechecks every 5 ms sample, then the segments stream to the controller")
@@ -172,7 +172,7 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
         result.artefacts["audit"] = str(audit_path)
         result.summary["audit"] = f"{verdict.status}, {verdict.records} chained records"
         result.summary["audit_exit_code"] = verdict.exit_code
-        result.ok = done["state"] == "succeeded"
+        result.ok = done["state"] == "succeeded" and verdict.exit_code == 0
     _plots(out, plan, survey, result)
     return result
 

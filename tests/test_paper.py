@@ -82,3 +82,22 @@ def test_comparison_matrix_and_claims_match_the_json(report):
     for stance in STANCES:
         p = data["plans"][stance]
         assert p["constrained"]["threshold_m"] > 0 and p["unconstrained"]["threshold_m"] == 0.0
+
+
+def test_drill_and_planning_time_tables_match_the_json(report):
+    md, data, _ = report
+    drills = {r[0]: r for r in _table_rows(md, "## The real-robot tasks")[1:]}
+    assert set(drills) == {"drill-handover", "drill-upright"}
+    for task, row in drills.items():
+        d = data["drills"][task]
+        assert d["threshold_m"] == pytest.approx(0.055)
+        assert row[1].startswith(d["status"]) and row[2] == str(d["hands"])
+        if d["status"] == "solved":
+            assert d["min_margin_m"] >= d["threshold_m"]
+            assert row[3] == f"{d['min_margin_m'] * 1000:.1f} mm"
+    assert data["drills"]["drill-handover"]["hands"] in ("right-left", None)
+    times = {r[0]: r for r in _table_rows(md, "## Planning time with and without the constraint")[1:]}
+    for stance in STANCES:
+        p = data["plans"][stance]
+        assert times[stance][1] == f"{p['constrained']['planning_time_s']:.2f} s"
+        assert times[stance][2] == f"{p['unconstrained']['planning_time_s']:.2f} s"

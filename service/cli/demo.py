@@ -100,5 +100,6 @@ def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, surve
     console.print("Open the MCAP file in Foxglove (File > Open) to replay the plan and the executed motion.")
     console.print("Operator console: run [bold]regrasp serve --dev[/] and open http://127.0.0.1:8000/ with a printed token.")
     if not res.ok:
-        fail(f"execution ended {s['execution']}", code=1)
+        fail(f"execution ended {s['execution']}" if s.get("execution") != "succeeded" else f"the audit file is {s['audit']}",
+             code=1)
     console.print(f"[green]done[/]: artefacts in {out.resolve()}")

@@ -45,15 +45,16 @@ def summary_table(plans: list[tuple[str, dict]]) -> Table:
         st = plan.get("stats", {})
         segs = plan.get("segments", [])
         traj = plan.get("trajectory", [])
-        picks = sum(1 for s in segs if s["kind"] == "approach") // 2
         handovers = sum(1 for s in segs if s["kind"] == "handover") // 2
+        # A pick from the table has two approach segments (to the grasp, close the jaw); a handover one.
+        picks = (sum(1 for s in segs if s["kind"] == "approach") - handovers) // 2
         failures = st.get("failures") or (plan.get("failure") or {}).get("counts", {})
         rows["status"].append(plan["status"] if plan["status"] == "solved" else f"infeasible ({plan['failure']['code']})")
         rows["hands"].append(str(plan.get("hands")))
         rows["cost"].append(f"{st['cost']:.3f}" if st.get("cost") is not None else "-")
         rows["min margin (mm)"].append(f"{plan['min_margin_m'] * 1000:.1f}" if plan.get("min_margin_m") is not None else "-")
         rows["threshold (mm)"].append(f"{plan['threshold_m'] * 1000:.0f}")
-        rows["regrasps"].append(str(max(picks - 1 - handovers, 0)) if traj else "-")
+        rows["regrasps"].append(str(max(picks - 1, 0)) if traj else "-")
         rows["handovers"].append(str(handovers) if traj else "-")
         rows["duration (s)"].append(f"{traj[-1]['t']:.2f}" if traj else "-")
         rows["planning time (s)"].append(f"{st.get('time_s') or 0:.2f}")

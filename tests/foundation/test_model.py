@@ -51,6 +51,27 @@ def test_contract_frames_and_sole_boxes(hrp5p, stances):
     assert sole_size(hrp5p, "l_sole") == pytest.approx((0.23, 0.13))
 
 
+def test_jaw_opens_0_to_82_mm_and_closes_along_the_tcp_y_axis(hrp5p, stances):
+    """CONTRACT section 1: the TCP sits midway between the jaws and its y axis is the closing direction."""
+    import pinocchio as pin
+
+    st = stances["upright"]
+    model, data = hrp5p.pin_model, hrp5p.create_data()
+    for side, jaw in (("r", "RJAW"), ("l", "LJAW")):
+        k = hrp5p.joint_index(jaw)
+        assert hrp5p.lower[k] == pytest.approx(0.0) and 2 * hrp5p.upper[k] == pytest.approx(0.082)
+        q = st.q.copy()
+        q[k] = hrp5p.upper[k]
+        pin.framesForwardKinematics(model, data, hrp5p.to_pin_q(st.base_pose, q))
+        tcp = data.oMf[hrp5p.frame_id(f"{side}_tcp")]
+        a = data.oMf[model.getFrameId(f"{side.upper()}_FINGER_A_LINK")].translation
+        b = data.oMf[model.getFrameId(f"{side.upper()}_FINGER_B_LINK")].translation
+        d = tcp.rotation.T @ (a - b)  # finger to finger, in the TCP frame
+        assert abs(d[0]) < 1e-9 and abs(d[2]) < 1e-9 and abs(abs(d[1]) - 0.082) < 0.03
+        mid = tcp.rotation.T @ ((a + b) / 2 - tcp.translation)  # midway between the jaws: on the TCP z axis
+        assert abs(mid[0]) < 1e-9 and abs(mid[1]) < 1e-9
+
+
 def test_mimic_fingers_follow_the_jaw(hrp5p, stances):
     st = stances["upright"]
     q = st.q.copy()

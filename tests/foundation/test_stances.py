@@ -78,6 +78,7 @@ def test_user_stance_from_yaml(hrp5p, tmp_path):
     "pose,field_msg",
     [
         ([0, 0, float("nan"), 0, 0, 0, 1], "finite"),
+        ([float("inf"), 0, 0, 0, 0, 0, 1], "finite"),
         ([0, 0, 0, 0, 0, 0, 2], "unit length"),
         ([0, 0, 0, 0, 0, 1], "7 numbers"),
     ],
@@ -87,4 +88,4 @@ def test_bad_poses_are_rejected_naming_the_field(pose, field_msg):
 
     with pytest.raises(ValidationError, match=field_msg) as info:
         StanceDef(name="bad", feet=[{"frame": "r_sole", "pose": pose}])
-    assert "feet.0.pose" in str(info.value).replace("\n", " ").replace(" ", "") or "pose" in str(info.value)
+    assert info.value.errors()[0]["loc"][:3] == ("feet", 0, "pose")
