@@ -80,3 +80,26 @@ def test_demo_writes_one_picture_per_stance(tmp_path):
         png = tmp_path / f"stance-{name}.png"
         assert png.is_file() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert str(png) in res.output.replace("\n", "")
+
+
+def test_demo_stance_step_prints_the_recomputed_com_and_margin(tmp_path):
+    """Step 1 of the demo: each stance's CoM (pinocchio) and margin (shapely) as printed."""
+    import numpy as np
+    from shapely.geometry import Point, Polygon
+
+    from planner.robot_model import center_of_mass, load_robot
+    from planner.stances import solve_stance
+    from service.cli.demo import stance_step
+
+    robot = load_robot("hrp5p")
+    rows = stance_step(tmp_path, "hrp5p")
+    res = run("demo", "--out", str(tmp_path / "cli"), "--robot", "hrp5p", "--stances-only")
+    assert res.exit_code == 0, res.output
+    for row in rows:
+        st = solve_stance(robot, row["stance"])
+        com = center_of_mass(robot, robot.create_data(), st.base_pose, st.q)
+        assert np.allclose(row["com"], com, atol=1e-9)
+        poly = Polygon(row["polygon"])
+        margin = poly.exterior.distance(Point(com[:2])) * (1 if poly.contains(Point(com[:2])) else -1)
+        assert row["margin_m"] == pytest.approx(margin, abs=1e-9)
+        assert f"{margin * 1000:.1f}" in res.output
