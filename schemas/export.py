@@ -8,14 +8,14 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-#: file stem -> "module:Model"; modules that are not present are skipped.
+#: file stem -> "module:Model"; a name that does not resolve to a pydantic model is an error.
 EXPORTS: dict[str, str] = {
     "scenario": "schemas.scenario:Scenario",
     "stance": "schemas.stance:StanceDef",
     "plan": "schemas.plan:Plan",
     "survey": "schemas.survey:Survey",
     "job": "schemas.jobs:Job",
-    "job-request": "schemas.jobs:JobSubmission",
+    "job-request": "schemas.jobs:JobSubmit",
     "bridge-trajectory-segment": "schemas.bridge:TrajectorySegment",
     "bridge-stop": "schemas.bridge:Stop",
     "bridge-joint-state": "schemas.bridge:JointState",
@@ -26,16 +26,14 @@ EXPORTS: dict[str, str] = {
 
 
 def available_models() -> dict[str, type[BaseModel]]:
+    """Every exported model by file stem; raises if an entry of :data:`EXPORTS` names no pydantic model."""
     out: dict[str, type[BaseModel]] = {}
     for stem, ref in EXPORTS.items():
         module_name, attr = ref.split(":")
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError:
-            continue
-        model = getattr(module, attr, None)
-        if isinstance(model, type) and issubclass(model, BaseModel):
-            out[stem] = model
+        model = getattr(importlib.import_module(module_name), attr)
+        if not (isinstance(model, type) and issubclass(model, BaseModel)):
+            raise TypeError(f"EXPORTS[{stem!r}] = {ref!r} is not a pydantic model")
+        out[stem] = model
     return out
 
 
