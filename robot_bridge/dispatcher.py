@@ -24,7 +24,6 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Callable, Literal
 
-import numpy as np
 import zenoh
 from pydantic import Field, ValidationError
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -118,7 +117,6 @@ class Dispatcher:
         self._run_lock = threading.Lock()
         self._token_alive = False
         self._last_heartbeat: float | None = None
-        self._last_heartbeat_msg: Heartbeat | None = None
         self._joint_state: JointState | None = None
         self._joint_state_at: float | None = None
         self._exec: queue.Queue = queue.Queue()
@@ -143,12 +141,11 @@ class Dispatcher:
 
     def _on_heartbeat(self, sample: zenoh.Sample) -> None:
         try:
-            hb = Heartbeat.model_validate_json(sample.payload.to_bytes())
+            Heartbeat.model_validate_json(sample.payload.to_bytes())  # only a well-formed heartbeat counts
         except ValidationError:
             return
         with self._lock:
             self._last_heartbeat = time.monotonic()
-            self._last_heartbeat_msg = hb
 
     def _on_joints(self, sample: zenoh.Sample) -> None:
         try:
@@ -238,12 +235,12 @@ class Dispatcher:
         return first
 
     # ------------------------------------------------------------------ execution
-    def execute(self, plan: dict[str, Any] | bytes, *, job_id: str, approved_sha256: str, approval_expires_at: datetime,
+    def execute(self, plan: dict[str, Any] | str | bytes, *, job_id: str, approved_sha256: str, approval_expires_at: datetime,
                 threshold_m: float | None = None, on_event: EventCallback | None = None,
                 stop_event: threading.Event | None = None) -> ExecutionResult:
         """Gate the plan, send it, follow it to the end.
 
-        ``plan`` is the plan dict, or its canonical JSON bytes (``schemas.plan.canonical_json``):
+        ``plan`` is the plan dict, or its canonical JSON text or bytes (``schemas.plan.canonical_json``):
         the bytes are hashed as they are, which saves about a second on a 60 s plan.
 
         Raises :class:`ControllerUnavailableError` before anything happens when no
@@ -258,7 +255,7 @@ class Dispatcher:
         finally:
             self._run_lock.release()
 
-    def _execute(self, plan: dict[str, Any], job_id: str, approved_sha256: str, expires_at: datetime,
+    def _execute(self, plan: dict[str, Any] | str | bytes, job_id: str, approved_sha256: str, expires_at: datetime,
                  threshold_m: float | None, emit: EventCallback, stop_event: threading.Event) -> ExecutionResult:
         started = time.monotonic()
         problem = self.controller_problem()
@@ -289,7 +286,7 @@ class Dispatcher:
         emit("dispatching", {"job_id": job_id, "segments": len(segments), "points": n_points, "dt_s": plan["dt_s"],
                              "plan_sha256": verdict.plan_sha256, "first_seq": segments[0].seq})
         self._drain_exec()
-        run = _Run(job_id=job_id, segments=segments, n_points=n_points)
+        run = _Run(job_id=job_id, segments=segments)
         try:
             return self._follow(run, emit, stop_event, verdict, started)
         except Exception as exc:  # fail safe: whatever broke, the robot is told to stop
@@ -433,7 +430,6 @@ class Dispatcher:
 class _Run:
     job_id: str
     segments: list[TrajectorySegment]
-    n_points: int
     sent: int = 0
     index: int | None = None
     pending: dict[int, tuple[float, int]] = field(default_factory=dict)  # seq -> (last sent, re-sends)

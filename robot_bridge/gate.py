@@ -683,14 +683,3 @@ def _check_stability(ctx: _Context, p: _Parsed, fk: BatchFK, polygon: Polygon, s
     if row is not None:
         raise Veto("zmp", f"the ZMP leaves the support polygon by {-zm[row] * 1000:.2f} mm at point {row}", row * S)
     ctx.passed("zmp")
-
-
-_default_gate: SafetyGate | None = None
-
-
-def check_plan(plan: dict[str, Any], **kwargs: Any) -> GateVerdict:
-    """Check ``plan`` with a process-wide gate (models cached). Keyword arguments as :meth:`SafetyGate.check`."""
-    global _default_gate
-    if _default_gate is None:
-        _default_gate = SafetyGate()
-    return _default_gate.check(plan, **kwargs)

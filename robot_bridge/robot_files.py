@@ -68,9 +68,6 @@ class RobotFiles:
                 return float(acc["arms"])
         return float(min(acc["legs"], acc["arms"]))
 
-    def sole_frames(self) -> list[str]:
-        return [foot["frame"] for foot in self.spec.get("feet", {}).values()]
-
 
 @lru_cache(maxsize=None)
 def robot_files(name: str) -> RobotFiles:

@@ -404,10 +404,6 @@ class BatchFK:
             acc += mass * c
         return (acc / self.total_mass).T
 
-    def com(self, base_pose: np.ndarray, Q: np.ndarray) -> np.ndarray:
-        """Robot CoM in the world for every state: (N, 3)."""
-        return self.com_and_frames(base_pose, Q, ())[0]
-
     def frame(self, Rs: dict, ps: dict, name: str, n: int) -> tuple[np.ndarray, np.ndarray]:
         """World (R (n, 3, 3), p (n, 3)) of a link/frame from a ``forward`` result."""
         if name not in Rs:

@@ -69,7 +69,3 @@ def encode(doc: Any) -> bytes:
     if hasattr(doc, "model_dump_json"):
         return doc.model_dump_json().encode()
     return json.dumps(doc, separators=(",", ":"), allow_nan=False).encode()
-
-
-def decode(sample: zenoh.Sample) -> Any:
-    return json.loads(sample.payload.to_bytes())

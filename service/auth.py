@@ -13,7 +13,7 @@ import json
 import secrets
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import yaml
 
@@ -72,9 +72,6 @@ class TokenStore:
 
     def __len__(self) -> int:
         return len(self._by_hash)
-
-    def users(self) -> Iterable[Principal]:
-        return self._by_hash.values()
 
 
 def _user(entry: Any) -> str:

@@ -1,14 +1,12 @@
 """The robot bridge as the service sees it: a small interface in front of robot_bridge.dispatcher.
 
-Until ``robot_bridge.dispatcher`` is installed (or when it cannot start), the
-service uses :class:`NoBridge`, for which no controller is ever alive, so
-dispatch answers 409 instead of pretending to move a robot.
+When the dispatcher cannot start (zenoh fails to open), the service uses
+:class:`NoBridge`, for which no controller is ever alive, so dispatch answers
+409 instead of pretending to move a robot.
 """
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import logging
 import threading
 from dataclasses import dataclass
@@ -30,8 +28,8 @@ class Outcome:
 class Bridge(Protocol):
     def controller_alive(self) -> bool: ...
 
-    def execute(self, plan: dict[str, Any], *, job_id: str, approved_sha256: str, approval_expires_at: Any,
-                threshold_m: float, on_event: Callable[[str, dict[str, Any]], None],
+    def execute(self, plan: dict[str, Any] | str | bytes, *, job_id: str, approved_sha256: str, approval_expires_at: Any,
+                threshold_m: float | None, on_event: Callable[[str, dict[str, Any]], None],
                 stop_event: threading.Event) -> Outcome: ...
 
     def stop(self, job_id: str) -> None: ...
@@ -40,14 +38,14 @@ class Bridge(Protocol):
 
 
 class NoBridge:
-    """Stands in while no robot bridge is installed: no controller is alive."""
+    """Stands in when the robot bridge cannot start: no controller is alive."""
 
-    reason = "the robot bridge (robot_bridge.dispatcher) is not installed"
+    reason = "the robot bridge is not running"
 
     def controller_alive(self) -> bool:
         return False
 
-    def execute(self, plan: dict[str, Any], **kwargs: Any) -> Outcome:
+    def execute(self, plan: dict[str, Any] | str | bytes, **kwargs: Any) -> Outcome:
         return Outcome("aborted", "no controller is alive")
 
     def stop(self, job_id: str) -> None:
@@ -58,7 +56,7 @@ class NoBridge:
 
 
 class DispatcherBridge:
-    """Adapter over ``robot_bridge.dispatcher.Dispatcher``: normalises its result to :class:`Outcome`."""
+    """Adapter over ``robot_bridge.dispatcher.Dispatcher``: its result as an :class:`Outcome`."""
 
     def __init__(self, dispatcher: Any) -> None:
         self._d = dispatcher
@@ -66,11 +64,7 @@ class DispatcherBridge:
     @property
     def reason(self) -> str | None:
         """Why no controller is usable (the dispatcher's own words), for the 409's detail."""
-        problem = getattr(self._d, "controller_problem", None)
-        try:
-            return problem() if callable(problem) else None
-        except Exception:  # noqa: BLE001
-            return None
+        return self._d.controller_problem()
 
     def controller_alive(self) -> bool:
         try:
@@ -79,19 +73,11 @@ class DispatcherBridge:
             log.exception("controller_alive() failed")
             return False
 
-    def execute(self, plan: dict[str, Any], **kwargs: Any) -> Outcome:
-        res = self._d.execute(plan, **kwargs)
-        status = getattr(res, "status", None) or (res.get("status") if isinstance(res, dict) else None)
-        reason = getattr(res, "reason", None) if not isinstance(res, dict) else res.get("reason")
-        verdict = getattr(res, "verdict", None) if not isinstance(res, dict) else res.get("verdict")
-        if verdict is not None and not isinstance(verdict, dict):
-            verdict = _to_dict(verdict)
-        details = res.to_dict() if hasattr(res, "to_dict") else None
-        if isinstance(details, dict):
-            details = {k: v for k, v in details.items() if k not in ("status", "reason", "verdict")}
-        if status not in ("succeeded", "aborted", "rejected"):
-            return Outcome("aborted", f"the bridge returned an unknown status {status!r}", verdict, details)
-        return Outcome(status, reason, verdict, details)
+    def execute(self, plan: dict[str, Any] | str | bytes, **kwargs: Any) -> Outcome:
+        """``plan`` is the plan dict or its canonical JSON text/bytes (hashed as they are by the gate)."""
+        res = self._d.execute(plan, **kwargs).to_dict()
+        status, reason, verdict = res.pop("status"), res.pop("reason"), res.pop("verdict")
+        return Outcome(status, reason, verdict, res)
 
     def stop(self, job_id: str) -> None:
         self._d.stop(job_id)
@@ -100,35 +86,12 @@ class DispatcherBridge:
         self._d.close()
 
 
-def _to_dict(obj: Any) -> dict[str, Any]:
-    if hasattr(obj, "model_dump"):
-        try:
-            return dict(obj.model_dump(mode="json"))
-        except Exception:  # noqa: BLE001
-            pass
-    for attr in ("_asdict", "to_dict"):
-        if hasattr(obj, attr):
-            try:
-                return dict(getattr(obj, attr)())
-            except Exception:  # noqa: BLE001
-                pass
-    if hasattr(obj, "__dict__"):
-        return {k: v for k, v in vars(obj).items() if not k.startswith("_")}
-    return {"value": repr(obj)}
+def make_bridge() -> Bridge:
+    """The zenoh dispatcher of robot_bridge, or :class:`NoBridge` when it cannot start (dispatch then answers 409)."""
+    from robot_bridge.dispatcher import Dispatcher
 
-
-def make_bridge(robot: str = "hrp5p") -> Bridge:
-    """The real dispatcher if robot_bridge.dispatcher is installed and starts, else :class:`NoBridge`."""
-    if importlib.util.find_spec("robot_bridge.dispatcher") is None:
-        return NoBridge()
     try:
-        module = importlib.import_module("robot_bridge.dispatcher")
-        dispatcher_cls = getattr(module, "Dispatcher")
-        try:
-            dispatcher = dispatcher_cls(robot=robot)
-        except TypeError:
-            dispatcher = dispatcher_cls()
-        return DispatcherBridge(dispatcher)
+        return DispatcherBridge(Dispatcher())
     except Exception as exc:  # noqa: BLE001 - the service must still plan without a bridge
         log.warning("robot bridge unavailable (%s); dispatch will answer 409", exc)
         bridge = NoBridge()

@@ -39,7 +39,7 @@ class Service:
         migrate(engine)
         store = JobStore(engine)
         metrics = Metrics(store)
-        bridge = bridge or make_bridge(settings.robot)
+        bridge = bridge or make_bridge()
         svc = cls(settings=settings, store=store, tokens=tokens or TokenStore.from_settings(settings),
                   metrics=metrics, bridge=bridge, executions=Executions(store, bridge, settings))
         if run_workers and settings.workers > 0:

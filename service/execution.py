@@ -50,8 +50,10 @@ class Executions:
         self._renewer = threading.Thread(target=self._renew_loop, name="regrasp-exec-lease", daemon=True)
         self._renewer.start()
 
-    def begin(self, job: dict[str, Any], plan: dict[str, Any], by: str) -> bool:
-        """Move the job to dispatching and start executing it; False if it was no longer approved."""
+    def begin(self, job: dict[str, Any], plan: str | bytes, by: str) -> bool:
+        """Move the job to dispatching and start executing it; False if it was no longer approved.
+
+        ``plan`` is the stored plan's canonical JSON text, whose SHA-256 is the approved hash."""
         job_id = job["id"]
         lease = datetime.now(job["approval_expires_at"].tzinfo) + timedelta(seconds=self.settings.lease_s)
         if not self.store.transition(job_id, ["approved"], "dispatching", message=f"dispatched by {by}",
@@ -66,11 +68,8 @@ class Executions:
         thread.start()
         return True
 
-    def _run(self, job: dict[str, Any], plan: dict[str, Any], stop: threading.Event) -> None:
+    def _run(self, job: dict[str, Any], plan: str | bytes, stop: threading.Event) -> None:
         job_id = job["id"]
-        threshold = self.settings.dispatch_threshold_m
-        if threshold is None:
-            threshold = float(plan.get("threshold_m") or 0.0)
 
         # The control path never waits on the database: events are queued here and written by another thread.
         pending: queue.Queue[tuple[str, Any] | None] = queue.Queue()
@@ -84,7 +83,9 @@ class Executions:
         try:
             outcome = self.bridge.execute(
                 plan, job_id=job_id, approved_sha256=job["approved_sha256"],
-                approval_expires_at=job["approval_expires_at"], threshold_m=threshold,
+                approval_expires_at=job["approval_expires_at"],
+                # None: the gate uses the plan's own threshold_m
+                threshold_m=self.settings.dispatch_threshold_m,
                 on_event=on_event, stop_event=stop,
             )
             status, reason, verdict = outcome.status, outcome.reason, outcome.verdict

@@ -18,7 +18,6 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import logging
-import threading
 from pathlib import Path
 from typing import Any
 
@@ -75,7 +74,7 @@ def records_for_event(event: dict[str, Any], job: dict[str, Any], store: JobStor
 
 
 class JobAuditor:
-    """Tails the event table and writes one audit file per job (thread inside ``regrasp serve``)."""
+    """Tails the event table and writes one audit file per job (runs in the audit process, :class:`AuditProcess`)."""
 
     def __init__(self, store: JobStore, audit_dir: Path) -> None:
         self.store = store
@@ -84,17 +83,6 @@ class JobAuditor:
         self._writers: dict[str, tuple[Any, Path]] = {}
         self._done_upto: dict[str, int] = {}
         self._cursor = 0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> None:
-        if not self.enabled:
-            log.info("service.audit is not installed: jobs get no audit file")
-            return
-        self.audit_dir.mkdir(parents=True, exist_ok=True)
-        self._cursor = self._start_cursor()
-        self._thread = threading.Thread(target=self._loop, name="regrasp-audit", daemon=True)
-        self._thread.start()
 
     def _start_cursor(self) -> int:
         with self.store.engine.connect() as conn:
@@ -103,26 +91,13 @@ class JobAuditor:
         return int(low or 0)
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(5)
-            try:
-                self.pump_once()
-            except Exception:  # noqa: BLE001
-                log.exception("final audit pump failed")
+        """Close every open audit file."""
         for writer, _ in self._writers.values():
             try:
                 writer.close()
             except Exception:  # noqa: BLE001
                 log.exception("closing an audit writer failed")
         self._writers.clear()
-
-    def _loop(self) -> None:
-        while not self._stop.wait(PUMP_PERIOD_S):
-            try:
-                self.pump_once()
-            except Exception:  # noqa: BLE001 - auditing must not stop the service; retried next period
-                log.exception("audit pump failed")
 
     def run(self, stop: Any, parent_pid: int) -> None:
         """Pump until ``stop`` is set or the parent process dies (used by the audit process)."""

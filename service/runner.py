@@ -84,7 +84,6 @@ class Runner:
         self._last_housekeeping = 0.0
         self._last_flags = 0.0
         self._last_renew = 0.0
-        self.errors = 0
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -102,7 +101,6 @@ class Runner:
             try:
                 self.step()
             except Exception:  # noqa: BLE001 - a DB hiccup must not kill the runner
-                self.errors += 1
                 log.exception("runner step failed; retrying")
                 time.sleep(0.5)
 
@@ -252,6 +250,3 @@ class Runner:
             elif run.cancel_reason is None and now >= run.deadline:
                 run.cancel_reason = "timeout"
                 self.executor.cancel(job_id)
-
-    def running_jobs(self) -> list[str]:
-        return list(self._running)

@@ -305,8 +305,8 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
         why = getattr(svc.bridge, "reason", None)
         raise ProblemError(409, "no controller is alive" + (f": {why}" if why else "")
                            + "; start the controller and retry")
-    plan = json.loads(text)
-    if not svc.executions.begin(row, plan, p.user):
+    # The canonical text goes down as it is: the gate hashes these bytes instead of re-serialising a dict.
+    if not svc.executions.begin(row, text, p.user):
         raise ProblemError(409, f"job {job_id} changed state before dispatch (approval expired or acted on); reload it")
     return _job_response(svc, svc.store.get(job_id) or row, 202)
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
 from ..settings import ServiceSettings
@@ -20,7 +20,6 @@ class ExecEvent:
     message: str = ""
     result: dict[str, Any] | None = None
     error: dict[str, Any] | None = None
-    info: dict[str, Any] = field(default_factory=dict)
 
 
 class Executor(Protocol):
@@ -42,9 +41,6 @@ class Executor(Protocol):
 
     def poll(self, timeout: float) -> list[ExecEvent]:
         """Wait up to ``timeout`` s and return what happened since the last call."""
-
-    def running(self) -> set[str]:
-        """Job ids currently on a slot."""
 
     def close(self) -> None:
         """Stop every worker."""

@@ -12,7 +12,7 @@ import multiprocessing as mp
 import os
 import signal
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
@@ -30,7 +30,6 @@ class _Slot:
     ready: bool = False
     job_id: str | None = None
     kill_at: float | None = None
-    started_at: float = field(default_factory=time.monotonic)
 
 
 def _describe_exit(code: int | None) -> str:
@@ -77,9 +76,6 @@ class LocalExecutor:
         if slot.conn is not None:
             slot.conn.close()
 
-    def worker_pids(self) -> list[int]:
-        return [s.process.pid for s in self._slots if s.process is not None and s.process.is_alive()]
-
     # ------------------------------------------------------------- interface
     def total_slots(self) -> int:
         return len(self._slots)
@@ -87,14 +83,11 @@ class LocalExecutor:
     def free_slots(self) -> int:
         return sum(1 for s in self._slots if s.ready and s.job_id is None)
 
-    def running(self) -> set[str]:
-        return {s.job_id for s in self._slots if s.job_id is not None}
-
     def start(self, job_id: str, kind: str, request: dict[str, Any]) -> str:
         for slot in self._slots:
             if slot.ready and slot.job_id is None:
                 slot.cancel.clear()
-                slot.job_id, slot.kill_at, slot.started_at = job_id, None, time.monotonic()
+                slot.job_id, slot.kill_at = job_id, None
                 assert slot.conn is not None
                 slot.conn.send((job_id, kind, request))
                 return f"local worker pid {slot.process.pid}"
@@ -124,8 +117,7 @@ class LocalExecutor:
             elif slot.kill_at is not None and time.monotonic() >= slot.kill_at and slot.job_id is not None:
                 job_id = slot.job_id
                 self._kill(slot)
-                events.append(ExecEvent(job_id, "canceled", message="worker killed: it did not stop within the grace period",
-                                        info={"killed": True}))
+                events.append(ExecEvent(job_id, "canceled", message="worker killed: it did not stop within the grace period"))
                 self._spawn(slot)
         return events
 

@@ -136,9 +136,6 @@ class RayExecutor:
         self._check_ready()
         return sum(1 for s in self._slots if s.ready and s.job_id is None)
 
-    def running(self) -> set[str]:
-        return {s.job_id for s in self._slots if s.job_id is not None}
-
     def _check_ready(self) -> None:
         pending = [s.ready_ref for s in self._slots if not s.ready and s.ready_ref is not None]
         if not pending:
@@ -201,8 +198,7 @@ class RayExecutor:
                 continue
             if slot.kill_at is not None and time.monotonic() >= slot.kill_at:
                 self.ray.kill(slot.actor, no_restart=True)
-                events.append(ExecEvent(job_id, "canceled", message="Ray worker killed: it did not stop within the grace period",
-                                        info={"killed": True}))
+                events.append(ExecEvent(job_id, "canceled", message="Ray worker killed: it did not stop within the grace period"))
                 self._spawn(slot)
                 continue
             self._collect_progress(slot, events)

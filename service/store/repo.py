@@ -135,10 +135,6 @@ class JobStore:
         with self.engine.connect() as conn:
             return int(conn.execute(_QUEUE_DEPTH).scalar_one())
 
-    def ping(self) -> None:
-        with self.engine.connect() as conn:
-            conn.execute(sa.text("SELECT 1"))
-
     # --------------------------------------------------------------- creation
     def create(self, *, job_id: str, kind: str, submitter: str, request: dict[str, Any],
                request_sha256: str, idempotency_key: str | None,
@@ -347,9 +343,8 @@ class JobStore:
             else:
                 to, msg = "aborted", f"execution interrupted: the process that drove it ({owner or '?'}) stopped"
                 extra = {"error": {"code": "INTERRUPTED", "message": msg}}
-            conds_owner = r["owner"]
             ok = self.transition(r["id"], [r["state"]], to, message=msg, data={"recovered_from": r["state"]},
-                                 expect_owner=conds_owner, **fields, **extra)
+                                 expect_owner=r["owner"], **fields, **extra)
             if ok:
                 actions.append((r["id"], to))
         return actions

@@ -48,6 +48,24 @@ BRIDGE_ROBOT_ID = "svctest"
 BRIDGE_WATCHDOG_S = 2.0
 
 
+def start_controller_sim(data_dir: Path, port: int, speed: float) -> subprocess.Popen[bytes]:
+    """`regrasp controller-sim` of the test servers' robot id, listening on ``port``; its log in ``data_dir``."""
+    log = open(data_dir / "controller-sim.log", "ab")
+    return subprocess.Popen(
+        [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", BRIDGE_ROBOT_ID,
+         "--listen", f"tcp/127.0.0.1:{port}", "--speed", str(speed)],
+        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+
+
+def stop_process(proc: subprocess.Popen[bytes], timeout: float = 10.0) -> None:
+    """SIGTERM, then SIGKILL if it has not exited within ``timeout`` s."""
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+
+
 def service_env(bridge_port: int | None = None, **settings: Any) -> dict[str, str]:
     """Environment of a test server: test tokens and handlers, and a private zenoh endpoint for its bridge."""
     env = dict(os.environ)

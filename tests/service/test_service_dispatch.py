@@ -7,16 +7,12 @@ tested whatever state the planner is in.
 
 from __future__ import annotations
 
-import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 from typing import Iterator
 
 import httpx
 import pytest
-from conftest import BRIDGE_ROBOT_ID, ROOT, Server, free_port, wait_state
+from conftest import ROOT, Server, free_port, start_controller_sim, stop_process, wait_state
 
 pytest.importorskip("robot_bridge.dispatcher", reason="the robot bridge (robot_bridge.dispatcher) is not installed yet")
 if not (ROOT / "service" / "cli" / "controller_sim.py").is_file():
@@ -38,10 +34,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Server, int]
 @pytest.fixture(scope="module")
 def sim(rig: tuple[Server, int]) -> Iterator[None]:
     srv, port = rig
-    log = open(srv.data_dir / "controller-sim.log", "ab")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", BRIDGE_ROBOT_ID,
-         "--listen", f"tcp/127.0.0.1:{port}", "--speed", "1"], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+    proc = start_controller_sim(srv.data_dir, port, speed=1)
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and not httpx.get(srv.url + "/healthz").json()["controller_alive"]:
@@ -49,11 +42,7 @@ def sim(rig: tuple[Server, int]) -> Iterator[None]:
             time.sleep(0.2)
         yield
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        stop_process(proc)
 
 
 def _approved(srv: Server, scenario: str) -> str:

@@ -5,16 +5,11 @@ These run once the planner's job functions exist (planner.jobs, planner.survey).
 
 from __future__ import annotations
 
-import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 from typing import Iterator
 
-import httpx
 import pytest
-from conftest import BRIDGE_ROBOT_ID, ROOT, Server, free_port, wait_state
+from conftest import ROOT, Server, free_port, start_controller_sim, stop_process, wait_state
 
 pytest.importorskip("planner.jobs", reason="the planner's job functions (planner.jobs) are not installed yet")
 
@@ -72,7 +67,7 @@ def test_plan_job_end_to_end(real_server: Server, bridge_port: int) -> None:
         assert r.status_code == 409 and "no controller is alive" in r.json()["detail"]
         if not (ROOT / "service" / "cli" / "controller_sim.py").is_file():
             pytest.skip("the simulated controller (regrasp controller-sim) is not installed yet")
-        sim = _start_sim(real_server.data_dir, bridge_port)
+        sim = start_controller_sim(real_server.data_dir, bridge_port, speed=SIM_SPEED)
         try:
             deadline = time.monotonic() + 30
             while time.monotonic() < deadline:
@@ -88,19 +83,7 @@ def test_plan_job_end_to_end(real_server: Server, bridge_port: int) -> None:
             assert '"event":"gate"' in history and '"event":"segment"' in history
             assert '"state":"executing"' in history
         finally:
-            sim.send_signal(signal.SIGTERM)
-            try:
-                sim.wait(10)
-            except subprocess.TimeoutExpired:
-                sim.kill()
-
-
-def _start_sim(data_dir: Path, port: int) -> subprocess.Popen[bytes]:
-    log = open(data_dir / "controller-sim.log", "ab")
-    return subprocess.Popen(
-        [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", BRIDGE_ROBOT_ID,
-         "--listen", f"tcp/127.0.0.1:{port}", "--speed", str(SIM_SPEED)],
-        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+            stop_process(sim)
 
 
 def test_survey_job_runs_the_real_survey_and_cancels_within_1s(real_server: Server) -> None:
@@ -126,14 +109,6 @@ def test_survey_job_runs_the_real_survey_and_cancels_within_1s(real_server: Serv
         alice.post(f"/v1/jobs/{job_id}/cancel")
         done = wait_state(alice, job_id, {"canceled", "succeeded", "failed"}, timeout=10)
         assert done["state"] == "canceled" and time.monotonic() - t0 < 1.0
-
-
-def _start_sim(data_dir: Path, port: int) -> subprocess.Popen[bytes]:
-    log = open(data_dir / "controller-sim.log", "ab")
-    return subprocess.Popen(
-        [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", BRIDGE_ROBOT_ID,
-         "--listen", f"tcp/127.0.0.1:{port}", "--speed", str(SIM_SPEED)],
-        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
 
 
 def test_survey_job_end_to_end(real_server: Server) -> None:
