@@ -109,13 +109,14 @@ class BatchKinematics:
             Rs[1] = np.moveaxis(quat_to_matrix(base_pose[:, 3:]), 0, 2).copy()
             ps[1] = base_pose[:, :3].T.copy()
         const_cols = np.all(Q == Q[0], axis=0) if n > 1 else np.ones(Q.shape[1], dtype=bool)
+        # A joint's frame is the same for every configuration when its parent's is and its column is.
+        for s in self._steps:
+            const[s.jid] = const[s.parent] and bool(const_cols[s.q_col])
         QT = Q.T
         cached = None
         if n > 1 and const[1]:
             # The constant part of the tree (legs, neck, idle arm at the stance) is the same from one
             # batch to the next: its joint frames are computed once and reused (read-only).
-            for s in self._steps:
-                const[s.jid] = const[s.parent] and bool(const_cols[s.q_col])
             mask = np.array([const[s.jid] for s in self._steps])
             cols = self._step_cols[mask]
             key = (base_pose.tobytes(), mask.tobytes(), Q[0, cols].tobytes())
@@ -133,7 +134,7 @@ class BatchKinematics:
             if cached is not None and not fill and const[s.jid]:
                 continue
             Rp, pp = Rs[s.parent], ps[s.parent]
-            c = const[s.parent] and bool(const_cols[s.q_col])
+            c = const[s.jid]
             if not c and Rp.shape[2] == 1 and n > 1:
                 Rp, pp = np.repeat(Rp, n, axis=2), np.repeat(pp, n, axis=1)
             p = _affine(pp, Rp, s.pos0)
@@ -151,7 +152,7 @@ class BatchKinematics:
                 R = np.einsum("ijn,jkn->ikn", R, _rodrigues(s.axis, theta))
             else:  # prismatic: move along the rotated axis
                 p = p + theta * _matvec(R, s.axis)
-            Rs[s.jid], ps[s.jid], const[s.jid] = R, p, c
+            Rs[s.jid], ps[s.jid] = R, p
             if c and cached is not None:
                 R.setflags(write=False)
                 p.setflags(write=False)

@@ -14,9 +14,9 @@ from typing import Literal
 import numpy as np
 
 from .state_eval import HoldSpec, StateEvaluator
+from .timing import zmp_cart_table
 from .transforms import matrix_to_pose7
 
-GRAVITY = 9.81
 Kind = Literal["transit", "transfer", "handover", "approach", "retreat"]
 
 
@@ -45,25 +45,6 @@ class TimedTrajectory:
     margin: np.ndarray  # (M,)
     zmp: np.ndarray  # (M, 2)
     segments: list[dict]
-
-
-def zmp_cart_table(com: np.ndarray, dt: float, holding: list[str] | None = None) -> np.ndarray:
-    """ZMP = c_xy - (c_z / g) * c_xy'', with c'' by central finite differences at ``dt``.
-
-    Where ``holding`` changes, the system's mass changes and its CoM steps (the
-    object's weight moves from the table to the hand); that step is not an
-    acceleration of the robot. The plan is at rest there (every piece starts and ends
-    at rest), so c'' is taken as zero at such points and at the trajectory's ends.
-    """
-    acc = np.zeros_like(com[:, :2])
-    if len(com) >= 3:
-        acc[1:-1] = (com[2:, :2] - 2 * com[1:-1, :2] + com[:-2, :2]) / (dt * dt)
-    if holding is not None and len(holding) >= 2:
-        h = np.asarray(holding)
-        change = np.flatnonzero(h[1:] != h[:-1])  # holding differs between i and i+1
-        acc[np.clip(change, 0, len(acc) - 1)] = 0.0
-        acc[np.clip(change + 1, 0, len(acc) - 1)] = 0.0
-    return com[:, :2] - (com[:, 2:3] / GRAVITY) * acc
 
 
 def _sides(holding: str) -> tuple[str, ...]:

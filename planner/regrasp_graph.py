@@ -281,19 +281,6 @@ class RegraspGraph:
             raise KeyError(f"no edge {a} -> {b}")
         return float(self._base[k] + self._extra[k])
 
-    def incoming_weight(self, node: Hashable) -> float:
-        """Sum of the live edge weights into ``node`` (0 when it is gone)."""
-        if node not in self:
-            return 0.0
-        e = self._incoming(self._ids[node])
-        e = e[self._edge_alive[e]]
-        return float((self._base[e] + self._extra[e]).sum())
-
-    def add_base_cost(self, node: Hashable, extra: float) -> None:
-        """Add a fixed cost to every edge into ``node`` (kept when its margin cost is set later)."""
-        e = self._incoming(self._ids[node])
-        self._base[e] += extra
-
     def remove_node(self, node: Hashable) -> None:
         i = self._ids.get(node)
         if i is None or not self._node_alive[i]:
@@ -317,12 +304,19 @@ class RegraspGraph:
             path.append(int(pred[path[-1]]))
         return [self._nodes[i] for i in reversed(path)], float(dist[1])
 
-    def _apply_margin_cost(self, node: Hashable, margin: float | None) -> None:
-        """Once a node's margin is known, edges into it cost more the closer it is to the edge."""
+    def _apply_margin_cost(self, node: Hashable, margin: float | None) -> bool:
+        """Once a node's margin is known, edges into it cost more the closer it is to the edge.
+
+        Returns whether the summed weight of the live edges into ``node`` rose.
+        """
         if margin is None or self.w.margin == 0.0 or node not in self:
-            return
+            return False
         extra = self.w.margin * max(0.0, 1.0 - margin / self.w.margin_ref_m)
-        self._extra[self._incoming(self._ids[node])] = extra
+        e = self._incoming(self._ids[node])
+        live = e[self._edge_alive[e]]
+        before = float((self._base[live] + self._extra[live]).sum())
+        self._extra[e] = extra
+        return float((self._base[live] + self._extra[live]).sum()) > before + 1e-12
 
     def search(
         self,
@@ -375,9 +369,7 @@ class RegraspGraph:
                     node_cache[node] = validate_node(node)
                     v = node_cache[node]
                     if v.ok:
-                        before = self.incoming_weight(node)
-                        self._apply_margin_cost(node, v.margin_m)
-                        weight_changed |= self.incoming_weight(node) > before + 1e-12
+                        weight_changed |= self._apply_margin_cost(node, v.margin_m)
                 v = node_cache[node]
                 if not v.ok:
                     # Stop at the first invalid node: the rest of this path may never be needed

@@ -36,7 +36,7 @@ from .collision import environment_boxes, hand_geometry
 from .grasps import Grasp, GraspSet, GraspSettings, plan_grasps
 from .handover import HandoverPose, HandoverSettings, handover_poses
 from .placements import instantiate_placements
-from .ik import IkSettings, IkSolver
+from .ik import IkSettings, IkSolver, key_pose_targets
 from .objects import ObjectModel, build_object
 from .plan_builder import MotionPiece
 from .regrasp_graph import (
@@ -94,8 +94,6 @@ class PlannerSettings(BaseModel):
     arm_only_restarts: int = Field(1, ge=0, description="random restarts of the arm-only IK attempt")
     waist_reach_m: float = Field(0.15, ge=0, description="how much farther the waist lets a hand reach, for the cheap reach filter")
     screen_valid: int = Field(4, ge=1, description="start/goal nodes validated up front until this many are valid")
-    approach_weight: float = Field(0.0, ge=0, description="graph cost of a grasp's approach direction (from above preferred); "
-                                   "off: measured no fewer validations on the built-in objects")
     ready_height_m: float = Field(0.15, gt=0, description="ready posture: the hand this far above the highest table top")
     via_lift_m: float = Field(0.15, gt=0, description="via posture: the hand lifted this far above a motion's end")
     planning_buffer_m: float = Field(
@@ -138,12 +136,6 @@ class PlannerResult:
     message: str = ""
     failures: dict[str, int] = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
-
-
-def _translate(T: np.ndarray, d: np.ndarray, local: bool) -> np.ndarray:
-    out = T.copy()
-    out[:3, 3] += (T[:3, :3] @ d) if local else d
-    return out
 
 
 class Task:
@@ -444,8 +436,8 @@ class HandConfigPlanner:
         if v is None:
             rng = np.random.default_rng(t.node_seed(node))
             v = self._validate_placement(node, rng) if isinstance(node, PlacementNode) else self._validate_handover(node, rng)
-            t.node_cache[node] = v
-        elif v.ok:  # validated by another hand configuration of this task
+            t.node_cache[node] = v  # shared with the other hand configurations of this task
+        if v.ok:
             (self.keyposes if isinstance(node, PlacementNode) else self.handovers)[node] = v.payload
         if isinstance(node, PlacementNode):
             for pid, hand, counter, flag in ((t.start_id, self.start_hand, self.start_failures, "start_ok"),
@@ -464,8 +456,8 @@ class HandConfigPlanner:
         grasp = t.grasps[side][node.grasp]
         T_obj = t.placements[node.placement]
         T_grasp = T_obj @ grasp.T_obj_tcp
-        T_pre = _translate(T_grasp, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
-        T_lift = _translate(T_grasp, np.array([0.0, 0.0, s.lift_m]), local=False)
+        targets = key_pose_targets(T_grasp, approach_m=s.pregrasp_m, lift_m=s.lift_m)
+        T_pre, T_lift = targets["pregrasp"], targets["lift"]
         # Cheapest decisive checks first: the grasp pose, then the held object there, then lift, then pre-grasp.
         q_grasp = t.solve_ik(side, T_grasp, t.home, rng)
         if q_grasp is None:
@@ -496,7 +488,6 @@ class HandConfigPlanner:
             return Validation(False, cause, "approach", margin_m=m1)
         kp = KeyPoses(q_pre=q_pre, q_grasp_open=q_grasp, q_grasp=q_closed, q_lift=q_lift, T_obj=T_obj,
                       T_obj_tcp=T_obj_tcp, margin=min(m1, m2, m3))
-        self.keyposes[node] = kp
         return Validation(True, margin_m=kp.margin, payload=kp)
 
     def _validate_handover(self, node: HandoverNode, rng: np.random.Generator) -> Validation:
@@ -548,12 +539,12 @@ class HandConfigPlanner:
         # The giver at the handover pose with the taker arm still at home.
         q_giver_at = q_g
         G_g = hold_g.T_obj_tcp
-        T_pre_t = _translate(T_t, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
+        T_pre_t = key_pose_targets(T_t, approach_m=s.pregrasp_m)["pregrasp"]
         q_taker_pre = t.solve_ik(taker, T_pre_t, q_both, rng, arm_only=True)
         if q_taker_pre is None:
             return Validation(False, "ik", "taker pre-grasp out of reach")
         q_taker_pre[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
-        T_pre_g = _translate(T_g, np.array([0.0, 0.0, -s.pregrasp_m]), local=True)
+        T_pre_g = key_pose_targets(T_g, approach_m=s.pregrasp_m)["pregrasp"]
         q_giver_pre = t.solve_ik(giver, T_pre_g, q_both, rng, arm_only=True)
         if q_giver_pre is None:
             return Validation(False, "ik", "giver retreat out of reach")
@@ -593,7 +584,6 @@ class HandConfigPlanner:
         ]
         hp = HandoverPoses(q_giver_at=q_giver_at, pieces=pieces, q_after=q_after, T_taker_obj_tcp=G_t,
                            margin=min(m0, m1, m2, m3))
-        self.handovers[node] = hp
         return Validation(True, margin_m=hp.margin, payload=hp)
 
     # -- motions --------------------------------------------------------------------------------------
@@ -834,13 +824,13 @@ class HandConfigPlanner:
         return self._edges[key]
 
     def screen(self, spec: GraphSpec, should_stop: Callable[[], bool] = lambda: False, want: int | None = None) -> GraphSpec:
-        """Validate start and goal nodes up front, in order of estimated margin, until a few are valid.
+        """Validate start and goal nodes up front, in grasp order (closest to the object's CoM first),
+        until a few are valid.
 
         Most failures happen where the object rests at the start and goal; screening them in one
         pass spares a graph search per failed node. Nodes found invalid leave the spec.
         """
         t = self.task
-        est = {p: t.estimated_margin(T) for p, T in enumerate(t.placements)}
         bad: set = set()
         for pid, hand in ((t.start_id, self.start_hand), (t.goal_id, self.goal_hand)):
             cands = [n for n in spec.placement_nodes if n.placement == pid and n.hand == hand]
@@ -859,22 +849,13 @@ class HandConfigPlanner:
                     self.screen_failures[v.cause or "ik"] += 1
         return dataclasses.replace(spec, placement_nodes=[n for n in spec.placement_nodes if n not in bad])
 
-    def _approach_score(self, node: PlacementNode) -> float:
-        """How easy a grasp's approach usually is: from above (1) and away from the robot (+x)."""
-        z = (self.task.placements[node.placement] @ self.task.grasps[node.hand][node.grasp].T_obj_tcp)[:3, 2]
-        return float(-z[2] + 0.5 * z[0])
-
     def _seed_margin_estimates(self, graph: RegraspGraph) -> None:
-        """Before any IK, weight nodes by a quick margin estimate so the search tries stable ones first,
-        and, among grasps, the ones whose approach is usually feasible (a small orientation term)."""
+        """Before any IK, weight nodes by a quick margin estimate so the search tries stable ones first."""
         t = self.task
         est = {p: t.estimated_margin(T) for p, T in enumerate(t.placements)}
         for node in graph.nodes():
             if isinstance(node, PlacementNode):
                 graph._apply_margin_cost(node, est[node.placement])
-                extra = t.settings.approach_weight * (1.5 - self._approach_score(node))
-                if extra != 0.0:
-                    graph.add_base_cost(node, extra)
 
     def _assemble_pieces(self, res: SearchResult) -> list[MotionPiece]:
         """Key-pose moves and planned motions in execution order (the builder tracks the object)."""

@@ -11,13 +11,12 @@ gives the same result; the path only ever gets shorter and stays valid.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from .trrt import ShouldStop, Validity, coarse_mask
+from .trrt import ShouldStop, Validity, all_valid, all_valid_coarse_to_fine, coarse_mask, edge_states
 
 
 #: Straight-line skips tried per waypoint in the final pass (farthest first).
@@ -45,12 +44,6 @@ def path_length(path: np.ndarray) -> float:
     """Euclidean joint-space length of a piecewise-linear path."""
     P = np.asarray(path, dtype=float)
     return float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum()) if len(P) > 1 else 0.0
-
-
-def _edge_states(a: np.ndarray, b: np.ndarray, resolution: float) -> np.ndarray:
-    n = max(1, int(math.ceil(float(np.abs(b - a).max()) / resolution - 1e-9)))
-    f = np.arange(1, n + 1)[:, None] / n
-    return a + f * (b - a)
 
 
 def _point_at(path: np.ndarray, cum: np.ndarray, s: float) -> tuple[int, np.ndarray]:
@@ -93,11 +86,11 @@ def shortcut(
                 continue  # both on one segment: already straight
             gain = (s2 - s1) - float(np.linalg.norm(b - a))
             if gain >= s.min_gain:
-                cands.append((gain, i, j, a, b, np.vstack([a[None], _edge_states(a, b, s.edge_resolution_rad)])))
+                cands.append((gain, i, j, a, b, np.vstack([a[None], edge_states(a, b, s.edge_resolution_rad)])))
         if not cands:
             continue
         tried += len(cands)
-        ok = _all_valid_coarse_to_fine([c[5] for c in cands], validity)
+        ok = all_valid_coarse_to_fine([c[5] for c in cands], validity)
         valid = [c for c, good in zip(cands, ok) if good]
         if not valid:
             continue
@@ -107,27 +100,6 @@ def shortcut(
     P, dropped = _drop_skippable(P, validity, s.edge_resolution_rad)
     return SmoothResult(path=P, length_before=before, length_after=path_length(P),
                         stats=dict(shortcuts_tried=tried, shortcuts_accepted=accepted, waypoints_dropped=dropped))
-
-
-def _all_valid_coarse_to_fine(edges: list[np.ndarray], validity: Validity) -> list[bool]:
-    """Which edges have every state valid: the coarse states (every ``COARSE_STRIDE``-th and the
-    last) of all edges in one call, then the remaining states of the survivors in a second."""
-    masks = [coarse_mask(len(e)) for e in edges]
-    ok = _split_valid([e[m] for e, m in zip(edges, masks)], validity)
-    todo = [k for k, good in enumerate(ok) if good and (~masks[k]).any()]
-    if todo:
-        for k, good in zip(todo, _split_valid([edges[k][~masks[k]] for k in todo], validity)):
-            ok[k] = good
-    return ok
-
-
-def _split_valid(parts: list[np.ndarray], validity: Validity) -> list[bool]:
-    valid = np.asarray(validity(np.vstack(parts))[0], dtype=bool)
-    out, k = [], 0
-    for part in parts:
-        out.append(bool(valid[k : k + len(part)].all()))
-        k += len(part)
-    return out
 
 
 def _dedupe(P: np.ndarray) -> np.ndarray:
@@ -151,11 +123,11 @@ def _drop_skippable(P: np.ndarray, validity: Validity, resolution: float) -> tup
         nxt = i + 1
         candidates = np.unique(np.linspace(i + 2, len(P) - 1, MAX_SKIP_TRIES).astype(int))[::-1] if i + 2 < len(P) else []
         if len(candidates):
-            edges = [_edge_states(P[i], P[j], resolution) for j in candidates]
+            edges = [edge_states(P[i], P[j], resolution) for j in candidates]
             masks = [coarse_mask(len(e)) for e in edges]
-            coarse_ok = _split_valid([e[m] for e, m in zip(edges, masks)], validity)
+            coarse_ok = all_valid([e[m] for e, m in zip(edges, masks)], validity)
             for j, e, m, good in zip(candidates, edges, masks, coarse_ok):  # farthest first
-                if good and (m.all() or _split_valid([e[~m]], validity)[0]):
+                if good and (m.all() or all_valid([e[~m]], validity)[0]):
                     nxt = int(j)
                     break
         out.append(nxt)

@@ -32,6 +32,7 @@ from .kinematics_batch import _affine, _matvec, _rodrigues
 from .robot_model import RobotModel
 from .stability import system_com
 from .stances import Stance
+from .transforms import inverse
 
 HoldSide = Literal["left", "right", "both"]
 #: How many reduced kinematic trees one evaluator keeps (one per active joint set / fixed posture).
@@ -71,20 +72,11 @@ class HoldSpec:
     @property
     def T_tcp_obj(self) -> np.ndarray:
         """The object frame expressed in the holding TCP frame."""
-        return invert_transform(self.T_obj_tcp)
+        return inverse(self.T_obj_tcp)
 
     @property
     def label(self) -> str:
         return self.side
-
-
-def invert_transform(T: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid 4x4 transform."""
-    out = np.eye(4)
-    R = T[:3, :3]
-    out[:3, :3] = R.T
-    out[:3, 3] = -R.T @ T[:3, 3]
-    return out
 
 
 @dataclass(frozen=True)

@@ -146,11 +146,23 @@ def _sample(W: np.ndarray, profiles: list[tuple[float, float, float]], scales: n
     return t, Q, durations, seg
 
 
-def zmp_cart_table(com: np.ndarray, dt: float) -> np.ndarray:
-    """ZMP (M, 2) of the cart-table model; c'' by central finite differences, zero at the two ends."""
+def zmp_cart_table(com: np.ndarray, dt: float, holding: list[str] | None = None) -> np.ndarray:
+    """ZMP (M, 2) of the cart-table model: c_xy - (c_z / g) * c_xy'', with c'' by central finite
+    differences at ``dt`` and zero at the two ends.
+
+    Where ``holding`` changes, the system's mass changes and its CoM steps (the
+    object's weight moves from the table to the hand); that step is not an
+    acceleration of the robot. The plan is at rest there (every piece starts and ends
+    at rest), so c'' is taken as zero at such points too.
+    """
     acc = np.zeros((len(com), 2))
     if len(com) >= 3:
         acc[1:-1] = (com[2:, :2] - 2.0 * com[1:-1, :2] + com[:-2, :2]) / (dt * dt)
+    if holding is not None and len(holding) >= 2:
+        h = np.asarray(holding)
+        change = np.flatnonzero(h[1:] != h[:-1])  # holding differs between i and i+1
+        acc[np.clip(change, 0, len(acc) - 1)] = 0.0
+        acc[np.clip(change + 1, 0, len(acc) - 1)] = 0.0
     return com[:, :2] - (com[:, 2:3] / GRAVITY) * acc
 
 

@@ -61,6 +61,41 @@ def coarse_mask(n: int) -> np.ndarray:
     return m
 
 
+def edge_states(a: np.ndarray, b: np.ndarray, resolution: float) -> np.ndarray:
+    """States strictly after ``a`` up to ``b`` inclusive, at most ``resolution`` apart per joint."""
+    n = max(1, int(math.ceil(float(np.abs(b - a).max()) / resolution - 1e-9)))
+    f = np.arange(1, n + 1)[:, None] / n
+    return a + f * (b - a)
+
+
+def _split_all(valid: np.ndarray, lengths: Sequence[int]) -> list[bool]:
+    """Per run of consecutive states (``lengths`` of them each): whether all are valid."""
+    out, k = [], 0
+    for n in lengths:
+        out.append(bool(valid[k : k + n].all()))
+        k += n
+    return out
+
+
+def all_valid(parts: list[np.ndarray], validity: Validity) -> list[bool]:
+    """Whether every state of each part (full configurations) is valid, in one validity call."""
+    valid = np.asarray(validity(np.vstack(parts))[0], dtype=bool)
+    return _split_all(valid, [len(p) for p in parts])
+
+
+def all_valid_coarse_to_fine(edges: list[np.ndarray], validity: Validity) -> list[bool]:
+    """Whether every state of each edge (full configurations) is valid: the coarse states (every
+    ``COARSE_STRIDE``-th and the last) of all edges in one validity call, then the remaining states
+    of the edges that survived it in a second."""
+    masks = [coarse_mask(len(e)) for e in edges]
+    ok = all_valid([e[m] for e, m in zip(edges, masks)], validity)
+    todo = [k for k, good in enumerate(ok) if good and not masks[k].all()]
+    if todo:
+        for k, good in zip(todo, all_valid([edges[k][~masks[k]] for k in todo], validity)):
+            ok[k] = good
+    return ok
+
+
 class TrrtSettings(BaseModel):
     """T-RRT parameters; defaults follow Jaillet et al. / OMPL where those apply."""
 
@@ -176,10 +211,7 @@ class _Search:
         return Q
 
     def edge_states(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """States strictly after ``a`` up to ``b`` inclusive, at most ``edge_resolution_rad`` apart per joint."""
-        n = max(1, int(math.ceil(float(np.abs(b - a).max()) / self.s.edge_resolution_rad - 1e-9)))
-        f = np.arange(1, n + 1)[:, None] / n
-        return a + f * (b - a)
+        return edge_states(a, b, self.s.edge_resolution_rad)
 
     def cost(self, margin: float) -> float:
         return -margin if self.s.margin_cost else 0.0
@@ -261,24 +293,21 @@ def _check_inputs(start: np.ndarray, goal: np.ndarray, active: np.ndarray, nq: i
     return None
 
 
-def _run_round(search: _Search, rng: np.random.Generator, check: Callable[[np.ndarray, list[int]], tuple[np.ndarray, np.ndarray]]) -> list[tuple[int, int]]:
+def _run_round(search: _Search, rng: np.random.Generator, check: Validity) -> list[tuple[int, int]]:
     """Exploration round: propose, check whole edges in one call, add; returns the new (tree, node) pairs.
 
-    ``check(Q, edge_lengths)`` returns per state (valid, margin); an edge is
-    accepted when all its states are valid and its node passes the transition test.
+    ``check(Q)`` returns per state (valid, margin); an edge is accepted when all
+    its states are valid and its node passes the transition test.
     """
     cands = search.propose(rng)
     if not cands:
         return []
     edges = [search.edge_states(search.trees[ti].nodes[near], new) for ti, near, new, _ in cands]
     lengths = [len(e) for e in edges]
-    valid, margin = check(search.full(np.vstack(edges)), lengths)
+    valid, margin = check(search.full(np.vstack(edges)))
     added = []
-    k = 0
-    for (ti, near, new, dist), n in zip(cands, lengths):
-        ok = bool(valid[k : k + n].all())
-        node_margin = float(margin[k + n - 1])
-        k += n
+    for (ti, near, new, dist), ok, end in zip(cands, _split_all(valid, lengths), np.cumsum(lengths) - 1):
+        node_margin = float(margin[end])
         search.stats["extensions"] += 1
         if not ok:
             search.stats["invalid_edges"] += 1
@@ -291,41 +320,16 @@ def _run_round(search: _Search, rng: np.random.Generator, check: Callable[[np.nd
     return added
 
 
-def _edges_valid(search: _Search, edges: list[np.ndarray], check, lazy: bool) -> list[bool]:
+def _edges_valid(search: _Search, edges: list[np.ndarray], check: Validity, lazy: bool) -> list[bool]:
     """Whether every state of each edge is valid; lazily, a coarse pass (every ``COARSE_STRIDE``-th
     state) first, then the remaining states of the edges that survived it."""
     if not edges:
         return []
-    if not lazy:
-        lengths = [len(e) for e in edges]
-        valid, _ = check(search.full(np.vstack(edges)), lengths)
-        out, k = [], 0
-        for n in lengths:
-            out.append(bool(valid[k : k + n].all()))
-            k += n
-        return out
-    ok = [True] * len(edges)
-    for phase in (0, 1):
-        picks = []
-        for i, e in enumerate(edges):
-            if not ok[i]:
-                continue
-            coarse = coarse_mask(len(e))
-            sel = coarse if phase == 0 else ~coarse
-            if sel.any():
-                picks.append((i, e[sel]))
-        if not picks:
-            continue
-        lengths = [len(x) for _, x in picks]
-        valid, _ = check(search.full(np.vstack([x for _, x in picks])), lengths)
-        k = 0
-        for (i, _), n in zip(picks, lengths):
-            ok[i] = bool(valid[k : k + n].all())
-            k += n
-    return ok
+    full = [search.full(e) for e in edges]
+    return all_valid_coarse_to_fine(full, check) if lazy else all_valid(full, check)
 
 
-def _run_round_lazy(search: _Search, rng: np.random.Generator, check) -> list[tuple[int, int]]:
+def _run_round_lazy(search: _Search, rng: np.random.Generator, check: Validity) -> list[tuple[int, int]]:
     """Planning round in two validity calls: first every candidate edge's coarse states (every
     ``COARSE_STRIDE``-th state and the new node), then the transition test on the nodes that
     passed, then the remaining states of the accepted edges only.
@@ -341,28 +345,19 @@ def _run_round_lazy(search: _Search, rng: np.random.Generator, check) -> list[tu
     coarse_masks = [coarse_mask(len(e)) for e in edges]
     coarse = [e[m] for e, m in zip(edges, coarse_masks)]
     lengths = [len(c) for c in coarse]
-    valid, margin = check(search.full(np.vstack(coarse)), lengths)
+    valid, margin = check(search.full(np.vstack(coarse)))
     accepted = []
-    k = 0
-    for i, ((ti, near, new, dist), n) in enumerate(zip(cands, lengths)):
-        ok = bool(valid[k : k + n].all())
-        node_margin = float(margin[k + n - 1])
-        k += n
+    for i, ((ti, near, new, dist), ok, end) in enumerate(zip(cands, _split_all(valid, lengths), np.cumsum(lengths) - 1)):
+        node_margin = float(margin[end])
         if not ok:
             search.stats["invalid_edges"] += 1
             continue
         if search.transition(search.trees[ti], near, new, node_margin, dist, rng):
             accepted.append((i, node_margin))
-    fine = [(i, m, edges[i][~coarse_masks[i]]) for i, m in accepted]
-    todo = [f for f in fine if len(f[2])]
-    fine_ok = {i: True for i, _, _ in fine}
+    fine_ok = {i: True for i, _ in accepted}
+    todo = [i for i, _ in accepted if not coarse_masks[i].all()]
     if todo:
-        lengths = [len(f[2]) for f in todo]
-        valid, _ = check(search.full(np.vstack([f[2] for f in todo])), lengths)
-        k = 0
-        for (i, _, _), n in zip(todo, lengths):
-            fine_ok[i] = bool(valid[k : k + n].all())
-            k += n
+        fine_ok.update(zip(todo, all_valid([search.full(edges[i][~coarse_masks[i]]) for i in todo], check)))
     added = []
     for i, node_margin in accepted:
         if not fine_ok[i]:
@@ -373,7 +368,7 @@ def _run_round_lazy(search: _Search, rng: np.random.Generator, check) -> list[tu
     return added
 
 
-def _try_connect(search: _Search, added: list[tuple[int, int]], check, lazy: bool = False) -> None:
+def _try_connect(search: _Search, added: list[tuple[int, int]], check: Validity, lazy: bool = False) -> None:
     """Straight connections from this round's new nodes to the nearest node of the other tree."""
     tries = []
     for ti, idx in added:
@@ -451,7 +446,7 @@ def plan_motion(
     search = _Search(start, goal, active, np.asarray(lower, float), np.asarray(upper, float), float(ends_margin[0]), float(ends_margin[1]), s)
     n_checked = [0]
 
-    def check(Q: np.ndarray, lengths: list[int]):
+    def check(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n_checked[0] += len(Q)
         v, m = validity(Q)
         return np.asarray(v, dtype=bool), np.asarray(m, dtype=float)
@@ -480,7 +475,7 @@ def plan_motion(
     return MotionResult("solved", search.path(), search.path_margins(), None, stats)
 
 
-def _try_connect_direct(search: _Search, check, lazy: bool = False) -> None:
+def _try_connect_direct(search: _Search, check: Validity, lazy: bool = False) -> None:
     ta, tb = search.trees
     states = search.edge_states(ta.nodes[0], tb.nodes[0])
     search.stats["connect_attempts"] += 1
@@ -638,7 +633,7 @@ def explore(
     leg_stats: list[dict] = []
     lo, hi = robot.lower, robot.upper
 
-    def evaluate_states(leg_i: int, Q: np.ndarray, lengths: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    def evaluate_states(leg_i: int, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Validity of the states of consecutive edges; records the evaluated ones."""
         leg = legs[leg_i]
         within = np.all((Q >= lo - 1e-12) & (Q <= hi + 1e-12), axis=1)
@@ -665,7 +660,7 @@ def explore(
         err = _check_inputs(start, goal, active, nq)
         if err:
             raise ValueError(f"leg {i}: {err}")
-        valid, margin = evaluate_states(i, np.vstack([start, goal]), [1, 1])
+        valid, margin = evaluate_states(i, np.vstack([start, goal]))
         search = _Search(start, goal, active, lo, hi, float(margin[0]), float(margin[1]), s)
         search.batch_size = s.explore_batch_size
         searches.append(search)
@@ -673,7 +668,7 @@ def explore(
                               connected_at_state=None, connected_at_round=None, rounds=0))
 
     def make_check(i: int):
-        return lambda Q, lengths: evaluate_states(i, Q, lengths)
+        return lambda Q: evaluate_states(i, Q)
 
     for i, search in enumerate(searches):
         if leg_stats[i]["start_valid"] and leg_stats[i]["goal_valid"] and not rec.full:

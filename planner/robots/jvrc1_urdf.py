@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..transforms import rpy_to_matrix
+
 DATA_DIR = Path(__file__).parent / "data"
 URDF_PATH = DATA_DIR / "jvrc1.urdf"
 LICENSE_PATH = DATA_DIR / "JVRC1_LICENSE"
@@ -87,23 +89,13 @@ def _mesh_file(filename: str, meshes: Path) -> Path:
     return path
 
 
-def _rpy_matrix(r: float, p: float, y: float) -> np.ndarray:
-    """URDF rpy: R = Rz(y) Ry(p) Rx(r)."""
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
-
-
 def _origin(elem: ET.Element | None) -> tuple[np.ndarray, np.ndarray]:
     """(R, p) of an URDF ``<origin>`` (identity when absent)."""
     if elem is None:
         return np.eye(3), np.zeros(3)
     xyz = np.array([float(v) for v in elem.attrib.get("xyz", "0 0 0").split()])
     rpy = [float(v) for v in elem.attrib.get("rpy", "0 0 0").split()]
-    return _rpy_matrix(*rpy), xyz
+    return rpy_to_matrix(*rpy), xyz
 
 
 @lru_cache(maxsize=None)
