@@ -46,7 +46,7 @@ class Service:
             from .executors import make_executor
 
             svc.executor = make_executor(settings)
-            svc.runner = Runner(store, svc.executor, settings, on_finish=metrics.job_finished)
+            svc.runner = Runner(store, svc.executor, settings)
         if settings.audit:
             svc.auditor = AuditProcess(settings.resolved_database_url, settings.audit_dir)
         return svc

@@ -1,12 +1,19 @@
-"""Prometheus metrics: queue depth and jobs by state (read from the store at scrape time),
-job durations and outcomes (observed by this process's runner), HTTP request latency."""
+"""Prometheus metrics of the planning service.
+
+From the job store at scrape time, so every API replica reports the same truth,
+including jobs planned by separate ``regrasp worker`` processes and jobs
+finished before a restart: queue depth, jobs by state, and the planning time
+(histogram) and outcome (counter) of every job whose planning ended, which the
+runner that planned it (or recovery) writes to the job's row. In this process:
+HTTP request latency.
+"""
 
 from __future__ import annotations
 
 from typing import Iterable
 
-from prometheus_client import CollectorRegistry, Counter, Histogram
-from prometheus_client.core import GaugeMetricFamily, Metric
+from prometheus_client import CollectorRegistry, Histogram
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
 
 from .store.repo import JobStore
@@ -16,7 +23,7 @@ LATENCY_BUCKETS = (0.002, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5)
 
 
 class StoreCollector(Collector):
-    """Counts from the job store, so every replica reports the same truth."""
+    """Metrics read from the job store at each scrape."""
 
     def __init__(self, store: JobStore) -> None:
         self.store = store
@@ -30,19 +37,25 @@ class StoreCollector(Collector):
         for (kind, state), n in sorted(counts.items()):
             by_state.add_metric([kind, state], n)
         yield by_state
+        stats = self.store.planning_stats(DURATION_BUCKETS)
+        duration = HistogramMetricFamily("regrasp_job_duration_seconds",
+                                         "Planning time of jobs whose planning ended, by kind and outcome (any runner).",
+                                         labels=["kind", "outcome"])
+        outcomes = CounterMetricFamily("regrasp_job_outcomes",
+                                       "Jobs whose planning ended, by kind and outcome (any runner).",
+                                       labels=["kind", "outcome"])
+        for row in sorted(stats, key=lambda r: (r["kind"], r["outcome"])):
+            labels = [row["kind"], row["outcome"]]
+            buckets = [(str(float(b)), n) for b, n in zip(DURATION_BUCKETS, row["buckets"])]
+            duration.add_metric(labels, buckets + [("+Inf", row["timed"])], sum_value=row["sum"])
+            outcomes.add_metric(labels, row["count"])
+        yield duration
+        yield outcomes
 
 
 class Metrics:
     def __init__(self, store: JobStore) -> None:
         self.registry = CollectorRegistry()
         self.registry.register(StoreCollector(store))
-        self.job_duration = Histogram("regrasp_job_duration_seconds", "Planning time of finished jobs.",
-                                      ["kind", "outcome"], buckets=DURATION_BUCKETS, registry=self.registry)
-        self.job_outcomes = Counter("regrasp_job_outcomes", "Jobs finished by this process, by kind and outcome.",
-                                    ["kind", "outcome"], registry=self.registry)
         self.http_latency = Histogram("regrasp_http_request_duration_seconds", "HTTP request latency.",
                                       ["method", "route", "status"], buckets=LATENCY_BUCKETS, registry=self.registry)
-
-    def job_finished(self, kind: str, outcome: str, seconds: float) -> None:
-        self.job_duration.labels(kind, outcome).observe(seconds)
-        self.job_outcomes.labels(kind, outcome).inc()

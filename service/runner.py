@@ -14,7 +14,7 @@ import threading
 import time
 import uuid
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 from .executors.base import ExecEvent, Executor
 from .provenance import code_version, library_versions, robot_sha256
@@ -71,13 +71,12 @@ class Runner:
     """Claims jobs for one executor and moves them through planning to their outcome."""
 
     def __init__(self, store: JobStore, executor: Executor, settings: ServiceSettings,
-                 *, owner: str | None = None, on_finish: Callable[[str, str, float], None] | None = None) -> None:
+                 *, owner: str | None = None) -> None:
         self.store = store
         self.executor = executor
         self.settings = settings
         self.owner = owner or make_owner_id()
         LIVE_OWNERS.add(self.owner)
-        self.on_finish = on_finish
         self._running: dict[str, _Running] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -212,10 +211,10 @@ class Runner:
                 data: dict[str, Any] | None = None) -> None:
         if error is not None:
             error = {k: v for k, v in error.items() if k in ("code", "message", "traceback")}
-        ok = self.store.finish_planning(run.job_id, self.owner, state, message=message, result_text=result_text,
-                                        error=error, extra=extra, data=data)
-        if ok and self.on_finish is not None:
-            self.on_finish(run.kind, state, time.monotonic() - run.started)
+        # The planning time and outcome go into the row: /metrics of any API replica reads them from there.
+        extra = {**(extra or {}), "planning_s": time.monotonic() - run.started, "planning_outcome": state}
+        self.store.finish_planning(run.job_id, self.owner, state, message=message, result_text=result_text,
+                                   error=error, extra=extra, data=data)
 
     def _finish_canceled(self, job_id: str, message: str, run: _Running | None = None) -> None:
         run = run or self._running.pop(job_id, None)

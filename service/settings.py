@@ -45,6 +45,8 @@ class ServiceSettings(BaseSettings):
     workers: int = Field(2, ge=0, le=256, description="planning worker processes (0: API only, for split deployments)")
     executor: Literal["local", "ray"] = "local"
     ray_address: str | None = Field(None, description="Ray cluster address; default starts a local Ray instance")
+    ray_object_store_bytes: int | None = Field(
+        None, ge=80 * 1024**2, description="object store of a local Ray instance, bytes (default: Ray's, ~30% of RAM)")
     robot: str = Field("hrp5p", description="robot model the workers load once at start")
     worker_nice: int = Field(10, ge=0, le=19, description="niceness of worker processes, so planning never starves the API")
     preload_robot: bool = Field(True, description="load the robot model in each worker before its first job")

@@ -1,9 +1,16 @@
-"""The code that runs inside one planning worker process (multiprocessing, spawn).
+"""The code that runs a job inside a worker: a local spawn process or a Ray actor.
 
-A worker loads the robot model once, then runs jobs one at a time for as long as
-its parent lives: it receives ``(job_id, kind, request)`` on its pipe, calls the
-job's handler with a context whose ``cancelled()`` reads a shared event, and
-sends progress and the outcome back. It never touches the job store: the parent
+:class:`JobHandlers` is the one piece both kinds of worker use: it resolves the
+handler table and loads the robot model once when the worker starts, and maps
+everything a handler can do (return, poll a cancel, raise) to one outcome
+``(tag, value)``: ``("done", packaged result)``, ``("canceled", None)`` or
+``("error", {"code", "message", ...})``. The executors turn an outcome into an
+:class:`~service.executors.base.ExecEvent` with ``outcome_event``.
+
+A local worker (:func:`worker_main`) runs jobs one at a time for as long as its
+parent lives: it receives ``(job_id, kind, request)`` on its pipe, calls the
+handler with a context whose ``cancelled()`` reads a shared event, and sends
+progress and the outcome back. It never touches the job store: the parent
 runner is the only writer, so a worker that is killed cannot leave a half-written row.
 """
 
@@ -15,16 +22,76 @@ import time
 import traceback
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Event
-from typing import Any
+from typing import Any, Protocol
+
+from .handlers import HandlerError, canceled_exception_types, resolve
+from .results import InvalidResult, package
 
 #: Progress messages are sent at most this often (the runner stores them even less often).
 PROGRESS_MIN_INTERVAL_S = 0.05
 #: How often the worker checks that its parent is still alive.
 PARENT_CHECK_S = 0.2
 
+Outcome = tuple[str, Any]
+
+
+class JobContext(Protocol):
+    """What a handler gets as ``ctx`` (planner.entry.JobContext)."""
+
+    def progress(self, fraction: float, message: str) -> None: ...
+
+    def cancelled(self) -> bool: ...
+
+
+def lower_priority(nice: int) -> None:
+    """Planning yields the CPU to the API process, so submit and poll stay fast while every worker plans."""
+    if nice:
+        try:
+            os.nice(nice)
+        except OSError:
+            pass
+
+
+class JobHandlers:
+    """The handler table of one worker, with the robot model loaded once for the worker's life."""
+
+    def __init__(self, handlers: dict[str, str], robot: str | None) -> None:
+        self.table: dict[str, Any] = {}
+        self.errors: dict[str, str] = {}
+        for kind, target in handlers.items():
+            try:
+                self.table[kind] = resolve(target)
+            except Exception as exc:  # noqa: BLE001 - reported with each job of that kind; the worker stays up
+                self.errors[kind] = str(exc) if isinstance(exc, HandlerError) else f"job handler {target!r}: {exc!r}"
+        if robot:
+            from planner.robot_model import load_robot
+
+            load_robot(robot)  # cached for the life of the process: handlers reuse it
+        self.canceled_types = canceled_exception_types()
+
+    def run(self, kind: str, request: dict[str, Any], ctx: JobContext) -> Outcome:
+        """Run one job to its outcome; never raises (every failure becomes the job's error)."""
+        try:
+            if kind not in self.table:
+                raise LookupError(self.errors.get(kind) or f"no handler for job kind {kind!r}")
+            if ctx.cancelled():
+                raise self.canceled_types[0]("canceled before start")
+            result = self.table[kind](request, ctx)
+            if ctx.cancelled() and result is None:
+                raise self.canceled_types[0]("canceled")
+            return "done", package(result)
+        except self.canceled_types:
+            return "canceled", None
+        except InvalidResult as exc:
+            return "error", {"code": "INVALID_RESULT", "message": str(exc)}
+        except Exception as exc:  # noqa: BLE001 - every failure becomes the job's error
+            code = "INVALID_REQUEST" if isinstance(exc, (ValueError, LookupError)) else "ERROR"
+            return "error", {"code": code, "message": f"{type(exc).__name__}: {exc}",
+                             "traceback": traceback.format_exc(limit=8)}
+
 
 class WorkerContext:
-    """The ``ctx`` handed to a job handler (planner.entry.JobContext)."""
+    """The ``ctx`` of a job in a local worker: progress goes down the pipe, cancel is a shared event."""
 
     def __init__(self, conn: Connection, job_id: str, cancel: Event, lock: threading.Lock) -> None:
         self._conn = conn
@@ -59,29 +126,11 @@ def _watch_parent(parent_pid: int) -> None:
 
 def worker_main(conn: Connection, cancel: Event, handlers: dict[str, str], robot: str | None, parent_pid: int,
                 nice: int = 0) -> None:
-    """Entry point of a worker process."""
-    if nice:
-        try:
-            os.nice(nice)  # planning yields the CPU to the API process: submit/poll stay fast under load
-        except OSError:
-            pass
+    """Entry point of a local worker process."""
+    lower_priority(nice)
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watch").start()
-    from .handlers import canceled_exception_types, resolve
-    from .results import InvalidResult, package
-
+    jobs = JobHandlers(handlers, robot)
     lock = threading.Lock()
-    table: dict[str, Any] = {}
-    errors: dict[str, str] = {}
-    for kind, target in handlers.items():
-        try:
-            table[kind] = resolve(target)
-        except Exception as exc:  # noqa: BLE001 - reported per job, the worker stays up
-            errors[kind] = str(exc)
-    if robot:
-        from planner.robot_model import load_robot
-
-        load_robot(robot)  # cached for the life of the process: handlers reuse it
-    canceled_types = canceled_exception_types()
     conn.send(("ready", os.getpid()))
     while True:
         try:
@@ -91,26 +140,9 @@ def worker_main(conn: Connection, cancel: Event, handlers: dict[str, str], robot
         if msg is None:
             return
         job_id, kind, request = msg
-        ctx = WorkerContext(conn, job_id, cancel, lock)
-        try:
-            if kind not in table:
-                raise LookupError(errors.get(kind) or f"no handler for job kind {kind!r}")
-            if cancel.is_set():
-                raise canceled_types[0]("canceled before start")
-            result = table[kind](request, ctx)
-            if cancel.is_set() and result is None:
-                raise canceled_types[0]("canceled")
-            outcome: tuple[Any, ...] = ("done", job_id, package(result))
-        except canceled_types:
-            outcome = ("canceled", job_id)
-        except InvalidResult as exc:
-            outcome = ("error", job_id, {"code": "INVALID_RESULT", "message": str(exc)})
-        except Exception as exc:  # noqa: BLE001 - every failure becomes the job's error
-            code = "INVALID_REQUEST" if isinstance(exc, (ValueError, LookupError)) else "ERROR"
-            outcome = ("error", job_id, {"code": code, "message": f"{type(exc).__name__}: {exc}",
-                                         "traceback": traceback.format_exc(limit=8)})
+        tag, value = jobs.run(kind, request, WorkerContext(conn, job_id, cancel, lock))
         with lock:
             try:
-                conn.send(outcome)
+                conn.send((tag, job_id, value))
             except (BrokenPipeError, EOFError, OSError):
                 os._exit(3)  # the parent is gone; nobody is waiting for this result

@@ -26,7 +26,6 @@ def worker(data_dir: Path | None, database_url: str | None, workers: int | None,
     import logging
 
     from service.executors import make_executor
-    from service.metrics import Metrics
     from service.runner import Runner
     from service.store import JobStore, make_engine, migrate
 
@@ -38,9 +37,8 @@ def worker(data_dir: Path | None, database_url: str | None, workers: int | None,
     engine = make_engine(settings.resolved_database_url)
     migrate(engine)
     store = JobStore(engine)
-    metrics = Metrics(store)
     executor_obj = make_executor(settings)
-    runner = Runner(store, executor_obj, settings, on_finish=metrics.job_finished)
+    runner = Runner(store, executor_obj, settings)
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())

@@ -22,6 +22,20 @@ class ExecEvent:
     error: dict[str, Any] | None = None
 
 
+def outcome_event(job_id: str, tag: str, value: Any) -> ExecEvent:
+    """The event of a job's outcome as a worker reports it (service.worker_process.JobHandlers.run)."""
+    if tag == "done":
+        return ExecEvent(job_id, "done", result=value)
+    if tag == "canceled":
+        return ExecEvent(job_id, "canceled", message="stopped after a cancel")
+    return ExecEvent(job_id, "error", error=value)
+
+
+def crashed_event(job_id: str, reason: str) -> ExecEvent:
+    """The job's worker died under it: the job fails with the reason (never stays stuck in planning)."""
+    return ExecEvent(job_id, "error", error={"code": "WORKER_CRASHED", "message": reason})
+
+
 class Executor(Protocol):
     """Runs jobs; the runner claims them from the store and feeds them in."""
 

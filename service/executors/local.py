@@ -18,7 +18,7 @@ from typing import Any
 
 from ..settings import ServiceSettings
 from ..worker_process import worker_main
-from .base import ExecEvent
+from .base import ExecEvent, crashed_event, outcome_event
 
 
 @dataclass
@@ -138,18 +138,13 @@ class LocalExecutor:
                     events.append(ExecEvent(msg[1], "progress", fraction=msg[2], message=msg[3]))
             elif msg[1] == slot.job_id:
                 slot.job_id, slot.kill_at = None, None
-                if tag == "done":
-                    events.append(ExecEvent(msg[1], "done", result=msg[2]))
-                elif tag == "canceled":
-                    events.append(ExecEvent(msg[1], "canceled", message="stopped after a cancel"))
-                else:
-                    events.append(ExecEvent(msg[1], "error", error=msg[2]))
+                events.append(outcome_event(msg[1], tag, msg[2]))
 
     def _on_death(self, slot: _Slot, events: list[ExecEvent]) -> None:
         code = slot.process.exitcode
         if slot.job_id is not None:
-            reason = f"worker process {slot.process.pid} died ({_describe_exit(code)}) while running the job"
-            events.append(ExecEvent(slot.job_id, "error", error={"code": "WORKER_CRASHED", "message": reason}))
+            events.append(crashed_event(
+                slot.job_id, f"worker process {slot.process.pid} died ({_describe_exit(code)}) while running the job"))
         self._kill(slot)
         self._spawn(slot)
 

@@ -10,20 +10,24 @@ that has not stopped ``cancel_grace_s`` after a cancel is killed
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from dataclasses import dataclass
 from typing import Any
 
 from ..settings import ServiceSettings
-from .base import ExecEvent
+from .base import ExecEvent, crashed_event, outcome_event
 
 log = logging.getLogger("regrasp.ray")
 
 
 class _ActorContext:
-    def __init__(self, actor: "_JobActorImpl") -> None:
+    """The ``ctx`` of a job in a Ray actor: progress is kept for the executor to fetch, cancel is per job id."""
+
+    def __init__(self, actor: "_JobActorImpl", job_id: str) -> None:
         self._actor = actor
+        self._job_id = job_id
 
     def progress(self, fraction: float, message: str) -> None:
         with self._actor.lock:
@@ -31,58 +35,38 @@ class _ActorContext:
             self._actor.latest = (min(1.0, max(0.0, float(fraction))), str(message)[:500], self._actor.seq)
 
     def cancelled(self) -> bool:
-        return self._actor.cancel_event.is_set()
+        return self._job_id in self._actor.canceled
 
 
 class _JobActorImpl:
-    """Body of the Ray actor (wrapped with ``ray.remote`` lazily, so importing this module needs no Ray)."""
+    """Body of the Ray actor (wrapped with ``ray.remote`` lazily, so importing this module needs no Ray).
 
-    def __init__(self, handlers: dict[str, str], robot: str | None) -> None:
-        from ..handlers import canceled_exception_types, resolve
+    Cancels name the job, so a cancel that reaches the actor before its job starts still counts.
+    """
 
-        self.table: dict[str, Any] = {}
-        self.errors: dict[str, str] = {}
-        for kind, target in handlers.items():
-            try:
-                self.table[kind] = resolve(target)
-            except Exception as exc:  # noqa: BLE001
-                self.errors[kind] = str(exc)
-        if robot:
-            from planner.robot_model import load_robot
+    def __init__(self, handlers: dict[str, str], robot: str | None, nice: int = 0) -> None:
+        from ..worker_process import JobHandlers, lower_priority
 
-            load_robot(robot)
-        self.canceled_types = canceled_exception_types()
-        self.cancel_event = threading.Event()
+        lower_priority(nice)
+        self.jobs = JobHandlers(handlers, robot)
+        self.canceled: set[str] = set()
         self.lock = threading.Lock()
         self.latest: tuple[float, str, int] | None = None
         self.seq = 0
 
     def ready(self) -> int:
-        import os
-
         return os.getpid()
 
     def run(self, job_id: str, kind: str, request: dict[str, Any]) -> tuple[str, Any]:
-        from ..results import InvalidResult, package
-
-        self.cancel_event.clear()
         with self.lock:
             self.latest = None
-        ctx = _ActorContext(self)
         try:
-            if kind not in self.table:
-                raise LookupError(self.errors.get(kind) or f"no handler for job kind {kind!r}")
-            return "done", package(self.table[kind](request, ctx))
-        except self.canceled_types:
-            return "canceled", None
-        except InvalidResult as exc:
-            return "error", {"code": "INVALID_RESULT", "message": str(exc)}
-        except Exception as exc:  # noqa: BLE001
-            code = "INVALID_REQUEST" if isinstance(exc, (ValueError, LookupError)) else "ERROR"
-            return "error", {"code": code, "message": f"{type(exc).__name__}: {exc}"}
+            return self.jobs.run(kind, request, _ActorContext(self, job_id))
+        finally:
+            self.canceled.discard(job_id)
 
-    def cancel(self) -> None:
-        self.cancel_event.set()
+    def cancel(self, job_id: str) -> None:
+        self.canceled.add(job_id)
 
     def progress(self) -> tuple[float, str, int] | None:
         with self.lock:
@@ -102,7 +86,17 @@ class _Slot:
     pid: int | None = None
 
 
+def _first_line(exc: BaseException) -> str:
+    """Ray's errors run to many lines (tracebacks, hints); a job's error keeps the first that says something."""
+    for line in str(exc).splitlines():
+        if line.strip():
+            return line.strip()[:300]
+    return type(exc).__name__
+
+
 class RayExecutor:
+    """``settings.workers`` Ray actors, on a local Ray instance or the cluster at ``settings.ray_address``."""
+
     name = "ray"
 
     def __init__(self, settings: ServiceSettings) -> None:
@@ -115,19 +109,26 @@ class RayExecutor:
                 ray.init(address=settings.ray_address, ignore_reinit_error=True, log_to_driver=False)
             else:
                 ray.init(ignore_reinit_error=True, include_dashboard=False, log_to_driver=False,
-                         num_cpus=max(settings.workers, 1))
+                         num_cpus=max(settings.workers, 1), object_store_memory=settings.ray_object_store_bytes)
         self._actor_cls = ray.remote(num_cpus=1, max_concurrency=3, max_restarts=0)(_JobActorImpl)
         self._slots = [_Slot() for _ in range(settings.workers)]
-        self._lock = threading.Lock()
         for slot in self._slots:
             self._spawn(slot)
 
     def _spawn(self, slot: _Slot) -> None:
         robot = self.settings.robot if self.settings.preload_robot else None
-        slot.actor = self._actor_cls.remote(dict(self.settings.handlers), robot)
+        slot.actor = self._actor_cls.remote(dict(self.settings.handlers), robot, self.settings.worker_nice)
         slot.ready_ref = slot.actor.ready.remote()
         slot.ready, slot.job_id, slot.run_ref, slot.progress_ref, slot.kill_at = False, None, None, None, None
-        slot.last_seq = 0
+        slot.last_seq, slot.pid = 0, None
+
+    def _replace(self, slot: _Slot) -> None:
+        """Kill the slot's actor (``ray.kill`` does not wait for it) and start a fresh one."""
+        try:
+            self.ray.kill(slot.actor, no_restart=True)
+        except Exception as exc:  # noqa: BLE001 - an actor that is already gone cannot be killed again
+            log.debug("ray.kill of a dead actor: %s", exc)
+        self._spawn(slot)
 
     def total_slots(self) -> int:
         return len(self._slots)
@@ -147,7 +148,7 @@ class RayExecutor:
                     slot.pid = self.ray.get(slot.ready_ref)
                     slot.ready = True
                 except Exception as exc:  # noqa: BLE001
-                    log.error("a Ray worker failed to start: %s; retrying", exc)
+                    log.error("a Ray worker failed to start: %s; retrying", _first_line(exc))
                     self._spawn(slot)
                     continue
                 slot.ready_ref = None
@@ -163,16 +164,22 @@ class RayExecutor:
     def cancel(self, job_id: str) -> None:
         for slot in self._slots:
             if slot.job_id == job_id and slot.kill_at is None:
-                slot.actor.cancel.remote()
+                slot.actor.cancel.remote(job_id)
                 slot.kill_at = time.monotonic() + self.settings.cancel_grace_s
 
     def poll(self, timeout: float) -> list[ExecEvent]:
         events: list[ExecEvent] = []
         self._check_ready()
         runs = [s.run_ref for s in self._slots if s.run_ref is not None]
+        # Wake for the first finished job, or at the first kill deadline, whichever comes first.
+        deadlines = [s.kill_at for s in self._slots if s.kill_at is not None]
+        if deadlines:
+            timeout = max(0.0, min(timeout, min(deadlines) - time.monotonic()))
         done: list[Any] = []
         if runs:
-            done, _ = self.ray.wait(runs, num_returns=len(runs), timeout=timeout)
+            done, _ = self.ray.wait(runs, num_returns=1, timeout=timeout)
+            if done:  # collect every other job that has finished too
+                done, _ = self.ray.wait(runs, num_returns=len(runs), timeout=0)
         else:
             time.sleep(timeout)
         for slot in self._slots:
@@ -184,22 +191,16 @@ class RayExecutor:
                 try:
                     tag, value = self.ray.get(slot.run_ref)
                 except Exception as exc:  # noqa: BLE001 - actor died (crash, OOM, node loss)
-                    events.append(ExecEvent(job_id, "error", error={
-                        "code": "WORKER_CRASHED", "message": f"Ray worker died while running the job: {type(exc).__name__}: {exc}"}))
-                    self._spawn(slot)
+                    events.append(crashed_event(job_id, f"Ray worker (actor pid {slot.pid}) died while running the "
+                                                        f"job: {type(exc).__name__}: {_first_line(exc)}"))
+                    self._replace(slot)
                     continue
                 slot.job_id, slot.run_ref, slot.kill_at = None, None, None
-                if tag == "done":
-                    events.append(ExecEvent(job_id, "done", result=value))
-                elif tag == "canceled":
-                    events.append(ExecEvent(job_id, "canceled", message="stopped after a cancel"))
-                else:
-                    events.append(ExecEvent(job_id, "error", error=value))
+                events.append(outcome_event(job_id, tag, value))
                 continue
             if slot.kill_at is not None and time.monotonic() >= slot.kill_at:
-                self.ray.kill(slot.actor, no_restart=True)
+                self._replace(slot)
                 events.append(ExecEvent(job_id, "canceled", message="Ray worker killed: it did not stop within the grace period"))
-                self._spawn(slot)
                 continue
             self._collect_progress(slot, events)
         return events
@@ -214,7 +215,7 @@ class RayExecutor:
             return
         try:
             latest = self.ray.get(slot.progress_ref)
-        except Exception:  # noqa: BLE001
+        except Exception:  # noqa: BLE001 - the actor died; its run reference reports why
             latest = None
         slot.progress_ref = None if final else slot.actor.progress.remote()
         if latest is not None and latest[2] > slot.last_seq and slot.job_id is not None:
@@ -225,5 +226,5 @@ class RayExecutor:
         for slot in self._slots:
             try:
                 self.ray.kill(slot.actor, no_restart=True)
-            except Exception:  # noqa: BLE001
+            except Exception:  # noqa: BLE001 - closing: an actor already gone is fine
                 pass

@@ -131,6 +131,24 @@ class JobStore:
             ).all()
         return {(k, s): int(n) for k, s, n in rows}
 
+    def planning_stats(self, bounds: Sequence[float]) -> list[dict[str, Any]]:
+        """Finished planning by kind and outcome: count, summed time and cumulative counts at ``bounds`` (s).
+
+        Every runner (in ``regrasp serve`` or a separate ``regrasp worker``) writes its jobs' planning
+        time and outcome to the store, so any API replica's /metrics reports all of them.
+        """
+        known = jobs.c.planning_s.is_not(None)
+        cols = [jobs.c.kind, jobs.c.planning_outcome, sa.func.count(),
+                sa.func.coalesce(sa.func.sum(jobs.c.planning_s), 0.0)]
+        cols += [sa.func.sum(sa.case((sa.and_(known, jobs.c.planning_s <= b), 1), else_=0)) for b in bounds]
+        cols.append(sa.func.sum(sa.case((known, 1), else_=0)))
+        query = (sa.select(*cols).where(jobs.c.planning_outcome.is_not(None))
+                 .group_by(jobs.c.kind, jobs.c.planning_outcome))
+        with self.engine.connect() as conn:
+            rows = conn.execute(query).all()
+        return [{"kind": r[0], "outcome": r[1], "count": int(r[2]), "sum": float(r[3]),
+                 "buckets": [int(v or 0) for v in r[4:4 + len(bounds)]], "timed": int(r[-1] or 0)} for r in rows]
+
     def queue_depth(self) -> int:
         with self.engine.connect() as conn:
             return int(conn.execute(_QUEUE_DEPTH).scalar_one())
@@ -319,7 +337,7 @@ class JobStore:
         with self.engine.connect() as conn:
             rows = conn.execute(
                 sa.select(jobs.c.id, jobs.c.state, jobs.c.owner, jobs.c.lease_expires_at, jobs.c.attempts,
-                          jobs.c.cancel_requested)
+                          jobs.c.cancel_requested, jobs.c.started_at)
                 .where(jobs.c.state.in_(["planning", "dispatching", "executing"]))
             ).mappings().all()
         actions: list[tuple[str, str]] = []
@@ -340,6 +358,9 @@ class JobStore:
                     to, msg = "failed", (f"interrupted {r['attempts']} times: its runner stopped while planning "
                                          f"(last runner {owner or '?'})")
                     extra = {"error": {"code": "INTERRUPTED", "message": msg}}
+                if to != "queued":  # planning ended here, not in a runner: record it for the metrics
+                    extra["planning_outcome"] = to
+                    extra["planning_s"] = (now - r["started_at"]).total_seconds() if r["started_at"] else None
             else:
                 to, msg = "aborted", f"execution interrupted: the process that drove it ({owner or '?'}) stopped"
                 extra = {"error": {"code": "INTERRUPTED", "message": msg}}

@@ -1,7 +1,7 @@
 """Table definitions of the job store (portable: SQLite and PostgreSQL).
 
 ``jobs`` holds one row per job (state, progress, approval, provenance, lease of
-the runner that claims it); ``job_results`` the result documents, kept apart so
+the runner that claims it, planning time and outcome); ``job_results`` the result documents, kept apart so
 the rows scanned by claims and listings stay small; ``job_events`` the ordered
 history that feeds the SSE stream and the audit file.
 """
@@ -73,6 +73,9 @@ jobs = sa.Table(
     sa.Column("updated_at", UTCDateTime, nullable=False),
     sa.Column("started_at", UTCDateTime),
     sa.Column("finished_at", UTCDateTime),
+    # Written when planning ends (by the runner, or by recovery): the source of the duration/outcome metrics.
+    sa.Column("planning_s", sa.Float),
+    sa.Column("planning_outcome", sa.String(16)),
     sa.UniqueConstraint("submitter", "idempotency_key", name="uq_jobs_submitter_idempotency_key"),
 )
 

@@ -88,7 +88,7 @@ class Server:
     """A `regrasp serve` subprocess; ``kill()`` is a real SIGKILL of the server process only."""
 
     def __init__(self, data_dir: Path, workers: int = 2, port: int | None = None, extra_args: list[str] | None = None,
-                 bridge_port: int | None = None, **settings: Any) -> None:
+                 bridge_port: int | None = None, startup_timeout_s: float = STARTUP_TIMEOUT_S, **settings: Any) -> None:
         self.data_dir = data_dir
         self.port = port or free_port()
         self.url = f"http://127.0.0.1:{self.port}"
@@ -98,13 +98,14 @@ class Server:
         self.env = service_env(bridge_port, **settings)
         self.log_path = data_dir / f"server-{self.port}.log"
         self.proc: subprocess.Popen[bytes] | None = None
+        self.startup_timeout_s = startup_timeout_s
 
     def start(self) -> "Server":
         self.data_dir.mkdir(parents=True, exist_ok=True)
         self._log = open(self.log_path, "ab")
         self.proc = subprocess.Popen(self.args, cwd=ROOT, env=self.env, stdout=self._log, stderr=subprocess.STDOUT,
                                      start_new_session=True)
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        deadline = time.monotonic() + self.startup_timeout_s
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"server exited with {self.proc.returncode}: {self.log_path.read_text()[-3000:]}")

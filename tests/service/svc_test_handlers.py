@@ -3,7 +3,8 @@
 The scenario name selects the behaviour (the service's name check is off in
 these tests): ``busy-S`` computes hashes for S seconds, reporting progress and
 polling ``ctx.cancelled()`` every few milliseconds; ``hang-S`` computes without
-ever polling (only a kill stops it); ``crash`` kills its own process; ``error``
+ever polling (only a kill stops it); ``crash`` kills its own process (SIGKILL), ``exit-N`` ends it with
+``os._exit(N)``; ``robot`` reports the worker's pid and robot loads; ``error``
 raises; ``infeasible`` returns an infeasible plan; ``quick`` returns at once.
 """
 
@@ -52,6 +53,12 @@ def run(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
         ctx.progress(0.1, "about to crash")
         time.sleep(0.2)
         os.kill(os.getpid(), signal.SIGKILL)
+    if mode == "exit":
+        ctx.progress(0.1, "about to exit")
+        time.sleep(0.2)
+        os._exit(int(arg or 7))
+    if mode == "robot":
+        return _plan_doc(request, **robot_loads())
     if mode == "stand":
         return stand(request, ctx, float(arg or STAND_DURATION_S))
     if mode == "standbad":
@@ -63,6 +70,20 @@ def run(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
                 "failure": {"code": "COM_MARGIN", "message": "no plan keeps the margin", "counts": {}}}
     ctx.progress(1.0, "quick")
     return _plan_doc(request)
+
+
+def robot_loads() -> dict[str, Any]:
+    """This worker process's pid and how often it has really loaded a robot model.
+
+    ``load_robot`` is cached per process: a miss is a real load (URDF parse, model
+    build). A worker that preloaded its robot and then runs this handler shows one
+    miss and at least one hit (the call below) however many jobs it has run.
+    """
+    from planner.robot_model import load_robot
+
+    load_robot("hrp5p")
+    info = load_robot.cache_info()
+    return {"pid": os.getpid(), "robot_loads": info.misses, "robot_cache_hits": info.hits}
 
 
 HANDLERS = {"plan": "svc_test_handlers:run", "survey": "svc_test_handlers:run"}
