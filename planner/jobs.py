@@ -27,6 +27,7 @@ from .regrasp_graph import Canceled as GraphCanceled
 from .regrasp_planner import HANDS_OF, HandConfigPlanner, PlannerResult, PlannerSettings, Task
 from .scenarios import ScenarioError, load_scenario, with_overrides
 from .stances import StanceError
+from .survey import SurveyCanceled, quick_survey, run_survey_request
 
 ProgressFn = Callable[[float, str], None]
 StopFn = Callable[[], bool]
@@ -113,6 +114,9 @@ def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]
     """The failure code: an end (start or goal) no node could hold says so; else the search's own code."""
     if res.failure_code == "TIMEOUT":
         return "TIMEOUT", res.message
+    for end in ("start", "goal"):
+        if end in planner.end_problems:
+            return f"{end.upper()}_INVALID", planner.end_problems[end]
     for end, failures, ok, hand in (("start", planner.start_failures, planner.start_ok, planner.start_hand),
                                     ("goal", planner.goal_failures, planner.goal_ok, planner.goal_hand)):
         if failures and not ok:
@@ -158,14 +162,37 @@ def plan_scenario(
                            stats={"time_s": time.perf_counter() - t_start})
     hands_choice = scenario.hands
     survey_doc = None
+    # The time limit covers everything after the request is read: the survey of `auto`, screening
+    # the start and goal, the searches and their motions all stop once it has passed.
+    deadline = t_start + scenario.limits.time_s
+
+    def late() -> bool:
+        return time.perf_counter() > deadline
+
+    def stop_or_late() -> bool:
+        return should_stop() or late()
+
+    def timed_out(results: list) -> dict[str, Any]:
+        counts: dict[str, int] = {}
+        for r, _ in results:
+            for c, n in r.failures.items():
+                counts[c] = counts.get(c, 0) + n
+        return _infeasible(task, scenario, "TIMEOUT", f"no valid plan within the time limit of {scenario.limits.time_s:g} s",
+                           counts, stats={"time_s": time.perf_counter() - t_start})
+
     if hands_choice == "auto":
         progress(0.05, "surveying hand configurations (auto)")
-        order, survey_doc = _auto_order(task, should_stop)
+        try:
+            order, survey_doc = _auto_order(task, stop_or_late)
+        except SurveyCanceled:
+            if should_stop():
+                raise Canceled() from None
+            return timed_out([])
     else:
         order = [hands_choice]
     results: list[tuple[PlannerResult, HandConfigPlanner]] = []
     solved: list[tuple[PlannerResult, HandConfigPlanner]] = []
-    deadline = t_start + scenario.limits.time_s
+    ran_out = False
     for k, hands in enumerate(order):
         rng = np.random.default_rng([scenario.seed, HAND_CONFIGS.index(hands)])
         planner = HandConfigPlanner(task, hands, rng)
@@ -176,12 +203,18 @@ def plan_scenario(
             progress(base + span * min(i / scenario.limits.max_iterations, 1.0) * 0.5,
                      f"{hands}: search iteration {i}, failures {failures}")
 
+        if late():
+            ran_out = True
+            break
         try:
             res = planner.plan(max_iterations=scenario.limits.max_iterations,
                                time_limit_s=max(deadline - time.perf_counter(), 0.01),
-                               should_stop=should_stop, on_iteration=on_iter, solutions=options.solutions)
+                               should_stop=stop_or_late, on_iteration=on_iter, solutions=options.solutions)
         except GraphCanceled:
-            raise Canceled() from None
+            if should_stop():
+                raise Canceled() from None
+            ran_out = True  # the deadline passed inside screening or a motion
+            break
         if res.status == "solved":
             progress(base + span * 0.9, f"{hands}: assembling the trajectory")
         results.append((res, planner))
@@ -201,6 +234,8 @@ def plan_scenario(
     if survey_doc is not None:
         stats["survey"] = {row["hands"]: row.get("ratio") for row in survey_doc["rows"]}
     if not solved:
+        if ran_out or not results:
+            return timed_out(results)
         res, planner = results[-1]
         code, message = _code_for(res, planner)
         counts: dict[str, int] = {}
@@ -252,10 +287,6 @@ def plan_scenario(
 
 def _auto_order(task: Task, should_stop: StopFn) -> tuple[list[str], dict | None]:
     """Hand configurations ordered by the survey's ratio R (highest first)."""
-    try:
-        from .survey import quick_survey
-    except ImportError:
-        return list(HAND_CONFIGS), None
     doc = quick_survey(task, should_stop=should_stop)
     rows = [r for r in doc["rows"] if r.get("ratio") is not None]
     rows.sort(key=lambda r: (-r["ratio"], -r["stable"], HAND_CONFIGS.index(r["hands"])))
@@ -281,6 +312,4 @@ def plan_job(request: dict[str, Any], ctx) -> dict[str, Any]:
 
 
 def survey_job(request: dict[str, Any], ctx) -> dict[str, Any]:
-    from .survey import run_survey_request
-
     return run_survey_request(request, ctx)

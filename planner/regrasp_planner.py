@@ -35,7 +35,7 @@ from .collision import CollisionWorld
 from .collision import environment_boxes, hand_geometry
 from .grasps import Grasp, GraspSet, GraspSettings, plan_grasps
 from .handover import HandoverPose, HandoverSettings, handover_poses
-from .placements import instantiate_placements
+from .placements import PlacementError, instantiate_placements
 from .ik import IkSettings, IkSolver, key_pose_targets
 from .objects import ObjectModel, build_object
 from .plan_builder import MotionPiece
@@ -211,6 +211,11 @@ class Task:
         start, goal = pose7_to_matrix(sc.start_pose), pose7_to_matrix(sc.goal_pose)
         # Spots are checked against obstacles only when chosen (few are used; checking all is slow).
         all_placements = instantiate_placements(self.obj, environment_boxes(sc)[: len(sc.tables)], start, goal)
+        for what, T in (("start", start), ("goal", goal)):  # resting on a table, but perhaps inside an obstacle
+            hit = self.world.object_pose_clear(T)
+            if hit is not None:
+                other = next((b for b in (hit.body_a, hit.body_b) if b.startswith("env:")), hit.body_b)
+                raise PlacementError(f"the object at its {what} pose collides with {other.removeprefix('env:')!r}")
         spots = [p for p in all_placements if p.kind == "spot"]
         # Prefer spots where holding the object can be stable (the quick margin estimate reaches the
         # planning threshold: measured in the crouched scenario, only 80 of 992 spots do, and none
@@ -388,6 +393,8 @@ class HandConfigPlanner:
         self.goal_failures: Counter = Counter()
         self.start_ok = False
         self.goal_ok = False
+        #: "start"/"goal" -> why no node there survived the cheap filters (set by graph_spec)
+        self.end_problems: dict[str, str] = {}
         self.screen_failures: Counter = Counter()
         self._edges: dict = {}
         self.stage_s: dict[str, float] = {}
@@ -406,6 +413,19 @@ class HandConfigPlanner:
         # The palm faces away from the shoulder: an approach pointing back at the robot needs a contorted wrist.
         return float(approach @ d) > -0.3 * dist
 
+    def _unreachable_reason(self, end: str, T_obj: np.ndarray, side: Side) -> str:
+        """Why no grasp of the object at an end pose passed the cheap filters, in words."""
+        t = self.task
+        grasps = t.grasps[side]
+        if not grasps:
+            return f"the {side} hand has no grasp of the object"
+        dist = min(float(np.linalg.norm((T_obj @ g.T_obj_tcp)[:3, 3] - t.shoulder[side])) for g in grasps)
+        if dist > t.reach[side]:
+            return (f"the {end} pose is out of reach of the {side} hand: its nearest grasp is {dist:.2f} m from "
+                    f"the shoulder, the arm and waist reach {t.reach[side]:.2f} m")
+        return (f"the {end} pose cannot be grasped by the {side} hand: every grasp there approaches from below "
+                f"or points back at the robot")
+
     def graph_spec(self) -> GraphSpec:
         t = self.task
         sides: set[Side] = {self.start_hand, self.goal_hand}
@@ -415,6 +435,9 @@ class HandConfigPlanner:
                 for g, grasp in enumerate(t.grasps[side]):
                     if self._cheap_ok(side, T, grasp):
                         nodes.append(PlacementNode(p, g, side))
+        for end, pid, hand in (("start", t.start_id, self.start_hand), ("goal", t.goal_id, self.goal_hand)):
+            if not any(n.placement == pid and n.hand == hand for n in nodes):
+                self.end_problems[end] = self._unreachable_reason(end, t.placements[pid], hand)
         handovers: list[HandoverNode] = []
         if self.start_hand != self.goal_hand:
             giver = self.start_hand
@@ -766,7 +789,11 @@ class HandConfigPlanner:
         """The best plan of this hand configuration, and up to ``solutions - 1`` next-best ones."""
         t0 = time.perf_counter()
         self._should_stop = should_stop  # type: ignore[assignment]
-        spec = self.screen(self.graph_spec(), should_stop)
+        spec = self.graph_spec()
+        if self.end_problems:  # an end no hand pose can reach: no search can succeed
+            return PlannerResult("infeasible", self.hands, failure_code="NO_PATH", message="; ".join(self.end_problems.values()),
+                                 failures={"ik": len(self.end_problems)}, stats={"time_s": time.perf_counter() - t0})
+        spec = self.screen(spec, should_stop)
         weights = self.task.settings.weights
         if not self.task.constrained:  # the unconstrained planner: no margin cost either
             weights = dataclasses.replace(weights, margin=0.0)

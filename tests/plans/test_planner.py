@@ -23,8 +23,16 @@ def small_box():
 
 
 @pytest.fixture(scope="module")
-def small_plan(small_box):
-    return plan_scenario(small_box, PlanOptions())
+def small_task(small_box):
+    """One task shared by the plans below: node validations are reused across them (order-independent)."""
+    from planner.jobs import build_task
+
+    return build_task(small_box)
+
+
+@pytest.fixture(scope="module")
+def small_plan(small_box, small_task):
+    return plan_scenario(small_box, PlanOptions(), task=small_task)
 
 
 def test_solved_plan_passes_the_independent_checker(small_plan):
@@ -102,3 +110,93 @@ def test_plan_is_either_valid_or_infeasible_with_a_reason(small_box, mass, com_y
         assert check_plan(doc).errors == []
     else:
         assert doc["failure"]["code"] and doc["failure"]["message"]
+
+
+def _holding_runs(plan: dict) -> list[str]:
+    """The holding values along the trajectory with repeats collapsed, e.g. none, right, none."""
+    runs: list[str] = []
+    for p in plan["trajectory"]:
+        if not runs or runs[-1] != p["holding"]:
+            runs.append(p["holding"])
+    return runs
+
+
+def test_single_arm_regrasp_plan_is_reverified():
+    """Turning the box upside down takes a place and a second pick by the same hand."""
+    from service.cli.plan import summary_table
+
+    plan = plan_scenario(load_scenario(DATA / "flip-box.yaml"), PlanOptions())
+    assert plan["status"] == "solved", plan["failure"]
+    assert check_plan(plan).errors == []
+    assert _holding_runs(plan) == ["none", "right", "none", "right", "none"]
+    # Where the hand let go in between, the object rests at neither the start nor the goal.
+    traj = plan["trajectory"]
+    middle = next(i for i in range(1, len(traj)) if traj[i - 1]["holding"] == "right" and traj[i]["holding"] == "none")
+    rest = np.array(traj[middle]["object_pose"][:3])
+    for end in ("start_pose", "goal_pose"):
+        assert np.linalg.norm(rest - np.array(plan["object"][end][:3])) > 0.01
+    table = summary_table([("plan", plan)])
+    cells = dict(zip(table.columns[0]._cells, table.columns[1]._cells))
+    assert (cells["regrasps"], cells["handovers"]) == ("1", "0")
+
+
+def test_handover_plan_is_reverified(small_box, small_task):
+    """Right hand picks, both hold at the handover pose, the left hand places."""
+    plan = plan_scenario(small_box, PlanOptions(hands="right-left"), task=small_task)
+    assert plan["status"] == "solved", plan["failure"]
+    assert check_plan(plan).errors == []
+    assert _holding_runs(plan) == ["none", "right", "both", "left", "none"]
+    assert "handover" in {s["kind"] for s in plan["segments"]}
+    assert {s["hand"] for s in plan["segments"] if s["kind"] == "handover"} <= {"both", "left", "right"}
+
+
+def test_k_best_solutions_list_the_others_as_alternatives(small_box, small_task, small_plan):
+    plan = plan_scenario(small_box, PlanOptions(solutions=3), task=small_task)
+    assert plan["status"] == "solved"
+    # The best plan is the one a single-solution run returns; the others are worse or equal.
+    assert [p["q"] for p in plan["trajectory"]] == [p["q"] for p in small_plan["trajectory"]]
+    alts = plan["alternatives"]
+    assert len(alts) == 2
+    costs = [a["cost"] for a in alts]
+    assert costs == sorted(costs) and costs[0] >= plan["stats"]["cost"]
+    for a in alts:
+        assert a["hands"] == "right-right"
+        assert a["min_margin_m"] >= plan["threshold_m"] - 1e-4
+
+
+def test_start_inside_an_obstacle_names_the_obstacle(small_box):
+    from planner.scenarios import parse_scenario
+
+    data = small_box.model_dump(by_alias=True)
+    data["obstacles"] = [{"name": "crate", "pose": [0.42, -0.22, 0.82, 0, 0, 0, 1], "size": [0.1, 0.1, 0.1]}]
+    doc = plan_scenario(parse_scenario(data), PlanOptions())
+    assert doc["status"] == "infeasible" and doc["failure"]["code"] == "START_INVALID"
+    assert "'crate'" in doc["failure"]["message"] and "start pose" in doc["failure"]["message"]
+
+
+@pytest.mark.parametrize("end", ["start", "goal"])
+def test_end_out_of_reach_is_named(small_box, end):
+    from planner.scenarios import parse_scenario
+
+    data = small_box.model_dump(by_alias=True)
+    data["tables"] = [{"name": "table", "pose": [0.8, 0, 0.375, 0, 0, 0, 1], "size": [1.0, 1.2, 0.75]}]
+    data[f"{end}_pose"][0] = 1.15  # on the table, 1.15 m in front of the robot
+    doc = plan_scenario(parse_scenario(data), PlanOptions())
+    assert doc["status"] == "infeasible" and doc["failure"]["code"] == f"{end.upper()}_INVALID"
+    assert f"the {end} pose is out of reach of the right hand" in doc["failure"]["message"]
+
+
+def test_time_limit_bounds_the_whole_run_including_the_auto_survey(small_box):
+    """A limit too short for the survey of `auto` ends TIMEOUT soon after the limit, not after the survey."""
+    from planner.jobs import build_task
+
+    scenario = with_overrides(small_box, hands="auto", time_limit_s=0.5)
+    task = build_task(scenario)  # setup outside the measured call: a cold grasp cache is not the point here
+    import time
+
+    t0 = time.perf_counter()
+    doc = plan_scenario(scenario, PlanOptions(), task=task)
+    elapsed = time.perf_counter() - t0
+    assert doc["status"] == "infeasible" and doc["failure"]["code"] == "TIMEOUT", doc["failure"]
+    assert "0.5 s" in doc["failure"]["message"]
+    assert elapsed < 0.5 + 1.0  # one node or survey step past the limit at most
