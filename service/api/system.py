@@ -1,20 +1,23 @@
-"""``/healthz``, ``/metrics`` and the operator console (``/`` and ``/console/``)."""
+"""``/healthz``, ``/metrics``, ``/v1/me`` and the operator console (``/`` and ``/console/``)."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 from fastapi import APIRouter, Depends
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, HTMLResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
+from schemas.common import StrictModel
 from schemas.jobs import Health
 
+from ..auth import Principal
 from ..context import Service
 from ..problems import ProblemError
 from ..provenance import code_version
-from .deps import problems, service
+from .deps import principal, problems, service
 
 router = APIRouter(tags=["system"])
 CONSOLE_DIR = Path(__file__).resolve().parent.parent / "console"
@@ -35,6 +38,20 @@ def healthz(svc: Service = Depends(service)) -> Health:
     return Health(status="ok" if runner_ok else "degraded", database=svc.store.engine.dialect.name,
                   executor=svc.executor.name if svc.executor is not None else "none", workers=workers,
                   queue_depth=depth, controller_alive=svc.bridge.controller_alive(), version=code_version())
+
+
+class Identity(StrictModel):
+    """Who a bearer token is. ``admin`` holds every role; the two-person rule and "submitter or admin" still
+    depend on the job, so the console decides its buttons from this and the job together."""
+
+    user: str
+    roles: list[Literal["planner", "approver", "operator", "admin"]]
+
+
+@router.get("/v1/me", response_model=Identity, summary="The caller's user and roles (for the console's buttons)",
+            responses=problems(401))
+def me(p: Principal = Depends(principal)) -> Identity:
+    return Identity(user=p.user, roles=sorted(p.roles))
 
 
 @router.get("/metrics", summary="Prometheus metrics", response_class=Response,

@@ -5,6 +5,11 @@
  * Live progress: the job's Server-Sent Events stream (GET /v1/jobs/{id}/events) is read with
  * fetch() so that the bearer token goes in the Authorization header (EventSource cannot send
  * headers); if streaming is not possible the page polls GET /v1/jobs/{id} every 500 ms.
+ *
+ * Buttons follow the job's state and the token's roles (GET /v1/me): an action the token's
+ * roles do not allow is not shown, and one a rule of the job forbids (two-person rule, "submitter
+ * or admin") is shown disabled with the reason as its title. Against a service without /v1/me
+ * the buttons follow the job's state only and a refused action shows the API's 403 detail.
  */
 "use strict";
 
@@ -16,6 +21,9 @@
   const TERMINAL = new Set(["succeeded", "failed", "canceled", "rejected", "aborted"]);
   const CANCELABLE = new Set(["queued", "planning", "planned", "approved"]);
   const EXECUTING = new Set(["dispatching", "executing"]);
+  /* The role each action needs (CONTRACT section 5); cancel needs the job's submitter or an admin. */
+  const ROLE_OF = { approve: "approver", reject: "approver", dispatch: "operator", stop: "operator" };
+  const HIDE = "hide";
   const SVG_NS = "http://www.w3.org/2000/svg";
 
   const state = {
@@ -26,6 +34,11 @@
     pollTimer: null,
     liveMode: "-",
     renderedResultFor: null,  // job id + plan hash whose charts are drawn
+    // The token's identity from GET /v1/me: undefined while unknown or refused (role-bound actions
+    // hidden), null when the service has no /v1/me (buttons by job state only), else {user, roles}.
+    me: undefined,
+    busy: false,         // an action's request is in flight: every action button is disabled
+    identityPending: false,
   };
 
   const $ = (id) => document.getElementById(id);
@@ -117,10 +130,62 @@
     if (state.token) sessionStorage.setItem(TOKEN_KEY, state.token); else sessionStorage.removeItem(TOKEN_KEY);
     $("token").value = "";
     $("token").placeholder = state.token ? "token set (" + state.token.slice(0, 6) + "...)" : "paste your token";
-    $("whoami").textContent = "";
     showProblem(null);
+    loadIdentity();
     refreshJobs();
     if (state.selected) selectJob(state.selected);
+  }
+
+  // -------------------------------------------------------------- identity
+  async function loadIdentity() {
+    const token = state.token;
+    state.me = undefined;
+    $("whoami").textContent = "";
+    updateRoleViews();
+    if (!token) return;
+    let me;
+    state.identityPending = true;
+    try {
+      me = await api("GET", "/v1/me");
+    } catch (err) {
+      // No /v1/me on this service: fall back to buttons by job state (a 403 then explains a refusal).
+      if (state.token === token) { state.me = err.status === 404 ? null : undefined; updateRoleViews(); }
+      return;
+    } finally {
+      if (state.token === token) state.identityPending = false;
+    }
+    if (state.token !== token) return;  // the token changed while asking
+    state.me = { user: String(me.user), roles: Array.isArray(me.roles) ? me.roles.map(String) : [] };
+    $("whoami").textContent = "signed in as " + state.me.user + " (" + (state.me.roles.join(", ") || "read only") + ")";
+    $("whoami").dataset.roles = state.me.roles.join(",");
+    updateRoleViews();
+  }
+
+  function hasRole(role) {
+    return !!state.me && (state.me.roles.includes(role) || state.me.roles.includes("admin"));
+  }
+
+  function updateRoleViews() {
+    // Submitting needs the planner role; the form stays hidden while the roles are unknown.
+    $("submit-box").hidden = !(state.me === null || hasRole("planner"));
+    if (state.job) updateButtons(state.job);
+  }
+
+  /* Why the token may not do `action` on `job`: null if it may (or the page cannot tell),
+     HIDE if its roles never allow it, else the reason (the button is shown disabled). */
+  function refusal(action, job) {
+    const me = state.me;
+    if (me === null) return null;
+    if (me === undefined) return HIDE;
+    const role = ROLE_OF[action];
+    if (role && !hasRole(role)) return HIDE;
+    if ((action === "approve" || action === "reject") && job.submitter === me.user) {
+      return "two-person rule: you submitted this job; another approver must review it";
+    }
+    if (action === "cancel" && job.submitter !== me.user && !hasRole("admin")) {
+      return "only the submitter (" + job.submitter + ") or an admin can cancel this job";
+    }
+    return null;
   }
 
   // ---------------------------------------------------------------- health
@@ -224,8 +289,7 @@
     }
   }
 
-  /* The API has no "who am I" endpoint: buttons follow the job's state only, and a role the
-     token lacks comes back as a 403 problem whose detail is shown. */
+  /* Buttons follow the job's state and what the token may do (see refusal()). */
   function updateButtons(job) {
     const s = job.state;
     const show = {
@@ -235,7 +299,14 @@
       stop: EXECUTING.has(s),
       cancel: CANCELABLE.has(s),
     };
-    for (const [action, visible] of Object.entries(show)) $("btn-" + action).hidden = !visible;
+    for (const [action, fits] of Object.entries(show)) {
+      const button = $("btn-" + action);
+      const why = fits ? refusal(action, job) : HIDE;
+      button.hidden = why === HIDE;
+      button.disabled = state.busy || (why !== null && why !== HIDE);
+      if (why !== null && why !== HIDE) { button.title = why; button.dataset.refused = why; }
+      else { button.removeAttribute("title"); delete button.dataset.refused; }
+    }
   }
 
   async function act(action) {
@@ -245,6 +316,7 @@
     let body;
     if (action === "approve") body = job.plan_sha256 ? { plan_sha256: job.plan_sha256 } : {};
     if (action === "reject" || action === "stop" || action === "cancel") body = { reason: "operator console" };
+    state.busy = true;
     for (const b of $("actions").querySelectorAll("button")) b.disabled = true;
     try {
       const updated = await api("POST", "/v1/jobs/" + encodeURIComponent(job.id) + "/" + action, body);
@@ -254,7 +326,9 @@
     } catch (err) {
       showProblem(err);
     } finally {
-      for (const b of $("actions").querySelectorAll("button")) b.disabled = false;
+      state.busy = false;
+      $("btn-audit").disabled = false;
+      if (state.job) updateButtons(state.job);
     }
   }
 
@@ -641,12 +715,17 @@
     }
     if (state.token) $("token").placeholder = "token set (" + state.token.slice(0, 6) + "...)";
     refreshHealth();
+    loadIdentity();
     refreshJobs();
     setInterval(refreshHealth, 5000);
-    setInterval(() => { if (state.token && document.visibilityState !== "hidden") refreshJobs(); }, LIST_REFRESH_MS);
+    setInterval(() => {
+      if (!state.token || document.visibilityState === "hidden") return;
+      refreshJobs();
+      if (state.me === undefined && !state.identityPending) loadIdentity();  // a refused or failed look-up is retried
+    }, LIST_REFRESH_MS);
   }
 
   // exposed for tests and the browser console
-  window.regraspConsole = { shrinkConvex, parseSse, state };
+  window.regraspConsole = { shrinkConvex, parseSse, refusal, state };
   if (document.readyState === "loading") document.addEventListener("DOMContentLoaded", init); else init();
 })();

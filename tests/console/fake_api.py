@@ -3,9 +3,12 @@
 It follows the contract's routes, roles, states and problem+json errors closely
 enough to drive the page before (and independently of) the real service:
 tokens ``planner-token-alice`` (planner), ``approver-token-bob`` (approver),
-``operator-token-carol`` (operator); one planned plan job submitted by alice and
-one finished survey job. Dispatch plays a short execution (executing -> succeeded)
-with progress events on the SSE stream.
+``operator-token-carol`` (operator), ``viewer-token-dan`` (no role: reads only),
+``admin-token-erin`` (admin: every role); ``GET /v1/me`` tells a token's user and
+roles (``me_enabled = False`` answers 404, as a service without it would). One
+planned plan job submitted by alice and one finished survey job. Dispatch plays a
+short execution (executing -> succeeded) with progress events on the SSE stream;
+a stop ends it at once.
 """
 
 from __future__ import annotations
@@ -29,6 +32,9 @@ TOKENS = {
     "planner-token-alice": ("alice", {"planner"}),
     "approver-token-bob": ("bob", {"approver"}),
     "operator-token-carol": ("carol", {"operator"}),
+    "viewer-token-dan": ("dan", set()),
+    "admin-token-erin": ("erin", {"admin"}),
+    "planner-approver-token-frank": ("frank", {"planner", "approver"}),
 }
 TERMINAL = {"succeeded", "failed", "canceled", "rejected", "aborted"}
 EXECUTION_STEPS = 8
@@ -102,8 +108,13 @@ class FakeJobs:
         self.events: list[dict[str, Any]] = []
         #: False makes the events route answer 404, as a server without SSE would.
         self.sse_enabled = True
-        plan = self._new("plan", "alice", state="planned", result=synthetic_plan())
-        plan["plan_sha256"] = "a" * 64
+        #: False makes GET /v1/me answer 404 (the console then shows buttons by job state only).
+        self.me_enabled = True
+        #: Length of one of the EXECUTION_STEPS of a dispatched job, s (a test of stop makes it longer).
+        self.execution_step_s = EXECUTION_STEP_S
+        #: Running executions: job id -> (thread, stop event); a stop wakes the thread at once.
+        self.executions: dict[str, tuple[threading.Thread, threading.Event]] = {}
+        plan = self.add("plan", "alice", state="planned")
         self._new("survey", "alice", state="succeeded", result=synthetic_survey(), progress=1.0)
         self.plan_id = plan["id"]
 
@@ -116,6 +127,25 @@ class FakeJobs:
         self.jobs[job["id"]] = job
         self._event(job, "state")
         return job
+
+    def add(self, kind: str, submitter: str, *, state: str) -> dict:
+        """A job in ``state``; a plan from planned on has the synthetic plan (and stays there until acted on)."""
+        with self.lock:
+            planned = state not in ("queued", "planning")
+            job = self._new(kind, submitter, state=state,
+                            result=(synthetic_plan() if kind == "plan" else synthetic_survey()) if planned else None)
+            if kind == "plan" and planned:
+                job["plan_sha256"] = "a" * 64
+            return job
+
+    def approve(self, job_id: str, by: str = "bob") -> None:
+        """Approve a planned job as ``by`` would (the console's approve button has its own tests)."""
+        with self.lock:
+            job = self.jobs[job_id]
+            job["approval"] = {"approved_by": by, "approved_at": _now(),
+                               "expires_at": (datetime.now(timezone.utc) + timedelta(minutes=10)).isoformat(),
+                               "plan_sha256": job["plan_sha256"], "comment": None}
+            self.set_state(job, "approved", f"approved by {by}")
 
     def _event(self, job: dict, kind: str, message: str | None = None) -> None:
         self.events.append({"id": len(self.events) + 1, "job_id": job["id"], "at": _now(), "kind": kind,
@@ -134,6 +164,8 @@ class FakeJobs:
             time.sleep(EXECUTION_STEP_S)
             with self.lock:
                 job = self.jobs[job_id]
+                if job["state"] != "queued":  # canceled before a worker took it
+                    return
                 self.set_state(job, "planning", "a worker started planning")
             time.sleep(EXECUTION_STEP_S)
             with self.lock:
@@ -151,13 +183,20 @@ class FakeJobs:
 
     def execute(self, job_id: str) -> None:
         """Play a short execution in a thread: executing with progress, then succeeded."""
+        step_s = self.execution_step_s
+        stop = threading.Event()
+
         def run() -> None:
-            time.sleep(EXECUTION_STEP_S)
+            if stop.wait(step_s):
+                return
             with self.lock:
                 job = self.jobs[job_id]
+                if job["state"] != "dispatching":  # stopped before it started
+                    return
                 self.set_state(job, "executing", "segment 1 started")
             for step in range(1, EXECUTION_STEPS + 1):
-                time.sleep(EXECUTION_STEP_S)
+                if stop.wait(step_s):
+                    return
                 with self.lock:
                     job = self.jobs[job_id]
                     if job["state"] != "executing":
@@ -166,7 +205,9 @@ class FakeJobs:
                     self._event(job, "progress", f"executed {step}/{EXECUTION_STEPS}")
             with self.lock:
                 self.set_state(self.jobs[job_id], "succeeded", "execution finished")
-        threading.Thread(target=run, daemon=True).start()
+        thread = threading.Thread(target=run, daemon=True)
+        self.executions[job_id] = (thread, stop)
+        thread.start()
 
 
 def problem(status: int, detail: str) -> JSONResponse:
@@ -200,6 +241,15 @@ def create_app() -> FastAPI:
     def healthz() -> dict:
         return {"status": "ok", "controller_alive": True}
 
+    @app.get("/v1/me")
+    def me(request: Request) -> Any:
+        if not store.me_enabled:
+            return JSONResponse({"detail": "Not Found"}, status_code=404)
+        p = who(request)
+        if isinstance(p, JSONResponse):
+            return p
+        return {"user": p[0], "roles": sorted(p[1])}
+
     @app.get("/v1/jobs")
     def list_jobs(request: Request) -> Any:
         p = who(request)
@@ -214,7 +264,7 @@ def create_app() -> FastAPI:
         p = who(request)
         if isinstance(p, JSONResponse):
             return p
-        if "planner" not in p[1]:
+        if not ({"planner", "admin"} & p[1]):
             return problem(403, f"submitting a job needs the role 'planner'; user {p[0]!r} has {sorted(p[1])}")
         body = await request.json()
         with store.lock:
@@ -271,7 +321,7 @@ def create_app() -> FastAPI:
         p = who(request)
         if isinstance(p, JSONResponse):
             return p
-        if role is not None and role not in p[1]:
+        if role is not None and not ({role, "admin"} & p[1]):
             return problem(403, f"this action needs the role {role!r}; user {p[0]!r} has {sorted(p[1])}")
         job = store.jobs.get(job_id)
         if job is None:
@@ -324,6 +374,9 @@ def create_app() -> FastAPI:
             if isinstance(found, JSONResponse):
                 return found
             store.set_state(found[0], "aborted", f"stopped by {found[1][0]}")
+            execution = store.executions.get(job_id)
+            if execution is not None:
+                execution[1].set()
             return dict(found[0])
 
     @app.post("/v1/jobs/{job_id}/cancel")
@@ -333,7 +386,7 @@ def create_app() -> FastAPI:
             if isinstance(found, JSONResponse):
                 return found
             job, p = found
-            if job["submitter"] != p[0]:
+            if job["submitter"] != p[0] and "admin" not in p[1]:
                 return problem(403, f"only the submitter ({job['submitter']}) or an admin can cancel job {job_id}")
             store.set_state(job, "canceled", f"canceled by {p[0]}")
             return dict(job)

@@ -78,8 +78,10 @@ def test_survey_table_and_chart(page, fake_server):
     assert page.js_errors == []
 
 
-def test_wrong_role_shows_the_problem_detail(page, fake_server):
+def test_without_v1_me_buttons_follow_the_state_and_a_refusal_shows_its_403(page, fake_server):
+    """A service without GET /v1/me: the page cannot tell the roles, so the API's 403 explains."""
     url, store = fake_server
+    store.me_enabled = False
     _login(page, url, PLANNER)
     _open(page, store.plan_id)
     page.click("#btn-approve")
@@ -95,9 +97,8 @@ def test_approve_then_dispatch_and_the_state_changes_live(page, fake_server):
     page.click("#btn-approve")
     expect(page.locator("#job-state")).to_have_text("approved", timeout=TIMEOUT_MS)
     expect(page.locator("#job-approval")).to_contain_text("bob")
-    # the approver cannot dispatch: the 403 detail is shown
-    page.click("#btn-dispatch")
-    expect(page.locator("#problem")).to_contain_text("needs the role 'operator'")
+    # the approver (no operator role) is not offered dispatch
+    expect(page.locator("#btn-dispatch")).to_be_hidden()
     # the operator dispatches; execution progress arrives over SSE
     page.fill("#token", OPERATOR)
     page.click("#token-save")
@@ -129,11 +130,7 @@ def test_token_is_kept_in_session_storage_only(page, fake_server):
 def test_without_sse_the_page_polls_and_still_follows_the_job(page, fake_server):
     url, store = fake_server
     store.sse_enabled = False
-    with store.lock:
-        job = store.jobs[store.plan_id]
-        job["approval"] = {"approved_by": "bob", "approved_at": "2026-01-01T00:00:00+00:00",
-                           "expires_at": "2026-01-01T00:10:00+00:00", "plan_sha256": job["plan_sha256"]}
-        store.set_state(job, "approved", "approved by bob")
+    store.approve(store.plan_id)
     _login(page, url, OPERATOR)
     _open(page, store.plan_id)
     page.click("#btn-dispatch")
