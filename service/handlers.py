@@ -33,14 +33,9 @@ def resolve(target: str) -> Handler:
 
 def canceled_exception_types() -> tuple[type[BaseException], ...]:
     """The exception types that mean "the job was cancelled" (planner.entry.Canceled and ours)."""
-    types: list[type[BaseException]] = [JobCanceled]
-    try:
-        from planner.entry import Canceled
+    from planner.entry import Canceled
 
-        types.append(Canceled)
-    except ImportError:  # pragma: no cover - planner is part of the distribution
-        pass
-    return tuple(types)
+    return (JobCanceled, Canceled)
 
 
 class JobCanceled(Exception):

@@ -15,6 +15,7 @@ from fastapi import APIRouter, Body, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, StreamingResponse
 
+from planner.scenarios import builtin_names
 from schemas.jobs import (
     CANCELABLE_STATES, EXECUTION_STATES, TERMINAL_STATES, ApproveBody, Job, JobKind, JobList, JobState,
     JobSubmit, ReasonBody,
@@ -78,12 +79,7 @@ def _check_request(svc: Service, body: JobSubmit) -> tuple[str, int | None]:
         robot = scenario.robot
         seed = seed if seed is not None else scenario.seed
     elif svc.settings.check_scenario_names:
-        try:
-            from planner.scenarios import builtin_names
-
-            names = builtin_names()
-        except ImportError:
-            names = []
+        names = builtin_names()
         if req.scenario not in names:
             raise ProblemError(422, f"unknown scenario {req.scenario!r}; built-in scenarios: {', '.join(names) or 'none'}"
                                     " (or send an inline scenario document)")

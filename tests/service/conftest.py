@@ -158,6 +158,25 @@ def wait_state(client: httpx.Client, job_id: str, states: set[str], timeout: flo
     raise AssertionError(f"job {job_id} did not reach {states} in {timeout} s: {job.get('state')} {job.get('message')}")
 
 
+def job_events(client: httpx.Client, job_id: str) -> list[dict[str, Any]]:
+    """The job's stored event history (the SSE stream without following)."""
+    text = client.get(f"/v1/jobs/{job_id}/events", params={"follow": "false"}).text
+    return [json.loads(line[len("data: "):]) for line in text.splitlines() if line.startswith("data: ")]
+
+
+def cancel_latency_s(client: httpx.Client, job_id: str) -> float:
+    """Server time from the stored cancel request of a planning job to its stored ``canceled`` state, s.
+
+    Both timestamps are the server's, so the figure is the cancel's own latency, not the client's polling.
+    """
+    from datetime import datetime
+
+    events = job_events(client, job_id)
+    asked = next(e for e in events if e["kind"] == "note" and "cancel requested" in (e["message"] or ""))
+    ended = next(e for e in events if e["kind"] == "state" and e["state"] == "canceled")
+    return (datetime.fromisoformat(ended["at"]) - datetime.fromisoformat(asked["at"])).total_seconds()
+
+
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     srv = Server(tmp_path_factory.mktemp("svc"), workers=2, approval_ttl_s="3", timeout_margin_s="0.5",

@@ -12,11 +12,7 @@ from typing import Iterator
 
 import httpx
 import pytest
-from conftest import ROOT, Server, free_port, start_controller_sim, stop_process, wait_state
-
-pytest.importorskip("robot_bridge.dispatcher", reason="the robot bridge (robot_bridge.dispatcher) is not installed yet")
-if not (ROOT / "service" / "cli" / "controller_sim.py").is_file():
-    pytest.skip("the simulated controller (regrasp controller-sim) is not installed yet", allow_module_level=True)
+from conftest import Server, free_port, start_controller_sim, stop_process, wait_state
 
 END_STATES = {"succeeded", "aborted", "rejected", "failed"}
 

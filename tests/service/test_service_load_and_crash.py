@@ -10,7 +10,6 @@ from pathlib import Path
 
 import httpx
 import psutil
-import pytest
 from conftest import TOKEN, Server, wait_state
 
 from schemas.jobs import TERMINAL_STATES
@@ -92,10 +91,9 @@ def test_kill_9_of_the_server_mid_job_loses_nothing(tmp_path: Path) -> None:
                    for s in (4, 0.5, 0.5)]
             wait_state(c, ids[0], {"planning"})
             time.sleep(0.5)
-            if _audit_installed():  # let the audit process open the job's file before the crash
-                deadline = time.monotonic() + 30
-                while time.monotonic() < deadline and not c.get(f"/v1/jobs/{ids[0]}").json()["audit_head"]:
-                    time.sleep(0.1)
+            deadline = time.monotonic() + 30  # let the audit process open the job's file before the crash
+            while time.monotonic() < deadline and not c.get(f"/v1/jobs/{ids[0]}").json()["audit_head"]:
+                time.sleep(0.1)
             workers = [p.pid for p in psutil.Process(srv.proc.pid).children(recursive=True)]
         srv.kill()
         time.sleep(1.0)  # orphaned workers notice their parent died within 0.2 s
@@ -118,20 +116,10 @@ def test_kill_9_of_the_server_mid_job_loses_nothing(tmp_path: Path) -> None:
         srv.stop()
 
 
-def _audit_installed() -> bool:
-    try:
-        import service.audit  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 def _check_audit_continuation(c: httpx.Client, job_id: str, data_dir: Path) -> None:
     """The killed server's audit file reads up to its last record; the job continues in a second file."""
-    try:
-        from service.audit import verify
-    except ImportError:
-        return
+    from service.audit import verify
+
     deadline = time.monotonic() + 30  # the audit process starts (spawn) and catches up
     job = c.get(f"/v1/jobs/{job_id}").json()
     files = sorted((data_dir / "audit").glob(f"{job_id}*.mcap"))

@@ -8,13 +8,10 @@ for it or not, and an actor that dies under its job fails the job with the reaso
 from __future__ import annotations
 
 import time
-from datetime import datetime
-from pathlib import Path
 from typing import Iterator
 
-import httpx
 import pytest
-from conftest import Server, wait_state
+from conftest import Server, cancel_latency_s, job_events, wait_state
 
 from schemas.jobs import TERMINAL_STATES
 
@@ -44,21 +41,6 @@ def ray_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         srv.stop()
 
 
-def _events(c: httpx.Client, job_id: str) -> list[dict]:
-    import json
-
-    text = c.get(f"/v1/jobs/{job_id}/events", params={"follow": "false"}).text
-    return [json.loads(line[len("data: "):]) for line in text.splitlines() if line.startswith("data: ")]
-
-
-def _cancel_latency(c: httpx.Client, job_id: str) -> float:
-    """Server time from the stored cancel request to the stored ``canceled`` state, s."""
-    events = _events(c, job_id)
-    asked = next(e for e in events if e["kind"] == "note" and "cancel requested" in (e["message"] or ""))
-    ended = next(e for e in events if e["kind"] == "state" and e["state"] == "canceled")
-    return (datetime.fromisoformat(ended["at"]) - datetime.fromisoformat(asked["at"])).total_seconds()
-
-
 def test_ray_serve_runs_a_job_on_an_actor_with_progress(ray_server: Server) -> None:
     with ray_server.client("alice") as c:
         health = c.get("/healthz").json()
@@ -67,7 +49,7 @@ def test_ray_serve_runs_a_job_on_an_actor_with_progress(ray_server: Server) -> N
         done = wait_state(c, job["id"], {"planned", "failed"}, timeout=60)
         assert done["state"] == "planned", done["error"]
         assert done["result"]["iterations"] > 0
-        events = _events(c, job["id"])
+        events = job_events(c, job["id"])
         assert sum(e["kind"] == "progress" for e in events) >= 2
         assert any("running on ray actor pid" in (e["message"] or "") for e in events)
 
@@ -97,7 +79,7 @@ def test_ray_cancel_lands_within_1s_polling_or_not(ray_server: Server) -> None:
         assert {f["state"] for f in finals.values()} == {"canceled"}, finals
         assert "grace period" in finals[stubborn]["message"]  # the hanging one needed the actor killed
         for job_id in (polite, stubborn):
-            assert _cancel_latency(c, job_id) < CANCEL_BOUND_S
+            assert cancel_latency_s(c, job_id) < CANCEL_BOUND_S
         assert seen_s < CANCEL_BOUND_S + 1.0  # as a client sees it, polling every 50 ms over HTTP
         after = c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "quick"}}).json()  # actor replaced
         assert wait_state(c, after["id"], {"planned", "failed"}, timeout=60)["state"] == "planned"
@@ -110,7 +92,7 @@ def test_ray_actor_crash_fails_the_job_with_the_reason(ray_server: Server) -> No
         assert done["state"] == "failed", done
         assert done["error"]["code"] == "WORKER_CRASHED"
         message = done["error"]["message"]
-        running = next(e["message"] for e in _events(c, job["id"]) if "running on ray actor pid" in (e["message"] or ""))
+        running = next(e["message"] for e in job_events(c, job["id"]) if "running on ray actor pid" in (e["message"] or ""))
         pid = running.rsplit(" ", 1)[1]
         assert f"Ray worker (actor pid {pid}) died while running the job" in message, message
         assert "\n" not in message and len(message) < 500

@@ -97,3 +97,32 @@ def test_idempotency_mismatch_is_refused(store: JobStore) -> None:
     assert _new(store, key="k", request={"scenario": "a"}) == first
     with pytest.raises(IdempotencyMismatch, match="different request"):
         _new(store, key="k", request={"scenario": "b"})
+
+
+def test_sqlite_store_runs_in_wal_mode_with_a_busy_timeout(tmp_path: Path) -> None:
+    import sqlite3
+    import threading
+    import time
+
+    from service.store.db import SQLITE_BUSY_TIMEOUT_MS
+
+    path = tmp_path / "jobs.sqlite"
+    engine = make_engine(f"sqlite:///{path}")
+    migrate(engine)
+    with engine.connect() as one, engine.connect() as two:  # every pooled connection gets the pragmas
+        for conn in (one, two):
+            assert conn.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
+            assert conn.exec_driver_sql("PRAGMA busy_timeout").scalar() == SQLITE_BUSY_TIMEOUT_MS
+            assert conn.exec_driver_sql("PRAGMA foreign_keys").scalar() == 1
+    # Another process holding the write lock: the store's write waits for it instead of failing at once.
+    other = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
+    assert other.execute("PRAGMA journal_mode").fetchone()[0] == "wal"  # WAL is stored in the file itself
+    other.execute("BEGIN IMMEDIATE")
+    hold_s = 0.5
+    threading.Timer(hold_s, lambda: other.execute("COMMIT")).start()
+    t0 = time.monotonic()
+    _new(JobStore(engine))
+    waited = time.monotonic() - t0
+    other.close()
+    assert waited >= hold_s * 0.8  # it waited for the lock (busy timeout 0 would raise "database is locked")
+    engine.dispose()
