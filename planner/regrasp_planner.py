@@ -158,11 +158,9 @@ class Task:
         self.counters: dict[str, int] = {"ik_solves": 0, "collision_states": 0, "com_states": 0}
         t1 = time.perf_counter()
         self.grasps: dict[Side, list[Grasp]] = {}
-        self.all_grasps: dict[Side, list[Grasp]] = {}
         self.grasp_cache_hit: dict[Side, bool] = {}
         for side in ("left", "right"):
             gs = plan_grasps(self.obj, self.robot, side, s.grasp)
-            self.all_grasps[side] = list(gs.grasps)
             self.grasps[side] = list(gs.grasps)[: s.max_grasps]
             self.grasp_cache_hit[side] = gs.from_cache
         self.timings["grasps_s"] = time.perf_counter() - t1
@@ -286,9 +284,8 @@ class Task:
     def _handover_poses(self) -> list[HandoverPose]:
         if not self.settings.handover_poses:
             return []
-        k = self.settings.max_grasps
-        right = GraspSet(self.obj.content_hash, "right", tuple(self.all_grasps["right"][:k]), True, 0.0)
-        left = GraspSet(self.obj.content_hash, "left", tuple(self.all_grasps["left"][:k]), True, 0.0)
+        right = GraspSet(self.obj.content_hash, "right", tuple(self.grasps["right"]), True, 0.0)
+        left = GraspSet(self.obj.content_hash, "left", tuple(self.grasps["left"]), True, 0.0)
         poses = handover_poses(self.obj, right, left, hand_geometry(self.robot, "right"), hand_geometry(self.robot, "left"),
                                self.stance.base_pose[:3], self.settings.handover, world=self.world)
         keep = self.settings.handover_pairs_per_pose
@@ -516,7 +513,7 @@ class HandConfigPlanner:
     def _validate_handover(self, node: HandoverNode, rng: np.random.Generator) -> Validation:
         t, s = self.task, self.task.settings
         giver, taker = node.giver, node.taker
-        gg, tg = t.all_grasps[giver][node.giver_grasp], t.all_grasps[taker][node.taker_grasp]
+        gg, tg = t.grasps[giver][node.giver_grasp], t.grasps[taker][node.taker_grasp]
         T_obj = t.handover_poses[node.pose].T_world_obj
         T_g = T_obj @ gg.T_obj_tcp
         T_t = T_obj @ tg.T_obj_tcp
