@@ -4,7 +4,8 @@ Its own code path (URDF parsed here, kinematics in :mod:`robot_bridge.urdf_kinem
 support polygon in :mod:`robot_bridge.support`); it never imports the planner or
 pinocchio, and it never trusts the CoM, margin or ZMP numbers written in the plan.
 It checks every sample at the controller period (plus midpoints, since the
-controller interpolates linearly between points), not only the plan's knots.
+controller interpolates linearly between points), not only the plan's knots,
+with exact kinematics at every one of them.
 
 It fails closed: any exception becomes a veto (check ``gate_error``). A veto names
 the check and the first failing sample; the dispatcher sends nothing after one.
@@ -20,6 +21,7 @@ import json
 import math
 import time
 from itertools import chain
+from operator import itemgetter
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any, Sequence
@@ -32,7 +34,7 @@ from schemas.plan import PLAN_SCHEMA, plan_sha256
 
 from .robot_files import RobotFiles, robot_files
 from .support import Polygon, support_polygon
-from .urdf_kinematics import BatchFK, UrdfModel, load_urdf, quaternion_matrix
+from .urdf_kinematics import BatchFK, UrdfModel, load_urdf
 
 _HOLDING = ("none", "left", "right", "both")
 
@@ -265,6 +267,7 @@ class _Parsed:
     mass: float
     com_local: np.ndarray
     threshold: float
+    moving: np.ndarray  # columns of Q that change at some point (plans move a few joints at a time)
 
 
 def _get(doc: Any, key: str, what: str) -> Any:
@@ -327,12 +330,14 @@ def _parse(ctx: "_Context", plan: Any, s: GateSettings) -> _Parsed:
     index = {h: k for k, h in enumerate(_HOLDING)}
     try:  # the fast path: whole columns at once; the slow path below only names what is wrong
         n = len(traj)
-        if any(len(pt["q"]) != nq or len(pt["object_pose"]) != 7 for pt in traj):
+        qs, ps = list(map(itemgetter("q"), traj)), list(map(itemgetter("object_pose"), traj))
+        if set(map(type, qs)) != {list} or set(map(type, ps)) != {list} or set(map(len, qs)) != {nq} \
+                or set(map(len, ps)) != {7}:
             raise ValueError("shape")
-        Q = np.fromiter(chain.from_iterable(pt["q"] for pt in traj), dtype=float, count=n * nq).reshape(n, nq)
-        t = np.fromiter((pt["t"] for pt in traj), dtype=float, count=n)
-        poses = np.fromiter(chain.from_iterable(pt["object_pose"] for pt in traj), dtype=float, count=n * 7).reshape(n, 7)
-        holding = np.array([index[pt["holding"]] for pt in traj], dtype=np.int8)
+        Q = np.fromiter(chain.from_iterable(qs), dtype=float, count=n * nq).reshape(n, nq)
+        t = np.fromiter(map(itemgetter("t"), traj), dtype=float, count=n)
+        poses = np.fromiter(chain.from_iterable(ps), dtype=float, count=n * 7).reshape(n, 7)
+        holding = np.fromiter(map(index.__getitem__, map(itemgetter("holding"), traj)), dtype=np.int8, count=n)
         if Q.shape != (len(traj), nq) or poses.shape != (len(traj), 7) or t.shape != (len(traj),):
             raise ValueError("shape")
     except (TypeError, ValueError, KeyError):
@@ -359,7 +364,7 @@ def _parse(ctx: "_Context", plan: Any, s: GateSettings) -> _Parsed:
     return _Parsed(
         robot_name=str(name), urdf_sha256=str(robot.get("urdf_sha256", "")), joint_names=tuple(names), n=len(traj),
         dt=float(dt), t=t, Q=Q, holding=holding, object_pose=poses, base_pose=base, feet=clean_feet,
-        mass=float(mass), com_local=com_local, threshold=float(thr),
+        mass=float(mass), com_local=com_local, threshold=float(thr), moving=np.flatnonzero(np.any(Q != Q[:1], axis=0)),
     )
 
 
@@ -499,12 +504,17 @@ def _check_position(ctx: _Context, p: _Parsed, lower: np.ndarray, upper: np.ndar
 
 
 def _check_rates(ctx: _Context, p: _Parsed, robot: _Robot, s: GateSettings) -> None:
-    """Velocities and accelerations by finite differences at dt_s; the plan is at rest before and after."""
+    """Velocities and accelerations by finite differences at dt_s; the plan is at rest before and after.
+
+    Only the moving columns are differenced: a joint that holds one value has none.
+    """
     order = {n: i for i, n in enumerate(robot.model.joint_names)}
-    vmax = robot.model.velocity_limit[[order[n] for n in p.joint_names]]
-    amax = np.array([robot.files.acceleration_limit(n) for n in p.joint_names])
+    cols = p.moving
+    names = [p.joint_names[c] for c in cols]
+    vmax = robot.model.velocity_limit[[order[n] for n in names]]
+    amax = np.array([robot.files.acceleration_limit(n) for n in names])
     rel = 1.0 + s.limit_tolerance_rel
-    Q, dt = p.Q, p.dt
+    Q, dt = p.Q[:, cols], p.dt
     v = np.diff(Q, axis=0) / dt  # row i: from point i to i + 1
     a = np.empty_like(Q)  # at each point, with the rest state repeated before and after
     if p.n >= 2:
@@ -513,35 +523,56 @@ def _check_rates(ctx: _Context, p: _Parsed, robot: _Robot, s: GateSettings) -> N
         a[-1] = -v[-1] / dt
     else:
         a[:] = 0.0
-    vpeak = np.abs(v).max(axis=0) if p.n >= 2 else np.zeros(len(vmax))
-    apeak = np.abs(a).max(axis=0)
-    vr, ar = vpeak / vmax, apeak / amax
-    ctx.note("joint_velocity", max_ratio=float(vr.max()), joint=p.joint_names[int(np.argmax(vr))])
-    ctx.note("joint_acceleration", max_ratio=float(ar.max()), joint=p.joint_names[int(np.argmax(ar))])
+    if cols.size == 0:
+        ctx.note("joint_velocity", max_ratio=0.0)
+        ctx.note("joint_acceleration", max_ratio=0.0)
+        ctx.passed("joint_velocity")
+        ctx.passed("joint_acceleration")
+        return
+    vr, ar = np.abs(v).max(axis=0) / vmax, np.abs(a).max(axis=0) / amax
+    ctx.note("joint_velocity", max_ratio=float(vr.max()), joint=names[int(np.argmax(vr))])
+    ctx.note("joint_acceleration", max_ratio=float(ar.max()), joint=names[int(np.argmax(ar))])
     if np.any(vr > rel):  # column peaks first: the row search only on a violation
         over = np.abs(v) > vmax * rel
         row = _first(over.any(axis=1))
         col = int(np.flatnonzero(over[row])[0])
-        raise Veto("joint_velocity", f"joint {p.joint_names[col]} moves at {abs(v[row, col]):.4f}, limit {vmax[col]:.4f} "
+        raise Veto("joint_velocity", f"joint {names[col]} moves at {abs(v[row, col]):.4f}, limit {vmax[col]:.4f} "
                    f"between points {row} and {row + 1}", row * ctx.S)
     ctx.passed("joint_velocity")
     if np.any(ar > rel):
         over = np.abs(a) > amax * rel
         row = _first(over.any(axis=1))
         col = int(np.flatnonzero(over[row])[0])
-        raise Veto("joint_acceleration", f"joint {p.joint_names[col]} accelerates at {abs(a[row, col]):.4f}, limit "
+        raise Veto("joint_acceleration", f"joint {names[col]} accelerates at {abs(a[row, col]):.4f}, limit "
                    f"{amax[col]:.4f} at point {row}" + (" (the plan does not start/end at rest)" if row in (0, p.n - 1) else ""),
                    row * ctx.S)
     ctx.passed("joint_acceleration")
 
 
-def _interpolate(p: _Parsed, S: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Samples on the gate's grid: Q, object position, object quaternion, and the point each sample belongs to."""
-    n = p.n
-    f = np.arange(S) / S
+@dataclass(frozen=True)
+class _Grid:
+    """The gate's samples: ``S`` per plan interval (controller periods x oversample), then the last point."""
+
+    n: int
+    columns: list[np.ndarray]  # per joint (plan order): its n values, or its one value when it holds still
+    obj_p: np.ndarray  # (n, 3) object position
+    obj_q: np.ndarray  # (n, 4) object quaternion, unit
+    point: np.ndarray  # (n,) the plan point whose interval a sample lies in
+
+
+def _interpolate(p: _Parsed, S: int) -> _Grid:
+    """Linear interpolation onto the gate's grid, as the controller plays it.
+
+    A joint that holds one value at every point keeps it in between, so only the moving
+    columns are interpolated (plans move a few joints at a time), and the kinematics
+    treat the others as constants.
+    """
+    n, nq = p.n, p.Q.shape[1]
+    quat = p.object_pose[:, 3:] / np.linalg.norm(p.object_pose[:, 3:], axis=1, keepdims=True)
     if n == 1:
-        return p.Q.copy(), p.object_pose[:, :3].copy(), p.object_pose[:, 3:].copy(), np.zeros(1, dtype=int)
+        return _Grid(1, [p.Q[:, k] for k in range(nq)], p.object_pose[:, :3].copy(), quat, np.zeros(1, dtype=int))
     m = (n - 1) * S + 1
+    f = np.arange(S) / S
 
     def lerp(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Rows of a (n, k) and b (n - 1, k) deltas onto the grid: (m, k), written in place."""
@@ -552,75 +583,37 @@ def _interpolate(p: _Parsed, S: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
         out[-1] = a[-1]
         return out
 
-    Qs = lerp(p.Q, np.diff(p.Q, axis=0))
+    moving = p.moving
+    Qm = p.Q[:, moving]
+    rows = lerp(Qm, np.diff(Qm, axis=0)).T.copy()  # (moving joints, m): contiguous per joint
+    columns = [p.Q[:1, k] for k in range(nq)]
+    for r, k in enumerate(moving):
+        columns[k] = rows[r]
     pos = p.object_pose[:, :3]
     P = lerp(pos, np.diff(pos, axis=0))
-    quat = p.object_pose[:, 3:] / np.linalg.norm(p.object_pose[:, 3:], axis=1, keepdims=True)
     q1 = quat[1:] * np.where(np.sum(quat[:-1] * quat[1:], axis=1, keepdims=True) < 0, -1.0, 1.0)  # shortest way
     Qt = lerp(quat, q1 - quat[:-1])
     Qt /= np.linalg.norm(Qt, axis=1, keepdims=True)
-    point = np.minimum(np.arange(len(Qs)) // S, n - 1)
-    return Qs, P, Qt, point
+    point = np.minimum(np.arange(m) // S, n - 1)
+    return _Grid(m, columns, P, Qt, point)
 
 
-def _robot_on_grid(ctx: _Context, p: _Parsed, fk: BatchFK, Qs: np.ndarray, frames: list[str], s: GateSettings,
-                   obj_com: np.ndarray, held: np.ndarray, polygon: Polygon, need: float) -> tuple[np.ndarray, dict]:
-    """Robot CoM and sole positions on the whole grid, exact wherever a check could fail.
-
-    Every controller sample gets exact kinematics. An extra sample between two of them
-    (``oversample``) first takes the chord between its neighbours: along a straight
-    joint-space segment a point bends by at most ``L (sum |dq|)^2 / 8`` (L from the URDF),
-    so where the chord's margin and foot deviation clear their limits by that bound the
-    sample provably passes; only the others get exact kinematics. Sound, and about twice
-    as fast as evaluating every sample.
-    """
-    o = s.oversample
-    N = len(Qs)
-    exact = np.arange(0, N, o)
-    com_e, poses_e = fk.com_and_frames(p.base_pose, Qs[exact], frames)
-    robot_com = np.empty((N, 3))
-    feet = {f: np.empty((N, 3)) for f in frames}
-    robot_com[exact] = com_e
-    for f in frames:
-        feet[f][exact] = poses_e[f][1]
-    fine = np.flatnonzero(np.arange(N) % o)
-    if fine.size == 0:
-        return robot_com, feet
-    a = fine - fine % o
-    b = a + o
-    w = ((fine % o) / o)[:, None]
-    dq = np.abs(Qs[b] - Qs[a]) @ fk.column_weight
-    bound = fk.curvature_bound * dq * dq / 8.0
-    robot_com[fine] = robot_com[a] + w * (robot_com[b] - robot_com[a])
-    doubtful = np.zeros(fine.size, dtype=bool)
-    for foot in p.feet:
-        f = foot["frame"]
-        feet[f][fine] = feet[f][a] + w * (feet[f][b] - feet[f][a])
-        doubtful |= np.linalg.norm(feet[f][fine] - foot["pose"][:3], axis=1) + bound > s.feet_tolerance_m
-    M, m = fk.total_mass, p.mass
-    wo = m * held[fine, None]
-    approx = (M * robot_com[fine] + wo * obj_com[fine]) / (M + wo)
-    doubtful |= polygon.margin(approx[:, :2]) - bound < need
-    # holding changes happen at points (controller samples): nothing more to do here
-    redo = fine[doubtful]
-    if redo.size:
-        com_r, poses_r = fk.com_and_frames(p.base_pose, Qs[redo], frames)
-        robot_com[redo] = com_r
-        for f in frames:
-            feet[f][redo] = poses_r[f][1]
-    ctx.note("com_margin", extra_samples=int(fine.size), extra_samples_exact=int(redo.size),
-             chord_bound_max_m=float(bound.max()))
-    return robot_com, feet
+def _rotate(quat: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Unit quaternions (n, 4) ``[x, y, z, w]`` applied to one vector v (3,): (n, 3), without matrices."""
+    u, w = quat[:, :3], quat[:, 3:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
 
 
 def _check_stability(ctx: _Context, p: _Parsed, fk: BatchFK, polygon: Polygon, s: GateSettings) -> None:
     S = ctx.S
-    Qs, obj_p, obj_q, point = _interpolate(p, S)
+    grid = _interpolate(p, S)
     frames = [f["frame"] for f in p.feet]
-    obj_com = obj_p + np.einsum("nij,j->ni", quaternion_matrix(obj_q), p.com_local)
-    held = p.holding[point] != 0
+    # Exact kinematics at every sample of the grid (controller samples and midpoints).
+    robot_com, feet = fk.com_and_points(p.base_pose, grid.columns, grid.n, frames)
+    obj_com = grid.obj_p + _rotate(grid.obj_q, p.com_local)
+    held = p.holding[grid.point] != 0
     need = ctx.threshold - s.margin_tolerance_m
-    robot_com, feet = _robot_on_grid(ctx, p, fk, Qs, frames, s, obj_com, held, polygon, need)
 
     # Feet stay where the stance puts them (the polygon below assumes it).
     worst = 0.0
@@ -648,10 +641,9 @@ def _check_stability(ctx: _Context, p: _Parsed, fk: BatchFK, polygon: Polygon, s
              polygon=polygon.vertices.tolist())
     first = _first(margin < need)
     # Where holding changes at a point, the state there is checked with both values.
-    knots = np.arange(p.n) * S
     change = np.flatnonzero(p.holding[1:] != p.holding[:-1]) + 1
     if change.size:
-        ks = knots[change]
+        ks = change * S
         before = p.holding[change - 1] != 0
         m2 = polygon.margin(system(before, robot_com[ks], obj_com[ks])[:, :2])
         ctx.note("com_margin", min_margin_at_holding_changes_m=float(m2.min()))
@@ -664,22 +656,25 @@ def _check_stability(ctx: _Context, p: _Parsed, fk: BatchFK, polygon: Polygon, s
                    f"{ctx.threshold * 1000:.2f} mm (tolerance {s.margin_tolerance_m * 1000:.2f} mm)", first)
     ctx.passed("com_margin")
 
-    # ZMP (cart-table) at the plan's points, c'' by central differences at dt_s. The three
-    # states of a stencil use the same mass set (the point's holding), so grasping an
-    # object is not mistaken for an acceleration; the plan is at rest before and after.
-    rk, ok_ = robot_com[knots], obj_com[knots]
-    hk = p.holding != 0
-    idx = np.arange(p.n)
-    prev, nxt = np.maximum(idx - 1, 0), np.minimum(idx + 1, p.n - 1)
-    c = system(hk, rk, ok_)
-    c_prev = system(hk, rk[prev], ok_[prev])
-    c_next = system(hk, rk[nxt], ok_[nxt])
+    # ZMP (cart-table) at every controller sample (5 ms; the plan's points among them),
+    # c'' by central differences at dt_s (the contract's step, S gate samples) along the
+    # interpolated path. The three states of a stencil use the sample's mass set, so
+    # grasping an object is not mistaken for an acceleration; the plan is at rest before
+    # and after. With dt_s = 5 ms the controller samples are the plan's points.
+    ctrl = np.arange(0, grid.n, s.oversample)
+    hk = held[ctrl]
+    prev, nxt = np.maximum(ctrl - S, 0), np.minimum(ctrl + S, grid.n - 1)
+    c = system(hk, robot_com[ctrl], obj_com[ctrl])
+    c_prev = system(hk, robot_com[prev], obj_com[prev])
+    c_next = system(hk, robot_com[nxt], obj_com[nxt])
     acc = (c_next[:, :2] - 2.0 * c[:, :2] + c_prev[:, :2]) / (p.dt * p.dt)
     zmp = c[:, :2] - (c[:, 2:3] / s.gravity) * acc
     zm = polygon.margin(zmp)
     k = int(np.argmin(zm))
-    ctx.note("zmp", min_margin_m=float(zm[k]), at_point=k)
+    ctx.note("zmp", min_margin_m=float(zm[k]), at_sample=int(ctrl[k]), controller_samples=int(ctrl.size))
     row = _first(zm < -s.zmp_tolerance_m)
     if row is not None:
-        raise Veto("zmp", f"the ZMP leaves the support polygon by {-zm[row] * 1000:.2f} mm at point {row}", row * S)
+        g = int(ctrl[row])
+        where = f"point {g // S}" if g % S == 0 else f"t = {g * p.dt / S:.4f} s, between points {g // S} and {g // S + 1}"
+        raise Veto("zmp", f"the ZMP leaves the support polygon by {-zm[row] * 1000:.2f} mm at {where}", g)
     ctx.passed("zmp")

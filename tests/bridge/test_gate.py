@@ -59,26 +59,93 @@ def test_gate_kinematics_agree_with_planner_and_pinocchio(robot_name):
     n = 200
     lo, hi = np.maximum(robot.lower, -np.pi), np.minimum(robot.upper, np.pi)
     Q = rng.uniform(lo, hi, size=(n, robot.nq))
+    held = rng.choice(robot.nq, size=robot.nq // 3, replace=False)
+    Q[:, held] = Q[:1, held]  # some joints hold still: the gate passes them as one value
     base = np.hstack([rng.normal(scale=0.5, size=(n, 3)), rng.normal(size=(n, 4))])
     base[:, 3:] /= np.linalg.norm(base[:, 3:], axis=1, keepdims=True)
     frames = ["l_tcp", "r_tcp", "l_sole", "r_sole"]
     # Shuffled column order: the gate maps the plan's joint names, it does not assume an order.
     perm = rng.permutation(robot.nq)
     fk = BatchFK(load_urdf(str(robot_files(robot_name).urdf)), [robot.joint_names[i] for i in perm])
-    com, poses = fk.com_and_frames(base, Q[:, perm], frames)
-    ref_com, ref = BatchKinematics(robot).com_and_frames(base, Q, frames)
-    assert np.abs(com - ref_com).max() < 1e-9
-    for f in frames:
-        assert np.abs(poses[f][0] - ref[f][0]).max() < 1e-9
-        assert np.abs(poses[f][1] - ref[f][1]).max() < 1e-9
+    columns = [Q[:1, i] if i in held else Q[:, i] for i in perm]
+    bk = BatchKinematics(robot)
+    for b in (base[3], base):  # one base for all states, then one per state
+        com, points = fk.com_and_points(b, columns, n, frames)
+        ref_com, ref = bk.com_and_frames(b, Q, frames)
+        assert np.abs(com - ref_com).max() < 1e-9
+        for f in frames:
+            assert np.abs(points[f] - ref[f][1]).max() < 1e-9
     data = robot.create_data()
     for k in range(0, n, 40):  # and pinocchio itself, state by state
         qp = robot.to_pin_q(base[k], Q[k])
         assert np.abs(pin.centerOfMass(robot.pin_model, data, qp) - com[k]).max() < 1e-9
         for f, M in zip(frames, frame_poses(robot, data, base[k], Q[k], frames)):
-            assert np.abs(M.translation - poses[f][1][k]).max() < 1e-9
-            assert np.abs(M.rotation - poses[f][0][k]).max() < 1e-9
+            assert np.abs(M.translation - points[f][k]).max() < 1e-9
     assert abs(fk.total_mass - robot.total_mass) < 1e-9
+
+
+_ODD_URDF = """<robot name="odd">
+  <link name="base"><inertial><mass value="3.0"/><origin xyz="0.01 0.02 0.03"/></inertial></link>
+  <link name="a"><inertial><mass value="1.5"/><origin xyz="0.1 -0.05 0.2"/></inertial></link>
+  <link name="b"><inertial><mass value="0.7"/><origin xyz="0.0 0.3 0.0"/></inertial></link>
+  <link name="c"><inertial><mass value="0.4"/><origin xyz="0.05 0.0 -0.1"/></inertial></link>
+  <link name="d"><inertial><mass value="0.2"/><origin xyz="0.0 0.0 0.04"/></inertial></link>
+  <link name="tip"/>
+  <joint name="skew" type="revolute"><parent link="base"/><child link="a"/>
+    <origin xyz="0.1 0.2 0.3" rpy="0.3 -0.2 0.5"/><axis xyz="1 2 -0.5"/><limit lower="-3" upper="3" velocity="1"/></joint>
+  <joint name="spin" type="continuous"><parent link="a"/><child link="b"/>
+    <origin xyz="0 0 0.4" rpy="0 0.7 0"/><axis xyz="0 0 -1"/><limit velocity="1"/></joint>
+  <joint name="slide" type="prismatic"><parent link="b"/><child link="c"/>
+    <origin xyz="0.2 0 0" rpy="0.1 0 0"/><axis xyz="0.6 0 0.8"/><limit lower="-0.5" upper="0.5" velocity="1"/></joint>
+  <joint name="follow" type="revolute"><parent link="a"/><child link="d"/>
+    <origin xyz="0 -0.1 0"/><axis xyz="0 1 0"/><limit lower="-3" upper="3" velocity="1"/>
+    <mimic joint="skew" multiplier="-0.5" offset="0.25"/></joint>
+  <joint name="tip_fixed" type="fixed"><parent link="c"/><child link="tip"/><origin xyz="0.05 0.01 0.02" rpy="0.2 0.3 0.4"/></joint>
+</robot>
+"""
+
+
+def test_gate_kinematics_on_every_joint_kind_against_a_per_state_reference(tmp_path):
+    """Skewed axes, continuous, prismatic, mimic with offset, rotated origins: the paths the robots above do not take."""
+    from scipy.spatial.transform import Rotation
+
+    from robot_bridge.urdf_kinematics import BatchFK, UrdfModel
+
+    path = tmp_path / "odd.urdf"
+    path.write_text(_ODD_URDF)
+    model = UrdfModel.from_file(path)
+    assert model.joint_names == ("skew", "spin", "slide")
+    fk = BatchFK(model, ["slide", "skew", "spin"])
+    rng = np.random.default_rng(11)
+    n = 50
+    Q = np.column_stack([rng.uniform(-0.5, 0.5, n), rng.uniform(-3, 3, n), rng.uniform(-6, 6, n)])  # slide, skew, spin
+    base = np.array([0.3, -0.2, 0.9, *Rotation.from_rotvec([0.2, -0.1, 0.4]).as_quat()])
+
+    def reference(q: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """Homogeneous transforms joint by joint, one state: (CoM, tip origin)."""
+        T = {"base": np.eye(4)}
+        T["base"][:3, :3] = Rotation.from_quat(base[3:]).as_matrix()
+        T["base"][:3, 3] = base[:3]
+        for j in model.joints:
+            origin = np.eye(4)
+            origin[:3, :3], origin[:3, 3] = j.origin_rot, j.origin_xyz
+            motion = np.eye(4)
+            value = q[j.mimic[0]] * j.mimic[1] + j.mimic[2] if j.mimic else q.get(j.name, 0.0)
+            if j.type in ("revolute", "continuous"):
+                motion[:3, :3] = Rotation.from_rotvec(j.axis * value).as_matrix()
+            elif j.type == "prismatic":
+                motion[:3, 3] = j.axis * value
+            T[j.child] = T[j.parent] @ origin @ motion
+        mass = sum(link.mass for link in model.links.values())
+        com = sum(link.mass * (T[name][:3, :3] @ link.com_local + T[name][:3, 3]) for name, link in model.links.items())
+        return com / mass, T["tip"][:3, 3], T["d"][:3, 3]
+
+    com, points = fk.com_and_points(base, [Q[:, 0], Q[:, 1], Q[:1, 2]], n, ["tip", "d"])
+    for k in range(n):
+        ref_com, ref_tip, ref_d = reference({"slide": Q[k, 0], "skew": Q[k, 1], "spin": Q[0, 2]})
+        assert np.abs(com[k] - ref_com).max() < 1e-12
+        assert np.abs(points["tip"][k] - ref_tip).max() < 1e-12
+        assert np.abs(points["d"][k] - ref_d).max() < 1e-12
 
 
 def test_valid_plan_passes_every_check_online(gate, plan):
@@ -246,6 +313,133 @@ def test_coarser_plan_is_checked_at_the_controller_period(gate):
     assert v.samples == (len(coarse["trajectory"]) - 1) * 4 + 1  # 2 controller periods per point, x2 midpoints
 
 
+def _coarse(plan: dict, every: int) -> dict:
+    """The plan with every ``every``-th point, at dt_s = every x 5 ms: the gate then interpolates between points."""
+    dt = plan["dt_s"] * every
+
+    def cut(p: dict) -> None:
+        p["trajectory"] = p["trajectory"][::every]
+        p["dt_s"] = dt
+        for i, pt in enumerate(p["trajectory"]):
+            pt["t"] = i * dt
+
+    return edited(plan, cut)
+
+
+def _per_sample_reference(plan: dict, S: int, oversample: int) -> dict:
+    """The gate's figures the plain way: one sample at a time, pinocchio FK, the planner's polygon.
+
+    Sample g lies in interval g // S at fraction (g % S) / S; q and the object position are
+    interpolated linearly, the object quaternion along the shortest way and normalised.
+    """
+    import pinocchio as pin
+
+    from planner.robot_model import frame_poses
+    from scipy.spatial.transform import Rotation
+
+    from .plans import _robot_and_stance
+
+    robot, st = _robot_and_stance(plan["robot"]["name"], plan["stance"]["name"])
+    data = robot.create_data()
+    traj, n = plan["trajectory"], len(plan["trajectory"])
+    base = np.array(plan["stance"]["base_pose"])
+    com_local = np.array(plan["object"]["com_local"])
+    M, m = robot.total_mass, plan["object"]["mass_kg"]
+    feet = [(f["frame"], np.array(f["pose"][:3])) for f in plan["stance"]["feet"]]
+    N = (n - 1) * S + 1
+    rcom, ocom, held, feet_dev = np.empty((N, 3)), np.empty((N, 3)), np.empty(N, dtype=bool), 0.0
+    for g in range(N):
+        i, f = min(g // S, n - 1), (g % S) / S
+        a, b = traj[i], traj[min(i + 1, n - 1)]
+        q = np.array(a["q"]) + f * (np.array(b["q"]) - np.array(a["q"]))
+        pos = np.array(a["object_pose"][:3]) + f * (np.array(b["object_pose"][:3]) - np.array(a["object_pose"][:3]))
+        qa, qb = np.array(a["object_pose"][3:]), np.array(b["object_pose"][3:])
+        qb = -qb if qa @ qb < 0 else qb
+        quat = qa + f * (qb - qa)
+        rcom[g] = pin.centerOfMass(robot.pin_model, data, robot.to_pin_q(base, q))
+        ocom[g] = pos + Rotation.from_quat(quat / np.linalg.norm(quat)).apply(com_local)
+        held[g] = a["holding"] != "none"
+        for (frame, placed), M_f in zip(feet, frame_poses(robot, data, base, q, [fr for fr, _ in feet])):
+            feet_dev = max(feet_dev, float(np.linalg.norm(M_f.translation - placed)))
+
+    def system(h: np.ndarray, r: np.ndarray, o: np.ndarray) -> np.ndarray:
+        w = m * h[:, None]
+        return (M * r + w * o) / (M + w)
+
+    margin = st.polygon.margin(system(held, rcom, ocom)[:, :2])
+    change = [i for i in range(1, n) if traj[i]["holding"] != traj[i - 1]["holding"]]
+    ks = np.array(change, dtype=int) * S
+    before = np.array([traj[i - 1]["holding"] != "none" for i in change], dtype=bool)
+    at_change = st.polygon.margin(system(before, rcom[ks], ocom[ks])[:, :2]) if change else np.array([])
+    ctrl = np.arange(0, N, oversample)
+    dt = plan["dt_s"]
+    c, cp, cn = (system(held[ctrl], rcom[k], ocom[k]) for k in (ctrl, np.maximum(ctrl - S, 0), np.minimum(ctrl + S, N - 1)))
+    zmp = c[:, :2] - c[:, 2:3] / 9.81 * (cn[:, :2] - 2 * c[:, :2] + cp[:, :2]) / dt**2
+    return {"margin": margin, "at_change": at_change, "change_samples": ks, "zmp": st.polygon.margin(zmp),
+            "feet_dev": feet_dev}
+
+
+def test_batched_gate_equals_a_per_sample_reference(gate):
+    """Same verdicts and margins as a plain per-sample computation, on a plan the gate interpolates (dt_s 20 ms)."""
+    plan = build_plan({"RSP": -0.7, "REP": -0.4, "WY": 0.25}, duration_s=1.5, mass_kg=5.0, holding="right", threshold_m=0.0)
+    plan = _coarse(edited(plan, lambda p: [pt.__setitem__("holding", "none") for pt in p["trajectory"][:60]]), 4)
+    S = 4 * 2  # 4 controller periods per point, and the midpoints
+    ref = _per_sample_reference(plan, S, 2)
+    assert ref["change_samples"].size == 1  # the grasp is one of the cases compared
+    v = gate.check(plan, offline=True)
+    assert v.passed, v.summary()
+    assert v.samples == len(ref["margin"])
+    assert v.stats["com_margin"]["min_margin_m"] == pytest.approx(ref["margin"].min(), abs=1e-9)
+    assert v.stats["com_margin"]["at_sample"] == int(np.argmin(ref["margin"]))
+    assert v.stats["com_margin"]["min_margin_at_holding_changes_m"] == pytest.approx(ref["at_change"].min(), abs=1e-9)
+    assert v.stats["zmp"]["min_margin_m"] == pytest.approx(ref["zmp"].min(), abs=1e-9)
+    assert v.stats["feet"]["max_deviation_m"] == pytest.approx(ref["feet_dev"], abs=1e-9)
+    # A threshold just above the smallest margin: the veto names the reference's first failing sample.
+    thr = float(ref["margin"].min()) + 3e-4
+    v = gate.check(plan, offline=True, threshold_m=thr)
+    failing = np.flatnonzero(ref["margin"] < thr - 1e-4)
+    failing = np.union1d(failing, ref["change_samples"][ref["at_change"] < thr - 1e-4])
+    assert not v.passed and v.check == "com_margin" and v.sample_index == int(failing[0])
+
+
+def test_zmp_is_checked_between_the_points(gate):
+    """dt_s 50 ms: every point's ZMP is inside, the interpolated controller samples' is not.
+
+    The held object turns by 1 rad about the vertical during one interval while its frame
+    moves so that its CoM is the same at every point: the CoM of the points never moves,
+    but between them it bulges out along the arc and back, and the ZMP (central differences
+    at dt_s along the interpolated path) swings far outside.
+    """
+    from scipy.spatial.transform import Rotation
+
+    base = build_plan({"RSP": 0.0}, duration_s=1.0, mass_kg=10.0, holding="right", com_local=(0.3, 0.0, 0.0),
+                      threshold_m=0.0)
+    plan = _coarse(base, 10)
+    turn = 8  # the object turns between points 8 and 9
+
+    def rotate(p: dict) -> None:
+        first = np.array(p["trajectory"][0]["object_pose"])
+        R0 = Rotation.from_quat(first[3:])
+        com = first[:3] + R0.apply(p["object"]["com_local"])
+        for pt in p["trajectory"][turn + 1:]:
+            R = Rotation.from_rotvec([0.0, 0.0, 1.0]) * R0
+            pt["object_pose"] = [*(com - R.apply(p["object"]["com_local"])), *R.as_quat()]
+
+    plan = edited(plan, rotate)
+    S = 10 * 2
+    ref = _per_sample_reference(plan, S, 2)
+    knots = np.arange(0, len(ref["zmp"]) * 2, S) // 2  # the points among the controller samples
+    assert ref["zmp"][knots].min() > 0.05  # every point's ZMP is well inside
+    assert ref["zmp"].min() < -0.05  # in between it is far outside
+    assert ref["margin"].min() > 0.02  # statically the CoM stays inside: only the ZMP check can see it
+    v = gate.check(plan, offline=True)
+    assert not v.passed and v.check == "zmp", v.summary()
+    first = int(np.flatnonzero(ref["zmp"] < -1e-4)[0]) * 2  # controller sample -> gate sample
+    assert v.sample_index == first and v.sample_index % S != 0
+    assert v.point_index == first // S and "between points" in v.message
+    assert v.stats["zmp"]["min_margin_m"] == pytest.approx(ref["zmp"].min(), abs=1e-9)
+
+
 # --------------------------------------------------------------------------- property
 
 
@@ -304,27 +498,3 @@ def test_canonical_bytes_fast_path(gate, plan):
     assert not v.passed and v.check == "plan_hash"
     v, parsed = gate.check_json(b'{"schema": NaN}', offline=True)
     assert not v.passed and v.check == "structure" and parsed is None
-
-
-def test_chord_bound_holds_on_random_segments():
-    """The bound that lets the gate skip exact kinematics at provably safe in-between samples."""
-    from robot_bridge.robot_files import robot_files
-    from robot_bridge.urdf_kinematics import BatchFK, load_urdf
-
-    model = load_urdf(str(robot_files("hrp5p").urdf))
-    fk = BatchFK(model)
-    rng = np.random.default_rng(3)
-    n = 300
-    qa = rng.uniform(np.maximum(model.lower, -2), np.minimum(model.upper, 2), size=(n, len(model.joint_names)))
-    step = rng.normal(size=qa.shape) * rng.choice([0.002, 0.02, 0.2], size=(n, 1))
-    qb = np.clip(qa + step, model.lower, model.upper)
-    base = np.array([0.0, 0.0, 0.8, 0.0, 0.0, 0.0, 1.0])
-    frames = ["l_sole", "r_tcp"]
-    ca, fa = fk.com_and_frames(base, qa, frames)
-    cb, fb = fk.com_and_frames(base, qb, frames)
-    cm, fm = fk.com_and_frames(base, 0.5 * (qa + qb), frames)
-    dq = np.abs(qb - qa) @ fk.column_weight
-    bound = fk.curvature_bound * dq * dq / 8.0
-    assert np.all(np.linalg.norm(cm - 0.5 * (ca + cb), axis=1) <= bound + 1e-12)
-    for f in frames:
-        assert np.all(np.linalg.norm(fm[f][1] - 0.5 * (fa[f][1] + fb[f][1]), axis=1) <= bound + 1e-12)
