@@ -26,11 +26,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from schemas.plan import plan_sha256
 from tests.service.conftest import ROOT, Server, free_port, start_controller_sim, stop_process, wait_state
-
-pytest.importorskip("robot_bridge.dispatcher", reason="the robot bridge (robot_bridge.dispatcher) is not installed")
-
-from schemas.plan import plan_sha256  # noqa: E402
 
 #: Contract states of a plan job that runs to the end, in order (CONTRACT section 5).
 PLAN_JOB_STATES = ["queued", "planning", "planned", "approved", "dispatching", "executing", "succeeded"]
@@ -78,8 +75,6 @@ class AuditedJob:
 
 @pytest.fixture(scope="module")
 def audited(tmp_path_factory: pytest.TempPathFactory) -> Iterator[AuditedJob]:
-    if not (ROOT / "service" / "cli" / "controller_sim.py").is_file():
-        pytest.skip("the simulated controller (regrasp controller-sim) is not installed")
     port = free_port()
     srv = Server(tmp_path_factory.mktemp("audit-e2e"), workers=1, bridge_port=port).start()
     sim = None

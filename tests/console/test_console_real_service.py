@@ -20,8 +20,6 @@ from playwright.sync_api import expect
 
 from .conftest import SCREENSHOT_DIR, screenshot, serve
 
-pytest.importorskip("service.api", reason="the HTTP API (service.api) is not installed")
-
 TOKENS = {
     "e2e-token-alice-planner": {"user": "alice", "roles": ["planner"]},
     "e2e-token-bob-approver": {"user": "bob", "roles": ["approver"]},
