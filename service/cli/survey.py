@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 from rich.table import Table
 
 from .common import check_scenario_args, console, err_console, fail, mm_to_m
 from .plan import run_with_progress
+
+if TYPE_CHECKING:
+    import numpy as np
 
 LABELS = {
     "left-left": "Start from left hand - End with left hand",
@@ -30,7 +35,34 @@ def survey_table(doc: dict, title: str) -> Table:
     return table
 
 
+def scatter_data(outcomes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the CoM scatter draws: hands (N,), CoM ground projections (N, 2), stable (N,).
+
+    In evaluation order, configuration by configuration: the order of ``--states-out``.
+    """
+    import numpy as np
+
+    with_states = [o for o in outcomes if o.com is not None and len(o.com)]
+    if not with_states:
+        return np.zeros(0, "U11"), np.zeros((0, 2)), np.zeros(0, bool)
+    hands = np.concatenate([np.full(len(o.com), o.hands) for o in with_states]).astype("U11")
+    xy = np.vstack([o.com[:, :2] for o in with_states])
+    stable = np.concatenate([o.stable_flags for o in with_states]).astype(bool)
+    return hands, xy, stable
+
+
+def write_scatter_csv(path: Path, hands: np.ndarray, xy: np.ndarray, stable: np.ndarray) -> Path:
+    """The scatter's points as CSV (hands, x_m, y_m, stable), so the picture can be checked or redrawn."""
+    with open(path, "w", encoding="utf-8", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["hands", "x_m", "y_m", "stable"])
+        for h, (x, y), s in zip(hands, xy, stable):
+            writer.writerow([h, repr(float(x)), repr(float(y)), int(bool(s))])
+    return path
+
+
 def _plots(doc: dict, outcomes, directory: Path, prefix: str) -> list[Path]:
+    """The bar chart of R; where states were evaluated, the CoM scatter and its CSV data."""
     import numpy as np
 
     from service.plots import plot_survey_bars, plot_survey_scatter
@@ -38,14 +70,35 @@ def _plots(doc: dict, outcomes, directory: Path, prefix: str) -> list[Path]:
     directory.mkdir(parents=True, exist_ok=True)
     title = f"{doc['stance']['name']}, threshold {doc['threshold_m'] * 1000:.0f} mm"
     paths = [plot_survey_bars(directory / f"{prefix}bars.png", title=f"R per hand configuration ({title})", rows=doc["rows"])]
-    with_states = [o for o in outcomes if o.com is not None and len(o.com)]
-    if with_states:
-        xy = np.vstack([o.com[:, :2] for o in with_states])
-        stable = np.concatenate([o.stable_flags for o in with_states])
+    hands, xy, stable = scatter_data(outcomes)
+    if len(xy):
         paths.append(plot_survey_scatter(directory / f"{prefix}scatter.png", title=f"explored CoM projections ({title})",
                                          polygon=np.array(doc["stats"]["support_polygon"]), threshold_m=doc["threshold_m"],
                                          xy=xy, stable=stable))
+        paths.append(write_scatter_csv(directory / f"{prefix}scatter.csv", hands, xy, stable))
     return paths
+
+
+def _cell(row: dict | None) -> str:
+    if row is None:
+        return "not surveyed"
+    if row["ratio"] is not None:
+        return f"{row['ratio']:.3f}"
+    if "inradius" in (row.get("reason") or ""):
+        return "threshold cannot be met"
+    return "no plan"
+
+
+def stance_matrix(docs: list[dict]) -> Table:
+    """The stance x hands matrix of R (the paper's comparison of stances), one row per survey document."""
+    matrix = Table(title="R by stance and hand configuration")
+    matrix.add_column("stance")
+    for h in LABELS:
+        matrix.add_column(h, justify="right")
+    for doc in docs:
+        by_hands = {row["hands"]: row for row in doc["rows"]}
+        matrix.add_row(doc["stance"]["name"], *(_cell(by_hands.get(h)) for h in LABELS))
+    return matrix
 
 
 @click.command()
@@ -67,7 +120,8 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
     from planner.survey import run_survey, write_states
 
     ref = check_scenario_args(scenario_file, scenario_name)
-    # With --json, stdout carries the document alone; everything else goes to stderr.
+    # With --json, stdout carries the document alone; everything else goes to stderr. File paths are
+    # printed unwrapped (soft_wrap) so they can be copied whatever the terminal's width.
     info = err_console.print if as_json else console.print
     if states is not None and states < 1:
         fail(f"--states must be at least 1, got {states}")
@@ -98,11 +152,11 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
 
         doc, outcomes = docs[0]
         n = write_states(states_out, doc, outcomes, {"joint_names": list(load_robot(doc["robot"]["name"]).joint_names)})
-        info(f"{n} evaluated states written to {Path(states_out).resolve()}", highlight=False)
+        info(f"{n} evaluated states written to {Path(states_out).resolve()}", highlight=False, soft_wrap=True)
     if plot_dir:
         for doc, outcomes in docs:
             for path in _plots(doc, outcomes, Path(plot_dir), f"survey-{doc['stance']['name']}-"):
-                info(f"plot: {path}")
+                info(f"plot: {path}", highlight=False, soft_wrap=True)
     if as_json:
         click.echo(json.dumps(docs[0][0] if not all_stances else {"stances": [d for d, _ in docs]}, allow_nan=False))
         return
@@ -111,18 +165,4 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
                                         f"{doc['stats']['states_per_configuration']} states, seed {doc['seed']}"))
         console.print(f"recommended: [bold]{doc['recommended']}[/]  ({doc['stats']['time_s']:.1f} s)")
     if all_stances:
-        matrix = Table(title="R by stance and hand configuration")
-        matrix.add_column("stance")
-        for h in LABELS:
-            matrix.add_column(h, justify="right")
-        for doc, _ in docs:
-            cells = []
-            for row in doc["rows"]:
-                if row["ratio"] is not None:
-                    cells.append(f"{row['ratio']:.3f}")
-                elif "inradius" in (row.get("reason") or ""):
-                    cells.append("threshold cannot be met")
-                else:
-                    cells.append("no plan")
-            matrix.add_row(doc["stance"]["name"], *cells)
-        console.print(matrix)
+        console.print(stance_matrix([doc for doc, _ in docs]))
