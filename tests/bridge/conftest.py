@@ -101,12 +101,14 @@ def spawn_controller(initial_q_file):
 
 @dataclass
 class Spy:
-    """A zenoh peer that records everything on cmd/trajectory and cmd/stop."""
+    """A zenoh peer that records everything on cmd/trajectory and cmd/stop, with the QoS each sample arrived with."""
 
     session: object
     endpoint: str
     trajectory: list[dict] = field(default_factory=list)
     stops: list[dict] = field(default_factory=list)
+    trajectory_qos: list[tuple] = field(default_factory=list)  # (priority, express, congestion_control) per sample
+    stop_qos: list[tuple] = field(default_factory=list)
 
     def peers(self) -> list[str]:
         return [str(z) for z in self.session.info.peers_zid()]
@@ -125,13 +127,18 @@ def make_spy(robot_id: str) -> Spy:
     keys = Keys(robot_id)
     lock = threading.Lock()
 
+    def qos(sample: zenoh.Sample) -> tuple:
+        return sample.priority, sample.express, sample.congestion_control
+
     def on_traj(sample: zenoh.Sample) -> None:
         with lock:
             spy.trajectory.append(json.loads(sample.payload.to_bytes()))
+            spy.trajectory_qos.append(qos(sample))
 
     def on_stop(sample: zenoh.Sample) -> None:
         with lock:
             spy.stops.append(json.loads(sample.payload.to_bytes()))
+            spy.stop_qos.append(qos(sample))
 
     spy._subs = [session.declare_subscriber(keys.trajectory, on_traj), session.declare_subscriber(keys.stop, on_stop)]
     return spy

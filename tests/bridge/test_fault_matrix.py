@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+import zenoh
 
 from robot_bridge.dispatcher import ControllerUnavailableError, Dispatcher, DispatchSettings
 
@@ -22,6 +23,8 @@ from .plans import build_plan, edited, true_min_margin
 #: small scheduling margin the tests allow on a loaded 2-core machine.
 LOSS_DEADLINE_S = 0.3
 MARGIN_S = 0.15
+#: QoS of cmd/trajectory and cmd/stop: real-time priority, express, drop on congestion (never block).
+CONTROL_QOS = (zenoh.Priority.REAL_TIME, True, zenoh.CongestionControl.DROP)
 
 
 class Recorder:
@@ -81,6 +84,8 @@ def test_valid_plan_is_executed(bridge, arm_plan):
     assert [s["segment_index"] for s in segs] == list(range(segs[0]["segment_count"]))
     assert all(s["job_id"] == "job-1" and s["plan_sha256"] == res.verdict.plan_sha256 for s in segs)
     assert all((len(s["points"]) - 1) * s["dt_s"] <= 1.0 + 1e-9 for s in segs)
+    # every segment crossed the wire with the control path's QoS
+    assert spy.trajectory_qos and all(q == CONTROL_QOS for q in spy.trajectory_qos)
     assert np.allclose(np.vstack([s["points"] for s in segs]), [p["q"] for p in arm_plan["trajectory"]], atol=0)
     # the robot ends at the plan's last posture
     js = disp.measured_state()
@@ -319,6 +324,7 @@ def test_stop_during_execution(bridge, long_plan):
     assert res.details["stop_acknowledged"] is True
     assert res.last_index < len(long_plan["trajectory"]) - 100
     assert spy_saw_stop(spy, "job-1")
+    assert spy.stop_qos and all(q == CONTROL_QOS for q in spy.stop_qos)
     time.sleep(0.05)
     q1 = np.array(disp.measured_state().q)
     time.sleep(0.1)

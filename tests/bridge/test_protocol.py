@@ -70,3 +70,19 @@ def test_settings_from_environment(monkeypatch):
     monkeypatch.setenv("REGRASP_BRIDGE_ROBOT_ID", "hrp5p-real")
     s = BridgeSettings()
     assert s.connect == ["tcp/10.0.0.2:7447"] and s.robot_id == "hrp5p-real"
+
+
+def test_control_publishers_are_declared_with_the_control_qos():
+    """cmd/trajectory and cmd/stop: real-time priority, drop on congestion (express is checked on the wire by the spy)."""
+    import zenoh
+
+    from robot_bridge.dispatcher import Dispatcher
+
+    from .conftest import free_port
+
+    settings = BridgeSettings(robot_id="qos", listen=[f"tcp/127.0.0.1:{free_port()}"], connect=[])
+    with Dispatcher(settings) as disp:
+        for pub, key in ((disp._pub_traj, disp.keys.trajectory), (disp._pub_stop, disp.keys.stop)):
+            assert str(pub.key_expr) == key
+            assert pub.priority == zenoh.Priority.REAL_TIME
+            assert pub.congestion_control == zenoh.CongestionControl.DROP
