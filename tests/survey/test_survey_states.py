@@ -379,3 +379,35 @@ def test_the_scatter_data_are_the_states_com_projections(run, indep, robot_com):
 
     hands, xy2, stable = scatter_data(run.outcomes)
     assert np.array_equal(xy2, xy) and np.array_equal(stable, s["stable"]) and list(hands) == list(s["hands"])
+
+
+# -- regrasp plan --hands auto ------------------------------------------------------------------------
+
+def test_plan_hands_auto_takes_the_survey_s_recommendation(run, tmp_path):
+    """``regrasp plan --hands auto`` on this task plans with the configuration the survey recommends for the
+    scenario's seed (its quick survey's ratios are in the plan's stats). The CLI's task is the survey
+    fixture's (built from the same scenario): its validated key poses are reused, which keeps this fast."""
+    import planner.jobs as jobs
+    from planner.survey import run_survey
+
+    def warm_task(scenario, settings=None):
+        assert scenario.stance == run.task.scenario.stance and scenario.threshold_m == run.task.threshold_m
+        return run.task
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(jobs, "build_task", warm_task)
+        res = CliRunner().invoke(cli, ["plan", str(SCENARIO), "--hands", "auto", "--quiet", "--out", str(tmp_path / "plan.json")])
+    assert res.exit_code == 0, res.output
+    plan = json.loads((tmp_path / "plan.json").read_text())
+    assert plan["status"] == "solved" and plan["scenario"]["hands"] == "auto"
+    # The survey for this seed, as regrasp survey runs it (all four configurations, the quick survey's size).
+    seed = plan["scenario"]["seed"]
+    doc, _ = run_survey(run.task.scenario, states=1500, seed=seed, workers=1, task=run.task)
+    assert plan["hands"] == doc["recommended"]
+    assert plan["stats"]["survey"] == {r["hands"]: r["ratio"] for r in doc["rows"]}
+    # Not the only candidate: another configuration has a ratio too, lower.
+    ratios = {h: r for h, r in plan["stats"]["survey"].items() if r is not None}
+    assert len(ratios) >= 2 and ratios[plan["hands"]] > min(ratios.values())
+    # Another seed surveys other states: the ratios above are this seed's.
+    other, _ = run_survey(run.task.scenario, states=1500, seed=seed + 1, workers=1, task=run.task)
+    assert {r["hands"]: r["ratio"] for r in other["rows"]} != plan["stats"]["survey"]
