@@ -1,0 +1,328 @@
+"""The simulated controller's own behaviour, against the real ``regrasp controller-sim`` process on loopback.
+
+A test peer speaks the protocol to it directly, on a robot id of its own: the
+controller must refuse what breaks its limits whoever sends it, hold its posture
+when commands stop coming, publish joint states at its control rate, and honour
+``--speed`` and ``--delay-ms``. Every wait is bounded.
+"""
+
+from __future__ import annotations
+
+import statistics
+import threading
+import time
+import uuid
+from typing import Callable
+
+import numpy as np
+import pytest
+
+from robot_bridge.controller_sim import JointLimits, limits_from_urdf
+from robot_bridge.dispatcher import split_segments
+from robot_bridge.robot_files import robot_files
+from robot_bridge.settings import BridgeSettings, Keys
+from robot_bridge.zenoh_session import control_publisher, encode, open_session
+from schemas.bridge import ExecStatus, Heartbeat, JointState, Stop, TrajectorySegment
+
+from .conftest import ControllerProcess, start_controller
+
+#: The contract's control period (200 Hz).
+PERIOD_S = 0.005
+#: A bounded wait for anything the controller should do at once.
+REPLY_TIMEOUT_S = 5.0
+
+
+class Peer:
+    """A zenoh peer connected to one controller: sends commands, records its telemetry with arrival times."""
+
+    def __init__(self, ctl: ControllerProcess):
+        self.keys = Keys(ctl.robot_id)
+        self.session = open_session(BridgeSettings(robot_id=ctl.robot_id, connect=[ctl.endpoint]))
+        self._traj = control_publisher(self.session, self.keys.trajectory)
+        self._stop = control_publisher(self.session, self.keys.stop)
+        self._lock = threading.Lock()
+        self.exec: list[tuple[float, ExecStatus]] = []
+        self.joints: list[tuple[float, JointState]] = []
+        self.beats: list[tuple[float, Heartbeat]] = []
+
+        def recorder(into: list, model) -> Callable:
+            def on_sample(sample) -> None:
+                doc = model.model_validate_json(sample.payload.to_bytes())
+                with self._lock:
+                    into.append((time.monotonic(), doc))
+            return on_sample
+
+        self._subs = [
+            self.session.declare_subscriber(self.keys.exec, recorder(self.exec, ExecStatus)),
+            self.session.declare_subscriber(self.keys.joints, recorder(self.joints, JointState)),
+            self.session.declare_subscriber(self.keys.heartbeat, recorder(self.beats, Heartbeat)),
+        ]
+        self.wait_for(lambda: self.latest() is not None, "no joint state from the controller")
+
+    def close(self) -> None:
+        self.session.close()
+
+    def wait_for(self, cond: Callable[[], object], what: str, timeout_s: float = REPLY_TIMEOUT_S):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            value = cond()
+            if value:
+                return value
+            time.sleep(0.002)
+        raise AssertionError(f"timed out after {timeout_s} s: {what}")
+
+    def latest(self) -> JointState | None:
+        with self._lock:
+            return self.joints[-1][1] if self.joints else None
+
+    def joints_since(self, t: float) -> list[tuple[float, JointState]]:
+        with self._lock:
+            return [(at, js) for at, js in self.joints if at >= t]
+
+    def reply(self, after: float, status: str, job_id: str | None = None, timeout_s: float = REPLY_TIMEOUT_S
+              ) -> tuple[float, ExecStatus]:
+        """The first exec status ``status`` (for ``job_id`` if given) that arrived after ``after``."""
+        def find():
+            with self._lock:
+                return next(((at, st) for at, st in self.exec if at >= after and st.status == status
+                             and (job_id is None or st.job_id == job_id)), None)
+        return self.wait_for(find, f"exec status {status!r} for job {job_id}", timeout_s)
+
+    def send(self, seg: TrajectorySegment) -> float:
+        sent = time.monotonic()
+        self._traj.put(encode(seg))
+        return sent
+
+    def stop(self) -> float:
+        sent = time.monotonic()
+        self._stop.put(encode(Stop(job_id=None, reason="test stop", stamp=sent)))
+        return sent
+
+
+def segments(job_id: str, names: list[str], Q: np.ndarray, dt_s: float, duration_s: float = 1.0) -> list[TrajectorySegment]:
+    """Q (points x joints, in ``names`` order) cut into segments the way the dispatcher cuts plans."""
+    plan = {"dt_s": dt_s, "robot": {"joint_names": names},
+            "trajectory": [{"q": q.tolist(), "holding": "none"} for q in Q]}
+    return split_segments(plan, job_id, "0" * 64, first_seq=1, segment_duration_s=duration_s)
+
+
+def cosine_move(q0: np.ndarray, joint: int, delta: float, duration_s: float, dt_s: float, rest_points: int = 0) -> np.ndarray:
+    """Rest-to-rest move of one joint, then ``rest_points`` more points at the goal."""
+    n = int(round(duration_s / dt_s))
+    s = np.concatenate([0.5 * (1 - np.cos(np.pi * np.arange(n + 1) / n)), np.ones(rest_points)])
+    Q = np.repeat(q0[None], len(s), axis=0)
+    Q[:, joint] += s * delta
+    return Q
+
+
+def new_job() -> str:
+    return f"sim-{uuid.uuid4().hex[:8]}"
+
+
+@pytest.fixture(scope="module")
+def sim(initial_q_file):
+    """One controller at real-time speed and its test peer."""
+    ctl = start_controller(initial_q_file, speed=1.0)
+    peer = Peer(ctl)
+    yield ctl, peer
+    peer.close()
+    ctl.terminate()
+
+
+@pytest.fixture(scope="module")
+def limits(sim) -> tuple[list[str], JointLimits]:
+    names = list(sim[1].latest().joint_names)
+    return names, limits_from_urdf(str(robot_files("hrp5p").urdf), names)
+
+
+def _idle(peer: Peer) -> tuple[list[str], np.ndarray]:
+    """The controller's joint names and posture, once it is not executing."""
+    def idle() -> JointState | None:
+        js = peer.latest()
+        return js if js is not None and js.job_id is None else None
+
+    js = peer.wait_for(idle, "the controller is still executing")
+    return list(js.joint_names), np.array(js.q)
+
+
+def _posture_after(peer: Peer, t: float) -> np.ndarray:
+    """The posture in the first joint state that arrived after ``t`` with no job executing."""
+    found = peer.wait_for(lambda: next((js for _, js in peer.joints_since(t) if js.job_id is None), None),
+                          "a joint state after the job ended")
+    return np.array(found.q)
+
+
+def _assert_still(peer: Peer, q: np.ndarray, seconds: float = 0.2) -> None:
+    """Every joint state over the next ``seconds`` is exactly ``q``."""
+    t0 = time.monotonic()
+    time.sleep(seconds)
+    states = peer.joints_since(t0)
+    assert len(states) >= 10, "too few joint states to judge"
+    assert all(np.array_equal(js.q, q) for _, js in states), "the robot moved"
+
+
+# --------------------------------------------------------------------------- the controller's own limits
+
+
+def test_controller_rejects_a_segment_beyond_a_joint_limit(sim, limits):
+    ctl, peer = sim
+    names, lim = limits
+    _, q0 = _idle(peer)
+    dt = 0.02
+    room = lim.upper - q0
+    # the joint closest to its upper limit, approached at half its velocity limit: only the position check can refuse it
+    candidates = [j for j in range(len(names)) if np.isfinite(room[j]) and room[j] + 0.01 < 0.5 * lim.velocity[j] * 1.0]
+    j = min(candidates, key=lambda k: room[k])
+    steps = int(np.ceil((room[j] + 0.01) / (0.5 * lim.velocity[j] * dt)))
+    Q = np.repeat(q0[None], steps + 1, axis=0)
+    Q[:, j] = q0[j] + np.linspace(0.0, room[j] + 0.01, steps + 1)
+    assert np.abs(np.diff(Q, axis=0)).max() / dt < lim.velocity[j]
+    segs = segments(new_job(), names, Q, dt)
+    assert len(segs) == 1
+    at, st = peer.reply(peer.send(segs[0]), "rejected", segs[0].job_id)
+    assert "joint limit" in st.reason and names[j] in st.reason and st.fatal
+    _assert_still(peer, q0)
+
+
+def test_controller_rejects_a_segment_above_a_velocity_limit(sim, limits):
+    ctl, peer = sim
+    names, lim = limits
+    _, q0 = _idle(peer)
+    dt = 0.01
+    j = names.index("RSP")
+    jump = 2.0 * lim.velocity[j] * dt  # twice the limit for one step, well inside the position limits
+    assert lim.lower[j] < q0[j] - jump
+    Q = np.repeat(q0[None], 4, axis=0)
+    Q[2:, j] -= jump
+    seg = segments(new_job(), names, Q, dt)[0]
+    at, st = peer.reply(peer.send(seg), "rejected", seg.job_id)
+    assert "velocity limit" in st.reason and "RSP" in st.reason and st.fatal
+    _assert_still(peer, q0)
+    # the same move at half the limit is accepted and played
+    Q = cosine_move(q0, j, -0.05, 0.3, dt)
+    seg = segments(new_job(), names, Q, dt)[0]
+    sent = peer.send(seg)
+    peer.reply(sent, "accepted", seg.job_id)
+    done, _ = peer.reply(sent, "succeeded", seg.job_id)
+    assert np.allclose(_posture_after(peer, done), Q[-1], atol=1e-12)
+
+
+# --------------------------------------------------------------------------- starved: hold the last command
+
+
+def test_controller_holds_its_last_command_when_starved(sim):
+    ctl, peer = sim
+    names, q0 = _idle(peer)
+    dt = 0.01
+    j = names.index("RSP")
+    Q = np.vstack([cosine_move(q0, j, -0.1, 0.5, dt, rest_points=10), cosine_move(q0, j, -0.1, 0.5, dt)[::-1]])
+    segs = segments(new_job(), names, Q, dt, duration_s=0.6)
+    assert len(segs) == 2
+    first_last = np.array(segs[0].points[-1])  # segment 0 ends at rest, -0.1 rad away
+    sent = peer.send(segs[0])  # segment 1 is never sent: the commands are lost
+    peer.reply(sent, "accepted", segs[0].job_id)
+    at, st = peer.reply(sent, "starved", segs[0].job_id)
+    assert "holding" in st.reason
+    assert at - sent >= (len(segs[0].points) - 1) * dt * 0.95  # not before segment 0 was played
+    assert np.allclose(_posture_after(peer, at), first_last, atol=1e-12)
+    _assert_still(peer, first_last, seconds=0.3)
+    assert peer.wait_for(lambda: peer.beats and peer.beats[-1][1].state == "holding", "heartbeat says holding")
+    # what arrives late is not played: the job is over, the robot stays where it is
+    late = peer.send(segs[1])
+    at, st = peer.reply(late, "rejected", segs[1].job_id)
+    assert "already ended" in st.reason
+    _assert_still(peer, first_last)
+
+
+# --------------------------------------------------------------------------- rates
+
+
+def test_joint_states_at_200_hz(sim):
+    ctl, peer = sim
+    _idle(peer)
+    t0 = time.monotonic()
+    time.sleep(1.0)
+    stamps = np.array([js.stamp for _, js in peer.joints_since(t0)])
+    intervals = np.diff(stamps)
+    median = float(np.median(intervals))
+    span = stamps[-1] - stamps[0]
+    print(f"joint states: median interval {median * 1000:.2f} ms, {(len(stamps) - 1) / span:.0f} Hz over {span:.2f} s")
+    assert 0.9 * PERIOD_S <= median <= 1.1 * PERIOD_S
+    assert (len(stamps) - 1) / span <= 1.05 / PERIOD_S  # never faster (no catch-up bursts)
+    assert (len(stamps) - 1) / span >= 0.5 / PERIOD_S  # and not a fraction of it (a loaded host may delay a few ticks)
+
+
+def _play_time(peer: Peer, names: list[str], q0: np.ndarray, dt: float, duration_s: float) -> float:
+    """Seconds from segment 0's acceptance to 'succeeded', for a rest-to-rest move of ``duration_s`` (and back)."""
+    j = names.index("LSP")
+    half = cosine_move(q0, j, -0.2, duration_s / 2, dt)
+    Q = np.vstack([half, half[-2::-1]])
+    segs = segments(new_job(), names, Q, dt)
+    sent = time.monotonic()
+    for seg in segs:
+        peer.send(seg)
+    accepted, _ = peer.reply(sent, "accepted", segs[0].job_id)
+    done, _ = peer.reply(sent, "succeeded", segs[0].job_id, timeout_s=4 * duration_s + REPLY_TIMEOUT_S)
+    assert np.allclose(_posture_after(peer, done), Q[-1], atol=1e-12)
+    return done - accepted
+
+
+def test_speed_scales_playback_time(sim, initial_q_file):
+    ctl, peer = sim
+    names, q0 = _idle(peer)
+    dt, duration = 0.01, 2.0
+    t1 = _play_time(peer, names, q0, dt, duration)
+    fast = start_controller(initial_q_file, speed=4.0)
+    try:
+        fast_peer = Peer(fast)
+        try:
+            names4, q4 = _idle(fast_peer)
+            t4 = _play_time(fast_peer, names4, q4, dt, duration)
+        finally:
+            fast_peer.close()
+    finally:
+        fast.terminate()
+    print(f"{duration} s of plan: {t1:.3f} s at --speed 1, {t4:.3f} s at --speed 4 (ratio {t1 / t4:.2f})")
+    # never faster than asked (a tick may fall either side of the acceptance and of the last point)
+    assert t1 >= duration - 3 * PERIOD_S and t4 >= duration / 4 - 3 * PERIOD_S
+    assert t1 <= 1.5 * duration  # real time, with room for a loaded host's late ticks
+    assert 3.0 <= t1 / t4 <= 5.0  # ~1/K
+
+
+# --------------------------------------------------------------------------- fault injection: delay
+
+
+def _round_trips(peer: Peer, n: int = 3) -> list[float]:
+    """Seconds from a stop's publication to the controller's 'stopped' reply, n times."""
+    out = []
+    for _ in range(n):
+        sent = peer.stop()
+        at, _ = peer.reply(sent, "stopped")
+        out.append(at - sent)
+    return out
+
+
+def test_delay_ms_adds_latency_to_every_command(sim, initial_q_file):
+    ctl, peer = sim
+    _idle(peer)
+    base = statistics.median(_round_trips(peer))
+    delay_s = 0.15
+    slow = start_controller(initial_q_file, "--delay-ms", str(int(delay_s * 1000)), speed=1.0)
+    try:
+        slow_peer = Peer(slow)
+        try:
+            delayed = _round_trips(slow_peer)
+            names, q0 = _idle(slow_peer)
+            seg = segments(new_job(), names, np.repeat(q0[None], 3, axis=0), 0.01)[0]
+            sent = slow_peer.send(seg)
+            at, st = slow_peer.reply(sent, "accepted", seg.job_id)
+            segment_rtt = at - sent
+        finally:
+            slow_peer.close()
+    finally:
+        slow.terminate()
+    print(f"stop round trip: {base * 1000:.1f} ms without delay, {[round(d * 1000, 1) for d in delayed]} ms with "
+          f"--delay-ms {delay_s * 1000:.0f}; segment {segment_rtt * 1000:.1f} ms")
+    assert base < delay_s / 2
+    for rtt in (*delayed, segment_rtt):
+        assert delay_s <= rtt <= delay_s + 0.15
