@@ -341,8 +341,10 @@ def _png_size(path: Path) -> tuple[int, int]:
     return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
 
 
-def test_the_plots_are_real_pictures(run):
+def test_the_plots_are_real_pictures(run, tmp_path):
     import matplotlib.image as mpimg
+
+    from service.plots import plot_survey_bars
 
     bars = run.plots / "survey-one-legged-bars.png"
     scatter = run.plots / "survey-one-legged-scatter.png"
@@ -355,11 +357,42 @@ def test_the_plots_are_real_pictures(run):
         assert w >= 400 and h >= 300 and path.stat().st_size > 10_000
         img = mpimg.imread(path)
         assert img.std() > 0.05  # not a blank canvas
-    # The scatter shows both colours: stable (tab:green) and unstable (tab:red) points.
-    img = mpimg.imread(scatter)[:, :, :3]
-    reddish = (img[:, :, 0] > 0.75) & (img[:, :, 1] < 0.5) & (img[:, :, 2] < 0.5)
-    greenish = (img[:, :, 1] > 0.5) & (img[:, :, 0] < 0.45) & (img[:, :, 2] < 0.45)
-    assert reddish.sum() > 20 and greenish.sum() > 20
+    # The bar chart is the survey's rows: redrawn from the document it is the same picture, and with
+    # another ratio it is not.
+    title = "R per hand configuration (one-legged, threshold 50 mm)"
+    same = plot_survey_bars(tmp_path / "same.png", title=title, rows=run.doc["rows"])
+    assert np.array_equal(mpimg.imread(same), mpimg.imread(bars))
+    other_rows = [dict(r, ratio=r["ratio"] / 2) for r in run.doc["rows"]]
+    other = plot_survey_bars(tmp_path / "other.png", title=title, rows=other_rows)
+    assert not np.array_equal(mpimg.imread(other), mpimg.imread(bars))
+
+
+def _red_pixels(path: Path) -> int:
+    import matplotlib.image as mpimg
+
+    """Pixels of tab:red, pure or faded towards white (green equals blue); the threshold's orange outline is not."""
+    img = mpimg.imread(path)[:, :, :3]
+    r, g, b = img[:, :, 0], img[:, :, 1], img[:, :, 2]
+    return int(((r - g > 0.25) & (np.abs(g - b) < 0.08)).sum())
+
+
+def test_the_scatter_draws_its_csv_data_with_the_unstable_states_in_red(run, tmp_path):
+    """Redrawn from its CSV, the scatter is the same picture, pixel for pixel; drawn with every state
+    stable it has far fewer red pixels (only the legend's): the unstable states are visible."""
+    import matplotlib.image as mpimg
+
+    from service.plots import plot_survey_scatter
+
+    with open(run.plots / "survey-one-legged-scatter.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    xy = np.array([[float(r["x_m"]), float(r["y_m"])] for r in rows])
+    stable = np.array([r["stable"] == "1" for r in rows])
+    kwargs = dict(title="explored CoM projections (one-legged, threshold 50 mm)", threshold_m=run.doc["threshold_m"],
+                  polygon=np.array(run.doc["stats"]["support_polygon"]), xy=xy)
+    again = plot_survey_scatter(tmp_path / "again.png", stable=stable, **kwargs)
+    assert np.array_equal(mpimg.imread(again), mpimg.imread(run.plots / "survey-one-legged-scatter.png"))
+    all_stable = plot_survey_scatter(tmp_path / "all-stable.png", stable=np.ones(len(xy), bool), **kwargs)
+    assert _red_pixels(again) > 5 * _red_pixels(all_stable) + 50
 
 
 def test_the_scatter_data_are_the_states_com_projections(run, indep, robot_com):
