@@ -16,11 +16,13 @@ from ..problems import PROBLEM_MEDIA_TYPE, ProblemError
 bearer = HTTPBearer(auto_error=False, description="Bearer token; roles planner, approver, operator, admin")
 
 
-def service(request: Request) -> Service:
+# The dependencies are ``async``: FastAPI runs a sync dependency in the thread pool, a thread hop
+# per dependency per request, while these only read memory (a dict lookup of the token's hash).
+async def service(request: Request) -> Service:
     return request.app.state.service
 
 
-def principal(request: Request, creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> Principal:
+async def principal(request: Request, creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> Principal:
     challenge = {"WWW-Authenticate": 'Bearer realm="regrasp"'}
     if creds is None:
         raise ProblemError(401, "no bearer token: send 'Authorization: Bearer TOKEN'", headers=challenge)

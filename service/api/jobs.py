@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import hashlib
 import json
 import time
@@ -25,7 +26,7 @@ from ..auth import Principal
 from ..context import Service
 from ..problems import ProblemError
 from ..provenance import provenance
-from ..store.repo import Conflict, IdempotencyMismatch
+from ..store.repo import Conflict, IdempotencyMismatch, QueueFull
 from .deps import principal, problems, require, service
 from .views import job_view
 
@@ -62,6 +63,12 @@ def _job_response(svc: Service, row: dict[str, Any], status_code: int = 200,
 
 
 # ------------------------------------------------------------------ submit
+@functools.lru_cache(maxsize=1)
+def _builtin_scenarios() -> tuple[str, ...]:
+    """The built-in scenario names: files shipped with the planner, listed once (not per submission)."""
+    return tuple(builtin_names())
+
+
 def _check_request(svc: Service, body: JobSubmit) -> tuple[str, int | None]:
     """Validate what pydantic cannot (scenario names, inline scenarios); returns (robot, seed)."""
     req = body.request
@@ -79,7 +86,7 @@ def _check_request(svc: Service, body: JobSubmit) -> tuple[str, int | None]:
         robot = scenario.robot
         seed = seed if seed is not None else scenario.seed
     elif svc.settings.check_scenario_names:
-        names = builtin_names()
+        names = _builtin_scenarios()
         if req.scenario not in names:
             raise ProblemError(422, f"unknown scenario {req.scenario!r}; built-in scenarios: {', '.join(names) or 'none'}"
                                     " (or send an inline scenario document)")
@@ -104,27 +111,17 @@ def submit(
     robot, seed = _check_request(svc, body)
     request = body.request.model_dump(mode="json", exclude_none=True)
     request_sha = hashlib.sha256(json.dumps({"kind": body.kind, "request": request}, sort_keys=True).encode()).hexdigest()
-    if idempotency_key is not None:
-        existing = svc.store._by_key(p.user, idempotency_key)  # noqa: SLF001 - fast path for replays
-        if existing is not None:
-            try:
-                svc.store._replay(existing, request_sha)  # noqa: SLF001
-            except IdempotencyMismatch as exc:
-                raise ProblemError(409, str(exc)) from None
-            return _job_response(svc, existing, 202, {"Location": f"/v1/jobs/{existing['id']}",
-                                                      "Idempotent-Replayed": "true"})
-    depth = svc.store.queue_depth()
-    if depth >= svc.settings.queue_limit:
-        raise ProblemError(429, f"the queue holds {depth} jobs, at its limit of {svc.settings.queue_limit}; "
-                                f"retry in {svc.settings.retry_after_s} s",
-                           headers={"Retry-After": str(svc.settings.retry_after_s)})
     try:
         row, created = svc.store.create(
             job_id=str(uuid.uuid4()), kind=body.kind, submitter=p.user, request=request, request_sha256=request_sha,
-            idempotency_key=idempotency_key, provenance=provenance(robot, seed),
+            idempotency_key=idempotency_key, provenance=provenance(robot, seed), queue_limit=svc.settings.queue_limit,
         )
     except IdempotencyMismatch as exc:
         raise ProblemError(409, str(exc)) from None
+    except QueueFull as exc:
+        raise ProblemError(429, f"the queue holds {exc.depth} jobs, at its limit of {svc.settings.queue_limit}; "
+                                f"retry in {svc.settings.retry_after_s} s",
+                           headers={"Retry-After": str(svc.settings.retry_after_s)}) from None
     headers = {"Location": f"/v1/jobs/{row['id']}"}
     if not created:
         headers["Idempotent-Replayed"] = "true"

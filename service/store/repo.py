@@ -37,6 +37,14 @@ class IdempotencyMismatch(Exception):
     """An Idempotency-Key was reused with a different request body."""
 
 
+class QueueFull(Exception):
+    """The queue holds ``depth`` jobs, at or past the limit a new submission was checked against (HTTP 429)."""
+
+    def __init__(self, depth: int) -> None:
+        super().__init__(f"the queue holds {depth} jobs")
+        self.depth = depth
+
+
 #: Hot-path statements, built once: SQLAlchemy then reuses their compiled form (the API's latency budget).
 _GET_JOB = sa.select(jobs).where(jobs.c.id == sa.bindparam("job_id"))
 _GET_RESULT = sa.select(job_results.c.result).where(job_results.c.job_id == sa.bindparam("job_id"))
@@ -156,12 +164,12 @@ class JobStore:
     # --------------------------------------------------------------- creation
     def create(self, *, job_id: str, kind: str, submitter: str, request: dict[str, Any],
                request_sha256: str, idempotency_key: str | None,
-               provenance: dict[str, Any]) -> tuple[dict[str, Any], bool]:
-        """Insert a queued job; with an idempotency key already used by this submitter, return that job instead."""
-        if idempotency_key is not None:
-            existing = self._by_key(submitter, idempotency_key)
-            if existing is not None:
-                return self._replay(existing, request_sha256), False
+               provenance: dict[str, Any], queue_limit: int | None = None) -> tuple[dict[str, Any], bool]:
+        """Insert a queued job; with an idempotency key already used by this submitter, return that job instead.
+
+        The replay lookup, the queue-limit check (:class:`QueueFull`) and the insert share one
+        transaction: a submission costs one connection and one write, and on SQLite the limit is exact.
+        """
         now = utcnow()
         values = {c.name: None for c in jobs.columns if c.name != "seq"}
         values.update(
@@ -172,10 +180,18 @@ class JobStore:
         )
         try:
             with self._begin() as conn:
+                if idempotency_key is not None:
+                    existing = conn.execute(_BY_KEY, {"submitter": submitter, "key": idempotency_key}).mappings().first()
+                    if existing is not None:
+                        return self._replay(dict(existing), request_sha256), False
+                if queue_limit is not None:
+                    depth = int(conn.execute(_QUEUE_DEPTH).scalar_one())
+                    if depth >= queue_limit:
+                        raise QueueFull(depth)
                 conn.execute(_INSERT_JOB, values)
                 self._event(conn, job_id, "state", state="queued", progress=0.0, message=f"{kind} job submitted by {submitter}",
                             data={"request": request, "submitter": submitter, "idempotency_key": idempotency_key}, at=now)
-        except IntegrityError:
+        except IntegrityError:  # another replica inserted the same key between our lookup and insert
             if idempotency_key is None:
                 raise
             existing = self._by_key(submitter, idempotency_key)

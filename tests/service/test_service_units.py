@@ -126,3 +126,21 @@ def test_sqlite_store_runs_in_wal_mode_with_a_busy_timeout(tmp_path: Path) -> No
     other.close()
     assert waited >= hold_s * 0.8  # it waited for the lock (busy timeout 0 would raise "database is locked")
     engine.dispose()
+
+
+def test_queue_limit_is_checked_in_the_insert_and_replays_still_answer(store: JobStore) -> None:
+    from service.store.repo import QueueFull
+
+    def submit(key: str) -> tuple[dict, bool]:
+        return store.create(job_id=str(uuid.uuid4()), kind="plan", submitter="u", request={"scenario": key},
+                            request_sha256=key, idempotency_key=key, provenance=provenance("hrp5p", 1), queue_limit=2)
+
+    first, _ = submit("a")
+    submit("b")
+    with pytest.raises(QueueFull) as full:
+        submit("c")
+    assert full.value.depth == 2 and store.queue_depth() == 2  # nothing was inserted
+    again, created = submit("a")  # a replay is an answer, not a new job: the full queue does not refuse it
+    assert not created and again["id"] == first["id"]
+    store.transition(first["id"], ["queued"], "canceled", message="x")
+    assert submit("c")[1]  # room again
