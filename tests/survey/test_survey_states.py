@@ -3,8 +3,9 @@
 The scenario (tests/data/one-legged-box.yaml) stands on one leg with a 50 mm threshold, 15 mm
 inside the stance's 65 mm inradius, so the explored states straddle the threshold. The survey
 runs through the CLI (``--json --states-out --plot``) for one single-arm and one dual-arm
-configuration (``run_survey`` is wrapped to pass ``hands``: the two configurations whose key
-poses exist here, which keeps the test fast; everything else is the CLI's own path).
+configuration (``run_survey`` is wrapped to pass ``hands``, the two configurations whose key
+poses exist here, which keeps the test fast, and the task it would build, kept for its handover
+poses; everything else is the CLI's own path).
 
 Every check works on what the CLI wrote: the recount, an independent reclassification
 (pinocchio on the URDF, shapely; tests/survey/independent.py), the properties through the
