@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, Phase, example, given, settings
 from hypothesis import strategies as st
 
-from robot_bridge.gate import Approval, GateSettings, MeasuredState, SafetyGate
+from robot_bridge.gate import Approval, MeasuredState, SafetyGate
 from schemas.plan import plan_sha256
 
 from .conftest import REPO
