@@ -508,8 +508,12 @@ def _check_rates(ctx: _Context, p: _Parsed, robot: _Robot, s: GateSettings) -> N
 
     Only the moving columns are differenced: a joint that holds one value has none.
     """
-    order = {n: i for i, n in enumerate(robot.model.joint_names)}
     cols = p.moving
+    if cols.size == 0:  # nothing moves: at rest throughout
+        ctx.passed("joint_velocity", max_ratio=0.0)
+        ctx.passed("joint_acceleration", max_ratio=0.0)
+        return
+    order = {n: i for i, n in enumerate(robot.model.joint_names)}
     names = [p.joint_names[c] for c in cols]
     vmax = robot.model.velocity_limit[[order[n] for n in names]]
     amax = np.array([robot.files.acceleration_limit(n) for n in names])
@@ -523,12 +527,6 @@ def _check_rates(ctx: _Context, p: _Parsed, robot: _Robot, s: GateSettings) -> N
         a[-1] = -v[-1] / dt
     else:
         a[:] = 0.0
-    if cols.size == 0:
-        ctx.note("joint_velocity", max_ratio=0.0)
-        ctx.note("joint_acceleration", max_ratio=0.0)
-        ctx.passed("joint_velocity")
-        ctx.passed("joint_acceleration")
-        return
     vr, ar = np.abs(v).max(axis=0) / vmax, np.abs(a).max(axis=0) / amax
     ctx.note("joint_velocity", max_ratio=float(vr.max()), joint=names[int(np.argmax(vr))])
     ctx.note("joint_acceleration", max_ratio=float(ar.max()), joint=names[int(np.argmax(ar))])
