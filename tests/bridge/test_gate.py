@@ -187,6 +187,22 @@ def test_nan_and_inf_are_vetoed_with_the_sample(gate, plan):
         assert "trajectory[77].q[5]" in v.message
 
 
+@pytest.mark.parametrize("key,index,bad", [("q", 5, "0.1"), ("q", 0, None), ("object_pose", 2, None), ("t", None, "1.0")])
+def test_values_that_are_not_json_numbers_are_vetoed_by_name(gate, plan, key, index, bad):
+    """A number written as a string (or a null) is malformed, even where it would convert."""
+    def spoil(p):
+        pt = p["trajectory"][40]
+        if index is None:
+            pt[key] = bad
+        else:
+            pt[key][index] = bad
+
+    v = gate.check(edited(plan, spoil), offline=True)
+    assert not v.passed and v.check == "structure", v.summary()
+    where = f"trajectory[40].{key}" + (f"[{index}]" if index is not None else "")
+    assert f"{where} is {bad!r}, not a number" in v.message
+
+
 def test_time_must_increase_strictly(gate, plan):
     p = edited(plan, lambda p: p["trajectory"][30].__setitem__("t", p["trajectory"][29]["t"]))
     v = gate.check(p, offline=True)
