@@ -152,22 +152,14 @@ def check_scenario(scenario: Scenario) -> CheckReport:
             f"threshold {scenario.threshold_m * 1000:.1f} mm is larger than the support polygon's inradius "
             f"{inradius * 1000:.1f} mm in stance {stance.name!r}: no state can be stable"
         )
-    try:
-        from .objects import build_object
+    from .objects import build_object  # here: objects and placements build on this module's models
+    from .placements import check_resting_pose
 
-        build_object(scenario.object)
-    except ImportError:
-        pass
+    try:
+        obj = build_object(scenario.object)
     except ValueError as exc:
         report.problems.append(f"object: {exc}")
-    try:
-        from .placements import check_resting_pose
-    except ImportError:
-        check_resting_pose = None
-    if check_resting_pose is not None and not report.problems:
-        from .objects import build_object
-
-        obj = build_object(scenario.object)
+    if not report.problems:
         for label, pose in (("start_pose", scenario.start_pose), ("goal_pose", scenario.goal_pose)):
             try:
                 check_resting_pose(obj, pose, scenario.tables)

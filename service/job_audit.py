@@ -15,8 +15,6 @@ names the previous file and its chain head.
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import logging
 from pathlib import Path
 from typing import Any
@@ -25,21 +23,13 @@ import sqlalchemy as sa
 
 from schemas.jobs import TERMINAL_STATES
 
+from .audit import AuditWriter
 from .store.repo import JobStore
 from .store.tables import jobs
 
 log = logging.getLogger("regrasp.audit")
 
 PUMP_PERIOD_S = 0.2
-
-
-def audit_available() -> bool:
-    return importlib.util.find_spec("service.audit") is not None
-
-
-def _writer_class() -> Any:
-    module = importlib.import_module("service.audit")
-    return getattr(module, "AuditWriter")
 
 
 def records_for_event(event: dict[str, Any], job: dict[str, Any], store: JobStore) -> list[tuple[str, dict[str, Any]]]:
@@ -79,7 +69,6 @@ class JobAuditor:
     def __init__(self, store: JobStore, audit_dir: Path) -> None:
         self.store = store
         self.audit_dir = audit_dir
-        self.enabled = audit_available()
         self._writers: dict[str, tuple[Any, Path]] = {}
         self._done_upto: dict[str, int] = {}
         self._cursor = 0
@@ -103,8 +92,6 @@ class JobAuditor:
         """Pump until ``stop`` is set or the parent process dies (used by the audit process)."""
         import os
 
-        if not self.enabled:
-            return
         self.audit_dir.mkdir(parents=True, exist_ok=True)
         self._cursor = self._start_cursor()
         while not stop.wait(PUMP_PERIOD_S):
@@ -160,11 +147,7 @@ class JobAuditor:
         while path.exists():
             path = self.audit_dir / f"{job_id}.{n}.mcap"
             n += 1
-        cls = _writer_class()
-        try:
-            writer = cls(path, job_id, robot_name=job.get("robot"))
-        except TypeError:
-            writer = cls(path, job_id)
+        writer = AuditWriter(path, job_id, robot_name=job.get("robot"))
         if previous:
             writer.record("continued", {"job_id": job_id, "previous_file": previous,
                                         "previous_head": job.get("audit_head"),
@@ -200,7 +183,6 @@ class AuditProcess:
     def __init__(self, database_url: str, audit_dir: Path) -> None:
         import multiprocessing as mp
 
-        self.enabled = audit_available()
         self._ctx = mp.get_context("spawn")
         self._stop = self._ctx.Event()
         self._args = (database_url, str(audit_dir))
@@ -209,9 +191,6 @@ class AuditProcess:
     def start(self) -> None:
         import os
 
-        if not self.enabled:
-            log.info("service.audit is not installed: jobs get no audit file")
-            return
         self._proc = self._ctx.Process(target=_audit_process_main, args=(*self._args, os.getpid(), self._stop),
                                        name="regrasp-audit", daemon=True)
         self._proc.start()

@@ -47,11 +47,11 @@ def code_version() -> str:
 
 @lru_cache(maxsize=16)
 def robot_sha256(robot: str) -> str | None:
-    try:
-        from planner.robots.registry import urdf_sha256
+    from planner.robots.registry import urdf_sha256
 
+    try:
         return urdf_sha256(robot)
-    except Exception:  # noqa: BLE001 - unknown robot: the planner reports it with the job
+    except (FileNotFoundError, ValueError):  # unknown robot: the planner reports it with the job
         return None
 
 
