@@ -63,6 +63,7 @@ class AuditedJob:
         #: The /audit/events records: (index among all messages, kind, payload).
         self.events = [(i, m["body"]["kind"], m["body"]["payload"]) for i, m in enumerate(self.messages)
                        if m["topic"] == "/audit/events"]
+        self.survey: AuditedJob | None = None  # the survey job audited beside a plan job
 
     def of(self, kind: str) -> list[tuple[int, dict[str, Any]]]:
         return [(i, p) for i, k, p in self.events if k == kind]
@@ -71,6 +72,19 @@ class AuditedJob:
         found = self.of(kind)
         assert len(found) == 1, f"{len(found)} {kind!r} records; kinds: {[k for _, k, _ in self.events]}"
         return found[0]
+
+
+def _download_closed(client: httpx.Client, job_id: str, path: Path) -> Path:
+    """The job's audit file once the audit process has closed it (after the terminal state)."""
+    deadline = time.monotonic() + AUDIT_CLOSED_TIMEOUT_S
+    while True:
+        audit = client.get(f"/v1/jobs/{job_id}/audit")
+        # A closed MCAP file ends with the magic bytes after its footer; an open one does not.
+        if audit.status_code == 200 and audit.content.endswith(MCAP_MAGIC):
+            path.write_bytes(audit.content)
+            return path
+        assert time.monotonic() < deadline, f"the audit file of {job_id} was never closed ({audit.status_code})"
+        time.sleep(0.2)
 
 
 @pytest.fixture(scope="module")
@@ -97,19 +111,18 @@ def audited(tmp_path_factory: pytest.TempPathFactory) -> Iterator[AuditedJob]:
             assert r.status_code == 202, r.text
             done = wait_state(bob, job_id, {"succeeded", "aborted", "rejected", "failed"}, JOB_TIMEOUT_S)
             assert done["state"] == "succeeded", (done["message"], done["error"])
-            # The audit process closes the file after the terminal state; the stored head then stops moving.
-            path = srv.data_dir / "downloaded.mcap"
-            deadline = time.monotonic() + AUDIT_CLOSED_TIMEOUT_S
-            while True:
-                audit = bob.get(f"/v1/jobs/{job_id}/audit")
-                # A closed MCAP file ends with the magic bytes after its footer; an open one does not.
-                if audit.status_code == 200 and audit.content.endswith(MCAP_MAGIC):
-                    path.write_bytes(audit.content)
-                    break
-                assert time.monotonic() < deadline, f"the audit file of {job_id} was never closed ({audit.status_code})"
-                time.sleep(0.2)
+            path = _download_closed(bob, job_id, srv.data_dir / "downloaded.mcap")
             job = bob.get(f"/v1/jobs/{job_id}").json()
-        yield AuditedJob(job, path)
+            # A survey job (the test handler's quick document) is audited as well.
+            r = alice.post("/v1/jobs", json={"kind": "survey", "request": {"scenario": "quick", "seed": 3}})
+            assert r.status_code == 202, r.text
+            survey = wait_state(alice, r.json()["id"], {"succeeded", "failed"}, JOB_TIMEOUT_S)
+            assert survey["state"] == "succeeded", survey["error"]
+            survey_path = _download_closed(alice, survey["id"], srv.data_dir / "survey.mcap")
+            survey = alice.get(f"/v1/jobs/{survey['id']}").json()
+        audited_job = AuditedJob(job, path)
+        audited_job.survey = AuditedJob(survey, survey_path)
+        yield audited_job
     finally:
         if sim is not None:
             stop_process(sim)
@@ -224,3 +237,16 @@ def test_robot_state_echoes_follow_the_plan(audited: AuditedJob) -> None:
     topics = {m["topic"]: m["schema"] for m in audited.messages}
     assert topics["/joint_states/plan"] == topics["/joint_states/executed"] == "foxglove.JointStates"
     assert topics["/robot_description"] and topics["/markers/support"] == "foxglove.SceneUpdate"
+
+
+def test_a_survey_job_records_its_request_and_survey_document(audited: AuditedJob) -> None:
+    sv = audited.survey
+    assert sv is not None
+    (i_req, req), (i_doc, doc) = sv.one("request"), sv.one("survey")
+    assert req["kind"] == "survey" and req["request"]["scenario"] == "quick" and req["request"]["seed"] == 3
+    assert i_req < i_doc
+    assert doc["document"] == sv.job["result"]
+    states = [p["state"] for _, p in sv.of("state")]
+    assert states == ["queued", "planning", "succeeded"]
+    assert not sv.of("plan") and not sv.of("approval")
+    assert sv.job["audit_head"] == sv.messages[-1]["body"]["audit"]["prev"]
