@@ -285,28 +285,28 @@ def instantiate_placements(
         ny = max(int(np.floor(2 * half[1] / settings.spot_spacing_m)), 0)
         xs = (np.arange(nx + 1) - nx / 2.0) * settings.spot_spacing_m
         ys = (np.arange(ny + 1) - ny / 2.0) * settings.spot_spacing_m
+        grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)  # x-major, as spots are numbered
+        centres = table.pose[:2, 3] + grid @ Rt  # each spot's centre in the world (Rt: world -> table rows)
         for ref in refs:
             for k in range(settings.yaws):
                 yaw = 2.0 * np.pi * k / settings.yaws
                 Ryaw = np.eye(4)
                 Ryaw[:3, :3] = rot_z(yaw)
                 T_c = Ryaw @ ref.T_ref
-                # the whole object's outline, not only its contact area, stays over the top
+                # the whole object's outline, not only its contact area, stays over the top (all spots at once)
                 foot = (hull @ T_c[:3, :3].T + T_c[:3, 3])[:, :2]
-                for x in xs:
-                    for y in ys:
-                        centre = table.pose[:2, 3] + Rt.T @ np.array([x, y])
-                        if settings.region is not None:
-                            x0, x1, y0, y1 = settings.region
-                            if not (x0 <= centre[0] <= x1 and y0 <= centre[1] <= y1):
-                                continue
-                        if not _inside_table(table, foot + centre, settings.edge_margin_m):
+                local = (centres[:, None, :] + foot[None, :, :] - table.pose[:2, 3]) @ Rt.T
+                inside = np.all(np.abs(local) <= half - settings.edge_margin_m + 1e-12, axis=(1, 2))
+                for centre in centres[inside]:
+                    if settings.region is not None:
+                        x0, x1, y0, y1 = settings.region
+                        if not (x0 <= centre[0] <= x1 and y0 <= centre[1] <= y1):
                             continue
-                        T = T_c.copy()
-                        T[:3, 3] += np.array([centre[0], centre[1], top])
-                        if world is not None and world.object_pose_clear(T) is not None:
-                            continue
-                        out.append(Placement(len(out), "spot", table.name, ref.index, yaw, T))
+                    T = T_c.copy()
+                    T[:3, 3] += np.array([centre[0], centre[1], top])
+                    if world is not None and world.object_pose_clear(T) is not None:
+                        continue
+                    out.append(Placement(len(out), "spot", table.name, ref.index, yaw, T))
     return out
 
 
