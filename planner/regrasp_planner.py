@@ -425,7 +425,9 @@ class HandConfigPlanner:
 
     def graph_spec(self) -> GraphSpec:
         t = self.task
-        sides: set[Side] = {self.start_hand, self.goal_hand}
+        # A fixed order (a set's order of strings changes with each process's hash seed, and with it
+        # the node order, the tie-break ranks and so the reported cost).
+        sides: list[Side] = sorted({self.start_hand, self.goal_hand})
         nodes: list[PlacementNode] = []
         for p, T in enumerate(t.placements):
             for side in sides:

@@ -200,3 +200,28 @@ def test_time_limit_bounds_the_whole_run_including_the_auto_survey(small_box):
     assert doc["status"] == "infeasible" and doc["failure"]["code"] == "TIMEOUT", doc["failure"]
     assert "0.5 s" in doc["failure"]["message"]
     assert elapsed < 0.5 + 1.0  # one node or survey step past the limit at most
+
+
+def test_graph_node_order_does_not_depend_on_the_hash_seed():
+    """Node order sets the tie-break ranks and so the reported cost: it must be the same in every process
+    (a set of hand names iterates in a per-process order)."""
+    import os
+    import subprocess
+    import sys
+
+    script = (
+        "import numpy as np, hashlib\n"
+        "from planner.scenarios import load_scenario\n"
+        "from planner.jobs import build_task\n"
+        "from planner.regrasp_planner import HandConfigPlanner\n"
+        f"task = build_task(load_scenario({str(DATA / 'small-box.yaml')!r}))\n"
+        "spec = HandConfigPlanner(task, 'right-left', np.random.default_rng(0)).graph_spec()\n"
+        "print(hashlib.sha256(repr(spec.placement_nodes).encode()).hexdigest(), len(spec.placement_nodes))\n"
+    )
+    outs = set()
+    for hash_seed in ("1", "2"):
+        env = {**os.environ, "PYTHONHASHSEED": hash_seed}
+        res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=240, env=env)
+        assert res.returncode == 0, res.stderr[-2000:]
+        outs.add(res.stdout.strip())
+    assert len(outs) == 1, outs
