@@ -6,15 +6,16 @@ import asyncio
 import functools
 import hashlib
 import json
+import os
 import time
 import uuid
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
-from typing import Any, AsyncIterator
+from typing import Any, AsyncIterator, Iterator
 
 from fastapi import APIRouter, Body, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import FileResponse, StreamingResponse
+from fastapi.responses import StreamingResponse
 
 from planner.scenarios import builtin_names
 from schemas.jobs import (
@@ -316,15 +317,45 @@ def stop(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Depen
     return _job_response(svc, svc.store.get(job_id) or row, 202)
 
 
+#: Bytes per read when serving an audit file.
+AUDIT_CHUNK_BYTES = 1 << 20
+
+
+def _snapshot(path: str) -> tuple[Iterator[bytes], int]:
+    """The file's bytes as they are now, and their count.
+
+    The audit writer only appends, so the first ``size`` bytes never change; serving exactly
+    those keeps the body equal to the Content-Length while a live job's file grows (a plain
+    file response declared the size at stat time and then sent more, and the connection broke).
+    """
+    f = open(path, "rb")  # noqa: SIM115 - closed by the generator
+    size = os.fstat(f.fileno()).st_size
+
+    def chunks() -> Iterator[bytes]:
+        with f:
+            left = size
+            while left > 0:
+                block = f.read(min(left, AUDIT_CHUNK_BYTES))
+                if not block:
+                    break
+                left -= len(block)
+                yield block
+
+    return chunks(), size
+
+
 @router.get(
-    "/{job_id}/audit", summary="The job's MCAP audit file", response_class=FileResponse,
+    "/{job_id}/audit", summary="The job's MCAP audit file (the bytes written so far, for a live job)",
+    response_class=StreamingResponse,
     responses={200: {"description": "MCAP file", "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}},
                **problems(401, 404, 422)},
 )
-def audit(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> FileResponse:
+def audit(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> StreamingResponse:
     row = _load(svc, job_id)
     path = row.get("audit_path")
     if not path or not Path(path).is_file():
         raise ProblemError(404, f"no audit file for job {job_id}" + ("" if svc.auditor else " (this process runs no audit writer)"))
-    headers = {"X-Audit-Head": row.get("audit_head") or ""}
-    return FileResponse(path, media_type="application/octet-stream", filename=f"{job_id}.mcap", headers=headers)
+    body, size = _snapshot(path)
+    headers = {"X-Audit-Head": row.get("audit_head") or "", "Content-Length": str(size),
+               "Content-Disposition": f'attachment; filename="{job_id}.mcap"'}
+    return StreamingResponse(body, media_type="application/octet-stream", headers=headers)

@@ -144,3 +144,18 @@ def test_queue_limit_is_checked_in_the_insert_and_replays_still_answer(store: Jo
     assert not created and again["id"] == first["id"]
     store.transition(first["id"], ["queued"], "canceled", message="x")
     assert submit("c")[1]  # room again
+
+
+def test_audit_download_is_a_snapshot_of_a_growing_file(tmp_path):
+    """A live job's audit file grows while it is served: the body is exactly the bytes present when the
+    request came (an append-only file's prefix), never more than the declared length."""
+    from service.api.jobs import AUDIT_CHUNK_BYTES, _snapshot
+
+    path = tmp_path / "job.mcap"
+    first = bytes(range(256)) * (AUDIT_CHUNK_BYTES // 256 + 7)  # more than one chunk
+    path.write_bytes(first)
+    body, size = _snapshot(str(path))
+    with open(path, "ab") as f:  # the writer appends while the response is being sent
+        f.write(b"later records" * 1000)
+    served = b"".join(body)
+    assert size == len(first) and served == first
