@@ -10,23 +10,14 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
+from .ui import login, open_job, use_token
+
 TIMEOUT_MS = 10_000
 ACTIONS = ("approve", "reject", "dispatch", "stop", "cancel")
 #: Execution steps long enough that a dispatched job is still dispatching when stop is clicked.
 SLOW_STEP_S = 30.0
 #: A stopped execution's thread ends at once (its stop event wakes it), well before a step.
 EXECUTION_END_S = 2.0
-
-
-def _login(page, url: str, token: str) -> None:
-    page.goto(url + "/")
-    page.fill("#token", token)
-    page.click("#token-save")
-
-
-def _open(page, job_id: str) -> None:
-    page.click(f'#jobs tbody tr[data-job-id="{job_id}"]', timeout=TIMEOUT_MS)
-    expect(page.locator("#job-id")).to_have_text(job_id, timeout=TIMEOUT_MS)
 
 
 def _buttons(page) -> dict[str, str]:
@@ -54,8 +45,8 @@ def _expect_buttons(page, expected: dict[str, str]) -> None:
 def test_cancel_button_cancels_a_queued_job(page, fake_server):
     url, store = fake_server
     job = store.add("plan", "alice", state="queued")
-    _login(page, url, "planner-token-alice")
-    _open(page, job["id"])
+    login(page, url, "planner-token-alice")
+    open_job(page, job["id"])
     expect(page.locator("#job-state")).to_have_text("queued")
     _expect_buttons(page, {"approve": "hidden", "reject": "hidden", "dispatch": "hidden", "stop": "hidden",
                            "cancel": "enabled"})
@@ -71,8 +62,8 @@ def test_cancel_button_cancels_a_queued_job(page, fake_server):
 def test_cancel_button_cancels_a_planning_job(page, fake_server):
     url, store = fake_server
     job = store.add("plan", "alice", state="planning")
-    _login(page, url, "planner-token-alice")
-    _open(page, job["id"])
+    login(page, url, "planner-token-alice")
+    open_job(page, job["id"])
     page.click("#btn-cancel")
     expect(page.locator("#job-state")).to_have_text("canceled", timeout=TIMEOUT_MS)
     assert store.jobs[job["id"]]["state"] == "canceled"
@@ -83,8 +74,8 @@ def test_stop_button_stops_a_dispatching_job(page, fake_server):
     url, store = fake_server
     store.execution_step_s = SLOW_STEP_S
     store.approve(store.plan_id)
-    _login(page, url, "operator-token-carol")
-    _open(page, store.plan_id)
+    login(page, url, "operator-token-carol")
+    open_job(page, store.plan_id)
     page.click("#btn-dispatch")
     expect(page.locator("#job-state")).to_have_text("dispatching", timeout=TIMEOUT_MS)
     _expect_buttons(page, {"approve": "hidden", "reject": "hidden", "dispatch": "hidden", "stop": "enabled",
@@ -107,8 +98,8 @@ def test_stop_button_stops_an_executing_job(page, fake_server):
     url, store = fake_server
     store.execution_step_s = 1.0  # 8 steps: executing for 8 s unless stopped
     store.approve(store.plan_id)
-    _login(page, url, "operator-token-carol")
-    _open(page, store.plan_id)
+    login(page, url, "operator-token-carol")
+    open_job(page, store.plan_id)
     page.click("#btn-dispatch")
     expect(page.locator("#job-state")).to_have_text("executing", timeout=TIMEOUT_MS)
     page.click("#btn-stop")
@@ -137,8 +128,8 @@ PLANNED_CASES = [
 def test_buttons_on_a_planned_job_follow_the_token_roles(page, fake_server, token, approve, reject, dispatch, stop,
                                                          cancel, submit):
     url, store = fake_server
-    _login(page, url, token)
-    _open(page, store.plan_id)
+    login(page, url, token)
+    open_job(page, store.plan_id)
     expect(page.locator("#job-state")).to_have_text("planned")
     _expect_buttons(page, {"approve": approve, "reject": reject, "dispatch": dispatch, "stop": stop,
                            "cancel": cancel})
@@ -150,9 +141,8 @@ def test_buttons_on_a_planned_job_follow_the_token_roles(page, fake_server, toke
 def test_a_viewer_sees_no_action_and_who_he_is(page, fake_server):
     url, store = fake_server
     store.approve(store.plan_id)
-    _login(page, url, "viewer-token-dan")
-    expect(page.locator("#whoami")).to_have_text("signed in as dan (read only)", timeout=TIMEOUT_MS)
-    _open(page, store.plan_id)
+    login(page, url, "viewer-token-dan", whoami="signed in as dan (read only)")
+    open_job(page, store.plan_id)
     expect(page.locator("#job-state")).to_have_text("approved")
     _expect_buttons(page, {"approve": H, "reject": H, "dispatch": H, "stop": H, "cancel": D})
     expect(page.locator("#btn-cancel")).to_have_attribute("title", "only the submitter (alice) or an admin can cancel "
@@ -163,34 +153,31 @@ def test_a_viewer_sees_no_action_and_who_he_is(page, fake_server):
 def test_an_operator_sees_dispatch_on_an_approved_job_but_an_approver_does_not(page, fake_server):
     url, store = fake_server
     store.approve(store.plan_id)
-    _login(page, url, "operator-token-carol")
-    expect(page.locator("#whoami")).to_have_text("signed in as carol (operator)", timeout=TIMEOUT_MS)
-    _open(page, store.plan_id)
+    login(page, url, "operator-token-carol", whoami="signed in as carol (operator)")
+    open_job(page, store.plan_id)
     _expect_buttons(page, {"approve": H, "reject": H, "dispatch": E, "stop": H, "cancel": D})
     # The same page, another token: the buttons follow at once.
-    page.fill("#token", "approver-token-bob")
-    page.click("#token-save")
-    expect(page.locator("#whoami")).to_have_text("signed in as bob (approver)", timeout=TIMEOUT_MS)
+    use_token(page, "approver-token-bob", whoami="signed in as bob (approver)")
     _expect_buttons(page, {"approve": H, "reject": H, "dispatch": H, "stop": H, "cancel": D})
 
 
 def test_two_person_rule_disables_approval_of_ones_own_plan(page, fake_server):
     url, store = fake_server
     own = store.add("plan", "frank", state="planned")
-    _login(page, url, "planner-approver-token-frank")
-    _open(page, own["id"])
+    login(page, url, "planner-approver-token-frank")
+    open_job(page, own["id"])
     _expect_buttons(page, {"approve": D, "reject": D, "dispatch": H, "stop": H, "cancel": E})
     expect(page.locator("#btn-approve")).to_have_attribute("title", "two-person rule: you submitted this job; "
                                                                     "another approver must review it")
     # alice's plan is not his own: he may review it.
-    _open(page, store.plan_id)
+    open_job(page, store.plan_id)
     _expect_buttons(page, {"approve": E, "reject": E, "dispatch": H, "stop": H, "cancel": D})
     expect(page.locator("#submit-box")).to_be_visible()
 
 
 def test_an_unknown_token_gets_no_action(page, fake_server):
     url, store = fake_server
-    _login(page, url, "not-a-token-at-all")
+    login(page, url, "not-a-token-at-all")
     expect(page.locator("#banner")).to_contain_text("401", timeout=TIMEOUT_MS)
     expect(page.locator("#submit-box")).to_be_hidden()
     assert page.evaluate("regraspConsole.state.me === undefined")  # refused: roles unknown, nothing offered

@@ -5,6 +5,7 @@ from __future__ import annotations
 from playwright.sync_api import expect
 
 from .conftest import screenshot
+from .ui import login, open_job, use_token
 
 APPROVER = "approver-token-bob"
 OPERATOR = "operator-token-carol"
@@ -12,33 +13,21 @@ PLANNER = "planner-token-alice"
 TIMEOUT_MS = 10_000
 
 
-def _login(page, url: str, token: str) -> None:
-    page.goto(url + "/")
-    page.fill("#token", token)
-    page.click("#token-save")
-
-
-def _open(page, job_id: str) -> None:
-    page.click(f'#jobs tbody tr[data-job-id="{job_id}"]')
-    expect(page.locator("#job-id")).to_have_text(job_id, timeout=TIMEOUT_MS)
-
-
 def test_without_token_the_page_asks_for_one(page, fake_server):
     url, _ = fake_server
     page.goto(url + "/")
     expect(page.locator("#banner")).to_contain_text("Enter a bearer token")
     expect(page.locator("#health")).to_contain_text("ok")
-    page.fill("#token", "wrong-token-123")
-    page.click("#token-save")
+    use_token(page, "wrong-token-123")
     expect(page.locator("#banner")).to_contain_text("401")
     assert page.js_errors == []
 
 
 def test_plan_details_are_drawn(page, fake_server):
     url, store = fake_server
-    _login(page, url, APPROVER)
+    login(page, url, APPROVER)
     expect(page.locator("#jobs tbody tr")).to_have_count(2, timeout=TIMEOUT_MS)
-    _open(page, store.plan_id)
+    open_job(page, store.plan_id)
     expect(page.locator("#job-state")).to_have_text("planned")
     # CoM trace over the support polygon with the threshold drawn
     expect(page.locator('#com-chart polygon[data-role="support"]')).to_have_count(1)
@@ -64,9 +53,9 @@ def test_plan_details_are_drawn(page, fake_server):
 
 def test_survey_table_and_chart(page, fake_server):
     url, store = fake_server
-    _login(page, url, PLANNER)
+    login(page, url, PLANNER)
     survey_id = next(j for j in store.jobs.values() if j["kind"] == "survey")["id"]
-    _open(page, survey_id)
+    open_job(page, survey_id)
     rows = page.locator("#survey-table tbody tr")
     expect(rows).to_have_count(4)
     expect(page.locator('#survey-table tr[data-hands="left-left"]')).to_contain_text("recommended")
@@ -82,8 +71,8 @@ def test_without_v1_me_buttons_follow_the_state_and_a_refusal_shows_its_403(page
     """A service without GET /v1/me: the page cannot tell the roles, so the API's 403 explains."""
     url, store = fake_server
     store.me_enabled = False
-    _login(page, url, PLANNER)
-    _open(page, store.plan_id)
+    login(page, url, PLANNER)
+    open_job(page, store.plan_id)
     page.click("#btn-approve")
     expect(page.locator("#problem")).to_contain_text("403")
     expect(page.locator("#problem")).to_contain_text("needs the role 'approver'")
@@ -92,17 +81,16 @@ def test_without_v1_me_buttons_follow_the_state_and_a_refusal_shows_its_403(page
 
 def test_approve_then_dispatch_and_the_state_changes_live(page, fake_server):
     url, store = fake_server
-    _login(page, url, APPROVER)
-    _open(page, store.plan_id)
+    login(page, url, APPROVER)
+    open_job(page, store.plan_id)
     page.click("#btn-approve")
     expect(page.locator("#job-state")).to_have_text("approved", timeout=TIMEOUT_MS)
     expect(page.locator("#job-approval")).to_contain_text("bob")
     # the approver (no operator role) is not offered dispatch
     expect(page.locator("#btn-dispatch")).to_be_hidden()
     # the operator dispatches; execution progress arrives over SSE
-    page.fill("#token", OPERATOR)
-    page.click("#token-save")
-    _open(page, store.plan_id)
+    use_token(page, OPERATOR)
+    open_job(page, store.plan_id)
     page.click("#btn-dispatch")
     expect(page.locator("#job-state")).to_have_text("executing", timeout=TIMEOUT_MS)
     expect(page.locator("#live-mode")).to_have_text("SSE")
@@ -117,7 +105,7 @@ def test_approve_then_dispatch_and_the_state_changes_live(page, fake_server):
 
 def test_token_is_kept_in_session_storage_only(page, fake_server):
     url, _ = fake_server
-    _login(page, url, APPROVER)
+    login(page, url, APPROVER)
     expect(page.locator("#jobs tbody tr")).to_have_count(2, timeout=TIMEOUT_MS)
     assert page.evaluate("sessionStorage.getItem('regrasp.token')") == APPROVER
     assert page.evaluate("localStorage.length") == 0
@@ -131,8 +119,8 @@ def test_without_sse_the_page_polls_and_still_follows_the_job(page, fake_server)
     url, store = fake_server
     store.sse_enabled = False
     store.approve(store.plan_id)
-    _login(page, url, OPERATOR)
-    _open(page, store.plan_id)
+    login(page, url, OPERATOR)
+    open_job(page, store.plan_id)
     page.click("#btn-dispatch")
     expect(page.locator("#live-mode")).to_have_text("polling every 500 ms", timeout=TIMEOUT_MS)
     expect(page.locator("#job-state")).to_have_text("succeeded", timeout=TIMEOUT_MS)
@@ -141,7 +129,7 @@ def test_without_sse_the_page_polls_and_still_follows_the_job(page, fake_server)
 
 def test_planner_submits_a_job_from_the_form(page, fake_server):
     url, store = fake_server
-    _login(page, url, PLANNER)
+    login(page, url, PLANNER)
     expect(page.locator("#jobs tbody tr")).to_have_count(2, timeout=TIMEOUT_MS)
     page.click("#submit-box summary")
     page.fill("#submit-scenario", "staggered")

@@ -18,7 +18,10 @@ import httpx
 import pytest
 from playwright.sync_api import expect
 
+from tests.service.conftest import wait_state
+
 from .conftest import SCREENSHOT_DIR, screenshot, serve
+from .ui import login, use_token
 
 TOKENS = {
     "e2e-token-alice-planner": {"user": "alice", "roles": ["planner"]},
@@ -71,16 +74,6 @@ class ScriptedBridge:
         return None
 
 
-def _wait(client: httpx.Client, job_id: str, states: set[str]) -> dict[str, Any]:
-    deadline = time.monotonic() + WAIT_S
-    while time.monotonic() < deadline:
-        job = client.get(f"/v1/jobs/{job_id}").json()
-        if job["state"] in states:
-            return job
-        time.sleep(0.1)
-    raise AssertionError(f"job {job_id} never reached {states}; last {job['state']}")
-
-
 @pytest.fixture(scope="module")
 def real_service(tmp_path_factory: pytest.TempPathFactory):
     from service.app import create_app
@@ -103,11 +96,9 @@ def test_approve_then_dispatch_on_the_real_service(page, real_service, tmp_path)
         r = alice.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "console-e2e", "seed": 3}})
         assert r.status_code == 202, r.text
         job_id = r.json()["id"]
-        _wait(alice, job_id, {"planned"})
+        wait_state(alice, job_id, {"planned"}, WAIT_S)
 
-        page.goto(url + "/")
-        page.fill("#token", BOB)
-        page.click("#token-save")
+        login(page, url, BOB)
         page.click(f'#jobs tbody tr[data-job-id="{job_id}"]', timeout=TIMEOUT_MS)
         expect(page.locator("#job-state")).to_have_text("planned", timeout=TIMEOUT_MS)
         expect(page.locator('#com-chart polyline[data-role="com-trace"]')).to_have_count(1)
@@ -115,8 +106,7 @@ def test_approve_then_dispatch_on_the_real_service(page, real_service, tmp_path)
         expect(page.locator("#job-state")).to_have_text("approved", timeout=TIMEOUT_MS)
         expect(page.locator("#job-approval")).to_contain_text("bob")
 
-        page.fill("#token", CAROL)
-        page.click("#token-save")
+        use_token(page, CAROL)
         expect(page.locator("#btn-dispatch")).to_be_visible(timeout=TIMEOUT_MS)
         page.click("#btn-dispatch")
         expect(page.locator("#job-state")).to_have_text("executing", timeout=TIMEOUT_MS)
@@ -160,12 +150,6 @@ def _client(url: str, token: str | None) -> httpx.Client:
     return httpx.Client(base_url=url, headers=headers, timeout=10)
 
 
-def _login(page, url: str, token: str) -> None:
-    page.goto(url + "/")
-    page.fill("#token", token)
-    page.click("#token-save")
-
-
 def test_v1_me_tells_the_token_user_and_roles(real_service):
     url, _ = real_service
     with _client(url, BOB) as bob, _client(url, DAN) as dan, _client(url, None) as nobody, \
@@ -182,10 +166,9 @@ def test_buttons_follow_the_token_roles_on_the_real_service(page, real_service):
     url, _ = real_service
     with _client(url, ALICE) as alice:
         job_id = alice.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "console-e2e"}}).json()["id"]
-        _wait(alice, job_id, {"planned"})
+        wait_state(alice, job_id, {"planned"}, WAIT_S)
     # A viewer reads the plan but is offered no action and no submission.
-    _login(page, url, DAN)
-    expect(page.locator("#whoami")).to_have_text("signed in as dan (read only)", timeout=TIMEOUT_MS)
+    login(page, url, DAN, whoami="signed in as dan (read only)", timeout_ms=TIMEOUT_MS)
     page.click(f'#jobs tbody tr[data-job-id="{job_id}"]', timeout=TIMEOUT_MS)
     expect(page.locator("#job-state")).to_have_text("planned", timeout=TIMEOUT_MS)
     expect(page.locator('#com-chart polyline[data-role="com-trace"]')).to_have_count(1)
@@ -194,16 +177,12 @@ def test_buttons_follow_the_token_roles_on_the_real_service(page, real_service):
     expect(page.locator("#btn-cancel")).to_be_disabled()  # not his job
     expect(page.locator("#submit-box")).to_be_hidden()
     # The approver is offered approve, not dispatch nor submission.
-    page.fill("#token", BOB)
-    page.click("#token-save")
-    expect(page.locator("#whoami")).to_have_text("signed in as bob (approver)", timeout=TIMEOUT_MS)
+    use_token(page, BOB, whoami="signed in as bob (approver)", timeout_ms=TIMEOUT_MS)
     expect(page.locator("#btn-approve")).to_be_enabled(timeout=TIMEOUT_MS)
     expect(page.locator("#btn-dispatch")).to_be_hidden()
     expect(page.locator("#submit-box")).to_be_hidden()
     # The submitter may cancel her plan and submit, not approve it.
-    page.fill("#token", ALICE)
-    page.click("#token-save")
-    expect(page.locator("#whoami")).to_have_text("signed in as alice (planner)", timeout=TIMEOUT_MS)
+    use_token(page, ALICE, whoami="signed in as alice (planner)", timeout_ms=TIMEOUT_MS)
     expect(page.locator("#btn-cancel")).to_be_enabled(timeout=TIMEOUT_MS)
     expect(page.locator("#btn-approve")).to_be_hidden()
     expect(page.locator("#submit-box")).to_be_visible()
@@ -216,7 +195,7 @@ def test_cancel_a_planning_job_from_the_console(page, real_service):
     url, _ = real_service
     with _client(url, ALICE) as alice:
         job_id = alice.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": SLOW_SCENARIO}}).json()["id"]
-        _login(page, url, ALICE)
+        login(page, url, ALICE)
         page.click(f'#jobs tbody tr[data-job-id="{job_id}"]', timeout=TIMEOUT_MS)
         expect(page.locator("#job-state")).to_have_text("planning", timeout=TIMEOUT_MS)
         page.click("#btn-cancel")
@@ -233,11 +212,11 @@ def test_stop_an_executing_job_from_the_console(page, real_service):
     url, bridge = real_service
     with _client(url, ALICE) as alice, _client(url, BOB) as bob:
         job_id = alice.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "console-e2e"}}).json()["id"]
-        planned = _wait(alice, job_id, {"planned"})
+        planned = wait_state(alice, job_id, {"planned"}, WAIT_S)
         assert bob.post(f"/v1/jobs/{job_id}/approve", json={"plan_sha256": planned["plan_sha256"]}).status_code == 200
         bridge.steps = LONG_EXEC_STEPS
         try:
-            _login(page, url, CAROL)
+            login(page, url, CAROL)
             page.click(f'#jobs tbody tr[data-job-id="{job_id}"]', timeout=TIMEOUT_MS)
             page.click("#btn-dispatch", timeout=TIMEOUT_MS)
             expect(page.locator("#job-state")).to_have_text("executing", timeout=TIMEOUT_MS)
