@@ -77,6 +77,9 @@ jobs = sa.Table(
     sa.Column("planning_s", sa.Float),
     sa.Column("planning_outcome", sa.String(16)),
     sa.UniqueConstraint("submitter", "idempotency_key", name="uq_jobs_submitter_idempotency_key"),
+    # The two aggregates of every /metrics scrape (JobStore.count_by_state, planning_stats) read only these.
+    sa.Index("ix_jobs_kind_state", "kind", "state"),
+    sa.Index("ix_jobs_planning_stats", "planning_outcome", "kind", "planning_s"),
 )
 
 job_results = sa.Table(

@@ -158,6 +158,20 @@ def wait_state(client: httpx.Client, job_id: str, states: set[str], timeout: flo
     raise AssertionError(f"job {job_id} did not reach {states} in {timeout} s: {job.get('state')} {job.get('message')}")
 
 
+def schema_drift(engine: Any) -> list[Any]:
+    """What Alembic's autogenerate finds between a migrated store and service.store.tables (empty: they agree).
+
+    Columns, types, indexes and constraints: an index declared in one and not the other shows up here.
+    """
+    from alembic.autogenerate import compare_metadata
+    from alembic.migration import MigrationContext
+
+    from service.store.tables import metadata
+
+    with engine.connect() as conn:
+        return list(compare_metadata(MigrationContext.configure(conn, opts={"compare_type": True}), metadata))
+
+
 def job_events(client: httpx.Client, job_id: str) -> list[dict[str, Any]]:
     """The job's stored event history (the SSE stream without following)."""
     text = client.get(f"/v1/jobs/{job_id}/events", params={"follow": "false"}).text

@@ -6,13 +6,17 @@ import json
 import uuid
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
+from typing import Any
 
 import pytest
+import sqlalchemy as sa
+from conftest import schema_drift
 
 from service.auth import TokenStore, hash_token, is_loopback, make_dev_tokens
 from service.provenance import provenance
 from service.settings import ServiceSettings, load_settings
 from service.store import JobStore, make_engine, migrate
+from service.metrics import DURATION_BUCKETS
 
 
 @pytest.fixture
@@ -88,6 +92,28 @@ def test_approval_expiry_sends_the_job_back_to_planned(store: JobStore) -> None:
     assert store.expire_approvals() == [job]
     row = store.get(job)
     assert row["state"] == "planned" and row["approved_by"] is None
+
+
+def test_migrations_build_the_declared_tables_and_metrics_read_indexes_only(store: JobStore) -> None:
+    assert schema_drift(store.engine) == []
+    # The two aggregates of a /metrics scrape, as the store sends them, are answered from covering indexes.
+    sent: list[tuple[str, Any]] = []
+
+    def record(conn, cursor, statement, parameters, context, executemany) -> None:  # type: ignore[no-untyped-def]
+        sent.append((statement, parameters))
+
+    sa.event.listen(store.engine, "before_cursor_execute", record)
+    try:
+        store.count_by_state()
+        store.planning_stats(DURATION_BUCKETS)
+    finally:
+        sa.event.remove(store.engine, "before_cursor_execute", record)
+    with store.engine.connect() as conn:
+        by_state, stats = [" | ".join(row[-1] for row in conn.exec_driver_sql("EXPLAIN QUERY PLAN " + sql, params))
+                           for sql, params in sent]
+    assert by_state == "SCAN jobs USING COVERING INDEX ix_jobs_kind_state", by_state
+    assert stats.startswith("SEARCH jobs USING COVERING INDEX ix_jobs_planning_stats"), stats
+    assert "TEMP B-TREE" not in stats, stats
 
 
 def test_idempotency_mismatch_is_refused(store: JobStore) -> None:
