@@ -9,6 +9,8 @@ from __future__ import annotations
 import importlib
 from typing import Any, Callable
 
+from planner.entry import Canceled
+
 Handler = Callable[[dict[str, Any], Any], dict[str, Any]]
 
 
@@ -31,12 +33,9 @@ def resolve(target: str) -> Handler:
     return fn
 
 
-def canceled_exception_types() -> tuple[type[BaseException], ...]:
-    """The exception types that mean "the job was cancelled" (planner.entry.Canceled and ours)."""
-    from planner.entry import Canceled
-
-    return (JobCanceled, Canceled)
-
-
 class JobCanceled(Exception):
     """Raised by service-side contexts when a cancelled job polls (handlers may raise planner.entry.Canceled too)."""
+
+
+#: The exception types that mean "the job was cancelled": ours and planner.entry.Canceled.
+CANCELED_TYPES: tuple[type[BaseException], ...] = (JobCanceled, Canceled)

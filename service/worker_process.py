@@ -22,9 +22,11 @@ import time
 import traceback
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Event
-from typing import Any, Protocol
+from typing import Any
 
-from .handlers import HandlerError, canceled_exception_types, resolve
+from planner.entry import JobContext
+
+from .handlers import CANCELED_TYPES, HandlerError, JobCanceled, resolve
 from .results import InvalidResult, package
 
 #: Progress messages are sent at most this often (the runner stores them even less often).
@@ -33,14 +35,6 @@ PROGRESS_MIN_INTERVAL_S = 0.05
 PARENT_CHECK_S = 0.2
 
 Outcome = tuple[str, Any]
-
-
-class JobContext(Protocol):
-    """What a handler gets as ``ctx`` (planner.entry.JobContext)."""
-
-    def progress(self, fraction: float, message: str) -> None: ...
-
-    def cancelled(self) -> bool: ...
 
 
 def lower_priority(nice: int) -> None:
@@ -67,7 +61,6 @@ class JobHandlers:
             from planner.robot_model import load_robot
 
             load_robot(robot)  # cached for the life of the process: handlers reuse it
-        self.canceled_types = canceled_exception_types()
 
     def run(self, kind: str, request: dict[str, Any], ctx: JobContext) -> Outcome:
         """Run one job to its outcome; never raises (every failure becomes the job's error)."""
@@ -75,12 +68,12 @@ class JobHandlers:
             if kind not in self.table:
                 raise LookupError(self.errors.get(kind) or f"no handler for job kind {kind!r}")
             if ctx.cancelled():
-                raise self.canceled_types[0]("canceled before start")
+                raise JobCanceled("canceled before start")
             result = self.table[kind](request, ctx)
             if ctx.cancelled() and result is None:
-                raise self.canceled_types[0]("canceled")
+                raise JobCanceled("canceled")
             return "done", package(result)
-        except self.canceled_types:
+        except CANCELED_TYPES:
             return "canceled", None
         except InvalidResult as exc:
             return "error", {"code": "INVALID_RESULT", "message": str(exc)}
