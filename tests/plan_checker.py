@@ -8,6 +8,7 @@ feet, the object's rigidity in the holding hand, and the limits. Tests call
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,14 +39,56 @@ def _urdf_and_spec(robot_name: str):
 
 
 def _mimics(urdf: str) -> dict:
-    import xml.etree.ElementTree as ET
-
+    """Mimic joints from the URDF's ``<mimic>``: name -> (master, multiplier, offset)."""
     out = {}
     for j in ET.parse(urdf).getroot().iter("joint"):
         m = j.find("mimic")
         if m is not None:
             out[j.attrib["name"]] = (m.attrib["joint"], float(m.attrib.get("multiplier", 1)), float(m.attrib.get("offset", 0)))
     return out
+
+
+def _box_sizes(urdf: str, links) -> dict[str, tuple[float, float]]:
+    """x and y sizes of the named links' collision boxes (the soles), in the URDF's link order."""
+    out = {}
+    for link in ET.parse(urdf).getroot().iter("link"):
+        if link.attrib["name"] in links:
+            sx, sy, _ = (float(v) for v in link.find("collision/geometry/box").attrib["size"].split())
+            out[link.attrib["name"]] = (sx, sy)
+    return out
+
+
+def _pin_q(model: pin.Model, mimics: dict, col: dict, base_pose, q) -> np.ndarray:
+    """A pinocchio configuration from a base pose and a joint vector in ``col``'s order.
+
+    Written from the URDF's own joint list, not the planner's mapping, so a mapping error there shows.
+    """
+    out = pin.neutral(model)
+    out[:7] = base_pose
+    for jid in range(2, model.njoints):
+        name = model.names[jid]
+        if name in mimics:
+            master, k, b = mimics[name]
+            out[model.idx_qs[jid]] = k * q[col[master]] + b
+        else:
+            out[model.idx_qs[jid]] = q[col[name]]
+    return out
+
+
+def _sole_hull(soles) -> Polygon:
+    """Convex hull of sole boxes, given as (placement, (size x, size y)) pairs."""
+    corners = []
+    for placement, (sx, sy) in soles:
+        for cx, cy in ((1, 1), (-1, 1), (-1, -1), (1, -1)):
+            corners.append(placement.act(np.array([cx * sx / 2, cy * sy / 2, 0.0]))[:2])
+    return MultiPoint(corners).convex_hull
+
+
+def _signed_margin(polygon: Polygon, x: float, y: float) -> float:
+    """Distance of the point (x, y) to the polygon's edge, positive inside."""
+    p = Point(float(x), float(y))
+    d = polygon.exterior.distance(p)
+    return d if polygon.contains(p) else -d
 
 
 def _acc_limits(spec: dict, names: list[str]) -> np.ndarray:
@@ -97,34 +140,15 @@ def check_plan(plan: dict, *, sample_every: int = 1) -> CheckReport:
     feet = plan["stance"]["feet"]
 
     # Support polygon: hull of the sole boxes in contact.
-    corners = []
-    import xml.etree.ElementTree as ET
-
-    root = ET.parse(urdf).getroot()
-    boxes = {l.attrib["name"]: l.find("collision/geometry/box") for l in root.iter("link")}
-    for f in feet:
-        if not f["in_contact"]:
-            continue
-        sx, sy, _ = (float(v) for v in boxes[f["frame"]].attrib["size"].split())
-        Mf = _se3(f["pose"])
-        for cx, cy in ((1, 1), (-1, 1), (-1, -1), (1, -1)):
-            corners.append((Mf.act(np.array([cx * sx / 2, cy * sy / 2, 0.0])))[:2])
-    hull = MultiPoint(corners).convex_hull
+    contact = [f for f in feet if f["in_contact"]]
+    sizes = _box_sizes(urdf, {f["frame"] for f in contact})
+    hull = _sole_hull((_se3(f["pose"]), sizes[f["frame"]]) for f in contact)
     plan_poly = Polygon(plan["support_polygon"])
     if hull.symmetric_difference(plan_poly).area > 1e-3 * 0.3:  # ~1 mm along the outline
         rep.fail("support_polygon differs from the hull of the soles in contact")
 
     def pinq(q):
-        out = np.zeros(model.nq)
-        out[:7] = base
-        for jid in range(2, model.njoints):
-            n = model.names[jid]
-            if n in mimics:
-                master, k, b = mimics[n]
-                out[model.idx_qs[jid]] = k * q[col[master]] + b
-            else:
-                out[model.idx_qs[jid]] = q[col[n]]
-        return out
+        return _pin_q(model, mimics, col, base, q)
 
     def system_com(q, hold, objpose):
         c = pin.centerOfMass(model, data, pinq(q), False).copy()
@@ -134,9 +158,7 @@ def check_plan(plan: dict, *, sample_every: int = 1) -> CheckReport:
         return c
 
     def margin(c):
-        p = Point(c[0], c[1])
-        d = hull.exterior.distance(p)
-        return d if hull.contains(p) else -d
+        return _signed_margin(hull, c[0], c[1])
 
     lower = np.array([model.lowerPositionLimit[model.idx_qs[model.getJointId(n)]] for n in names])
     upper = np.array([model.upperPositionLimit[model.idx_qs[model.getJointId(n)]] for n in names])

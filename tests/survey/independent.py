@@ -4,16 +4,17 @@ Nothing here uses the planner's stability, stance or kinematics code: the robot 
 pinocchio's ``centerOfMass`` on the URDF (mimic joints from the URDF's ``<mimic>``), the
 system CoM is the paper's equation 1 written out, and the support polygon is the convex
 hull of the sole boxes (from the URDF's ``<collision>``) of the feet that touch the ground.
+The URDF reading, the configuration mapping, the hull and the signed distance are the plan
+checker's (tests/plan_checker.py), so plans and survey states are checked the same way.
 """
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
-
 import numpy as np
 import pinocchio as pin
-from shapely.geometry import MultiPoint, Point, Polygon
+from shapely.geometry import Polygon
 
+from plan_checker import _box_sizes, _mimics, _pin_q, _signed_margin, _sole_hull
 from planner.robots.registry import urdf_path
 
 #: A sole whose frame is this close to z = 0 stands on the ground.
@@ -27,30 +28,11 @@ class Independent:
         self.data = self.model.createData()
         self.total_mass = float(pin.computeTotalMass(self.model))
         self.col = {str(n): i for i, n in enumerate(joint_names)}
-        root = ET.parse(urdf).getroot()
-        self.mimics = {}
-        for j in root.iter("joint"):
-            m = j.find("mimic")
-            if m is not None:
-                self.mimics[j.attrib["name"]] = (m.attrib["joint"], float(m.attrib.get("multiplier", 1)),
-                                                 float(m.attrib.get("offset", 0)))
-        self.sole_size = {}
-        for link in root.iter("link"):
-            if link.attrib["name"] in ("l_sole", "r_sole"):
-                sx, sy, _ = (float(v) for v in link.find("collision/geometry/box").attrib["size"].split())
-                self.sole_size[link.attrib["name"]] = (sx, sy)
+        self.mimics = _mimics(urdf)
+        self.sole_size = _box_sizes(urdf, ("l_sole", "r_sole"))
 
     def pin_q(self, base_pose: np.ndarray, q: np.ndarray) -> np.ndarray:
-        out = pin.neutral(self.model)
-        out[:7] = base_pose
-        for jid in range(2, self.model.njoints):
-            name = self.model.names[jid]
-            if name in self.mimics:
-                master, k, b = self.mimics[name]
-                out[self.model.idx_qs[jid]] = k * q[self.col[master]] + b
-            else:
-                out[self.model.idx_qs[jid]] = q[self.col[name]]
-        return out
+        return _pin_q(self.model, self.mimics, self.col, base_pose, q)
 
     def robot_com(self, base_pose: np.ndarray, Q: np.ndarray) -> np.ndarray:
         """Robot CoM (N, 3) of configurations Q (N, n) in joint_names order."""
@@ -72,22 +54,10 @@ class Independent:
 
     def support_polygon(self, base_pose: np.ndarray, q: np.ndarray) -> Polygon:
         """Convex hull of the sole boxes whose frames are on the ground."""
-        corners = []
-        for sole, (sx, sy) in self.sole_size.items():
-            T = self.frame(base_pose, q, sole)
-            if abs(T.translation[2]) > ON_GROUND_M:
-                continue
-            for cx, cy in ((1, 1), (-1, 1), (-1, -1), (1, -1)):
-                corners.append(T.act(np.array([cx * sx / 2, cy * sy / 2, 0.0]))[:2])
-        return MultiPoint(corners).convex_hull
+        placed = ((self.frame(base_pose, q, sole), size) for sole, size in self.sole_size.items())
+        return _sole_hull((T, size) for T, size in placed if abs(T.translation[2]) <= ON_GROUND_M)
 
     @staticmethod
     def margins(polygon: Polygon, xy: np.ndarray) -> np.ndarray:
         """Signed distance of each point to the polygon's edge, inside positive."""
-        out = []
-        for x, y in xy:
-            p = Point(float(x), float(y))
-            d = polygon.exterior.distance(p)
-            out.append(d if polygon.contains(p) else -d)
-        return np.array(out)
-
+        return np.array([_signed_margin(polygon, x, y) for x, y in xy])
