@@ -19,6 +19,8 @@ from planner.stances import BUILTIN_STANCES
 from service.cli.main import cli
 from service.cli.survey import LABELS
 
+from .tables import table_rows
+
 DATA = Path(__file__).parent.parent / "data"
 HANDS = ["left-left"]
 
@@ -45,15 +47,6 @@ def all_stances(tmp_path_factory):
     return res.stdout, docs, out
 
 
-def _table_rows(text: str) -> list[list[str]]:
-    """The cells of a rich table's lines (header and body)."""
-    out = []
-    for line in text.splitlines():
-        if line.startswith(("│", "┃")):
-            out.append([c.strip() for c in re.split("[│┃]", line.strip().strip("│┃"))])
-    return out
-
-
 def test_every_stance_is_surveyed_with_the_same_task(all_stances):
     _, docs, _ = all_stances
     assert [d["stance"]["name"] for d in docs] == list(BUILTIN_STANCES)
@@ -74,7 +67,7 @@ def test_each_stance_prints_a_table_of_c_u_r_with_the_recommended_marked(all_sta
     assert len(tables) == len(docs) + 1
     for text, doc in zip(tables, docs):
         assert f"{doc['stance']['name']} stance, threshold 70 mm, 40 states, seed 1" in text
-        rows = {label_of[cells[0].removesuffix(" *")]: cells for cells in _table_rows(text)
+        rows = {label_of[cells[0].removesuffix(" *")]: cells for cells in table_rows(text)
                 if cells[0].removesuffix(" *") in label_of}
         assert list(rows) == HANDS
         for r in doc["rows"]:
@@ -89,7 +82,7 @@ def test_each_stance_prints_a_table_of_c_u_r_with_the_recommended_marked(all_sta
 def test_the_matrix_has_r_per_stance_and_hands_and_says_where_the_threshold_cannot_be_met(all_stances):
     stdout, docs, _ = all_stances
     matrix = stdout[stdout.index("R by stance and hand configuration"):]
-    rows = _table_rows(matrix)
+    rows = table_rows(matrix)
     assert rows[0] == ["stance", *LABELS]
     cells = {r[0]: dict(zip(LABELS, r[1:])) for r in rows[1:]}
     assert list(cells) == list(BUILTIN_STANCES)

@@ -31,6 +31,7 @@ from planner.state_eval import HoldSpec, StateEvaluator
 from service.cli.main import cli
 
 from .independent import Independent
+from .tables import table_rows
 
 DATA = Path(__file__).parent.parent / "data"
 SCENARIO = DATA / "one-legged-box.yaml"
@@ -321,8 +322,7 @@ def test_the_table_shows_each_configuration_with_c_u_r_and_the_recommended_marke
     text = console.export_text()
     rows = {r["hands"]: r for r in run.doc["rows"]}
     seen = {}
-    for line in text.splitlines():
-        cells = [c.strip() for c in line.strip("│ ").split("│")]
+    for cells in table_rows(text):
         for hands, label in LABELS.items():
             if cells[0].removesuffix(" *") == label:
                 seen[hands] = cells
