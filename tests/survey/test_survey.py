@@ -155,8 +155,6 @@ def test_unknown_hands_are_rejected(scenario):
 def test_key_poses_do_not_depend_on_which_configuration_ran_first(scenario):
     """Node validations are shared by a task's hand configurations and each node draws from its own
     generator, so a configuration finds the same key path whatever was validated before it."""
-    import numpy as np
-
     from planner.regrasp_planner import HandConfigPlanner, Task
     from planner.survey import key_path
 

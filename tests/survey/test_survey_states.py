@@ -369,9 +369,9 @@ def test_the_plots_are_real_pictures(run, tmp_path):
 
 
 def _red_pixels(path: Path) -> int:
+    """Pixels of tab:red, pure or faded towards white (green equals blue); the threshold's orange outline is not."""
     import matplotlib.image as mpimg
 
-    """Pixels of tab:red, pure or faded towards white (green equals blue); the threshold's orange outline is not."""
     img = mpimg.imread(path)[:, :, :3]
     r, g, b = img[:, :, 0], img[:, :, 1], img[:, :, 2]
     return int(((r - g > 0.25) & (np.abs(g - b) < 0.08)).sum())
