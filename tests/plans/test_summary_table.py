@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from service.cli.plan import summary_table
+from .summary import summary_cells
 
 
 def _plan(kinds: list[str]) -> dict:
@@ -11,27 +11,21 @@ def _plan(kinds: list[str]) -> dict:
             "stats": {"cost": 1.0, "time_s": 1.0, "failures": {}}}
 
 
-def _cells(plan: dict) -> dict[str, str]:
-    table = summary_table([("plan", plan)])
-    labels, values = table.columns[0]._cells, table.columns[1]._cells
-    return dict(zip(labels, values))
-
-
 PICK = ["transit", "approach", "approach", "transfer"]
 PLACE = ["transfer", "retreat", "retreat", "transit"]
 HANDOVER = ["transit", "approach", "handover", "handover", "retreat", "transit"]
 
 
 def test_direct_pick_and_place_has_no_regrasp():
-    c = _cells(_plan(PICK + PLACE))
+    c = summary_cells(_plan(PICK + PLACE))
     assert (c["regrasps"], c["handovers"]) == ("0", "0")
 
 
 def test_a_handover_is_not_counted_as_a_regrasp():
-    c = _cells(_plan(PICK + HANDOVER + PLACE))
+    c = summary_cells(_plan(PICK + HANDOVER + PLACE))
     assert (c["regrasps"], c["handovers"]) == ("0", "1")
 
 
 def test_a_place_and_re_pick_before_a_handover_is_one_regrasp():
-    c = _cells(_plan(PICK + PLACE + PICK + HANDOVER + PLACE))
+    c = summary_cells(_plan(PICK + PLACE + PICK + HANDOVER + PLACE))
     assert (c["regrasps"], c["handovers"]) == ("1", "1")
