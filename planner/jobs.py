@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib.metadata as md
 import platform
 import time
+from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -24,7 +25,7 @@ from .objects import ObjectModelError
 from .placements import PlacementError
 from .plan_builder import assemble, trajectory_points
 from .regrasp_graph import Canceled as GraphCanceled
-from .regrasp_planner import HANDS_OF, HandConfigPlanner, PlannerResult, PlannerSettings, Task
+from .regrasp_planner import HandConfigPlanner, PlannerResult, PlannerSettings, Task
 from .scenarios import ScenarioError, load_scenario, with_overrides
 from .stances import StanceError
 from .survey import SurveyCanceled, quick_survey, run_survey_request
@@ -110,13 +111,18 @@ def build_task(scenario: Scenario, settings: PlannerSettings | None = None) -> T
     return Task(scenario, settings)
 
 
+def _failure_counts(results: list[tuple[PlannerResult, HandConfigPlanner]]) -> dict[str, int]:
+    """Removed states by cause, summed over the hand configurations that ran."""
+    counts: Counter = Counter()
+    for r, _ in results:
+        counts.update(r.failures)
+    return dict(counts)
+
+
 def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]:
     """The failure code: an end (start or goal) no node could hold says so; else the search's own code."""
-    if res.failure_code == "TIMEOUT":
-        return "TIMEOUT", res.message
-    for end in ("start", "goal"):
-        if end in planner.end_problems:
-            return f"{end.upper()}_INVALID", planner.end_problems[end]
+    if res.failure_code in ("TIMEOUT", "START_INVALID", "GOAL_INVALID"):  # decided by the planner itself
+        return res.failure_code, res.message
     for end, failures, ok, hand in (("start", planner.start_failures, planner.start_ok, planner.start_hand),
                                     ("goal", planner.goal_failures, planner.goal_ok, planner.goal_hand)):
         if failures and not ok:
@@ -152,7 +158,7 @@ def plan_scenario(
     except ObjectModelError as exc:
         raise PlanningInputError(f"object: {exc}") from None
     except PlacementError as exc:
-        code = "START_INVALID" if "start" in str(exc) else "GOAL_INVALID"
+        code = "START_INVALID" if exc.end == "start" else "GOAL_INVALID"
         return _infeasible(None, scenario, code, str(exc), stats={"time_s": time.perf_counter() - t_start})
     inradius = task.stance.polygon.inradius
     if task.threshold_m > inradius:
@@ -173,12 +179,8 @@ def plan_scenario(
         return should_stop() or late()
 
     def timed_out(results: list) -> dict[str, Any]:
-        counts: dict[str, int] = {}
-        for r, _ in results:
-            for c, n in r.failures.items():
-                counts[c] = counts.get(c, 0) + n
         return _infeasible(task, scenario, "TIMEOUT", f"no valid plan within the time limit of {scenario.limits.time_s:g} s",
-                           counts, stats={"time_s": time.perf_counter() - t_start})
+                           _failure_counts(results), stats={"time_s": time.perf_counter() - t_start})
 
     if hands_choice == "auto":
         progress(0.05, "surveying hand configurations (auto)")
@@ -238,12 +240,8 @@ def plan_scenario(
             return timed_out(results)
         res, planner = results[-1]
         code, message = _code_for(res, planner)
-        counts: dict[str, int] = {}
-        for r, _ in results:
-            for c, n in r.failures.items():
-                counts[c] = counts.get(c, 0) + n
         stats["time_s"] = time.perf_counter() - t_start
-        return _infeasible(task, scenario, code, message, counts, hands=order[-1] if len(order) == 1 else None, stats=stats)
+        return _infeasible(task, scenario, code, message, _failure_counts(results), hands=order[-1] if len(order) == 1 else None, stats=stats)
     best, planner = min(solved, key=lambda rp: rp[0].cost)
     t_asm = time.perf_counter()
     traj = assemble(best.pieces, task.evaluator, task.settings.timing.dt_s, task.placements[task.start_id])

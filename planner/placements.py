@@ -30,7 +30,12 @@ _COPLANAR_COS = 1.0 - 1e-9
 
 
 class PlacementError(ValueError):
-    """A pose that is not a resting pose on a table; the message says why."""
+    """A pose that is not a resting pose on a table; the message says why, ``end`` which of the
+    task's poses it is ("start", "goal", or None for any other pose)."""
+
+    def __init__(self, message: str, end: str | None = None) -> None:
+        super().__init__(message)
+        self.end = end
 
 
 class PlacementSettings(BaseModel):
@@ -271,7 +276,10 @@ def instantiate_placements(
     refs = list(refs) if refs is not None else reference_poses(obj, settings)
     out: list[Placement] = []
     for kind, T in (("start", start), ("goal", goal)):
-        info = check_resting(obj, T, tables, settings, what=f"{kind} pose", refs=refs)
+        try:
+            info = check_resting(obj, T, tables, settings, what=f"{kind} pose", refs=refs)
+        except PlacementError as exc:
+            raise PlacementError(str(exc), end=kind) from None
         yaw = 0.0
         if info.reference >= 0:
             Rref = refs[info.reference].T_ref[:3, :3]

@@ -213,7 +213,7 @@ class Task:
             hit = self.world.object_pose_clear(T)
             if hit is not None:
                 other = next((b for b in (hit.body_a, hit.body_b) if b.startswith("env:")), hit.body_b)
-                raise PlacementError(f"the object at its {what} pose collides with {other.removeprefix('env:')!r}")
+                raise PlacementError(f"the object at its {what} pose collides with {other.removeprefix('env:')!r}", end=what)
         spots = [p for p in all_placements if p.kind == "spot"]
         # Prefer spots where holding the object can be stable (the quick margin estimate reaches the
         # planning threshold: measured in the crouched scenario, only 80 of 992 spots do, and none
@@ -360,12 +360,9 @@ class Task:
         s = np.linspace(0.0, 1.0, n)[:, None]
         return a[None] * (1 - s) + b[None] * s
 
-    def estimated_margin(self, T_obj: np.ndarray) -> float:
-        """Quick guess of a held state's margin: the home posture plus the object at T_obj (eq. 1)."""
-        return float(self.estimated_margins(np.asarray(T_obj)[None])[0])
-
     def estimated_margins(self, T_obj: np.ndarray) -> np.ndarray:
-        """:meth:`estimated_margin` of many object poses (N, 4, 4) at once."""
+        """Quick guesses of a held state's margin, the home posture plus the object at each pose
+        of T_obj (N, 4, 4) (eq. 1)."""
         obj_com = T_obj[:, :3, :3] @ self.obj.com_local + T_obj[:, :3, 3]
         m, M = self.obj.mass_kg, self.robot.total_mass
         c = (M * self.stance.robot_com[None] + m * obj_com) / (M + m)
@@ -460,7 +457,11 @@ class HandConfigPlanner:
             v = self._validate_placement(node, rng) if isinstance(node, PlacementNode) else self._validate_handover(node, rng)
             t.node_cache[node] = v  # shared with the other hand configurations of this task
         if v.ok:
-            (self.keyposes if isinstance(node, PlacementNode) else self.handovers)[node] = v.payload
+            if isinstance(node, PlacementNode):
+                self.keyposes[node] = v.payload
+            else:  # this planner plans and times the handover's motions into its own copy of the pieces
+                self.handovers[node] = dataclasses.replace(
+                    v.payload, pieces=[dataclasses.replace(p) for p in v.payload.pieces])
         if isinstance(node, PlacementNode):
             for pid, hand, counter, flag in ((t.start_id, self.start_hand, self.start_failures, "start_ok"),
                                              (t.goal_id, self.goal_hand, self.goal_failures, "goal_ok")):
@@ -790,7 +791,8 @@ class HandConfigPlanner:
         self._should_stop = should_stop  # type: ignore[assignment]
         spec = self.graph_spec()
         if self.end_problems:  # an end no hand pose can reach: no search can succeed
-            return PlannerResult("infeasible", self.hands, failure_code="NO_PATH", message="; ".join(self.end_problems.values()),
+            end = "start" if "start" in self.end_problems else "goal"
+            return PlannerResult("infeasible", self.hands, failure_code=f"{end.upper()}_INVALID", message=self.end_problems[end],
                                  failures={"ik": len(self.end_problems)}, stats={"time_s": time.perf_counter() - t0})
         spec = self.screen(spec, should_stop)
         weights = self.task.settings.weights
@@ -878,7 +880,7 @@ class HandConfigPlanner:
     def _seed_margin_estimates(self, graph: RegraspGraph) -> None:
         """Before any IK, weight nodes by a quick margin estimate so the search tries stable ones first."""
         t = self.task
-        est = {p: t.estimated_margin(T) for p, T in enumerate(t.placements)}
+        est = t.estimated_margins(np.asarray(t.placements))
         for node in graph.nodes():
             if isinstance(node, PlacementNode):
                 graph._apply_margin_cost(node, est[node.placement])

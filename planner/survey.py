@@ -280,26 +280,29 @@ def run_survey_seeds(
                 _WORKER_TASKS.clear()
                 _WORKER_TASKS[_task_key(sc_json, threshold, st_json)] = task
             chains = _chains(configs, n_workers)
-            with ProcessPoolExecutor(max_workers=n_workers, mp_context=context) as pool:
-                futures = {tuple(ch): pool.submit(_worker, (sc_json, threshold, [configs[k] for k in ch], states, list(seeds), st_json))
-                           for ch in chains}
-                results: dict[int, list[ConfigOutcome]] = {}
-                pending = set(futures.values())
-                while pending:
-                    finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-                    for ch, f in futures.items():
-                        if f in finished:
-                            for k, outcome in zip(ch, f.result()):
-                                results[k] = outcome
-                            progress(0.05 + 0.9 * len(results) / len(configs), f"{', '.join(configs[k] for k in ch)} done")
-                    if pending and should_stop():
-                        for g in pending:
-                            g.cancel()
-                        pool.shutdown(wait=False, cancel_futures=True)
-                        for proc in list(getattr(pool, "_processes", {}).values()):
-                            proc.kill()
-                        raise SurveyCanceled() from None
-                per_config = [results[k] for k in range(len(configs))]
+            try:
+                with ProcessPoolExecutor(max_workers=n_workers, mp_context=context) as pool:
+                    futures = {tuple(ch): pool.submit(_worker, (sc_json, threshold, [configs[k] for k in ch], states, list(seeds), st_json))
+                               for ch in chains}
+                    results: dict[int, list[ConfigOutcome]] = {}
+                    pending = set(futures.values())
+                    while pending:
+                        finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                        for ch, f in futures.items():
+                            if f in finished:
+                                for k, outcome in zip(ch, f.result()):
+                                    results[k] = outcome
+                                progress(0.05 + 0.9 * len(results) / len(configs), f"{', '.join(configs[k] for k in ch)} done")
+                        if pending and should_stop():
+                            for g in pending:
+                                g.cancel()
+                            pool.shutdown(wait=False, cancel_futures=True)
+                            for proc in list(getattr(pool, "_processes", {}).values()):
+                                proc.kill()
+                            raise SurveyCanceled() from None
+                    per_config = [results[k] for k in range(len(configs))]
+            finally:
+                _WORKER_TASKS.clear()  # the parent keeps no task alive once its workers are gone
     docs = []
     for i, seed in enumerate(seeds):
         outcomes = [pc[i] for pc in per_config]
