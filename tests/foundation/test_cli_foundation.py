@@ -73,16 +73,23 @@ def test_threshold_beyond_the_polygon_is_reported(tmp_path):
     assert "larger than the support polygon's inradius 65.0 mm" in res.output
 
 
-def test_demo_writes_one_picture_per_stance(tmp_path):
-    res = run("demo", "--out", str(tmp_path), "--robot", "hrp5p", "--stances-only")
+@pytest.fixture(scope="module")
+def demo_stances(tmp_path_factory):
+    """One ``regrasp demo --stances-only`` run (it solves and draws every stance): its output folder and result."""
+    out = tmp_path_factory.mktemp("demo")
+    return out, run("demo", "--out", str(out), "--robot", "hrp5p", "--stances-only")
+
+
+def test_demo_writes_one_picture_per_stance(demo_stances):
+    out, res = demo_stances
     assert res.exit_code == 0, res.output
     for name in ("upright", "staggered", "crouched", "one-legged"):
-        png = tmp_path / f"stance-{name}.png"
+        png = out / f"stance-{name}.png"
         assert png.is_file() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert str(png) in res.output.replace("\n", "")
 
 
-def test_demo_stance_step_prints_the_recomputed_com_and_margin(tmp_path):
+def test_demo_stance_step_prints_the_recomputed_com_and_margin(tmp_path, demo_stances):
     """Step 1 of the demo: each stance's CoM (pinocchio) and margin (shapely) as printed."""
     import numpy as np
     from shapely.geometry import Point, Polygon
@@ -93,7 +100,7 @@ def test_demo_stance_step_prints_the_recomputed_com_and_margin(tmp_path):
 
     robot = load_robot("hrp5p")
     rows = stance_step(tmp_path, "hrp5p")
-    res = run("demo", "--out", str(tmp_path / "cli"), "--robot", "hrp5p", "--stances-only")
+    _, res = demo_stances
     assert res.exit_code == 0, res.output
     for row in rows:
         st = solve_stance(robot, row["stance"])
