@@ -141,9 +141,9 @@ class Runner:
         try:
             where = self.executor.start(job_id, job["kind"], job["request"])
         except Exception as exc:  # noqa: BLE001
-            self._running.pop(job_id, None)
-            self.store.finish_planning(job_id, self.owner, "failed", message=f"could not start: {exc}",
-                                       error={"code": "ERROR", "message": f"could not start the job: {exc}"})
+            run = self._running.pop(job_id)
+            self._finish(run, "failed", f"could not start: {exc}",
+                         error={"code": "ERROR", "message": f"could not start the job: {exc}"})
             return
         self.store.add_event(job_id, "note", message=f"running on {where}", data={"worker": where, "runner": self.owner})
 
@@ -211,9 +211,8 @@ class Runner:
                 data: dict[str, Any] | None = None) -> None:
         if error is not None:
             error = {k: v for k, v in error.items() if k in ("code", "message", "traceback")}
-        # The planning time and outcome go into the row: /metrics of any API replica reads them from there.
-        extra = {**(extra or {}), "planning_s": time.monotonic() - run.started, "planning_outcome": state}
-        self.store.finish_planning(run.job_id, self.owner, state, message=message, result_text=result_text,
+        self.store.finish_planning(run.job_id, self.owner, state, message=message,
+                                   planning_s=time.monotonic() - run.started, result_text=result_text,
                                    error=error, extra=extra, data=data)
 
     def _finish_canceled(self, job_id: str, message: str, run: _Running | None = None) -> None:

@@ -295,13 +295,20 @@ class JobStore:
                 self._event(conn, job_id, "progress", state="planning", progress=fraction, message=message, at=now)
         return n == 1
 
-    def finish_planning(self, job_id: str, owner: str, to_state: str, *, message: str,
-                        result_text: str | None = None, error: dict[str, Any] | None = None,
-                        extra: dict[str, Any] | None = None, data: dict[str, Any] | None = None) -> bool:
-        """End the planning phase (planned, succeeded, failed, canceled) and store the result, in one transaction."""
+    def finish_planning(self, job_id: str, owner: str | None, to_state: str, *, message: str,
+                        planning_s: float | None, result_text: str | None = None,
+                        error: dict[str, Any] | None = None, extra: dict[str, Any] | None = None,
+                        data: dict[str, Any] | None = None) -> bool:
+        """End the planning phase (planned, succeeded, failed, canceled) and store the result, in one transaction.
+
+        The runner that planned the job and recovery (its runner is gone) both end planning here, so
+        every job whose planning ended carries its outcome (the state it went to) and its planning
+        time in s (None if unknown): /metrics of any API replica reads them from the row.
+        """
         now = utcnow()
         values: dict[str, Any] = dict(state=to_state, message=message, error=error, updated_at=now, owner=None,
-                                      lease_expires_at=None, **(extra or {}))
+                                      lease_expires_at=None, **(extra or {}),
+                                      planning_outcome=to_state, planning_s=planning_s)
         if to_state in ("planned", "succeeded"):
             values["progress"] = 1.0
         if to_state in TERMINAL_STATES:
@@ -363,25 +370,28 @@ class JobStore:
             if not (expired or is_owner_dead(owner)):
                 continue
             fields = dict(owner=None, lease_expires_at=None)
-            if r["state"] == "planning":
+            data = {"recovered_from": r["state"]}
+            if r["state"] == "planning" and (r["cancel_requested"] or r["attempts"] >= max_attempts):
+                # Planning ends here, not in a runner: finish_planning records its outcome for the metrics.
                 if r["cancel_requested"]:
-                    to, msg, extra = "canceled", "canceled (its runner stopped before it could finish)", {}
-                elif r["attempts"] < max_attempts:
-                    to, msg = "queued", (f"re-queued: its runner {owner or '?'} stopped while planning "
-                                          f"(attempt {r['attempts']} of {max_attempts})")
-                    extra = {"progress": 0.0, "started_at": None}
+                    to, msg, error = "canceled", "canceled (its runner stopped before it could finish)", None
                 else:
                     to, msg = "failed", (f"interrupted {r['attempts']} times: its runner stopped while planning "
                                          f"(last runner {owner or '?'})")
-                    extra = {"error": {"code": "INTERRUPTED", "message": msg}}
-                if to != "queued":  # planning ended here, not in a runner: record it for the metrics
-                    extra["planning_outcome"] = to
-                    extra["planning_s"] = (now - r["started_at"]).total_seconds() if r["started_at"] else None
+                    error = {"code": "INTERRUPTED", "message": msg}
+                planning_s = (now - r["started_at"]).total_seconds() if r["started_at"] else None
+                ok = self.finish_planning(r["id"], r["owner"], to, message=msg, planning_s=planning_s, error=error,
+                                          data=data)
             else:
-                to, msg = "aborted", f"execution interrupted: the process that drove it ({owner or '?'}) stopped"
-                extra = {"error": {"code": "INTERRUPTED", "message": msg}}
-            ok = self.transition(r["id"], [r["state"]], to, message=msg, data={"recovered_from": r["state"]},
-                                 expect_owner=r["owner"], **fields, **extra)
+                if r["state"] == "planning":
+                    to, msg = "queued", (f"re-queued: its runner {owner or '?'} stopped while planning "
+                                          f"(attempt {r['attempts']} of {max_attempts})")
+                    extra: dict[str, Any] = {"progress": 0.0, "started_at": None}
+                else:
+                    to, msg = "aborted", f"execution interrupted: the process that drove it ({owner or '?'}) stopped"
+                    extra = {"error": {"code": "INTERRUPTED", "message": msg}}
+                ok = self.transition(r["id"], [r["state"]], to, message=msg, data=data, expect_owner=r["owner"],
+                                     **fields, **extra)
             if ok:
                 actions.append((r["id"], to))
         return actions

@@ -84,6 +84,26 @@ def test_recovery_requeues_then_fails_and_aborts_executions(store: JobStore) -> 
     assert store.get(c)["state"] == "planning"
 
 
+def test_every_end_of_planning_records_its_outcome_for_the_metrics(store: JobStore) -> None:
+    dead = "some-other-host:1:dead"
+    a, b, c = _new(store), _new(store), _new(store)
+    store.claim(dead, 3, lease_s=0.0)
+    assert store.finish_planning(a, dead, "planned", message="planned", planning_s=1.5)  # a runner's end
+    store.request_cancel(b, "bob", None)  # planning: only flagged, its runner is gone
+    assert dict(store.recover(lambda owner: False, max_attempts=1)) == {b: "canceled", c: "failed"}
+    rows = [store.get(j) for j in (a, b, c)]
+    assert [(r["state"], r["planning_outcome"]) for r in rows] == [
+        ("planned", "planned"), ("canceled", "canceled"), ("failed", "failed")]
+    assert rows[0]["planning_s"] == 1.5 and all(0.0 <= r["planning_s"] < 60.0 for r in rows[1:])
+    stats = {r["outcome"]: (r["count"], r["buckets"]) for r in store.planning_stats([1.0, 2.0])}
+    assert stats == {"planned": (1, [0, 1]), "canceled": (1, [1, 1]), "failed": (1, [1, 1])}
+    # A re-queue does not end planning: nothing is recorded until the job's planning really ends.
+    d = _new(store)
+    store.claim(dead, 1, lease_s=0.0)
+    assert store.recover(lambda owner: False, max_attempts=2) == [(d, "queued")]
+    assert (store.get(d)["planning_outcome"], store.get(d)["planning_s"]) == (None, None)
+
+
 def test_approval_expiry_sends_the_job_back_to_planned(store: JobStore) -> None:
     job = _new(store)
     past = datetime.now(timezone.utc) - timedelta(seconds=1)
