@@ -27,7 +27,8 @@ import pytest
 from mcap.reader import make_reader
 
 from schemas.plan import plan_sha256
-from tests.service.conftest import ROOT, Server, free_port, start_controller_sim, stop_process, wait_state
+from tests.service.conftest import (ROOT, Server, free_port, start_controller_sim, stop_process, submit_approved_plan,
+                                    wait_controller_alive, wait_state)
 
 #: Contract states of a plan job that runs to the end, in order (CONTRACT section 5).
 PLAN_JOB_STATES = ["queued", "planning", "planned", "approved", "dispatching", "executing", "succeeded"]
@@ -94,19 +95,9 @@ def audited(tmp_path_factory: pytest.TempPathFactory) -> Iterator[AuditedJob]:
     sim = None
     try:
         sim = start_controller_sim(srv.data_dir, port, speed=1)
-        deadline = time.monotonic() + CONTROLLER_UP_TIMEOUT_S
-        while not httpx.get(srv.url + "/healthz", timeout=5).json()["controller_alive"]:
-            assert sim.poll() is None, (srv.data_dir / "controller-sim.log").read_text()[-2000:]
-            assert time.monotonic() < deadline, "the simulated controller never came up"
-            time.sleep(0.2)
+        wait_controller_alive(srv, sim, CONTROLLER_UP_TIMEOUT_S)
+        job_id = submit_approved_plan(srv, {"scenario": "stand-1", "seed": 7}, JOB_TIMEOUT_S)
         with srv.client("alice") as alice, srv.client("bob") as bob:
-            r = alice.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "stand-1", "seed": 7}})
-            assert r.status_code == 202, r.text
-            job_id = r.json()["id"]
-            planned = wait_state(alice, job_id, {"planned", "failed"}, JOB_TIMEOUT_S)
-            assert planned["state"] == "planned", planned["error"]
-            r = bob.post(f"/v1/jobs/{job_id}/approve", json={"plan_sha256": planned["plan_sha256"]})
-            assert r.status_code == 200, r.text
             r = bob.post(f"/v1/jobs/{job_id}/dispatch")
             assert r.status_code == 202, r.text
             done = wait_state(bob, job_id, {"succeeded", "aborted", "rejected", "failed"}, JOB_TIMEOUT_S)

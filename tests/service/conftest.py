@@ -57,6 +57,15 @@ def start_controller_sim(data_dir: Path, port: int, speed: float) -> subprocess.
         cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
 
 
+def wait_controller_alive(srv: "Server", proc: subprocess.Popen[bytes], timeout_s: float) -> None:
+    """Wait until the server's bridge sees the simulated controller ``proc``; fail if it exits or never shows."""
+    deadline = time.monotonic() + timeout_s
+    while not httpx.get(srv.url + "/healthz", timeout=5).json()["controller_alive"]:
+        assert proc.poll() is None, (srv.data_dir / "controller-sim.log").read_text()[-2000:]
+        assert time.monotonic() < deadline, "the simulated controller never came up"
+        time.sleep(0.2)
+
+
 def stop_process(proc: subprocess.Popen[bytes], timeout: float = 10.0) -> None:
     """SIGTERM, then SIGKILL if it has not exited within ``timeout`` s."""
     proc.send_signal(signal.SIGTERM)
@@ -170,6 +179,19 @@ def schema_drift(engine: Any) -> list[Any]:
 
     with engine.connect() as conn:
         return list(compare_metadata(MigrationContext.configure(conn, opts={"compare_type": True}), metadata))
+
+
+def submit_approved_plan(srv: Server, request: dict[str, Any], timeout: float = 60.0) -> str:
+    """Submit a plan job as alice, wait for it to be planned and approve its plan as bob; the job's id."""
+    with srv.client("alice") as alice, srv.client("bob") as bob:
+        r = alice.post("/v1/jobs", json={"kind": "plan", "request": request})
+        assert r.status_code == 202, r.text
+        job_id = r.json()["id"]
+        planned = wait_state(alice, job_id, {"planned", "failed"}, timeout)
+        assert planned["state"] == "planned", planned["error"]
+        r = bob.post(f"/v1/jobs/{job_id}/approve", json={"plan_sha256": planned["plan_sha256"]})
+        assert r.status_code == 200, r.text
+        return job_id
 
 
 def job_events(client: httpx.Client, job_id: str) -> list[dict[str, Any]]:

@@ -17,7 +17,7 @@ from typing import Iterator
 import httpx
 import psutil
 import pytest
-from conftest import ROOT, Server, free_port, service_env, wait_state
+from conftest import ROOT, Server, free_port, service_env, stop_process, wait_state
 from prometheus_client.parser import text_string_to_metric_families
 
 from schemas.jobs import TERMINAL_STATES
@@ -87,11 +87,7 @@ class Split:
             start_new_session=True)
 
     def stop(self) -> None:
-        self.worker.send_signal(signal.SIGTERM)
-        try:
-            self.worker.wait(20)
-        except subprocess.TimeoutExpired:
-            self.worker.kill()
+        stop_process(self.worker, timeout=20)
         try:
             os.killpg(self.worker.pid, signal.SIGKILL)
         except ProcessLookupError:

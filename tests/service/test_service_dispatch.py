@@ -7,14 +7,14 @@ tested whatever state the planner is in.
 
 from __future__ import annotations
 
-import time
 from typing import Iterator
 
-import httpx
 import pytest
-from conftest import Server, free_port, start_controller_sim, stop_process, wait_state
+from conftest import (Server, free_port, start_controller_sim, stop_process, submit_approved_plan,
+                      wait_controller_alive, wait_state)
 
 END_STATES = {"succeeded", "aborted", "rejected", "failed"}
+CONTROLLER_UP_TIMEOUT_S = 60.0
 
 
 @pytest.fixture(scope="module")
@@ -32,23 +32,14 @@ def sim(rig: tuple[Server, int]) -> Iterator[None]:
     srv, port = rig
     proc = start_controller_sim(srv.data_dir, port, speed=1)
     try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not httpx.get(srv.url + "/healthz").json()["controller_alive"]:
-            assert proc.poll() is None, (srv.data_dir / "controller-sim.log").read_text()[-2000:]
-            time.sleep(0.2)
+        wait_controller_alive(srv, proc, CONTROLLER_UP_TIMEOUT_S)
         yield
     finally:
         stop_process(proc)
 
 
 def _approved(srv: Server, scenario: str) -> str:
-    with srv.client("alice") as alice, srv.client("bob") as bob:
-        job = alice.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": scenario}}).json()
-        planned = wait_state(alice, job["id"], {"planned", "failed"}, timeout=60)
-        assert planned["state"] == "planned", planned["error"]
-        r = bob.post(f"/v1/jobs/{job['id']}/approve", json={"plan_sha256": planned["plan_sha256"]})
-        assert r.status_code == 200, r.text
-        return job["id"]
+    return submit_approved_plan(srv, {"scenario": scenario})
 
 
 def test_no_controller_409(rig: tuple[Server, int]) -> None:
