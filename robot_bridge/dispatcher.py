@@ -30,7 +30,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from schemas.bridge import MAX_SEGMENT_DURATION_S, ExecStatus, GateVerdict, Heartbeat, JointState, Stop, TrajectorySegment
 
-from .gate import Approval, GateSettings, MeasuredState, SafetyGate
+from .gate import Approval, MeasuredState, SafetyGate
 from .settings import BridgeSettings, Keys
 from .zenoh_session import control_publisher, encode, open_session
 
@@ -57,7 +57,8 @@ class DispatchSettings(BaseSettings):
     ack_timeout_s: float = Field(1.0, gt=0, description="wait for the controller to acknowledge a stop")
     robot_state_event_period_s: float = Field(0.1, gt=0, description="rate of 'robot_state' events (for the audit)")
     state_max_age_s: float = Field(0.5, gt=0, description="a measured state older than this is not used by the gate")
-    start_tolerance_rad: float = Field(0.01, gt=0, description="first point vs measured state")
+    start_tolerance_rad: float = Field(0.01, gt=0, description="first point vs measured state (sent with each measured "
+                                                                 "state: it overrides the gate's own setting)")
 
 
 class ControllerUnavailableError(RuntimeError):
@@ -111,7 +112,7 @@ class Dispatcher:
                  gate: SafetyGate | None = None):
         self.settings = settings or BridgeSettings()
         self.dispatch = dispatch or DispatchSettings()
-        self.gate = gate or SafetyGate(GateSettings(start_tolerance_rad=self.dispatch.start_tolerance_rad))
+        self.gate = gate or SafetyGate()  # the start tolerance comes with each measured state (see _execute)
         self.keys = Keys(self.settings.robot_id)
         self._lock = threading.Lock()
         self._run_lock = threading.Lock()

@@ -342,8 +342,6 @@ def _parse(ctx: "_Context", plan: Any, s: GateSettings) -> _Parsed:
         t = np.fromiter(map(itemgetter("t"), traj), dtype=float, count=n)
         poses = np.fromiter(chain.from_iterable(ps), dtype=float, count=n * 7).reshape(n, 7)
         holding = np.fromiter(map(index.__getitem__, map(itemgetter("holding"), traj)), dtype=np.int8, count=n)
-        if Q.shape != (len(traj), nq) or poses.shape != (len(traj), 7) or t.shape != (len(traj),):
-            raise ValueError("shape")
     except (TypeError, ValueError, KeyError):
         _find_bad_point(traj, nq)
         raise Veto("structure", "the trajectory holds a value that is not a number")
@@ -524,13 +522,10 @@ def _check_rates(ctx: _Context, p: _Parsed, robot: _Robot, s: GateSettings) -> N
     rel = 1.0 + s.limit_tolerance_rel
     Q, dt = p.Q[:, cols], p.dt
     v = np.diff(Q, axis=0) / dt  # row i: from point i to i + 1
-    a = np.empty_like(Q)  # at each point, with the rest state repeated before and after
-    if p.n >= 2:
-        a[1:-1] = np.diff(v, axis=0) / dt
-        a[0] = v[0] / dt
-        a[-1] = -v[-1] / dt
-    else:
-        a[:] = 0.0
+    a = np.empty_like(Q)  # at each point, with the rest state repeated before and after (a moving column: n >= 2)
+    a[1:-1] = np.diff(v, axis=0) / dt
+    a[0] = v[0] / dt
+    a[-1] = -v[-1] / dt
     vr, ar = np.abs(v).max(axis=0) / vmax, np.abs(a).max(axis=0) / amax
     ctx.note("joint_velocity", max_ratio=float(vr.max()), joint=names[int(np.argmax(vr))])
     ctx.note("joint_acceleration", max_ratio=float(ar.max()), joint=names[int(np.argmax(ar))])
@@ -571,9 +566,7 @@ def _interpolate(p: _Parsed, S: int) -> _Grid:
     """
     n, nq = p.n, p.Q.shape[1]
     quat = p.object_pose[:, 3:] / np.linalg.norm(p.object_pose[:, 3:], axis=1, keepdims=True)
-    if n == 1:
-        return _Grid(1, [p.Q[:, k] for k in range(nq)], p.object_pose[:, :3].copy(), quat, np.zeros(1, dtype=int))
-    m = (n - 1) * S + 1
+    m = (n - 1) * S + 1  # one point: a grid of one sample, that point
     f = np.arange(S) / S
 
     def lerp(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -666,7 +659,7 @@ def _check_stability(ctx: _Context, p: _Parsed, fk: BatchFK, polygon: Polygon, s
     ctrl = np.arange(0, grid.n, s.oversample)
     hk = held[ctrl]
     prev, nxt = np.maximum(ctrl - S, 0), np.minimum(ctrl + S, grid.n - 1)
-    c = system(hk, robot_com[ctrl], obj_com[ctrl])
+    c = com[ctrl]
     c_prev = system(hk, robot_com[prev], obj_com[prev])
     c_next = system(hk, robot_com[nxt], obj_com[nxt])
     acc = (c_next[:, :2] - 2.0 * c[:, :2] + c_prev[:, :2]) / (p.dt * p.dt)

@@ -248,7 +248,7 @@ class _Step:
     mult: float
     offset: float
     origin_identity: bool
-    origin_nonzero: tuple[int, ...]  # components of origin_xyz that are not zero
+    origin_nonzero: bool  # origin_xyz is not zero: the joint adds an offset
     principal: tuple[int, float] | None
 
 
@@ -282,7 +282,7 @@ class BatchFK:
             steps.append(_Step(
                 joint=j, src=src, mult=mult, offset=off,
                 origin_identity=bool(np.array_equal(j.origin_rot, np.eye(3))),
-                origin_nonzero=tuple(int(i) for i in np.flatnonzero(j.origin_xyz)),
+                origin_nonzero=bool(np.any(j.origin_xyz)),
                 principal=_principal(j.axis) if j.type != "fixed" else None,
             ))
         self._steps = tuple(steps)
@@ -334,18 +334,19 @@ class BatchFK:
         self._upward(cols, [not m for m in moves], moment, points)
         com = np.empty((n, 3))
         out = {f: np.empty((n, 3)) for f in frames}
+        per_sample = base.ndim != 1
+        if not per_sample:  # one constant pose: its rotation once for the whole batch
+            R0, p0 = quaternion_matrix(base[3:]), base[:3, None]
+            world = lambda v, w: R0 @ v + w * p0  # noqa: E731
         for start in range(0, max(n, 1), CHUNK):
             stop = min(n, start + CHUNK)
             part = [c if c.shape[0] == 1 else c[start:stop] for c in cols]
             m_part, p_part = dict(moment), {link: dict(v) for link, v in points.items()}
             self._upward(part, moves, m_part, p_part)
-            if base.ndim == 1:
-                R0, p0 = quaternion_matrix(base[3:]), base[:3, None]
-                world = lambda v, w: R0 @ v + w * p0  # noqa: E731  (one constant pose)
-            else:
-                R0 = np.moveaxis(quaternion_matrix(base[start:stop, 3:]), 0, 2)
-                p0 = base[start:stop, :3].T
-                world = lambda v, w: _apply(R0, v) + w * p0  # noqa: E731
+            if per_sample:  # one pose per state: this chunk's rotations
+                Rs = np.moveaxis(quaternion_matrix(base[start:stop, 3:]), 0, 2)
+                ps = base[start:stop, :3].T
+                world = lambda v, w: _apply(Rs, v) + w * ps  # noqa: E731
             root_m = m_part.get(self.model.root, np.zeros((3, 1)))
             com[start:stop] = (world(root_m, self.total_mass) / self.total_mass).T
             root_p = p_part.get(self.model.root, {})
