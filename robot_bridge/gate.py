@@ -635,6 +635,7 @@ def _check_stability(ctx: _Context, p: _Parsed, fk: BatchFK, polygon: Polygon, s
     ctx.note("com_margin", min_margin_m=float(margin[k]), at_sample=k, threshold_m=ctx.threshold,
              polygon=polygon.vertices.tolist())
     first = _first(margin < need)
+    value = float(margin[first]) if first is not None else None
     # Where holding changes at a point, the state there is checked with both values.
     change = np.flatnonzero(p.holding[1:] != p.holding[:-1]) + 1
     if change.size:
@@ -642,11 +643,10 @@ def _check_stability(ctx: _Context, p: _Parsed, fk: BatchFK, polygon: Polygon, s
         before = p.holding[change - 1] != 0
         m2 = polygon.margin(system(before, robot_com[ks], obj_com[ks])[:, :2])
         ctx.note("com_margin", min_margin_at_holding_changes_m=float(m2.min()))
-        bad2 = ks[m2 < need]
-        if bad2.size and (first is None or bad2[0] < first):
-            first = int(bad2[0])
+        bad2 = np.flatnonzero(m2 < need)
+        if bad2.size and (first is None or ks[bad2[0]] < first):
+            first, value = int(ks[bad2[0]]), float(m2[bad2[0]])  # the mass set before the change fails first
     if first is not None:
-        value = float(polygon.margin(com[first:first + 1, :2])[0])
         raise Veto("com_margin", f"the CoM margin falls to {value * 1000:.2f} mm, below the threshold "
                    f"{ctx.threshold * 1000:.2f} mm (tolerance {s.margin_tolerance_m * 1000:.2f} mm)", first)
     ctx.passed("com_margin")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from datetime import datetime, timedelta, timezone
@@ -416,6 +417,22 @@ def test_batched_gate_equals_a_per_sample_reference(gate):
     failing = np.flatnonzero(ref["margin"] < thr - 1e-4)
     failing = np.union1d(failing, ref["change_samples"][ref["at_change"] < thr - 1e-4])
     assert not v.passed and v.check == "com_margin" and v.sample_index == int(failing[0])
+
+
+def test_veto_at_a_release_reports_the_failing_margin(gate):
+    """Releasing a heavy object at the held phase's worst posture: the 'before' mass set at the release fails
+    first, and the veto reports that set's margin, not the (much larger) margin of the robot alone there."""
+    plan = build_plan({"RSP": -0.9, "REP": -0.4}, duration_s=1.5, mass_kg=6.0, holding="right", threshold_m=0.0)
+    release = len(plan["trajectory"]) // 2  # mid-move: the held margin still falls up to here
+    plan = edited(plan, lambda p: [pt.__setitem__("holding", "none") for pt in p["trajectory"][release:]])
+    ref = _per_sample_reference(plan, 2, 2)
+    k, before = int(ref["change_samples"][0]), float(ref["at_change"][0])
+    assert before < ref["margin"][:k].min() < ref["margin"][k:].min()
+    thr = (before + float(ref["margin"][:k].min())) / 2 + 1e-4  # only the 'before' set at the release is below
+    v = gate.check(plan, offline=True, threshold_m=thr)
+    assert not v.passed and v.check == "com_margin" and v.sample_index == k, v.summary()
+    reported = float(re.search(r"falls to (-?[\d.]+) mm", v.message).group(1)) / 1000
+    assert reported == pytest.approx(before, abs=1e-5) and reported < thr
 
 
 def test_zmp_is_checked_between_the_points(gate):
