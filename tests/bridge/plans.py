@@ -34,6 +34,12 @@ def stance_state(robot_name: str = "hrp5p", stance: str = "upright") -> tuple[li
     return list(robot.joint_names), st.q.tolist(), st.base_pose.tolist()
 
 
+def cosine_profile(n_move: int, rest_before: int = 0, rest_after: int = 0) -> np.ndarray:
+    """Progress 0 -> 1 over ``n_move`` steps (n_move + 1 points), rest to rest, with rest points before and after."""
+    move = 0.5 * (1 - np.cos(np.pi * np.arange(n_move + 1) / n_move))
+    return np.concatenate([np.zeros(rest_before), move, np.ones(rest_after)])
+
+
 def build_plan(
     moves: dict[str, float] | None = None,
     *,
@@ -54,9 +60,8 @@ def build_plan(
 
     robot, st = _robot_and_stance(robot_name, stance)
     moves = moves if moves is not None else {"RSP": -0.3}
-    n_move = int(round(duration_s / DT))
     n_rest = int(round(rest_s / DT))
-    s = np.concatenate([np.zeros(n_rest), 0.5 * (1 - np.cos(np.pi * np.arange(n_move + 1) / n_move)), np.ones(n_rest)])
+    s = cosine_profile(int(round(duration_s / DT)), n_rest, n_rest)
     Q = np.repeat(st.q[None], len(s), axis=0)
     for joint, delta in moves.items():
         Q[:, robot.joint_index(joint)] += s * delta
@@ -136,4 +141,4 @@ def _quat(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(R).as_quat()  # [x, y, z, w]
 
 
-__all__ = ["build_plan", "stance_state", "true_min_margin", "edited", "plan_sha256", "DT"]
+__all__ = ["build_plan", "cosine_profile", "stance_state", "true_min_margin", "edited", "plan_sha256", "DT"]

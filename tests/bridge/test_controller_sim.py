@@ -25,6 +25,7 @@ from robot_bridge.zenoh_session import control_publisher, encode, open_session
 from schemas.bridge import ExecStatus, Heartbeat, JointState, Stop, TrajectorySegment
 
 from .conftest import ControllerProcess, start_controller
+from .plans import cosine_profile
 
 #: The contract's control period (200 Hz).
 PERIOD_S = 0.005
@@ -107,9 +108,8 @@ def segments(job_id: str, names: list[str], Q: np.ndarray, dt_s: float, duration
 
 
 def cosine_move(q0: np.ndarray, joint: int, delta: float, duration_s: float, dt_s: float, rest_points: int = 0) -> np.ndarray:
-    """Rest-to-rest move of one joint, then ``rest_points`` more points at the goal."""
-    n = int(round(duration_s / dt_s))
-    s = np.concatenate([0.5 * (1 - np.cos(np.pi * np.arange(n + 1) / n)), np.ones(rest_points)])
+    """Rest-to-rest move of one joint (the test plans' profile), then ``rest_points`` more points at the goal."""
+    s = cosine_profile(int(round(duration_s / dt_s)), rest_after=rest_points)
     Q = np.repeat(q0[None], len(s), axis=0)
     Q[:, joint] += s * delta
     return Q
@@ -127,6 +127,21 @@ def sim(initial_q_file):
     yield ctl, peer
     peer.close()
     ctl.terminate()
+
+
+@pytest.fixture
+def open_peer():
+    """Test peers of controllers a test starts; closed after the test (before its controllers end)."""
+    opened: list[Peer] = []
+
+    def make(ctl: ControllerProcess) -> Peer:
+        peer = Peer(ctl)
+        opened.append(peer)
+        return peer
+
+    yield make
+    for peer in opened:
+        peer.close()
 
 
 @pytest.fixture(scope="module")
@@ -267,21 +282,14 @@ def _play_time(peer: Peer, names: list[str], q0: np.ndarray, dt: float, duration
     return done - accepted
 
 
-def test_speed_scales_playback_time(sim, initial_q_file):
+def test_speed_scales_playback_time(sim, spawn_controller, open_peer):
     ctl, peer = sim
     names, q0 = _idle(peer)
     dt, duration = 0.01, 2.0
     t1 = _play_time(peer, names, q0, dt, duration)
-    fast = start_controller(initial_q_file, speed=4.0)
-    try:
-        fast_peer = Peer(fast)
-        try:
-            names4, q4 = _idle(fast_peer)
-            t4 = _play_time(fast_peer, names4, q4, dt, duration)
-        finally:
-            fast_peer.close()
-    finally:
-        fast.terminate()
+    fast_peer = open_peer(spawn_controller(speed=4.0))
+    names4, q4 = _idle(fast_peer)
+    t4 = _play_time(fast_peer, names4, q4, dt, duration)
     print(f"{duration} s of plan: {t1:.3f} s at --speed 1, {t4:.3f} s at --speed 4 (ratio {t1 / t4:.2f})")
     # never faster than asked (a tick may fall either side of the acceptance and of the last point)
     assert t1 >= duration - 3 * PERIOD_S and t4 >= duration / 4 - 3 * PERIOD_S
@@ -302,25 +310,18 @@ def _round_trips(peer: Peer, n: int = 3) -> list[float]:
     return out
 
 
-def test_delay_ms_adds_latency_to_every_command(sim, initial_q_file):
+def test_delay_ms_adds_latency_to_every_command(sim, spawn_controller, open_peer):
     ctl, peer = sim
     _idle(peer)
     base = statistics.median(_round_trips(peer))
     delay_s = 0.15
-    slow = start_controller(initial_q_file, "--delay-ms", str(int(delay_s * 1000)), speed=1.0)
-    try:
-        slow_peer = Peer(slow)
-        try:
-            delayed = _round_trips(slow_peer)
-            names, q0 = _idle(slow_peer)
-            seg = segments(new_job(), names, np.repeat(q0[None], 3, axis=0), 0.01)[0]
-            sent = slow_peer.send(seg)
-            at, st = slow_peer.reply(sent, "accepted", seg.job_id)
-            segment_rtt = at - sent
-        finally:
-            slow_peer.close()
-    finally:
-        slow.terminate()
+    slow_peer = open_peer(spawn_controller("--delay-ms", str(int(delay_s * 1000)), speed=1.0))
+    delayed = _round_trips(slow_peer)
+    names, q0 = _idle(slow_peer)
+    seg = segments(new_job(), names, np.repeat(q0[None], 3, axis=0), 0.01)[0]
+    sent = slow_peer.send(seg)
+    at, st = slow_peer.reply(sent, "accepted", seg.job_id)
+    segment_rtt = at - sent
     print(f"stop round trip: {base * 1000:.1f} ms without delay, {[round(d * 1000, 1) for d in delayed]} ms with "
           f"--delay-ms {delay_s * 1000:.0f}; segment {segment_rtt * 1000:.1f} ms")
     assert base < delay_s / 2
