@@ -48,13 +48,18 @@ BRIDGE_ROBOT_ID = "svctest"
 BRIDGE_WATCHDOG_S = 2.0
 
 
-def start_controller_sim(data_dir: Path, port: int, speed: float) -> subprocess.Popen[bytes]:
-    """`regrasp controller-sim` of the test servers' robot id, listening on ``port``; its log in ``data_dir``."""
+def start_controller_sim(data_dir: Path, port: int, speed: float, **settings: Any) -> subprocess.Popen[bytes]:
+    """`regrasp controller-sim` of the test servers' robot id, listening on ``port``; its log in ``data_dir``.
+
+    ``settings`` become its ``REGRASP_*`` environment (e.g. ``bridge_lease_s="6"``).
+    """
     log = open(data_dir / "controller-sim.log", "ab")
+    env = dict(os.environ)
+    env.update({f"REGRASP_{key.upper()}": str(value) for key, value in settings.items()})
     return subprocess.Popen(
         [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", BRIDGE_ROBOT_ID,
          "--listen", f"tcp/127.0.0.1:{port}", "--speed", str(speed)],
-        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+        cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
 
 
 def wait_controller_alive(srv: "Server", proc: subprocess.Popen[bytes], timeout_s: float) -> None:

@@ -7,14 +7,20 @@ tested whatever state the planner is in.
 
 from __future__ import annotations
 
+import signal
+import time
+from datetime import datetime, timezone
+from pathlib import Path
 from typing import Iterator
 
 import pytest
-from conftest import (Server, free_port, start_controller_sim, stop_process, submit_approved_plan,
-                      wait_controller_alive, wait_state)
+from conftest import (BRIDGE_WATCHDOG_S, Server, free_port, job_events, start_controller_sim, stop_process,
+                      submit_approved_plan, wait_controller_alive, wait_state)
 
 END_STATES = {"succeeded", "aborted", "rejected", "failed"}
 CONTROLLER_UP_TIMEOUT_S = 60.0
+#: Beyond the bridge's watchdog, what a loaded machine may take to notice the loss and store the abort, s.
+LOSS_MARGIN_S = 3.0
 
 
 @pytest.fixture(scope="module")
@@ -91,3 +97,56 @@ def test_gate_veto_rejects(rig: tuple[Server, int], sim: None) -> None:
         assert "joint_position" in done["error"]["message"] or "limit" in done["error"]["message"], done["error"]
         history = bob.get(f"/v1/jobs/{job_id}/events", params={"follow": "false"}).text
         assert '"event":"segment"' not in history  # nothing was sent
+
+
+#: How each fault is made and the abort reason it must give. SIGKILL: the kernel closes the zenoh link, so
+#: the controller's liveliness token goes at once. SIGSTOP: the link stays open but silent; the zenoh
+#: lease (1 s by default) would drop it before the 2 s watchdog, so both peers announce a 6 s lease here
+#: and the bridge's heartbeat watchdog is what must notice the stall.
+FAULTS = {
+    "killed": (signal.SIGKILL, {}, "controller lost: "),
+    "stalled": (signal.SIGSTOP, {"bridge_lease_s": "6"}, "controller lost: controller heartbeat lost: "),
+}
+
+
+@pytest.mark.parametrize("fault", list(FAULTS))
+def test_a_controller_lost_mid_execution_aborts_the_job(tmp_path: Path, fault: str) -> None:
+    """The controller-sim is killed or stalled while it plays a 10 s plan: the job ends aborted, naming the
+    lost controller, within the watchdog and a margin."""
+    sig, settings, reason = FAULTS[fault]
+    port = free_port()
+    srv = Server(tmp_path, workers=1, bridge_port=port, **settings).start()
+    proc = start_controller_sim(srv.data_dir, port, speed=1, **settings)
+    try:
+        wait_controller_alive(srv, proc, CONTROLLER_UP_TIMEOUT_S)
+        job_id = submit_approved_plan(srv, {"scenario": "stand-10"})
+        with srv.client("bob") as bob:
+            r = bob.post(f"/v1/jobs/{job_id}/dispatch")
+            assert r.status_code == 202, r.text
+            # Mid-execution: the controller has reported playing the plan.
+            deadline = time.monotonic() + 30
+            while not any(e["kind"] == "bridge" and e["data"].get("event") == "executing"
+                          for e in job_events(bob, job_id)):
+                assert time.monotonic() < deadline, bob.get(f"/v1/jobs/{job_id}").json()["state"]
+                time.sleep(0.1)
+            assert bob.get(f"/v1/jobs/{job_id}").json()["state"] == "executing"
+            lost_at = datetime.now(timezone.utc)
+            proc.send_signal(sig)
+            done = wait_state(bob, job_id, END_STATES, timeout=30)
+            assert done["state"] == "aborted", (done["message"], done["error"])
+            assert done["error"]["code"] == "ABORTED" and done["error"]["message"].startswith(reason), done["error"]
+            events = job_events(bob, job_id)
+        states = [e["state"] for e in events if e["kind"] == "state"]
+        assert states == ["queued", "planning", "planned", "approved", "dispatching", "executing", "aborted"]
+        aborted = next(e for e in events if e["kind"] == "state" and e["state"] == "aborted")
+        assert aborted["data"]["reason"] == done["error"]["message"]
+        finished = [e["data"]["payload"] for e in events if e["kind"] == "bridge" and e["data"].get("event") == "finished"]
+        assert [(f["status"], f["reason"]) for f in finished] == [("aborted", done["error"]["message"])]
+        # Server time from the loss to the stored abort: the watchdog (or the dropped link) and a margin,
+        # far short of the plan's 10 s.
+        lost_for_s = (datetime.fromisoformat(aborted["at"]) - lost_at).total_seconds()
+        assert 0.0 < lost_for_s < BRIDGE_WATCHDOG_S + LOSS_MARGIN_S, lost_for_s
+    finally:
+        proc.kill()  # a stopped process is killed too
+        proc.wait(10)
+        srv.stop()
