@@ -249,6 +249,48 @@ def test_controller_holds_its_last_command_when_starved(sim):
     _assert_still(peer, first_last)
 
 
+# --------------------------------------------------------------------------- playback between the points
+
+
+def test_playback_interpolates_linearly_between_points(sim, limits):
+    """Points 0.2 s apart: the joint states in between lie on the straight line from point i to point i + 1
+    (i = the state's index), at the fraction of the interval played (whole control periods at --speed 1),
+    spread over the interval, not only at the points."""
+    ctl, peer = sim
+    names, lim = limits
+    _, q0 = _idle(peer)
+    dt = 0.2
+    lsp, rsp = names.index("LSP"), names.index("RSP")
+    Q = np.repeat(q0[None], 4, axis=0)
+    for i, (d_lsp, d_rsp) in enumerate([(-0.06, 0.02), (-0.02, -0.06), (0.04, 0.0)], start=1):  # a bend at every point
+        Q[i:, lsp] += d_lsp
+        Q[i:, rsp] += d_rsp
+    assert np.all(np.abs(np.diff(Q, axis=0)) / dt <= 0.5 * lim.velocity)
+    seg = segments(new_job(), names, Q, dt)[0]
+    assert len(seg.points) == len(Q)
+    sent = peer.send(seg)
+    peer.reply(sent, "accepted", seg.job_id)
+    done, _ = peer.reply(sent, "succeeded", seg.job_id, timeout_s=4 * (len(Q) - 1) * dt + REPLY_TIMEOUT_S)
+    played = [js for _, js in peer.joints_since(sent) if js.job_id == seg.job_id]
+    fractions: dict[int, list[float]] = {i: [] for i in range(len(Q) - 1)}
+    for js in played:
+        i = js.index
+        assert i is not None and 0 <= i < len(Q) - 1, i
+        a, step = Q[i], Q[i + 1] - Q[i]
+        q = np.array(js.q)
+        lam = float((q - a) @ step / (step @ step))  # where on the line from point i to i + 1
+        assert -1e-9 <= lam <= 1.0 + 1e-9, (i, lam)
+        assert np.allclose(q, a + lam * step, rtol=0.0, atol=1e-9), (i, lam, np.abs(q - a - lam * step).max())
+        ticks = lam * dt / PERIOD_S  # linear in time: each control period moves 5 ms / 200 ms of the way
+        assert abs(ticks - round(ticks)) < 1e-6, (i, lam)
+        fractions[i].append(lam)
+    for i, lams in fractions.items():
+        assert len(lams) >= 10, f"interval {i}: {len(lams)} joint states"
+        assert lams == sorted(lams), f"interval {i}: playback went back"
+        assert min(lams) < 0.25 and max(lams) > 0.75 and any(0.4 < x < 0.6 for x in lams), (i, lams)
+    assert np.allclose(_posture_after(peer, done), Q[-1], atol=1e-12)
+
+
 # --------------------------------------------------------------------------- rates
 
 
