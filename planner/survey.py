@@ -248,7 +248,8 @@ def run_survey_seeds(
 ) -> list[tuple[dict[str, Any], list[ConfigOutcome]]]:
     """One survey per seed; key poses are found once per configuration and shared by the seeds."""
     t0 = time.perf_counter()
-    states = states or scenario.survey.states_per_configuration or DEFAULT_STATES
+    if states is None:
+        states = scenario.survey.states_per_configuration or DEFAULT_STATES
     if states < 1:
         raise ValueError(f"states per configuration must be >= 1, got {states}")
     threshold = scenario.threshold_m if threshold_m is None else threshold_m

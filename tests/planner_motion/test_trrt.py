@@ -180,6 +180,54 @@ def test_exploration_through_a_handover(robot, upright, evaluator, hold_right):
     assert len(ex.stats["legs"]) == 2
 
 
+def test_exploration_aims_a_share_of_its_samples_at_the_other_end(robot, upright, right_active):
+    """Goal bias (the paper's start/end bias): each tree grows from one end of the leg, and a
+    ``goal_bias`` share of its samples is the other tree's root; the rest are uniform."""
+    from planner.trrt import _Search
+
+    start = upright.q.copy()
+    goal = start.copy()
+    goal[right_active] = np.clip(start[right_active] - 0.6, robot.lower[right_active], robot.upper[right_active])
+
+    def aimed_share(bias: float) -> float:
+        s = TrrtSettings(goal_bias=bias)
+        search = _Search(start, goal, right_active, robot.lower, robot.upper, 0.1, 0.1, s)
+        search.batch_size = 4000
+        aimed = 0
+        proposals = search.propose(np.random.default_rng(5))
+        for ti, near, new, _ in proposals:
+            x, root = search.trees[ti].nodes[near], search.trees[ti ^ 1].nodes[0]
+            step, to_root = new - x, root - x
+            cos = step @ to_root / (np.linalg.norm(step) * np.linalg.norm(to_root))
+            aimed += cos > 1 - 1e-9
+        return aimed / len(proposals)
+
+    assert aimed_share(1.0) == 1.0 and aimed_share(0.0) == 0.0
+    assert aimed_share(TrrtSettings().goal_bias) == pytest.approx(TrrtSettings().goal_bias, abs=0.02)
+
+
+def test_exploration_says_whether_and_when_each_leg_connected(robot, upright, evaluator, hold_right, right_active):
+    start = upright.q.copy()
+    near_goal = start.copy()
+    near_goal[right_active[1]] -= 0.05  # a short free straight line: connected before any round
+    ex = explore([ExploreLeg(start, near_goal, hold_right, right_active)], evaluator, None, 300, np.random.default_rng(3))
+    leg = ex.stats["legs"][0]
+    assert leg["connected"] is True and leg["connected_at_round"] == 0
+    assert 2 <= leg["connected_at_state"] <= ex.stats["evaluated"]
+
+    far_goal = start.copy()
+    far_goal[right_active[4]] = start[right_active[4]] + 0.4
+    wall = start[right_active[4]] + 0.2
+
+    def walled(Q):  # a joint value no path between the two ends can avoid
+        return np.abs(Q[:, right_active[4]] - wall) > 0.05
+
+    ex = explore([ExploreLeg(start, far_goal, hold_right, right_active)], evaluator, walled, 300, np.random.default_rng(3))
+    leg = ex.stats["legs"][0]
+    assert ex.stats["evaluated"] == 300 and leg["start_valid"] and leg["goal_valid"]
+    assert leg["connected"] is False and leg["connected_at_state"] is None and leg["connected_at_round"] is None
+
+
 def test_exploration_cancel(robot, upright, evaluator, hold_right, right_active):
     start = upright.q.copy()
     goal = start.copy()

@@ -193,3 +193,20 @@ def test_the_cli_progress_bar_leaves_the_process_single_threaded():
     before = threading.active_count()
     during = run_with_progress("test", lambda progress: (progress(0.5, "half"), threading.active_count())[1])
     assert during == before
+
+
+def test_the_state_count_defaults_to_the_scenario_then_10000_and_zero_is_refused(scenario):
+    """CONTRACT 4: N from the scenario, 10,000 by default. (A threshold beyond the polygon skips the
+    exploration itself, so the count is read without running 10,000 states.)"""
+    from planner.jobs import build_task
+
+    assert "survey" not in scenario.model_dump(exclude_unset=True)  # the fixture names no count
+    task = build_task(scenario)
+    doc, _ = run_survey(scenario, threshold_m=1.0, workers=1, task=task)
+    assert doc["stats"]["states_per_configuration"] == 10_000
+    assert all(row["ratio"] is None and "inradius" in row["reason"] for row in doc["rows"])
+    own = scenario.model_copy(update={"survey": scenario.survey.model_copy(update={"states_per_configuration": 1234})})
+    doc, _ = run_survey(own, threshold_m=1.0, workers=1, task=task)
+    assert doc["stats"]["states_per_configuration"] == 1234
+    with pytest.raises(ValueError, match="states per configuration must be >= 1, got 0"):
+        run_survey(scenario, states=0, workers=1, task=task)
