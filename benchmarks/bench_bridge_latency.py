@@ -4,10 +4,16 @@ Runs a real ``regrasp controller-sim`` process and a real dispatcher peer.
 Both clocks are ``time.monotonic()`` (CLOCK_MONOTONIC, shared by the processes of
 one machine), so one-way times are measured directly:
 
-- segment latency: dispatcher just before ``put`` -> controller's zenoh callback
-  (``received_at`` in its ``accepted`` status), over several executed plans;
+- segment latency: dispatcher just before ``put`` (the segment's encoding included)
+  -> controller's zenoh callback (``received_at`` in its ``accepted`` status), over
+  several executed plans, for small segments (``--segment-s``) and for the
+  production size (the dispatcher's default segment duration, read from
+  :class:`DispatchSettings`);
 - stop propagation: ``Dispatcher.stop()`` -> the controller's callback for that stop
-  (it halts in the same step), idle and mid-execution.
+  (it halts in the same step), idle and mid-execution (at a random moment while the
+  controller plays a plan moving the arm; a plan from where the arm stopped brings
+  it back, so every round starts from the same posture). The controller's
+  ``stopped`` replies are read by an observer peer, not through the dispatcher.
 
 Targets: segment p99 <= 2 ms, stop <= 10 ms. Run: ``python benchmarks/bench_bridge_latency.py``.
 """
@@ -17,27 +23,36 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import queue
-import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from robot_bridge.dispatcher import Dispatcher, DispatchSettings  # noqa: E402
-from robot_bridge.settings import BridgeSettings  # noqa: E402
+from robot_bridge.dispatcher import Dispatcher, DispatchSettings, ExecutionResult, split_segments  # noqa: E402
+from robot_bridge.settings import BridgeSettings, Keys  # noqa: E402
+from robot_bridge.zenoh_session import encode, open_session  # noqa: E402
+from schemas.bridge import ExecStatus  # noqa: E402
 from schemas.plan import plan_sha256  # noqa: E402
 from tests.bridge.plans import build_plan, stance_state  # noqa: E402
 
+ROBOT_ID = "bench"
+#: The benchmark's arm move (joint -> rad) and its duration: well inside the velocity and acceleration limits.
+MOVES = {"RSP": -0.4, "REP": -0.3}
+MOVE_S = 2.0
+
 
 def free_port() -> int:
+    import socket
+
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
@@ -57,75 +72,178 @@ def pct(values: list[float], q: float) -> float:
     return float(np.percentile(np.array(values), q))
 
 
+def summary(values: list[float]) -> str:
+    return f"p50 {pct(values, 50):.3f} ms, p99 {pct(values, 99):.3f} ms, max {max(values):.3f} ms"
+
+
+def execute(disp: Dispatcher, plan: dict, job_id: str, on_event: Any = None) -> ExecutionResult:
+    return disp.execute(plan, job_id=job_id, approved_sha256=plan_sha256(plan),
+                        approval_expires_at=datetime.now(timezone.utc) + timedelta(minutes=5), on_event=on_event)
+
+
+class ExecObserver:
+    """A zenoh peer of its own that records the controller's exec statuses (the dispatcher's queue stays untouched)."""
+
+    def __init__(self, endpoint: str):
+        self.session = open_session(BridgeSettings(robot_id=ROBOT_ID, connect=[endpoint]))
+        self._lock = threading.Lock()
+        self.statuses: list[ExecStatus] = []
+        self._sub = self.session.declare_subscriber(Keys(ROBOT_ID).exec, self._on_exec)
+
+    def _on_exec(self, sample: Any) -> None:
+        st = ExecStatus.model_validate_json(sample.payload.to_bytes())
+        with self._lock:
+            self.statuses.append(st)
+
+    def stop_received(self, t0: float, timeout_s: float = 2.0) -> float | None:
+        """The controller's receipt time of the first stop published at or after ``t0`` (from its 'stopped' reply)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self._lock:
+                got = [st.received_at for st in self.statuses
+                       if st.status == "stopped" and st.received_at is not None and st.received_at >= t0]
+            if got:
+                return min(got)
+            time.sleep(0.005)
+        return None
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def segment_latency(endpoint: str, segment_s: float, plans: list[dict], min_jobs: int, min_segments: int) -> None:
+    """Execute the plans (forward, back, ...) until both minimums are met; print the one-way segment latencies."""
+    disp = Dispatcher(BridgeSettings(robot_id=ROBOT_ID, connect=[endpoint]), DispatchSettings(segment_duration_s=segment_s))
+    try:
+        assert disp.wait_for_controller(20.0), disp.controller_problem()
+        latencies: list[float] = []
+        k = 0
+        while k < min_jobs or len(latencies) < min_segments or k % 2:  # end back at the start posture
+            sent: dict[int, float] = {}
+            got: dict[int, float] = {}
+
+            def on_event(kind: str, data: dict) -> None:
+                if kind == "segment" and "sent_at" in data:
+                    sent[data["seq"]] = data["sent_at"]
+                elif kind == "segment" and data.get("acknowledged"):
+                    got[data["seq"]] = data["received_at"]
+
+            res = execute(disp, plans[k % 2], f"bench-{segment_s}-{k}", on_event)
+            assert res.status == "succeeded", res.reason
+            latencies += [(got[s] - sent[s]) * 1000 for s in got if s in sent]
+            k += 1
+        segs = split_segments(plans[0], "bench-0", "0" * 64, 0, segment_s)
+        size = len(encode(segs[0]))
+        print(f"segment latency bridge -> controller, {segment_s:g} s segments ({len(segs[0].points)} points, "
+              f"{size / 1000:.1f} kB): {len(latencies)} segments over {k} plans: {summary(latencies)} (target p99 <= 2 ms)")
+    finally:
+        disp.close()
+
+
+def idle_stops(disp: Dispatcher, watch: ExecObserver, n: int) -> list[float]:
+    out = []
+    for _ in range(n):
+        t0 = disp.stop(None, reason="bench")
+        at = watch.stop_received(t0)
+        if at is not None:
+            out.append((at - t0) * 1000)
+        time.sleep(disp.settings.stop_repeats * disp.settings.stop_repeat_period_s + 0.02)  # let this stop's repeats pass
+    return out
+
+
+def busy_stops(disp: Dispatcher, watch: ExecObserver, n: int, rng: np.random.Generator,
+               speed: float) -> tuple[list[float], list[float]]:
+    """Stop the arm move at a random moment of its motion, then bring the arm back from where it stopped.
+
+    Returns the stop times (ms) and the fractions of the move played when each stop took hold."""
+    names, q_start, _ = stance_state()
+    forward = build_plan(MOVES, duration_s=MOVE_S)
+    lead = 0.05  # build_plan's rest before the move starts (plan seconds)
+    out, played = [], []
+    for k in range(n):
+        job = f"bench-busy-{k}"
+        executing = threading.Event()
+        result: list[ExecutionResult] = []
+
+        def on_event(kind: str, data: dict) -> None:
+            if kind == "executing":
+                executing.set()
+
+        runner = threading.Thread(target=lambda: result.append(execute(disp, forward, job, on_event)), daemon=True)
+        runner.start()
+        assert executing.wait(10.0), "the plan did not start"
+        time.sleep(float(rng.uniform(lead + 0.1, lead + 0.9 * MOVE_S)) / speed)  # wall time into the move
+        t0 = disp.stop(job, reason="bench mid-execution")
+        at = watch.stop_received(t0)
+        runner.join(10.0)
+        assert result and result[0].status == "aborted", result
+        if at is not None:
+            out.append((at - t0) * 1000)
+        # Back to the start: the same move scaled to where the arm stopped, reversed (at rest at both ends),
+        # once the repeats of the two stops (the request's and the execution's abort) have passed.
+        time.sleep(2 * disp.settings.stop_repeats * disp.settings.stop_repeat_period_s + 0.05)
+        deadline = time.monotonic() + 5.0
+        while True:
+            js = disp.measured_state()
+            if js is not None and js.job_id is None and js.stamp > t0:
+                break
+            assert time.monotonic() < deadline, "no joint state after the stop"
+            time.sleep(0.01)
+        q = dict(zip(js.joint_names, js.q))
+        start = dict(zip(names, q_start))
+        first = next(iter(MOVES))
+        s = (q[first] - start[first]) / MOVES[first]  # fraction of the move played (all joints share the profile)
+        played.append(s)
+        back = reverse(build_plan({j: s * d for j, d in MOVES.items()}, duration_s=MOVE_S))
+        res = execute(disp, back, f"{job}-back")
+        assert res.status == "succeeded", res.reason
+    return out, played
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--jobs", type=int, default=6, help="plans executed (forward and back)")
-    ap.add_argument("--segment-s", type=float, default=0.1, help="time spanned by one segment")
+    ap.add_argument("--jobs", type=int, default=6, help="plans executed per segment size (forward and back), at least")
+    ap.add_argument("--min-segments", type=int, default=120, help="segments measured per segment size, at least")
+    ap.add_argument("--segment-s", type=float, default=0.1, help="time spanned by one small segment")
     ap.add_argument("--speed", type=float, default=4.0)
-    ap.add_argument("--stops", type=int, default=30)
+    ap.add_argument("--stops", type=int, default=30, help="stops while idle")
+    ap.add_argument("--busy-stops", type=int, default=20, help="stops while a plan executes")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the mid-execution stop times")
     args = ap.parse_args()
 
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} (tails grow with load)")
     names, q, _ = stance_state()
+    production_s = DispatchSettings.model_fields["segment_duration_s"].default
     with tempfile.TemporaryDirectory() as tmp:
         qfile = Path(tmp) / "q.json"
         qfile.write_text(json.dumps({"joint_names": names, "q": q}))
         endpoint = f"tcp/127.0.0.1:{free_port()}"
         proc = subprocess.Popen(
-            [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", "bench", "--initial-q", str(qfile),
+            [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", ROBOT_ID, "--initial-q", str(qfile),
              "--listen", endpoint, "--speed", str(args.speed)],
             cwd=REPO, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
         try:
             proc.stdout.readline()
-            disp = Dispatcher(BridgeSettings(robot_id="bench", connect=[endpoint]),
-                              DispatchSettings(segment_duration_s=args.segment_s))
-            assert disp.wait_for_controller(20.0), disp.controller_problem()
-            forward = build_plan({"RSP": -0.4, "REP": -0.3}, duration_s=2.0)
+            forward = build_plan(MOVES, duration_s=MOVE_S)
             plans = [forward, reverse(forward)]
-            latencies: list[float] = []
-            sizes: list[int] = []
-            for k in range(args.jobs):
-                plan = plans[k % 2]
-                sent: dict[int, float] = {}
-                got: dict[int, float] = {}
+            for segment_s in dict.fromkeys((args.segment_s, production_s)):
+                segment_latency(endpoint, segment_s, plans, args.jobs, args.min_segments)
 
-                def on_event(kind: str, data: dict) -> None:
-                    if kind == "segment" and "sent_at" in data:
-                        sent[data["seq"]] = data["sent_at"]
-                    elif kind == "segment" and data.get("acknowledged"):
-                        got[data["seq"]] = data["received_at"]
-
-                res = disp.execute(plan, job_id=f"bench-{k}", approved_sha256=plan_sha256(plan),
-                                   approval_expires_at=datetime.now(timezone.utc) + timedelta(minutes=5), on_event=on_event)
-                assert res.status == "succeeded", res.reason
-                latencies += [(got[s] - sent[s]) * 1000 for s in got if s in sent]
-            seg_points = int(args.segment_s / forward["dt_s"]) + 1
-            sizes.append(len(json.dumps(forward["trajectory"][0]["q"])) * seg_points)
-            print(f"segment latency bridge -> controller ({len(latencies)} segments of {seg_points} points, "
-                  f"~{sizes[0] / 1024:.0f} KB): p50 {pct(latencies, 50):.3f} ms, p99 {pct(latencies, 99):.3f} ms, "
-                  f"max {max(latencies):.3f} ms (target p99 <= 2 ms)")
-
-            # Stop propagation: idle, then mid-execution.
-            stops: list[float] = []
-            statuses: queue.Queue = queue.Queue()
-            for k in range(args.stops):
-                disp._drain_exec()
-                t0 = disp.stop(None, reason="bench")
-                deadline = time.monotonic() + 2.0
-                while time.monotonic() < deadline:
-                    try:
-                        _, st = disp._exec.get(timeout=0.05)
-                    except queue.Empty:
-                        continue
-                    if st.status == "stopped" and st.received_at is not None and st.received_at >= t0:
-                        stops.append((st.received_at - t0) * 1000)
-                        break
-                time.sleep(0.08)  # let the repeated stops of this round pass
-            print(f"stop propagation bridge -> controller halt ({len(stops)} stops): p50 {pct(stops, 50):.3f} ms, "
-                  f"p99 {pct(stops, 99):.3f} ms, max {max(stops):.3f} ms (target <= 10 ms)")
-            del statuses
-            disp.close()
+            watch = ExecObserver(endpoint)
+            disp = Dispatcher(BridgeSettings(robot_id=ROBOT_ID, connect=[endpoint]))
+            try:
+                assert disp.wait_for_controller(20.0), disp.controller_problem()
+                idle = idle_stops(disp, watch, args.stops)
+                print(f"stop propagation bridge -> controller halt, idle ({len(idle)} of {args.stops} stops): "
+                      f"{summary(idle)} (target <= 10 ms)")
+                busy, played = busy_stops(disp, watch, args.busy_stops, np.random.default_rng(args.seed), args.speed)
+                print(f"stop propagation bridge -> controller halt, mid-execution ({len(busy)} of {args.busy_stops} "
+                      f"stops, the arm stopped at {min(played):.0%}-{max(played):.0%} of its move): {summary(busy)} "
+                      f"(target <= 10 ms)")
+            finally:
+                disp.close()
+                watch.close()
         finally:
             proc.terminate()
             proc.wait(timeout=10)
