@@ -128,20 +128,24 @@ class SafetyGate:
         raw = plan_json.encode() if isinstance(plan_json, str) else bytes(plan_json)
         t0 = time.perf_counter()
         digest = hashlib.sha256(raw).hexdigest()
+        t1 = time.perf_counter()
         try:
             plan = json.loads(raw, parse_constant=_reject_constant)
         except (ValueError, RecursionError) as exc:
             ctx = _Context(settings=self.settings)
             return ctx.verdict(False, "structure", f"the plan is not valid JSON: {exc}", None, time.perf_counter() - t0), None
-        verdict = self._check(plan, (digest, time.perf_counter() - t0), kwargs.pop("approval", None), kwargs.pop("measured", None),
-                              kwargs.pop("threshold_m", None), kwargs.pop("now", None), kwargs.pop("offline", False), **kwargs)
+        verdict = self._check(plan, (digest, t1 - t0), kwargs.pop("approval", None), kwargs.pop("measured", None),
+                              kwargs.pop("threshold_m", None), kwargs.pop("now", None), kwargs.pop("offline", False),
+                              json_s=time.perf_counter() - t1, **kwargs)
         return verdict, plan
 
     def _check(self, plan: Any, digest: tuple[str, float] | None, approval: Approval | None, measured: MeasuredState | None,
-               threshold_m: float | None, now: datetime | None, offline: bool) -> GateVerdict:
+               threshold_m: float | None, now: datetime | None, offline: bool, json_s: float | None = None) -> GateVerdict:
         started = time.perf_counter()
         ctx = _Context(settings=self.settings)
         ctx.digest = digest
+        if json_s is not None:  # check_json: reading the bytes into a plan, before the checks (not in elapsed_s)
+            ctx.note("timing", json_s=json_s)
         try:
             self._run(ctx, plan, approval, measured, threshold_m, now, offline)
         except Veto as veto:
