@@ -309,8 +309,12 @@ def test_joint_states_at_200_hz(sim):
     assert (len(stamps) - 1) / span >= 0.5 / PERIOD_S  # and not a fraction of it (a loaded host may delay a few ticks)
 
 
-def _play_time(peer: Peer, names: list[str], q0: np.ndarray, dt: float, duration_s: float) -> float:
-    """Seconds from segment 0's acceptance to 'succeeded', for a rest-to-rest move of ``duration_s`` (and back)."""
+def _play_time(peer: Peer, names: list[str], q0: np.ndarray, dt: float, duration_s: float,
+               speed: float) -> tuple[float, float]:
+    """Playback of a rest-to-rest move of ``duration_s`` (and back) on the controller's own clock:
+    the seconds from the first to the last joint state of the job, and how far (in plan seconds)
+    the played index ever ran ahead of ``speed`` x the controller's time. Timing the replies'
+    arrival instead made a late 'accepted' look like a playback faster than asked."""
     j = names.index("LSP")
     half = cosine_move(q0, j, -0.2, duration_s / 2, dt)
     Q = np.vstack([half, half[-2::-1]])
@@ -318,23 +322,29 @@ def _play_time(peer: Peer, names: list[str], q0: np.ndarray, dt: float, duration
     sent = time.monotonic()
     for seg in segs:
         peer.send(seg)
-    accepted, _ = peer.reply(sent, "accepted", segs[0].job_id)
+    peer.reply(sent, "accepted", segs[0].job_id)
     done, _ = peer.reply(sent, "succeeded", segs[0].job_id, timeout_s=4 * duration_s + REPLY_TIMEOUT_S)
     assert np.allclose(_posture_after(peer, done), Q[-1], atol=1e-12)
-    return done - accepted
+    played = [(js.stamp, js.index) for _, js in peer.joints_since(sent) if js.job_id == segs[0].job_id]
+    assert len(played) >= 2, "no joint state named the job"
+    stamps, index = np.array(played, dtype=float).T
+    lead = (index - index[0]) * dt - speed * (stamps - stamps[0])
+    return float(stamps[-1] - stamps[0]), float(lead.max())
 
 
 def test_speed_scales_playback_time(sim, spawn_controller, open_peer):
     ctl, peer = sim
     names, q0 = _idle(peer)
     dt, duration = 0.01, 2.0
-    t1 = _play_time(peer, names, q0, dt, duration)
+    t1, lead1 = _play_time(peer, names, q0, dt, duration, 1.0)
     fast_peer = open_peer(spawn_controller(speed=4.0))
     names4, q4 = _idle(fast_peer)
-    t4 = _play_time(fast_peer, names4, q4, dt, duration)
-    print(f"{duration} s of plan: {t1:.3f} s at --speed 1, {t4:.3f} s at --speed 4 (ratio {t1 / t4:.2f})")
-    # never faster than asked (a tick may fall either side of the acceptance and of the last point)
-    assert t1 >= duration - 3 * PERIOD_S and t4 >= duration / 4 - 3 * PERIOD_S
+    t4, lead4 = _play_time(fast_peer, names4, q4, dt, duration, 4.0)
+    print(f"{duration} s of plan: {t1:.3f} s at --speed 1, {t4:.3f} s at --speed 4 (ratio {t1 / t4:.2f}); "
+          f"index ahead of the clock by at most {lead1 * 1000:.1f} / {lead4 * 1000:.1f} ms of plan")
+    # never faster than asked: the played index never runs ahead of K x the controller's clock by more
+    # than one plan step and one control period (a late tick only makes it lag)
+    assert lead1 <= dt + PERIOD_S and lead4 <= dt + 4.0 * PERIOD_S
     assert t1 <= 1.5 * duration  # real time, with room for a loaded host's late ticks
     assert 3.0 <= t1 / t4 <= 5.0  # ~1/K
 
