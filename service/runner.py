@@ -79,6 +79,7 @@ class Runner:
         LIVE_OWNERS.add(self.owner)
         self._running: dict[str, _Running] = {}
         self._stop = threading.Event()
+        self._flags_due = threading.Event()
         self._thread: threading.Thread | None = None
         self._last_housekeeping = 0.0
         self._last_flags = 0.0
@@ -95,6 +96,14 @@ class Runner:
             self._thread.join(timeout)
         LIVE_OWNERS.discard(self.owner)
 
+    def nudge(self) -> None:
+        """Read the cancel flags at the next step instead of up to ``FLAG_POLL_S`` later (thread-safe).
+
+        The API calls this after storing a cancel request, so an embedded runner acts on it at
+        once; a runner in another process (``regrasp worker``) still finds it by polling.
+        """
+        self._flags_due.set()
+
     def run_forever(self) -> None:
         while not self._stop.is_set():
             try:
@@ -109,7 +118,8 @@ class Runner:
             self._handle(event)
         now = time.monotonic()
         self._flush_progress(now)
-        if now - self._last_flags >= FLAG_POLL_S:
+        if self._flags_due.is_set() or now - self._last_flags >= FLAG_POLL_S:
+            self._flags_due.clear()
             self._last_flags = now
             self._check_flags_and_deadlines(now)
         if now - self._last_renew >= self.settings.lease_s / 3:

@@ -223,6 +223,8 @@ def cancel(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Dep
         row = svc.store.request_cancel(job_id, p.user, body.reason if body else None)
     except Conflict as exc:
         raise ProblemError(409, str(exc)) from None
+    if svc.runner is not None and row["state"] == "planning":
+        svc.runner.nudge()  # an embedded runner stops it now, not at its next flag poll
     return _job_response(svc, row, 202)
 
 

@@ -76,6 +76,15 @@ class LocalExecutor:
         if slot.conn is not None:
             slot.conn.close()
 
+    def _retire(self, slot: _Slot) -> None:
+        """Kill the slot's process and leave the slot empty; the next ``poll`` spawns its replacement.
+
+        Spawning waits for a new interpreter to start; doing it on the next poll lets the runner
+        record the job's outcome first, so a kill lands in the job's state as soon as it happens.
+        """
+        self._kill(slot)
+        slot.process, slot.conn, slot.ready, slot.job_id, slot.kill_at = None, None, False, None, None
+
     # ------------------------------------------------------------- interface
     def total_slots(self) -> int:
         return len(self._slots)
@@ -101,12 +110,18 @@ class LocalExecutor:
 
     def poll(self, timeout: float) -> list[ExecEvent]:
         events: list[ExecEvent] = []
+        for slot in self._slots:
+            if slot.process is None:
+                self._spawn(slot)
         waitables: list[Any] = []
         for slot in self._slots:
             if slot.conn is not None:
                 waitables.append(slot.conn)
             if slot.process is not None:
                 waitables.append(slot.process.sentinel)
+        kill_times = [s.kill_at for s in self._slots if s.kill_at is not None]
+        if kill_times:  # wake for the earliest kill, not up to a whole poll period after it
+            timeout = max(0.0, min(timeout, min(kill_times) - time.monotonic()))
         ready = set(wait(waitables, timeout=timeout)) if waitables else set()
         for slot in self._slots:
             if slot.conn is not None and slot.conn in ready:
@@ -116,9 +131,8 @@ class LocalExecutor:
                 self._on_death(slot, events)
             elif slot.kill_at is not None and time.monotonic() >= slot.kill_at and slot.job_id is not None:
                 job_id = slot.job_id
-                self._kill(slot)
+                self._retire(slot)
                 events.append(ExecEvent(job_id, "canceled", message="worker killed: it did not stop within the grace period"))
-                self._spawn(slot)
         return events
 
     def _drain(self, slot: _Slot, events: list[ExecEvent]) -> None:
@@ -145,8 +159,7 @@ class LocalExecutor:
         if slot.job_id is not None:
             events.append(crashed_event(
                 slot.job_id, f"worker process {slot.process.pid} died ({_describe_exit(code)}) while running the job"))
-        self._kill(slot)
-        self._spawn(slot)
+        self._retire(slot)
 
     def close(self) -> None:
         for slot in self._slots:

@@ -7,7 +7,7 @@ import time
 
 import httpx
 import pytest
-from conftest import TOKEN, Server, wait_state
+from conftest import TOKEN, Server, cancel_latency_s, wait_state
 
 from schemas.plan import plan_sha256
 from service.client import ServiceClient, ServiceError, parse_sse
@@ -69,7 +69,9 @@ def test_cancel_while_planning_stops_within_1s(alice: httpx.Client) -> None:
     r = alice.post(f"/v1/jobs/{job['id']}/cancel", json={"reason": "test"})
     assert r.status_code == 202 and r.json()["cancel_requested"]
     done = wait_state(alice, job["id"], {"canceled", "planned", "failed"}, timeout=5)
-    assert done["state"] == "canceled" and time.monotonic() - t0 < 1.0
+    assert done["state"] == "canceled" and done["message"] == "stopped after a cancel"
+    assert cancel_latency_s(alice, job["id"]) < 1.0  # server clock: the stored request to the stored end
+    assert time.monotonic() - t0 < 3.0  # and the client saw it soon after (polling and a loaded machine included)
 
 
 def test_cancel_of_a_handler_that_never_polls_kills_it_within_1s(alice: httpx.Client) -> None:
@@ -79,7 +81,9 @@ def test_cancel_of_a_handler_that_never_polls_kills_it_within_1s(alice: httpx.Cl
     t0 = time.monotonic()
     alice.post(f"/v1/jobs/{job['id']}/cancel")
     done = wait_state(alice, job["id"], {"canceled", "planned", "failed"}, timeout=5)
-    assert done["state"] == "canceled" and time.monotonic() - t0 < 1.0
+    assert done["state"] == "canceled" and "worker killed" in done["message"]
+    assert cancel_latency_s(alice, job["id"]) < 1.0  # server clock: the stored request to the stored end
+    assert time.monotonic() - t0 < 3.0
 
 
 def test_cancel_before_start_never_runs(alice: httpx.Client) -> None:
