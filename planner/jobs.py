@@ -184,8 +184,10 @@ def plan_scenario(
 
     if hands_choice == "auto":
         progress(0.05, "surveying hand configurations (auto)")
+        t_survey = time.perf_counter()
         try:
             order, survey_doc = _auto_order(task, stop_or_late)
+            task.timings["auto_survey_s"] = time.perf_counter() - t_survey
         except SurveyCanceled:
             if should_stop():
                 raise Canceled() from None
