@@ -124,3 +124,59 @@ def test_removed_nodes_and_edges_leave_the_search():
     assert victim not in g and g.size[0] == nodes - 1 and g.size[1] < edges
     res = g.search(lambda n: Validation(True, margin_m=0.2), ok_edge, max_iterations=50, time_limit_s=5)
     assert res.status == "solved" and victim not in res.path
+
+
+# -- the compiled search against networkx's Dijkstra ---------------------------------------------------
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from planner.regrasp_graph import SINK, SOURCE  # noqa: E402
+
+
+def _dual_spec(n_grasps: int, n_placements: int, n_poses: int) -> GraphSpec:
+    handovers = [HandoverNode(f, g, t, "right") for f in range(n_poses) for g in range(n_grasps) for t in range(n_grasps)]
+    return spec(hands=("right", "left"), grasps=tuple(range(n_grasps)), placements=tuple(range(n_placements)),
+                handovers=handovers)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n_grasps=st.integers(1, 4), n_placements=st.integers(3, 4), n_poses=st.integers(0, 2), dual=st.booleans(),
+       seed=st.integers(0, 2**31 - 1))
+def test_compiled_dijkstra_finds_the_cost_networkx_finds(n_grasps: int, n_placements: int, n_poses: int, dual: bool,
+                                                          seed: int) -> None:
+    """After random node and edge removals and margin costs (what a lazy search does), the CSR
+    search and networkx's Dijkstra on the exported graph agree on the cheapest cost and on
+    whether a path exists; the path returned is a real path of that cost."""
+    import networkx as nx
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    s = _dual_spec(n_grasps, n_placements, n_poses) if dual else spec(grasps=tuple(range(n_grasps)),
+                                                                      placements=tuple(range(n_placements)))
+    g = RegraspGraph(s)
+    real = [n for n in g.nodes() if isinstance(n, (PlacementNode, HandoverNode))]
+    for n in real:
+        r = rng.random()
+        if r < 0.2:
+            g.remove_node(n)
+        elif r < 0.6:
+            g._apply_margin_cost(n, float(rng.uniform(-0.02, 0.2)))
+    exported = g.to_networkx()
+    for a, b in list(exported.edges)[: len(exported.edges) // 10]:
+        if rng.random() < 0.5:
+            g.remove_edge(a, b)
+    exported = g.to_networkx()
+    found = g.shortest()
+    try:
+        reference = nx.dijkstra_path_length(exported, SOURCE, SINK, weight="weight")
+    except nx.NetworkXNoPath:
+        reference = None
+    if reference is None:
+        assert found is None
+        return
+    assert found is not None
+    path, cost = found
+    assert cost == pytest.approx(reference, rel=1e-12, abs=1e-12)
+    assert path[0] == SOURCE and path[-1] == SINK
+    assert sum(exported.edges[a, b]["weight"] for a, b in zip(path[:-1], path[1:])) == pytest.approx(cost, abs=1e-12)
