@@ -4,7 +4,10 @@ Never the library defaults: multicast scouting is off and the endpoints are
 explicit (a peer opens in milliseconds instead of half a second, and no stray
 peer on the network joins). The transport lease is shortened so a frozen peer's
 liveliness token goes away in about a second; the application heartbeat covers
-the rest.
+the rest. Shared memory between peers of one host is off by default: the robot's
+controller is on another host, so loopback then measures the TCP path the robot
+uses (zenoh's lazily set-up shared memory delayed the first large messages of
+each link by up to 13 ms).
 
 Control traffic is published with real-time priority, express (no batching) and
 drop on congestion: a stale command is worthless, and blocking would stall the
@@ -34,6 +37,7 @@ def make_config(settings: BridgeSettings) -> zenoh.Config:
     config.insert_json5("transport/link/tx/lease", json.dumps(int(settings.lease_s * 1000)))
     config.insert_json5("transport/link/tx/keep_alive", json.dumps(KEEP_ALIVE_PER_LEASE))
     config.insert_json5("transport/link/tx/queue/size/real_time", json.dumps(settings.tx_queue_batches))
+    config.insert_json5("transport/shared_memory/enabled", json.dumps(settings.shared_memory))
     return config
 
 

@@ -55,6 +55,9 @@ def test_bridge_settings_and_zenoh_config():
     assert json.loads(cfg.get_json("scouting/multicast/enabled")) is False
     assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7500"]
     assert json.loads(cfg.get_json("transport/link/tx/lease")) == 1000
+    # shared memory off unless asked for: the robot's controller is on another host, so loopback takes its TCP path
+    assert json.loads(cfg.get_json("transport/shared_memory/enabled")) is False
+    assert json.loads(make_config(BridgeSettings(shared_memory=True)).get_json("transport/shared_memory/enabled")) is True
     with pytest.raises(ValidationError, match="locator"):
         BridgeSettings(connect=["127.0.0.1:7447"])
     with pytest.raises(ValidationError, match="heartbeat"):
