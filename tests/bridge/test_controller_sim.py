@@ -379,3 +379,39 @@ def test_delay_ms_adds_latency_to_every_command(sim, spawn_controller, open_peer
     assert base < delay_s / 2
     for rtt in (*delayed, segment_rtt):
         assert delay_s <= rtt <= delay_s + 0.15
+
+
+def test_controller_process_freezes_its_startup_objects_and_shortens_the_switch_interval():
+    """``run_controller`` (the controller process's entry point) sets Python's thread switch interval, so a zenoh
+    callback waits at most about that long for the interpreter, and freezes what exists at start out of the garbage
+    collector (a full collection over it paused every thread for 20-40 ms). Run in a process of its own: both are
+    process-wide."""
+    import json
+    import subprocess
+    import sys
+
+    from robot_bridge.controller_sim import ControllerSimSettings
+
+    from .conftest import REPO, free_port
+
+    script = f"""
+import gc, json, sys, threading
+import numpy as np
+from robot_bridge.controller_sim import ControllerSimSettings, JointLimits, run_controller
+from robot_bridge.settings import BridgeSettings
+stop = threading.Event()
+def ready(ctl):
+    print(json.dumps({{"switch_s": sys.getswitchinterval(), "frozen": gc.get_freeze_count()}}), flush=True)
+    stop.set()
+one = np.ones(1)
+run_controller(BridgeSettings(robot_id="gc{uuid.uuid4().hex[:8]}", listen=["tcp/127.0.0.1:{free_port()}"], connect=[]),
+               ControllerSimSettings(), ["J"], np.zeros(1), JointLimits(-one, one, one), on_ready=ready, stop=stop)
+"""
+    before = subprocess.run([sys.executable, "-c", "import gc, sys; print(sys.getswitchinterval(), gc.get_freeze_count())"],
+                            capture_output=True, text=True, timeout=60, check=True).stdout.split()
+    out = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert float(before[0]) == 0.005 and int(before[1]) == 0  # what a process starts with
+    assert got["switch_s"] == pytest.approx(ControllerSimSettings().switch_interval_s)
+    assert got["frozen"] > 10_000  # the modules, schemas and session objects of the running controller
