@@ -50,6 +50,12 @@ class DispatchSettings(BaseSettings):
                                       description="time spanned by one segment's points (the contract allows 1 s; "
                                                   "0.25 s keeps a segment near 20 KB, so it crosses in about a millisecond)")
     lookahead_segments: int = Field(8, ge=1, le=1000, description="segments sent ahead of the one being played (2 s)")
+    max_in_flight_segments: int = Field(
+        2, ge=1, le=1000,
+        description="segments sent but not yet acknowledged, at most: the lookahead fills one acknowledgement (about a "
+                    "millisecond) at a time instead of in one burst, whose later segments queued behind the earlier ones "
+                    "in the controller's receive path (up to 3 ms for the 9-segment burst of a job's start)",
+    )
     poll_period_s: float = Field(0.005, gt=0, le=0.1, description="how often the execution loop looks at its inputs")
     progress_timeout_s: float = Field(3.0, gt=0, description="no progress report for this long = fault")
     resend_after_s: float = Field(0.1, gt=0, description="re-send a segment the controller has not acknowledged by then")
@@ -341,7 +347,8 @@ class Dispatcher:
                 started: float) -> ExecutionResult:
         d = self.dispatch
         ahead = d.lookahead_segments
-        while run.sent < min(len(run.segments), ahead):
+        window = d.max_in_flight_segments
+        while run.sent < min(len(run.segments), ahead) and len(run.pending) < window:
             self._send_segment(run, emit)
         last_progress = time.monotonic()
         last_state_event = 0.0
@@ -396,9 +403,10 @@ class Dispatcher:
                     self._publish_segment(run.segments[seq - run.segments[0].seq])
                     run.pending[seq] = (now, count + 1)
                     emit("segment", {"job_id": run.job_id, "seq": seq, "resent": count + 1})
-            # keep the controller fed: stay `lookahead` segments ahead of the one being played
+            # keep the controller fed: stay `lookahead` segments ahead of the one being played, with at most
+            # `window` of them unacknowledged
             playing = (run.index or 0) // per
-            while run.sent < len(run.segments) and run.sent <= playing + ahead:
+            while run.sent < len(run.segments) and run.sent <= playing + ahead and len(run.pending) < window:
                 self._send_segment(run, emit)
             if now - last_progress > d.progress_timeout_s:
                 return self._abort(run, emit, f"no progress from the controller for {d.progress_timeout_s:.1f} s", verdict, started)

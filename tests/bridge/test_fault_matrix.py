@@ -92,6 +92,28 @@ def test_valid_plan_is_executed(bridge, arm_plan):
     assert np.allclose(js.q, arm_plan["trajectory"][-1]["q"], atol=1e-12)
 
 
+@pytest.mark.parametrize("window", [1, None])
+def test_unacknowledged_segments_never_exceed_the_window(bridge, long_plan, window):
+    """The lookahead fills one acknowledgement at a time (no burst queued in the controller's receive path): in the
+    dispatcher's own order of sends and acknowledgements, at most ``max_in_flight_segments`` are ever outstanding,
+    and that many are (13 segments, lookahead 8)."""
+    dispatch = DispatchSettings() if window is None else DispatchSettings(max_in_flight_segments=window)
+    ctl, disp, spy = bridge(speed=4.0, dispatch=dispatch)
+    res, rec = run(disp, long_plan)
+    assert res.status == "succeeded", res.reason
+    outstanding: set[int] = set()
+    most = 0
+    for _, kind, data in rec.events:
+        if kind == "segment" and "sent_at" in data:
+            outstanding.add(data["seq"])
+            most = max(most, len(outstanding))
+        elif kind == "segment" and data.get("acknowledged"):
+            outstanding.discard(data["seq"])
+    sent = [d for _, k, d in rec.events if k == "segment" and "sent_at" in d]
+    assert [d["segment_index"] for d in sent] == list(range(sent[0]["segment_count"]))
+    assert most == dispatch.max_in_flight_segments
+
+
 def test_duplicated_segments_are_ignored_and_the_job_succeeds(bridge, long_plan):
     class Duplicating(Dispatcher):
         def _publish_segment(self, seg):
