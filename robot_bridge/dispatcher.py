@@ -56,6 +56,12 @@ class DispatchSettings(BaseSettings):
                     "millisecond) at a time instead of in one burst, whose later segments queued behind the earlier ones "
                     "in the controller's receive path (up to 3 ms for the 9-segment burst of a job's start)",
     )
+    in_flight_wait_s: float = Field(
+        0.01, gt=0, le=1.0,
+        description="once the oldest unacknowledged segment is this old, the window holds nothing back: a late "
+                    "acknowledgement (a stalled peer, a lost segment) must not starve a controller that plays the two "
+                    "segments it has in 50 ms (0.25 s segments at 10x)",
+    )
     poll_period_s: float = Field(0.005, gt=0, le=0.1, description="how often the execution loop looks at its inputs")
     progress_timeout_s: float = Field(3.0, gt=0, description="no progress report for this long = fault")
     resend_after_s: float = Field(0.1, gt=0, description="re-send a segment the controller has not acknowledged by then")
@@ -347,8 +353,14 @@ class Dispatcher:
                 started: float) -> ExecutionResult:
         d = self.dispatch
         ahead = d.lookahead_segments
-        window = d.max_in_flight_segments
-        while run.sent < min(len(run.segments), ahead) and len(run.pending) < window:
+
+        def window_open(now: float) -> bool:
+            """Fewer than the window unacknowledged, or the oldest of them waited too long for its acknowledgement."""
+            if len(run.pending) < d.max_in_flight_segments:
+                return True
+            return now - min(sent_at for sent_at, _ in run.pending.values()) > d.in_flight_wait_s
+
+        while run.sent < min(len(run.segments), ahead) and window_open(time.monotonic()):
             self._send_segment(run, emit)
         last_progress = time.monotonic()
         last_state_event = 0.0
@@ -403,10 +415,10 @@ class Dispatcher:
                     self._publish_segment(run.segments[seq - run.segments[0].seq])
                     run.pending[seq] = (now, count + 1)
                     emit("segment", {"job_id": run.job_id, "seq": seq, "resent": count + 1})
-            # keep the controller fed: stay `lookahead` segments ahead of the one being played, with at most
-            # `window` of them unacknowledged
+            # keep the controller fed: stay `lookahead` segments ahead of the one being played, at most
+            # `max_in_flight_segments` of them unacknowledged unless an acknowledgement is late
             playing = (run.index or 0) // per
-            while run.sent < len(run.segments) and run.sent <= playing + ahead and len(run.pending) < window:
+            while run.sent < len(run.segments) and run.sent <= playing + ahead and window_open(now):
                 self._send_segment(run, emit)
             if now - last_progress > d.progress_timeout_s:
                 return self._abort(run, emit, f"no progress from the controller for {d.progress_timeout_s:.1f} s", verdict, started)
