@@ -316,9 +316,6 @@ class RegraspGraph:
 
     def shortest(self) -> tuple[list, float] | None:
         """The cheapest live path from the super source to the sink and its cost (no validation)."""
-        return self._shortest()
-
-    def _shortest(self) -> tuple[list, float] | None:
         self._csr.data[:] = np.where(self._edge_alive, self._base + self._extra, np.inf)
         dist, pred = dijkstra(self._csr, directed=True, indices=0, return_predecessors=True)
         if not np.isfinite(dist[1]):
@@ -376,7 +373,7 @@ class RegraspGraph:
                 break
             if on_iteration:
                 on_iteration(iteration, failures)
-            found = self._shortest()
+            found = self.shortest()
             if found is None:
                 result.code = "NO_PATH"
                 result.message = "no path connects the start and goal placements through valid states"

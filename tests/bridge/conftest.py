@@ -14,10 +14,13 @@ import uuid
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
+from typing import Callable, Iterator, TypeVar
 
 import pytest
 
 from .plans import build_plan, stance_state
+
+T = TypeVar("T")
 
 READY_TIMEOUT_S = 30.0
 REPO = Path(__file__).resolve().parents[2]
@@ -84,19 +87,24 @@ def start_controller(initial_q_file: str, *flags: str, speed: float = 4.0) -> Co
     raise RuntimeError("controller-sim did not become ready in time")
 
 
+def closing_factory(make: Callable[..., T], close: Callable[[T], object]) -> Iterator[Callable[..., T]]:
+    """The body of a factory fixture: yields ``make``, remembering what it made, and closes each after the test."""
+    made: list[T] = []
+
+    def factory(*args, **kwargs) -> T:
+        made.append(make(*args, **kwargs))
+        return made[-1]
+
+    yield factory
+    for thing in made:
+        close(thing)
+
+
 @pytest.fixture
 def spawn_controller(initial_q_file):
     """Start controller-sim processes; all are ended after the test."""
-    started: list[ControllerProcess] = []
-
-    def spawn(*flags: str, speed: float = 4.0) -> ControllerProcess:
-        ctl = start_controller(initial_q_file, *flags, speed=speed)
-        started.append(ctl)
-        return ctl
-
-    yield spawn
-    for ctl in started:
-        ctl.terminate()
+    yield from closing_factory(lambda *flags, speed=4.0: start_controller(initial_q_file, *flags, speed=speed),
+                               ControllerProcess.terminate)
 
 
 @dataclass
@@ -168,16 +176,7 @@ def connect_dispatcher(ctl: ControllerProcess, spy: Spy, dispatch=None, dispatch
 
 @pytest.fixture
 def spy_factory():
-    spies: list[Spy] = []
-
-    def make(robot_id: str) -> Spy:
-        spy = make_spy(robot_id)
-        spies.append(spy)
-        return spy
-
-    yield make
-    for spy in spies:
-        spy.session.close()
+    yield from closing_factory(make_spy, lambda spy: spy.session.close())
 
 
 @pytest.fixture

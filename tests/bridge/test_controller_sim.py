@@ -24,7 +24,7 @@ from robot_bridge.settings import BridgeSettings, Keys
 from robot_bridge.zenoh_session import control_publisher, encode, open_session
 from schemas.bridge import ExecStatus, Heartbeat, JointState, Stop, TrajectorySegment
 
-from .conftest import ControllerProcess, start_controller
+from .conftest import ControllerProcess, closing_factory, start_controller
 from .plans import cosine_profile
 
 #: The contract's control period (200 Hz).
@@ -132,16 +132,7 @@ def sim(initial_q_file):
 @pytest.fixture
 def open_peer():
     """Test peers of controllers a test starts; closed after the test (before its controllers end)."""
-    opened: list[Peer] = []
-
-    def make(ctl: ControllerProcess) -> Peer:
-        peer = Peer(ctl)
-        opened.append(peer)
-        return peer
-
-    yield make
-    for peer in opened:
-        peer.close()
+    yield from closing_factory(Peer, Peer.close)
 
 
 @pytest.fixture(scope="module")
