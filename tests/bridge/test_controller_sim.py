@@ -159,12 +159,18 @@ def _posture_after(peer: Peer, t: float) -> np.ndarray:
 
 
 def _assert_still(peer: Peer, q: np.ndarray, seconds: float = 0.2) -> None:
-    """Every joint state over the next ``seconds`` is exactly ``q``."""
+    """Every joint state over the next ``seconds`` of the controller's clock is exactly ``q``.
+
+    The window is read on the controller's stamps: a pause of this test process (its own garbage
+    collection late in a long suite) delays the arrivals, not the states the controller published.
+    """
     t0 = time.monotonic()
-    time.sleep(seconds)
-    states = peer.joints_since(t0)
+    first = peer.wait_for(lambda: next((js for _, js in peer.joints_since(t0)), None), "a joint state")
+    end = first.stamp + seconds
+    peer.wait_for(lambda: peer.latest().stamp >= end, f"joint states over {seconds} s")
+    states = [js for _, js in peer.joints_since(t0) if js.stamp <= end]
     assert len(states) >= 10, "too few joint states to judge"
-    assert all(np.array_equal(js.q, q) for _, js in states), "the robot moved"
+    assert all(np.array_equal(js.q, q) for js in states), "the robot moved"
 
 
 # --------------------------------------------------------------------------- the controller's own limits
