@@ -297,6 +297,20 @@ class Task:
             out.append(HandoverPose(hp.id, hp.T_world_obj, pairs))
         return out
 
+    def validations(self) -> tuple[dict, dict]:
+        """The node validations made so far (for a worker process to hand back; see :meth:`adopt`)."""
+        return dict(self.node_cache), dict(self.giver_at)
+
+    def adopt(self, validations: tuple[dict, dict]) -> None:
+        """Take over node validations made by another copy of this task (a survey worker), so a
+        plan after the survey does not repeat them. Outcomes do not depend on who computed them
+        (each node draws from its own generator), so existing entries are kept as they are."""
+        nodes, givers = validations
+        for k, v in nodes.items():
+            self.node_cache.setdefault(k, v)
+        for k, v in givers.items():
+            self.giver_at.setdefault(k, v)
+
     def node_seed(self, node: PlacementNode | HandoverNode) -> list[int]:
         """The seed of a node's own generator: the task seed and the node's identity."""
         if isinstance(node, PlacementNode):

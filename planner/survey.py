@@ -199,8 +199,9 @@ def _chains(configs: list[str], n_workers: int) -> list[list[int]]:
     return list(groups.values())
 
 
-def _worker(args: tuple) -> list[ConfigOutcome]:
-    """Run one chain of configurations (see :func:`_chains`); one outcome list per configuration."""
+def _worker(args: tuple) -> tuple[list[list[ConfigOutcome]], tuple[dict, dict]]:
+    """Run one chain of configurations (see :func:`_chains`): one outcome list per configuration,
+    and the worker's node validations, which the parent's task adopts."""
     scenario_json, threshold_m, hands_list, states, seeds, settings_json = args
     key = _task_key(scenario_json, threshold_m, settings_json)
     task = _WORKER_TASKS.get(key)
@@ -210,7 +211,8 @@ def _worker(args: tuple) -> list[ConfigOutcome]:
         task = Task(scenario, settings, threshold_m=threshold_m)
         _WORKER_TASKS.clear()
         _WORKER_TASKS[key] = task
-    return [survey_configuration(task, hands, states, list(seeds)) for hands in hands_list]
+    outcomes = [survey_configuration(task, hands, states, list(seeds)) for hands in hands_list]
+    return outcomes, task.validations()
 
 
 def run_survey(
@@ -277,6 +279,8 @@ def run_survey_seeds(
             st_json = settings.model_dump_json() if settings is not None else ""
             context = _pool_context()
             if context.get_start_method() == "fork":
+                if any(h.split("-")[0] != h.split("-")[1] for h in configs):
+                    _ = task.handover_poses  # once here, not once per forked worker (and again after)
                 # Forked workers inherit the imported modules and this task: no start-up cost.
                 _WORKER_TASKS.clear()
                 _WORKER_TASKS[_task_key(sc_json, threshold, st_json)] = task
@@ -291,14 +295,18 @@ def run_survey_seeds(
                         finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
                         for ch, f in futures.items():
                             if f in finished:
-                                for k, outcome in zip(ch, f.result()):
+                                chain_outcomes, validations = f.result()
+                                task.adopt(validations)
+                                for k, outcome in zip(ch, chain_outcomes):
                                     results[k] = outcome
                                 progress(0.05 + 0.9 * len(results) / len(configs), f"{', '.join(configs[k] for k in ch)} done")
                         if pending and should_stop():
                             for g in pending:
                                 g.cancel()
+                            # The pool forgets its processes when shut down: take them first.
+                            procs = list((getattr(pool, "_processes", None) or {}).values())
                             pool.shutdown(wait=False, cancel_futures=True)
-                            for proc in list(getattr(pool, "_processes", {}).values()):
+                            for proc in procs:
                                 proc.kill()
                             raise SurveyCanceled() from None
                     per_config = [results[k] for k in range(len(configs))]
@@ -348,9 +356,13 @@ def write_states(path: str, doc: dict, outcomes: list[ConfigOutcome], task_info:
 
 
 def quick_survey(task: Task, should_stop: Callable[[], bool] = lambda: False, states: int = 1500) -> dict:
-    """A small in-process survey, for ``--hands auto``."""
-    doc, _ = run_survey(task.scenario, states=states, threshold_m=task.threshold_m, workers=1, task=task,
-                        should_stop=should_stop)
+    """A small survey, for ``--hands auto``: in forked workers where forking is safe and there is
+    more than one core (the task is inherited, and the workers' node validations come back for the
+    plan that follows), in this process otherwise (a spawned worker's start-up costs more than it
+    saves on this survey's size)."""
+    parallel = (os.cpu_count() or 1) > 1 and _pool_context().get_start_method() == "fork"
+    doc, _ = run_survey(task.scenario, states=states, threshold_m=task.threshold_m, workers=2 if parallel else 1,
+                        task=task, should_stop=should_stop)
     return doc
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from planner.kinematics_batch import BatchKinematics
+from planner.kinematics_batch import SMALL_BATCH, BatchKinematics
 from planner.robot_info import standing_height
 from planner.robot_model import UnknownNameError, center_of_mass, frame_poses, load_robot
 from planner.robots import hrp5p_urdf
@@ -128,13 +128,31 @@ def test_batches_sharing_a_constant_part_still_match_pinocchio(hrp5p):
     ref = rng.uniform(hrp5p.lower, hrp5p.upper)
     data = hrp5p.create_data()
     for fixed in (ref, ref, rng.uniform(hrp5p.lower, hrp5p.upper)):
-        Q = np.repeat(fixed[None], 6, axis=0)
-        Q[:, arm] = rng.uniform(hrp5p.lower[arm], hrp5p.upper[arm], size=(6, len(arm)))
+        n = SMALL_BATCH + 2  # the vectorised walk, where the constant part is cached
+        Q = np.repeat(fixed[None], n, axis=0)
+        Q[:, arm] = rng.uniform(hrp5p.lower[arm], hrp5p.upper[arm], size=(n, len(arm)))
         _, frames = kin.com_and_frames(base, Q, ["l_tcp", "r_tcp"])
         for i in range(len(Q)):
             ltcp, rtcp = frame_poses(hrp5p, data, base, Q[i], ["l_tcp", "r_tcp"])
             assert np.abs(frames["l_tcp"][1][i] - ltcp.translation).max() < 1e-9
             assert np.abs(frames["r_tcp"][1][i] - rtcp.translation).max() < 1e-9
+
+
+@pytest.mark.parametrize("n", [1, 2, SMALL_BATCH, SMALL_BATCH + 1])
+def test_small_and_vectorised_batches_both_match_pinocchio(hrp5p, n):
+    """Up to SMALL_BATCH configurations take pinocchio's forward pass per configuration, more the
+    vectorised walk: CoM and frames agree with pinocchio either way, on either side of the switch."""
+    rng = np.random.default_rng(6 + n)
+    Q = rng.uniform(hrp5p.lower, hrp5p.upper, size=(n, hrp5p.nq))
+    base = np.array([0.05, 0.1, 0.82, 0.0, 0.0, 0.3826834323650898, 0.9238795325112867])
+    com, frames = BatchKinematics(hrp5p).com_and_frames(base, Q, ["l_tcp", "r_sole"])
+    assert com.shape == (n, 3) and frames["l_tcp"][0].shape == (n, 3, 3)
+    data = hrp5p.create_data()
+    for i in range(n):
+        assert np.abs(com[i] - center_of_mass(hrp5p, data, base, Q[i])).max() < 1e-9
+        ltcp, rsole = frame_poses(hrp5p, data, base, Q[i], ["l_tcp", "r_sole"])
+        assert np.abs(frames["l_tcp"][0][i] - ltcp.rotation).max() < 1e-9
+        assert np.abs(frames["r_sole"][1][i] - rsole.translation).max() < 1e-9
 
 
 def test_unknown_names_list_the_valid_ones(hrp5p):

@@ -184,6 +184,28 @@ def test_chained_configurations_count_as_when_run_alone(scenario):
         [(r["hands"], r["stable"], r["unstable"]) for r in alone["rows"]]
 
 
+def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenario):
+    """Workers validate key-pose nodes in their own copies of the task; the caller's task adopts them,
+    so the plan after a `hands: auto` survey finds its key path without validating a node again."""
+    from planner.regrasp_planner import HandConfigPlanner, Task
+    from planner.survey import key_path
+
+    task = Task(scenario)
+    run_survey(scenario, states=50, hands=["right-right", "left-left"], workers=2, task=task)
+    assert task.node_cache, "the workers' validations did not reach the caller"
+    before = dict(task.node_cache)
+    fresh_calls = []
+    planner = HandConfigPlanner(task, "left-left", np.random.default_rng(0))
+    validate = planner._validate_placement
+    planner._validate_placement = lambda node, rng: fresh_calls.append(node) or validate(node, rng)
+    path, reason = key_path(planner, lambda: False)
+    assert path is not None, reason
+    assert fresh_calls == [] and task.node_cache == before
+    # and they are the validations a one-process run makes (each node has its own generator)
+    alone = Task(scenario)
+    assert key_path(HandConfigPlanner(alone, "left-left", np.random.default_rng(0)), lambda: False)[0] == path
+
+
 def test_the_cli_progress_bar_leaves_the_process_single_threaded():
     """The survey forks its workers only from a single-threaded process (see _pool_context)."""
     import threading
