@@ -118,11 +118,15 @@ class ServiceClient:
 
     def wait(self, job_id: str, states: Iterable[str] = SETTLED_STATES, *, timeout: float = 600.0,
              on_event: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
-        """Follow the job's events until it reaches one of ``states``; returns the job."""
+        """Follow the job's events until it reaches one of ``states``; returns the job.
+
+        ``on_event`` sees every event from the job's first, also when the job got there before this
+        call (the stream replays the history), so a caller never misses the progress of a fast job.
+        """
         wanted = set(states)
         deadline = time.monotonic() + timeout
         job = self.get(job_id, include_result=False)
-        if job["state"] in wanted:
+        if job["state"] in wanted and on_event is None:
             return self.get(job_id)
         try:
             for event in self.events(job_id, timeout=timeout):

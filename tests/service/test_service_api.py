@@ -200,6 +200,18 @@ def test_list_health_metrics_console_audit(server: Server, alice: httpx.Client) 
     assert head and r.headers["x-audit-head"] == head
 
 
+def test_client_wait_replays_the_events_of_a_job_that_already_settled(server: Server) -> None:
+    """A fast job can settle before the caller starts waiting: on_event still sees its history."""
+    with ServiceClient(server.url, TOKEN["alice"]) as alice:
+        job = alice.submit("plan", {"scenario": "busy-0.1"})
+        assert alice.wait(job["id"], timeout=20)["state"] == "planned"
+        seen: list[dict] = []
+        done = alice.wait(job["id"], on_event=seen.append, timeout=20)
+        assert done["state"] == "planned"
+        assert any(e["kind"] == "progress" for e in seen)
+        assert seen[-1]["kind"] == "state" and seen[-1]["state"] == "planned"
+
+
 def test_python_client(server: Server) -> None:
     with ServiceClient(server.url, TOKEN["alice"]) as alice, ServiceClient(server.url, TOKEN["bob"]) as bob:
         job = alice.submit("plan", {"scenario": "busy-0.5"}, idempotency_key="client-1")
