@@ -65,7 +65,8 @@ class DispatchSettings(BaseSettings):
     poll_period_s: float = Field(0.005, gt=0, le=0.1, description="how often the execution loop looks at its inputs")
     progress_timeout_s: float = Field(3.0, gt=0, description="no progress report for this long = fault")
     resend_after_s: float = Field(0.1, gt=0, description="re-send a segment the controller has not acknowledged by then")
-    max_resends: int = Field(5, ge=0, le=100, description="re-sends per segment (the controller drops duplicates)")
+    max_resends: int = Field(5, ge=0, le=100, description="re-sends of the oldest unacknowledged segment (the controller "
+                                                           "drops duplicates); the ones behind it go with it for free")
     ack_timeout_s: float = Field(1.0, gt=0, description="wait for the controller to acknowledge a stop")
     robot_state_event_period_s: float = Field(0.1, gt=0, description="rate of 'robot_state' events (for the audit)")
     state_max_age_s: float = Field(0.5, gt=0, description="a measured state older than this is not used by the gate")
@@ -409,12 +410,17 @@ class Dispatcher:
             elif st is not None and st.status == "rejected" and st.job_id is None:
                 emit("controller", {"job_id": run.job_id, "status": st.status, "reason": st.reason})
                 return self._abort(run, emit, f"controller rejected a command: {st.reason}", verdict, started)
-            # a segment lost on the way is sent again (same seq: a duplicate is dropped by the controller)
-            for seq, (sent_at, count) in list(run.pending.items()):
-                if now - sent_at > d.resend_after_s and count < d.max_resends:
+            # A segment lost on the way is sent again (same seq: a duplicate is dropped by the controller).
+            # The controller refuses whatever comes after a gap, so the segments behind the oldest
+            # unacknowledged one go again with it, but only that one spends its re-send budget: they were
+            # refused for its loss, and a budget spent on that would be gone when they become the gap.
+            head = min(run.pending) if run.pending else None
+            for seq, (sent_at, count) in sorted(run.pending.items()):
+                if now - sent_at > d.resend_after_s and (count < d.max_resends or seq != head):
                     self._publish_segment(run.segments[seq - run.segments[0].seq])
-                    run.pending[seq] = (now, count + 1)
-                    emit("segment", {"job_id": run.job_id, "seq": seq, "resent": count + 1})
+                    spent = count + 1 if seq == head else count
+                    run.pending[seq] = (now, spent)
+                    emit("segment", {"job_id": run.job_id, "seq": seq, "resent": spent, "behind_gap": seq != head})
             # keep the controller fed: stay `lookahead` segments ahead of the one being played, at most
             # `max_in_flight_segments` of them unacknowledged unless an acknowledgement is late
             playing = (run.index or 0) // per

@@ -177,6 +177,30 @@ def test_lost_segments_are_sent_again(bridge, long_plan):
     assert any(k == "segment" and "resent" in d for _, k, d in rec.events)
 
 
+def test_segments_refused_behind_a_gap_keep_their_resend_budget(bridge, long_plan):
+    """A link that delivers segment i only on its (i+1)-th send: each re-send round fills one gap and
+    the controller refuses every segment behind it. Segment 6 is refused five times before its turn;
+    had those refusals spent its budget of 5 re-sends, it would never come and the robot would starve."""
+
+    class OneGapPerRound(Dispatcher):
+        publishes: dict[int, int] = {}
+
+        def _publish_segment(self, seg):
+            n = self.publishes[seg.segment_index] = self.publishes.get(seg.segment_index, 0) + 1
+            if seg.segment_index > 8 or n > seg.segment_index:
+                super()._publish_segment(seg)
+
+    dispatch = DispatchSettings(max_resends=5)
+    ctl, disp, spy = bridge(speed=1.0, dispatcher_cls=OneGapPerRound, dispatch=dispatch)
+    res, rec = run(disp, long_plan)
+    assert res.status == "succeeded", res.reason
+    assert disp.publishes[8] == 9  # sent once, then eight times more: more than its budget, behind gaps
+    refused = [d for _, k, d in rec.events if k == "controller" and d["status"] == "rejected"]
+    assert refused and all(d["fatal"] is False for d in refused)
+    head_resends = [d["resent"] for _, k, d in rec.events if k == "segment" and "resent" in d and not d["behind_gap"]]
+    assert max(head_resends) <= dispatch.max_resends
+
+
 # --------------------------------------------------------------------------- vetoes: nothing is sent
 
 
