@@ -19,7 +19,6 @@ as arrays.
 
 from __future__ import annotations
 
-import gc
 import math
 import os
 import queue
@@ -35,6 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from schemas.bridge import ExecStatus, Heartbeat, JointState, Stop, TrajectorySegment
 
+from .process_tuning import freeze_startup_objects
 from .settings import BridgeSettings, Keys
 from .zenoh_session import control_publisher, encode, open_session, telemetry_publisher
 
@@ -374,10 +374,7 @@ def run_controller(bridge: BridgeSettings, sim: ControllerSimSettings, joint_nam
     sys.setswitchinterval(sim.switch_interval_s)
     ctl = ControllerSim(bridge, sim, joint_names, q0, limits)
     ctl.start()
-    # What exists now (modules, schemas, the robot's limits, the session) lives as long as the process: freeze it
-    # out of the collector. A full collection over it stopped every thread, zenoh callbacks included, for 20-40 ms.
-    gc.collect()
-    gc.freeze()
+    freeze_startup_objects()
     try:
         if on_ready is not None:
             on_ready(ctl)

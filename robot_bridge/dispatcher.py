@@ -414,8 +414,9 @@ class Dispatcher:
             # The controller refuses whatever comes after a gap, so the segments behind the oldest
             # unacknowledged one go again with it, but only that one spends its re-send budget: they were
             # refused for its loss, and a budget spent on that would be gone when they become the gap.
-            head = min(run.pending) if run.pending else None
-            for seq, (sent_at, count) in sorted(run.pending.items()):
+            waiting = sorted(run.pending.items())
+            head = waiting[0][0] if waiting else None
+            for seq, (sent_at, count) in waiting:
                 if now - sent_at > d.resend_after_s and (count < d.max_resends or seq != head):
                     self._publish_segment(run.segments[seq - run.segments[0].seq])
                     spent = count + 1 if seq == head else count

@@ -38,10 +38,11 @@ def _settings_from_flags(config: Path | None, **flags: object):  # type: ignore[
 def serve(host: str | None, port: int | None, data_dir: Path | None, database_url: str | None, workers: int | None,
           dev: bool, executor: str | None, ray_address: str | None, config: Path | None, log_level: str) -> None:
     """Run the HTTP planning service (CONTRACT.md section 5) with its workers."""
-    import gc
     import logging
 
     import uvicorn
+
+    from robot_bridge.process_tuning import freeze_startup_objects
 
     from service.app import create_app
     from service.auth import TokenStore, is_loopback, make_dev_tokens
@@ -76,11 +77,7 @@ def serve(host: str | None, port: int | None, data_dir: Path | None, database_ur
                       "(set REGRASP_TOKENS, tokens_file, or use --dev)")
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     app = create_app(settings, tokens=tokens)
-    # The modules, models and settings loaded so far live as long as the process: freeze them out of the
-    # collector. A full collection over them (~113k objects) stopped every thread, the dispatcher's
-    # segment and stop sends included, for ~67 ms on the 2-core test machine.
-    gc.collect()
-    gc.freeze()
+    freeze_startup_objects()
     console.print(f"serving on http://{settings.host}:{settings.port} (console at /, API docs at /docs), "
                   f"{settings.workers} {settings.executor} worker(s), store {settings.resolved_database_url.split('://')[0]}",
                   highlight=False)

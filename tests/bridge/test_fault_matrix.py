@@ -183,7 +183,9 @@ def test_segments_refused_behind_a_gap_keep_their_resend_budget(bridge, long_pla
     had those refusals spent its budget of 5 re-sends, it would never come and the robot would starve."""
 
     class OneGapPerRound(Dispatcher):
-        publishes: dict[int, int] = {}
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.publishes: dict[int, int] = {}
 
         def _publish_segment(self, seg):
             n = self.publishes[seg.segment_index] = self.publishes.get(seg.segment_index, 0) + 1
