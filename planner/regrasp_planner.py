@@ -297,19 +297,23 @@ class Task:
             out.append(HandoverPose(hp.id, hp.T_world_obj, pairs))
         return out
 
-    def validations(self) -> tuple[dict, dict]:
-        """The node validations made so far (for a worker process to hand back; see :meth:`adopt`)."""
-        return dict(self.node_cache), dict(self.giver_at)
+    def validations(self) -> dict:
+        """What this copy of the task has worked out so far (for a worker process to hand back; see
+        :meth:`adopt`): node validations, the givers alone at handover poses, the handover poses."""
+        return {"nodes": dict(self.node_cache), "givers": dict(self.giver_at), "handover_poses": self._handover_cache,
+                "handover_poses_s": self.timings.get("handover_poses_s")}
 
-    def adopt(self, validations: tuple[dict, dict]) -> None:
-        """Take over node validations made by another copy of this task (a survey worker), so a
-        plan after the survey does not repeat them. Outcomes do not depend on who computed them
-        (each node draws from its own generator), so existing entries are kept as they are."""
-        nodes, givers = validations
-        for k, v in nodes.items():
+    def adopt(self, validations: dict) -> None:
+        """Take over what another copy of this task (a survey worker) worked out, so a plan after the
+        survey does not repeat it. Outcomes do not depend on who computed them (each node draws from its
+        own generator; handover poses are deterministic), so existing entries are kept as they are."""
+        for k, v in validations["nodes"].items():
             self.node_cache.setdefault(k, v)
-        for k, v in givers.items():
+        for k, v in validations["givers"].items():
             self.giver_at.setdefault(k, v)
+        if self._handover_cache is None and validations["handover_poses"] is not None:
+            self._handover_cache = validations["handover_poses"]
+            self.timings["handover_poses_s"] = validations["handover_poses_s"]
 
     def node_seed(self, node: PlacementNode | HandoverNode) -> list[int]:
         """The seed of a node's own generator: the task seed and the node's identity."""

@@ -199,9 +199,9 @@ def _chains(configs: list[str], n_workers: int) -> list[list[int]]:
     return list(groups.values())
 
 
-def _worker(args: tuple) -> tuple[list[list[ConfigOutcome]], tuple[dict, dict]]:
+def _worker(args: tuple) -> tuple[list[list[ConfigOutcome]], dict]:
     """Run one chain of configurations (see :func:`_chains`): one outcome list per configuration,
-    and the worker's node validations, which the parent's task adopts."""
+    and what the worker's task worked out (node validations, handover poses), which the parent's adopts."""
     scenario_json, threshold_m, hands_list, states, seeds, settings_json = args
     key = _task_key(scenario_json, threshold_m, settings_json)
     task = _WORKER_TASKS.get(key)
@@ -279,8 +279,6 @@ def run_survey_seeds(
             st_json = settings.model_dump_json() if settings is not None else ""
             context = _pool_context()
             if context.get_start_method() == "fork":
-                if any(h.split("-")[0] != h.split("-")[1] for h in configs):
-                    _ = task.handover_poses  # once here, not once per forked worker (and again after)
                 # Forked workers inherit the imported modules and this task: no start-up cost.
                 _WORKER_TASKS.clear()
                 _WORKER_TASKS[_task_key(sc_json, threshold, st_json)] = task
