@@ -58,13 +58,22 @@ class DispatchSettings(BaseSettings):
     )
     in_flight_wait_s: float = Field(
         0.01, gt=0, le=1.0,
-        description="once the oldest unacknowledged segment is this old, the window holds nothing back: a late "
-                    "acknowledgement (a stalled peer, a lost segment) must not starve a controller that plays the two "
-                    "segments it has in 50 ms (0.25 s segments at 10x)",
+        description="once the oldest unacknowledged segment is this old, one more segment goes out every this often "
+                    "whatever the window: a late acknowledgement (a stalled peer, a lost segment) must not starve a "
+                    "controller that plays the two segments it has in 50 ms (0.25 s segments at 10x), and the lookahead "
+                    "must not go out in one burst either (80 segments at 10x overflowed zenoh's transmit queue, whose "
+                    "drop-on-congestion then lost segments)",
     )
     poll_period_s: float = Field(0.005, gt=0, le=0.1, description="how often the execution loop looks at its inputs")
     progress_timeout_s: float = Field(3.0, gt=0, description="no progress report for this long = fault")
     resend_after_s: float = Field(0.1, gt=0, description="re-send a segment the controller has not acknowledged by then")
+    gap_holdoff_s: float = Field(
+        0.02, gt=0, le=1.0,
+        description="when the controller refuses a segment for a gap before it, the missing one and those behind it are "
+                    "re-sent at once (not after resend_after_s: a fast-playing controller has less than that buffered "
+                    "at a job's start); refusals within this time after such a re-send are of copies already on their "
+                    "way and start no other",
+    )
     max_resends: int = Field(5, ge=0, le=100, description="re-sends of the oldest unacknowledged segment (the controller "
                                                            "drops duplicates); the ones behind it go with it for free")
     ack_timeout_s: float = Field(1.0, gt=0, description="wait for the controller to acknowledge a stop")
@@ -321,10 +330,27 @@ class Dispatcher:
         sent_at = time.monotonic()
         self._publish_segment(seg)
         run.pending[seg.seq] = (sent_at, 0)
+        run.last_new_at = sent_at
         run.sent += 1
         emit("segment", {"job_id": run.job_id, "seq": seg.seq, "segment_index": seg.segment_index,
                          "segment_count": seg.segment_count, "first_index": seg.first_index, "points": len(seg.points),
                          "t_from_start": seg.t_from_start, "sent_at": sent_at})
+
+    def _resend(self, run: "_Run", emit: EventCallback, now: float, due: Callable[[float], bool], cause: str) -> None:
+        """Send again the unacknowledged segments whose last send is ``due`` (same seq: the controller drops
+        duplicates). The controller refuses whatever comes after a gap, so the segments behind the oldest
+        unacknowledged one go again with it, but only that one spends its re-send budget: they were refused
+        for its loss, and a budget spent on that would be gone when they become the gap."""
+        d = self.dispatch
+        waiting = sorted(run.pending.items())
+        head = waiting[0][0] if waiting else None
+        for seq, (sent_at, count) in waiting:
+            if due(sent_at) and (count < d.max_resends or seq != head):
+                self._publish_segment(run.segments[seq - run.segments[0].seq])
+                spent = count + 1 if seq == head else count
+                run.pending[seq] = (now, spent)
+                emit("segment", {"job_id": run.job_id, "seq": seq, "resent": spent, "behind_gap": seq != head,
+                                 "cause": cause})
 
     def _publish_segment(self, seg: TrajectorySegment) -> None:
         """Put one segment on ``cmd/trajectory`` (the only place that does)."""
@@ -356,10 +382,12 @@ class Dispatcher:
         ahead = d.lookahead_segments
 
         def window_open(now: float) -> bool:
-            """Fewer than the window unacknowledged, or the oldest of them waited too long for its acknowledgement."""
+            """Fewer than the window unacknowledged; or the oldest of them waited too long for its acknowledgement
+            and no segment went out for as long (late acknowledgements let one more out per ``in_flight_wait_s``)."""
             if len(run.pending) < d.max_in_flight_segments:
                 return True
-            return now - min(sent_at for sent_at, _ in run.pending.values()) > d.in_flight_wait_s
+            return (now - min(sent_at for sent_at, _ in run.pending.values()) > d.in_flight_wait_s
+                    and now - run.last_new_at > d.in_flight_wait_s)
 
         while run.sent < min(len(run.segments), ahead) and window_open(time.monotonic()):
             self._send_segment(run, emit)
@@ -404,24 +432,17 @@ class Dispatcher:
                 elif st.status == "rejected" and not st.fatal:
                     emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason,
                                         "fatal": False})
+                    # Refused for a gap before it: the gap and what follows go again now, in order.
+                    if st.seq in run.pending and now - run.gap_resent_at > d.gap_holdoff_s:
+                        run.gap_resent_at = now
+                        self._resend(run, emit, now, due=lambda sent_at: True, cause="gap")
                 elif st.status in ("rejected", "starved", "fault", "stopped"):
                     emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason})
                     return self._abort(run, emit, f"controller {st.status}: {st.reason}", verdict, started)
             elif st is not None and st.status == "rejected" and st.job_id is None:
                 emit("controller", {"job_id": run.job_id, "status": st.status, "reason": st.reason})
                 return self._abort(run, emit, f"controller rejected a command: {st.reason}", verdict, started)
-            # A segment lost on the way is sent again (same seq: a duplicate is dropped by the controller).
-            # The controller refuses whatever comes after a gap, so the segments behind the oldest
-            # unacknowledged one go again with it, but only that one spends its re-send budget: they were
-            # refused for its loss, and a budget spent on that would be gone when they become the gap.
-            waiting = sorted(run.pending.items())
-            head = waiting[0][0] if waiting else None
-            for seq, (sent_at, count) in waiting:
-                if now - sent_at > d.resend_after_s and (count < d.max_resends or seq != head):
-                    self._publish_segment(run.segments[seq - run.segments[0].seq])
-                    spent = count + 1 if seq == head else count
-                    run.pending[seq] = (now, spent)
-                    emit("segment", {"job_id": run.job_id, "seq": seq, "resent": spent, "behind_gap": seq != head})
+            self._resend(run, emit, now, due=lambda sent_at: now - sent_at > d.resend_after_s, cause="timeout")
             # keep the controller fed: stay `lookahead` segments ahead of the one being played, at most
             # `max_in_flight_segments` of them unacknowledged unless an acknowledgement is late
             playing = (run.index or 0) // per
@@ -461,3 +482,5 @@ class _Run:
     sent: int = 0
     index: int | None = None
     pending: dict[int, tuple[float, int]] = field(default_factory=dict)  # seq -> (last sent, re-sends)
+    last_new_at: float = -math.inf  # when a segment last went out for the first time
+    gap_resent_at: float = -math.inf  # when a refusal for a gap last started a re-send

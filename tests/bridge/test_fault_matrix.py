@@ -112,7 +112,9 @@ def test_unacknowledged_segments_never_exceed_the_window(bridge, long_plan, wind
     is set out of reach here so that a slow acknowledgement on a loaded machine cannot open the window."""
     over = {"in_flight_wait_s": 1.0} | ({} if window is None else {"max_in_flight_segments": window})
     dispatch = DispatchSettings(**over)
-    ctl, disp, spy = bridge(speed=4.0, dispatch=dispatch)
+    # Real time: with one segment in flight the controller waits a round trip for each, and a loaded machine's
+    # round trip can outlast a segment played faster (62 ms at 4x).
+    ctl, disp, spy = bridge(speed=1.0, dispatch=dispatch)
     res, rec = run(disp, long_plan)
     assert res.status == "succeeded", res.reason
     sent = [d for _, k, d in rec.events if k == "segment" and "sent_at" in d]
@@ -120,15 +122,33 @@ def test_unacknowledged_segments_never_exceed_the_window(bridge, long_plan, wind
     assert _most_unacknowledged(rec) == dispatch.max_in_flight_segments == (window or DispatchSettings().max_in_flight_segments)
 
 
+def _sends_beyond_the_window(rec, window: int) -> list[float]:
+    """When each segment went out for the first time while ``window`` or more were unacknowledged."""
+    outstanding: set[int] = set()
+    times = []
+    for _, kind, data in rec.events:
+        if kind == "segment" and "sent_at" in data:
+            if len(outstanding) >= window:
+                times.append(data["sent_at"])
+            outstanding.add(data["seq"])
+        elif kind == "segment" and data.get("acknowledged"):
+            outstanding.discard(data["seq"])
+    return times
+
+
 def test_late_acknowledgements_do_not_hold_the_lookahead_back(bridge, long_plan):
     """A controller that answers each command 60 ms late: once the oldest unacknowledged segment has waited
-    ``in_flight_wait_s`` (10 ms), the rest of the lookahead goes out without waiting, as a controller playing fast
-    needs it."""
+    ``in_flight_wait_s`` (10 ms), more of the lookahead goes out without waiting, as a controller playing fast
+    needs it, but paced, one segment per ``in_flight_wait_s``: the whole lookahead in one burst overflowed
+    zenoh's transmit queue at 10x (80 segments), and drop-on-congestion lost segments the robot then starved of."""
     dispatch = DispatchSettings()
     ctl, disp, spy = bridge("--delay-ms", "60", speed=4.0, dispatch=dispatch)
     res, rec = run(disp, long_plan)
     assert res.status == "succeeded", res.reason
-    assert _most_unacknowledged(rec) >= dispatch.lookahead_segments > dispatch.max_in_flight_segments
+    assert _most_unacknowledged(rec) > dispatch.max_in_flight_segments
+    beyond = _sends_beyond_the_window(rec, dispatch.max_in_flight_segments)
+    assert len(beyond) >= 3
+    assert min(np.diff(beyond)) >= dispatch.in_flight_wait_s
 
 
 def test_duplicated_segments_are_ignored_and_the_job_succeeds(bridge, long_plan):
@@ -175,6 +195,31 @@ def test_lost_segments_are_sent_again(bridge, long_plan):
     res, rec = run(disp, long_plan)
     assert res.status == "succeeded", res.reason
     assert any(k == "segment" and "resent" in d for _, k, d in rec.events)
+
+
+def test_a_gap_is_filled_as_soon_as_the_controller_refuses_what_follows_it(bridge, long_plan):
+    """Segment 1 is lost once, with the re-send timer (2 s) out of reach: the controller, playing 4x
+    (62 ms per segment), would starve long before it. Its refusal of segment 2 for the gap names what is
+    missing, and segment 1 goes again at once, with segment 2 behind it."""
+
+    class LosesSegmentOneOnce(Dispatcher):
+        lost = False
+
+        def _publish_segment(self, seg):
+            if seg.segment_index == 1 and not self.lost:
+                self.lost = True
+                return
+            super()._publish_segment(seg)
+
+    dispatch = DispatchSettings(resend_after_s=2.0)
+    ctl, disp, spy = bridge(speed=4.0, dispatcher_cls=LosesSegmentOneOnce, dispatch=dispatch)
+    res, rec = run(disp, long_plan)
+    assert res.status == "succeeded", res.reason
+    assert res.duration_s < dispatch.resend_after_s
+    resent = [d for _, k, d in rec.events if k == "segment" and "resent" in d]
+    assert resent and resent[0]["cause"] == "gap" and resent[0]["behind_gap"] is False
+    seq_of = {d["segment_index"]: d["seq"] for _, k, d in rec.events if k == "segment" and "sent_at" in d}
+    assert resent[0]["seq"] == seq_of[1]
 
 
 def test_segments_refused_behind_a_gap_keep_their_resend_budget(bridge, long_plan):
