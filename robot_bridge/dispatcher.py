@@ -146,7 +146,7 @@ class Dispatcher:
         self._stop_requests: set[str | None] = set()
         # seq must grow across jobs and restarts of this process: start from the clock (ms)
         self._seq = int(time.time() * 1000)
-        self._payloads: dict[int, bytes] = {}  # seq -> encoded segment, of the running execution
+        self._payloads: dict[int, bytes] = {}  # seq -> encoded segment, of the running execution only
         self._session = open_session(self.settings)
         s = self._session
         self._pub_traj = control_publisher(s, self.keys.trajectory)
@@ -312,8 +312,8 @@ class Dispatcher:
         self._drain_exec()
         # Encoded once, now: a send (and a re-send) is then only the put (encoding a 0.25 s segment takes
         # ~0.1 ms, which a send at the controller's pace need not spend).
-        run = _Run(job_id=job_id, segments=segments, payloads={seg.seq: encode(seg) for seg in segments})
-        self._payloads = run.payloads
+        self._payloads = {seg.seq: encode(seg) for seg in segments}
+        run = _Run(job_id=job_id, segments=segments)
         try:
             return self._follow(run, emit, stop_event, verdict, started)
         except Exception as exc:  # fail safe: whatever broke, the robot is told to stop
@@ -321,6 +321,8 @@ class Dispatcher:
             emit("stop_sent", {"job_id": job_id, "reason": f"bridge error: {exc}"})
             return ExecutionResult("aborted", f"bridge error: {type(exc).__name__}: {exc}", verdict, run.index, run.sent,
                                    time.monotonic() - started)
+        finally:
+            self._payloads = {}  # a finished execution's bytes are not kept until the next one
 
     def _drain_exec(self) -> None:
         while True:
@@ -484,7 +486,6 @@ class Dispatcher:
 class _Run:
     job_id: str
     segments: list[TrajectorySegment]
-    payloads: dict[int, bytes] = field(default_factory=dict)  # seq -> the segment's encoded bytes
     sent: int = 0
     index: int | None = None
     pending: dict[int, tuple[float, int]] = field(default_factory=dict)  # seq -> (last sent, re-sends)

@@ -92,17 +92,23 @@ def test_valid_plan_is_executed(bridge, arm_plan):
     assert np.allclose(js.q, arm_plan["trajectory"][-1]["q"], atol=1e-12)
 
 
-def _most_unacknowledged(rec) -> int:
-    """The most segments ever sent and not yet acknowledged, in the dispatcher's own order of events."""
+def _first_sends(rec) -> list[tuple[float, int]]:
+    """Each segment's first send, in the dispatcher's own order of events: when, and how many segments were
+    sent and not yet acknowledged just before it."""
     outstanding: set[int] = set()
-    most = 0
+    sends = []
     for _, kind, data in rec.events:
         if kind == "segment" and "sent_at" in data:
+            sends.append((data["sent_at"], len(outstanding)))
             outstanding.add(data["seq"])
-            most = max(most, len(outstanding))
         elif kind == "segment" and data.get("acknowledged"):
             outstanding.discard(data["seq"])
-    return most
+    return sends
+
+
+def _most_unacknowledged(rec) -> int:
+    """The most segments ever sent and not yet acknowledged."""
+    return max(before + 1 for _, before in _first_sends(rec))
 
 
 @pytest.mark.parametrize("window", [1, None])
@@ -124,16 +130,7 @@ def test_unacknowledged_segments_never_exceed_the_window(bridge, long_plan, wind
 
 def _sends_beyond_the_window(rec, window: int) -> list[float]:
     """When each segment went out for the first time while ``window`` or more were unacknowledged."""
-    outstanding: set[int] = set()
-    times = []
-    for _, kind, data in rec.events:
-        if kind == "segment" and "sent_at" in data:
-            if len(outstanding) >= window:
-                times.append(data["sent_at"])
-            outstanding.add(data["seq"])
-        elif kind == "segment" and data.get("acknowledged"):
-            outstanding.discard(data["seq"])
-    return times
+    return [at for at, before in _first_sends(rec) if before >= window]
 
 
 def test_late_acknowledgements_do_not_hold_the_lookahead_back(bridge, long_plan):
