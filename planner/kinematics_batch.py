@@ -93,8 +93,11 @@ class BatchKinematics:
         self._frames = {f.name: (int(f.parentJoint), np.array(f.placement.rotation), np.array(f.placement.translation)) for f in model.frames}
         self._data = model.createData()  # scratch for small batches: one kinematics object per thread
 
-    def forward(self, base_pose: np.ndarray, Q: np.ndarray) -> tuple[list, list]:
+    def forward(self, base_pose: np.ndarray, Q: np.ndarray, small_batches: bool = True) -> tuple[list, list]:
         """World rotations ``(3, 3, N)`` and positions ``(3, N)`` of every joint frame, by pinocchio joint id.
+
+        ``small_batches=False`` keeps a few configurations on the vectorised walk too, so a row's
+        result never depends on how many rows came with it (pinocchio rounds differently).
 
         A joint whose column (and every ancestor's) is the same in every row is computed once and
         broadcast: in a plan the legs, the neck and the idle arm never move, so most of the tree is
@@ -103,7 +106,7 @@ class BatchKinematics:
         Q = np.atleast_2d(np.asarray(Q, dtype=float))
         n = Q.shape[0]
         base_pose = np.asarray(base_pose, dtype=float)
-        if n <= SMALL_BATCH and base_pose.ndim == 1:
+        if small_batches and n <= SMALL_BATCH and base_pose.ndim == 1:
             return self._forward_small(base_pose, Q)
         Rs: list = [None] * self._njoints
         ps: list = [None] * self._njoints

@@ -37,6 +37,7 @@ from .grasps import Grasp, GraspSet, GraspSettings, plan_grasps
 from .handover import HandoverPose, HandoverSettings, handover_poses
 from .placements import PlacementError, instantiate_placements
 from .ik import IkSettings, IkSolver, key_pose_targets
+from .ik_batch import BatchIk
 from .objects import ObjectModel, build_object
 from .plan_builder import MotionPiece
 from .regrasp_graph import (
@@ -53,6 +54,7 @@ from .regrasp_graph import (
 from .robot_model import RobotModel, load_robot
 from .smoothing import SmoothingSettings, shortcut
 from .stances import Stance, solve_stance
+from .stability import system_com
 from .state_eval import HoldSpec, StateEvaluator
 from .timing import TimingSettings, time_path
 from .transforms import inverse, pose7_to_matrix
@@ -172,6 +174,7 @@ class Task:
         self.ik = IkSolver(self.robot, self.stance, s.ik)
         # The arm-only attempt is a cheap first try (few restarts); the waist joins when it fails.
         self.ik_arm_only = IkSolver(self.robot, self.stance, s.ik.model_copy(update={"use_waist": False, "restarts": s.arm_only_restarts}))
+        self.ik_batch = BatchIk(self.robot, self.world.kin, self.ik_arm_only.settings)
         self.home = self.stance.q.copy()
         self.jaw = {side: self.robot.joint_index(self.robot.spec.arms[side].gripper.joint) for side in ("left", "right")}
         for side in ("left", "right"):
@@ -199,6 +202,8 @@ class Task:
         #: (handover pose, giver grasp, giver) -> (q, hold, cause, margin) of the giver alone there,
         #: or None when its arm alone cannot reach
         self.giver_at: dict = {}
+        #: placement node -> its grasp probe (see :meth:`probe_grasps`)
+        self.grasp_probes: dict[PlacementNode, GraspProbe] = {}
         self.timings["placements_s"] = time.perf_counter() - t2
         self.timings["setup_s"] = time.perf_counter() - t0
 
@@ -300,8 +305,8 @@ class Task:
     def validations(self) -> dict:
         """What this copy of the task has worked out so far (for a worker process to hand back; see
         :meth:`adopt`): node validations, the givers alone at handover poses, the handover poses."""
-        return {"nodes": dict(self.node_cache), "givers": dict(self.giver_at), "handover_poses": self._handover_cache,
-                "handover_poses_s": self.timings.get("handover_poses_s")}
+        return {"nodes": dict(self.node_cache), "givers": dict(self.giver_at), "probes": dict(self.grasp_probes),
+                "handover_poses": self._handover_cache, "handover_poses_s": self.timings.get("handover_poses_s")}
 
     def adopt(self, validations: dict) -> None:
         """Take over what another copy of this task (a survey worker) worked out, so a plan after the
@@ -311,6 +316,8 @@ class Task:
             self.node_cache.setdefault(k, v)
         for k, v in validations["givers"].items():
             self.giver_at.setdefault(k, v)
+        for k, v in validations["probes"].items():
+            self.grasp_probes.setdefault(k, v)
         if self._handover_cache is None and validations["handover_poses"] is not None:
             self._handover_cache = validations["handover_poses"]
             self.timings["handover_poses_s"] = validations["handover_poses_s"]
@@ -378,6 +385,51 @@ class Task:
         s = np.linspace(0.0, 1.0, n)[:, None]
         return a[None] * (1 - s) + b[None] * s
 
+    def probe_grasps(self, nodes: list[PlacementNode]) -> dict[PlacementNode, "GraspProbe"]:
+        """The IK solution at each node's grasp pose and the CoM margin of holding the object there, for
+        the nodes not probed yet: batched descents per hand (:mod:`planner.ik_batch`).
+
+        The search weighs nodes by these margins before validating any: they bound a node's validated
+        margin from above (its lift starts from this very state), so the cheapest path stays the
+        cheapest once validated far more often than with the home-posture guess, and the search
+        validates a few nodes where it validated every grasp of the start and goal placements
+        (measured on upright: 100 placement validations for left-left, 32 with the probes).
+        """
+        todo = [n for n in dict.fromkeys(nodes) if n not in self.grasp_probes]
+        for side in ("left", "right"):
+            mine = [n for n in todo if n.hand == side]
+            if not mine:
+                continue
+            grasps = self.grasps[side]
+            T_obj = np.array([self.placements[n.placement] for n in mine])
+            targets = T_obj @ np.array([grasps[n.grasp].T_obj_tcp for n in mine])
+            res = self.ik_batch.solve(side, targets, self.stance.base_pose, self.home, self.home)
+            self.counters["ik_solves"] += len(mine)
+            missed = np.flatnonzero(~res.ok)
+            if missed.size and self.ik_arm_only.settings.restarts > 0:
+                # The arm alone's first restart, from the draw the node's own validation would make.
+                seeds = np.repeat(self.home[None], missed.size, axis=0)
+                cols = self.ik_batch.active_columns(side)
+                for row, k in enumerate(missed):
+                    rng = np.random.default_rng(self.node_seed(mine[k]))
+                    seeds[row, cols] += rng.normal(0.0, self.ik_arm_only.settings.restart_noise_rad, len(cols))
+                again = self.ik_batch.solve(side, targets[missed], self.stance.base_pose, seeds, self.home)
+                res.q[missed], res.ok[missed] = again.q, again.ok
+            Q = res.q.copy()
+            Q[:, self.jaw[side]] = [grasps[n.grasp].jaw_value for n in mine]
+            robot_com = self.evaluator.evaluate(Q, active=[*self.arm_only[side], self.jaw[side]]).robot_com
+            obj_com = T_obj[:, :3, :3] @ self.obj.com_local + T_obj[:, :3, 3]
+            com = system_com(robot_com, self.robot.total_mass, obj_com, self.obj.mass_kg)
+            margin = self.stance.polygon.margin(com[:, :2])
+            self.counters["com_states"] += len(mine)
+            unstable = ~(margin >= self.evaluator.threshold_m)
+            for k, n in enumerate(mine):
+                self.grasp_probes[n] = GraspProbe(res.q[k] if res.ok[k] else None, float(margin[k]) if res.ok[k] else None)
+                if res.ok[k] and unstable[k] and self.constrained:
+                    # Exactly what the node's validation would find first, from the same state.
+                    self.node_cache.setdefault(n, Validation(False, "com_margin", "holding the object at the grasp pose"))
+        return self.grasp_probes
+
     def estimated_margins(self, T_obj: np.ndarray) -> np.ndarray:
         """Quick guesses of a held state's margin, the home posture plus the object at each pose
         of T_obj (N, 4, 4) (eq. 1)."""
@@ -385,6 +437,16 @@ class Task:
         m, M = self.obj.mass_kg, self.robot.total_mass
         c = (M * self.stance.robot_com[None] + m * obj_com) / (M + m)
         return self.stance.polygon.margin(c[:, :2])
+
+
+@dataclass(frozen=True)
+class GraspProbe:
+    """A placement node's arm-only IK solution at the grasp pose (jaw open), and the CoM margin of
+    holding the object there; both None when the batched attempts missed (the node's own validation
+    then solves it, the waist helping)."""
+
+    q: np.ndarray | None
+    margin_m: float | None
 
 
 class HandConfigPlanner:
@@ -500,7 +562,8 @@ class HandConfigPlanner:
         targets = key_pose_targets(T_grasp, approach_m=s.pregrasp_m, lift_m=s.lift_m)
         T_pre, T_lift = targets["pregrasp"], targets["lift"]
         # Cheapest decisive checks first: the grasp pose, then the held object there, then lift, then pre-grasp.
-        q_grasp = t.solve_ik(side, T_grasp, t.home, rng)
+        probe = t.grasp_probes.get(node)
+        q_grasp = probe.q.copy() if probe is not None and probe.q is not None else t.solve_ik(side, T_grasp, t.home, rng)
         if q_grasp is None:
             return Validation(False, "ik", "grasp pose out of reach")
         q_grasp[t.jaw[side]] = t.robot.upper[t.jaw[side]]
@@ -896,12 +959,18 @@ class HandConfigPlanner:
         return dataclasses.replace(spec, placement_nodes=[n for n in spec.placement_nodes if n not in bad])
 
     def _seed_margin_estimates(self, graph: RegraspGraph) -> None:
-        """Before any IK, weight nodes by a quick margin estimate so the search tries stable ones first."""
+        """Before any node is validated, weight placement nodes by the margin of holding the object at
+        their grasp (:meth:`Task.probe_grasps`), so the search tries stable ones first. A node whose
+        probe missed gets no margin at all (the highest margin cost): it is validated only when the
+        nodes that reach their grasp have run out."""
         t = self.task
-        est = t.estimated_margins(np.asarray(t.placements))
-        for node in graph.nodes():
-            if isinstance(node, PlacementNode):
-                graph._apply_margin_cost(node, est[node.placement])
+        nodes = [n for n in graph.nodes() if isinstance(n, PlacementNode)]
+        if graph.w.margin == 0.0:
+            return
+        probes = t.probe_grasps(nodes)
+        for node in nodes:
+            m = probes[node].margin_m
+            graph._apply_margin_cost(node, 0.0 if m is None else m)
 
     def _assemble_pieces(self, res: SearchResult) -> list[MotionPiece]:
         """Key-pose moves and planned motions in execution order (the builder tracks the object)."""

@@ -232,3 +232,35 @@ def test_the_state_count_defaults_to_the_scenario_then_10000_and_zero_is_refused
     assert doc["stats"]["states_per_configuration"] == 1234
     with pytest.raises(ValueError, match="states per configuration must be >= 1, got 0"):
         run_survey(scenario, states=0, workers=1, task=task)
+
+
+def test_grasp_probes_bound_the_validated_margin_and_prefill_only_certain_failures(scenario):
+    """The search weighs placement nodes by a batched probe (IK at the grasp pose, margin holding the
+    object there) before validating any. The probe must be optimistic (the node's validated margin is
+    never larger: its lift starts from that very state), and a node it marks as failing on the margin
+    must be one its own validation rejects for that reason."""
+    from planner.regrasp_graph import PlacementNode
+    from planner.regrasp_planner import HandConfigPlanner, Task
+
+    probe_task = Task(scenario)
+    planner = HandConfigPlanner(probe_task, "right-right", np.random.default_rng(0))
+    nodes = [n for n in planner.graph_spec().placement_nodes if isinstance(n, PlacementNode)][:40]
+    margins = np.array([m for m in (p.margin_m for p in probe_task.probe_grasps(nodes).values()) if m is not None])
+    assert len(margins) >= 10  # many grasps of a spec are beyond the arm alone (from below, behind)
+    # A threshold between the probed margins: some nodes are stable at their grasp, some are not.
+    threshold = float(np.median(margins)) - probe_task.settings.planning_buffer_m
+    task = Task(scenario, threshold_m=threshold)
+    probes = task.probe_grasps(nodes)
+    prefilled = {n for n in nodes if n in task.node_cache}
+    assert prefilled, "no node was marked as failing on the margin"
+    planner = HandConfigPlanner(task, "right-right", np.random.default_rng(0))
+    validated_ok = 0
+    for node in nodes[:24]:
+        task.node_cache.pop(node, None)
+        v = planner._validate_placement(node, np.random.default_rng(task.node_seed(node)))
+        if node in prefilled:
+            assert not v.ok and v.cause == "com_margin" and v.detail == "holding the object at the grasp pose"
+        elif v.ok and probes[node].margin_m is not None:
+            validated_ok += 1
+            assert v.margin_m <= probes[node].margin_m + 1e-12
+    assert validated_ok > 0

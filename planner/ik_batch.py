@@ -1,0 +1,163 @@
+"""Inverse kinematics for many TCP targets at once: one damped least-squares descent per target,
+all of them advanced together in numpy.
+
+Why: the regrasp search weighs every grasp node by the CoM margin it will have, and that margin
+depends on the arm's posture at the grasp, which only IK gives. Solved one by one (pinocchio,
+~1-3 ms per node) that is seconds for the ~1,400 nodes of a paper scenario; advanced together
+(one vectorised forward pass and one batched 6x6 solve per iteration) it is a few hundred
+microseconds per node... for all of them at once.
+
+The descent is the first attempt of :class:`planner.ik.IkSolver` (same settings, seed, rest
+posture, step cap, joint-limit handling and stall rule), in world-aligned errors and Jacobians
+instead of LOCAL ones. There are no random restarts: a target this misses is not proven out
+of reach, so callers keep the sequential solver for those.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .ik import LIMIT_EPS, LIMIT_PASSES, STALL_IMPROVEMENT, STALL_ITERATIONS, IkSettings
+from .kinematics_batch import BatchKinematics
+from .robot_model import RobotModel
+
+#: Targets advanced together per chunk: bounds the working arrays (~40 kB per target per joint).
+CHUNK = 2048
+
+
+@dataclass(frozen=True)
+class BatchIkResult:
+    """``q`` (N, nq): the solutions (rows where ``ok`` is False hold the last iterate); iterations per row."""
+
+    q: np.ndarray
+    ok: np.ndarray
+    iterations: np.ndarray
+
+
+class BatchIk:
+    """First-attempt IK of one hand for many targets, from one seed posture."""
+
+    def __init__(self, robot: RobotModel, kinematics: BatchKinematics, settings: IkSettings):
+        self.robot = robot
+        self.kin = kinematics
+        self.settings = settings
+        self._col_joint = {s.q_col: s for s in kinematics._steps if s.kind == "R" and s.mult == 1.0 and s.offset == 0.0}
+
+    def active_columns(self, side: str) -> np.ndarray:
+        parts = [self.robot.waist_indices()] if self.settings.use_waist else []
+        return np.concatenate([*parts, self.robot.arm_indices(side)]).astype(int)
+
+    def solve(self, side: str, targets: np.ndarray, base_pose: np.ndarray, seed_q: np.ndarray,
+              rest_q: np.ndarray) -> BatchIkResult:
+        """Move the waist (if the settings use it) and one arm so the TCP reaches each world pose of
+        ``targets`` (N, 4, 4), each descent starting at ``seed_q`` (one configuration for all, or one per
+        target (N, nq))."""
+        targets = np.asarray(targets, dtype=float)
+        n = targets.shape[0]
+        active = self.active_columns(side)
+        missing = [self.robot.joint_names[c] for c in active if c not in self._col_joint]
+        if missing:
+            raise ValueError(f"batch IK supports plain revolute joints only, not {', '.join(missing)}")
+        seed_q = np.asarray(seed_q, dtype=float)
+        q_out = np.repeat(seed_q[None], n, axis=0) if seed_q.ndim == 1 else seed_q.copy()
+        ok = np.zeros(n, dtype=bool)
+        its = np.zeros(n, dtype=int)
+        for lo in range(0, n, CHUNK):
+            sl = slice(lo, min(n, lo + CHUNK))
+            q_out[sl], ok[sl], its[sl] = self._descend(side, targets[sl], base_pose, q_out[sl], rest_q, active)
+        return BatchIkResult(q_out, ok, its)
+
+    def _descend(self, side: str, targets: np.ndarray, base_pose: np.ndarray, Q: np.ndarray, rest_q: np.ndarray,
+                 active: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        s = self.settings
+        n, k = Q.shape[0], len(active)
+        lo, hi = self.robot.lower[active], self.robot.upper[active]
+        Q = Q.copy()
+        Q[:, active] = np.clip(Q[:, active], lo, hi)
+        rest_a = np.asarray(rest_q, dtype=float)[active]
+        tcp = self.robot.spec.arms[side].tcp
+        steps = [self._col_joint[c] for c in active]
+        lam2_eye = s.damping**2 * np.eye(6)
+        ok = np.zeros(n, dtype=bool)
+        its = np.zeros(n, dtype=int)
+        best = np.full(n, np.inf)
+        since = np.zeros(n, dtype=int)
+        live = np.arange(n)
+        for it in range(1, s.max_iterations + 2):
+            if live.size == 0:
+                break
+            Ql = Q[live]
+            Rs, ps = self.kin.forward(base_pose, Ql, small_batches=False)  # rows independent of each other
+            R_tcp, p_tcp = self.kin.frame(Rs, ps, tcp)
+            e_p = targets[live, :3, 3] - p_tcp
+            e_r = _log_rotation(targets[live, :3, :3] @ np.swapaxes(R_tcp, 1, 2))
+            perr = np.linalg.norm(e_p, axis=1)
+            rerr = np.linalg.norm(e_r, axis=1)
+            its[live] = it
+            done = (perr <= s.pos_tol_m) & (rerr <= s.rot_tol_rad)
+            ok[live[done]] = True
+            score = perr + 0.1 * rerr
+            improved = score < best[live] * (1.0 - STALL_IMPROVEMENT)
+            best[live] = np.where(improved, score, best[live])
+            since[live] = np.where(improved, 0, since[live] + 1)
+            keep = ~done & (since[live] < STALL_ITERATIONS)
+            if it > s.max_iterations:
+                break
+            if not keep.any():
+                break
+            live, Ql, e_p, e_r, p_tcp = live[keep], Ql[keep], e_p[keep], e_r[keep], p_tcp[keep]
+            J = np.empty((live.size, 6, k))
+            for j, st in enumerate(steps):
+                w = Rs[st.jid][:, st.axis_index][:, keep].T  # world axis of the joint
+                J[:, :3, j] = np.cross(w, p_tcp - ps[st.jid][:, keep].T)
+                J[:, 3:, j] = w
+            e = np.concatenate([e_p, e_r], axis=1)
+            qa = Ql[:, active]
+            dq = _dls_steps(J, e, qa, rest_a, lam2_eye, s.nullspace_gain, np.ones((live.size, k), dtype=bool))
+            at_lo, at_hi = qa <= lo + LIMIT_EPS, qa >= hi - LIMIT_EPS
+            if at_lo.any() or at_hi.any():
+                free = np.ones((live.size, k), dtype=bool)
+                for _ in range(LIMIT_PASSES):
+                    blocked = free & ((at_lo & (dq < 0)) | (at_hi & (dq > 0)))
+                    rows = blocked.any(axis=1)
+                    if not rows.any():
+                        break
+                    free &= ~blocked
+                    dq[rows] = _dls_steps(J[rows], e[rows], qa[rows], rest_a, lam2_eye, s.nullspace_gain, free[rows])
+            big = np.abs(dq).max(axis=1)
+            scale = np.where(big > s.max_step_rad, s.max_step_rad / np.maximum(big, 1e-300), 1.0)
+            Q[live[:, None], active[None, :]] = np.clip(qa + dq * scale[:, None], lo, hi)
+        return Q, ok, its
+
+
+def _dls_steps(J: np.ndarray, e: np.ndarray, qa: np.ndarray, rest_a: np.ndarray, lam2_eye: np.ndarray, gain: float,
+               free: np.ndarray) -> np.ndarray:
+    """Damped least-squares steps (N, k) towards the errors plus the pull to the rest posture; joints
+    not ``free`` do not move (their Jacobian columns are dropped)."""
+    Jf = J * free[:, None, :]
+    pull = gain * (rest_a[None] - qa) * free
+    A = Jf @ np.swapaxes(Jf, 1, 2) + lam2_eye
+    rhs = e - np.einsum("nij,nj->ni", Jf, pull)
+    x = np.linalg.solve(A, rhs[:, :, None])[:, :, 0]
+    return np.einsum("nij,ni->nj", Jf, x) + pull
+
+
+def _log_rotation(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors (N, 3) of rotation matrices (N, 3, 3)."""
+    v = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
+    c = np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) * 0.5, -1.0, 1.0)
+    theta = np.arccos(c)
+    s = np.sin(theta)
+    small = s < 1e-6
+    factor = np.where(small, 0.5, theta / (2.0 * np.where(small, 1.0, s)))
+    out = v * factor[:, None]
+    near_pi = small & (c < 0)
+    if near_pi.any():
+        # At a half turn the antisymmetric part vanishes: the axis is the dominant column of R + I.
+        M = R[near_pi] + np.eye(3)
+        col = np.argmax(np.linalg.norm(M, axis=1), axis=1)
+        axis = M[np.arange(len(M)), :, col]
+        out[near_pi] = np.pi * axis / np.linalg.norm(axis, axis=1, keepdims=True)
+    return out
