@@ -671,6 +671,7 @@ class CollisionWorld:
         held: Sequence[tuple[str, np.ndarray]] = (),
         free_object_pose: np.ndarray | None = None,
         grasping: str | None = None,
+        held_object_poses: np.ndarray | None = None,
     ) -> BatchResult:
         """Check the N states of a :meth:`BatchKinematics.forward` result.
 
@@ -678,6 +679,8 @@ class CollisionWorld:
         the first). ``free_object_pose``: 4x4 (or (N, 4, 4)) pose of a resting object, when
         nothing holds it. ``grasping``: the side whose fingers are at the resting object
         (approach and grasp key poses); its fingers are not checked against the object.
+        ``held_object_poses`` (N, 4, 4): the held object's world poses, when each state holds it
+        with its own grasp (batched probes); ``held`` then only names the sides.
         """
         N = Rs[1].shape[2]
         held = tuple(held)
@@ -687,7 +690,10 @@ class CollisionWorld:
         if held:
             if self.n_obj == 0:
                 raise ValueError("this collision world has no object to hold")
-            T_obj = self.object_pose_held(Rs, ps, held[0][0], held[0][1])
+            if held_object_poses is not None:
+                T_obj = np.asarray(held_object_poses, dtype=float)
+            else:
+                T_obj = self.object_pose_held(Rs, ps, held[0][0], held[0][1])
         elif free_object_pose is not None and self.n_obj:
             T = np.asarray(free_object_pose, dtype=float)
             T_obj = np.broadcast_to(T, (N, 4, 4)) if T.ndim == 2 else T

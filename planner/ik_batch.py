@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .ik import LIMIT_EPS, LIMIT_PASSES, STALL_IMPROVEMENT, STALL_ITERATIONS, IkSettings
-from .kinematics_batch import BatchKinematics
+from .kinematics_batch import BatchKinematics, _affine, _rotate
 from .robot_model import RobotModel
 
 #: Targets advanced together per chunk: bounds the working arrays (~40 kB per target per joint).
@@ -44,6 +44,49 @@ class BatchIk:
         self.kin = kinematics
         self.settings = settings
         self._col_joint = {s.q_col: s for s in kinematics._steps if s.kind == "R" and s.mult == 1.0 and s.offset == 0.0}
+        self._chains: dict[tuple, tuple[list, int]] = {}
+
+    def _chain(self, side: str, active: np.ndarray) -> tuple[list, int]:
+        """The joints from the first active one to the TCP, and the id of the joint before them (its
+        frame is the same for every target: only active columns differ between seeds)."""
+        key = (side, active.tobytes())
+        if key not in self._chains:
+            by_jid = {s.jid: s for s in self.kin._steps}
+            j = self.kin._frames[self.robot.spec.arms[side].tcp][0]
+            chain = []
+            while j in by_jid:
+                chain.append(by_jid[j])
+                j = by_jid[j].parent
+            chain.reverse()
+            first = next(i for i, st in enumerate(chain) if st.q_col in set(active.tolist()))
+            moving = chain[first:]
+            odd = [self.robot.joint_names[st.q_col] for st in moving if st.kind != "R" or st.mult != 1.0 or st.offset != 0.0]
+            if odd:
+                raise ValueError(f"batch IK supports plain revolute joints only, not {', '.join(odd)}")
+            self._chains[key] = (moving, moving[0].parent)
+        return self._chains[key]
+
+    def _forward(self, side: str, chain: list, parent: tuple[np.ndarray, np.ndarray], Q: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
+        """World frames (R (3, 3, N), p (3, N)) of the chain's joints, and the TCP's R (N, 3, 3), p (N, 3).
+        The same operations as :meth:`BatchKinematics.forward`, on the few joints that move."""
+        n = Q.shape[0]
+        Rp, pp = np.repeat(parent[0], n, axis=2), np.repeat(parent[1], n, axis=1)
+        frames = {}
+        for st in chain:
+            p = _affine(pp, Rp, st.pos0)
+            R = _rotate(Rp, st.rot0) if st.rot0 is not None else Rp.copy()
+            theta = Q[:, st.q_col]
+            cs, sn = np.cos(theta), np.sin(theta)
+            i, j = ((1, 2), (2, 0), (0, 1))[st.axis_index]
+            ci = R[:, i].copy()
+            cj = R[:, j]
+            R[:, i] = cs * ci + sn * cj
+            R[:, j] = cs * cj - sn * ci
+            frames[st.jid] = (R, p)
+            Rp, pp = R, p
+        jid, R0, p0 = self.kin._frames[self.robot.spec.arms[side].tcp]
+        R_last, p_last = frames[jid]
+        return frames, np.moveaxis(_rotate(R_last, R0), 2, 0), _affine(p_last, R_last, p0).T
 
     def active_columns(self, side: str) -> np.ndarray:
         parts = [self.robot.waist_indices()] if self.settings.use_waist else []
@@ -62,6 +105,10 @@ class BatchIk:
             raise ValueError(f"batch IK supports plain revolute joints only, not {', '.join(missing)}")
         seed_q = np.asarray(seed_q, dtype=float)
         q_out = np.repeat(seed_q[None], n, axis=0) if seed_q.ndim == 1 else seed_q.copy()
+        fixed = np.ones(self.robot.nq, dtype=bool)
+        fixed[active] = False
+        if n and np.any(q_out[:, fixed] != q_out[0, fixed]):
+            raise ValueError("seeds may differ only in the joints IK moves")
         ok = np.zeros(n, dtype=bool)
         its = np.zeros(n, dtype=int)
         for lo in range(0, n, CHUNK):
@@ -77,8 +124,12 @@ class BatchIk:
         Q = Q.copy()
         Q[:, active] = np.clip(Q[:, active], lo, hi)
         rest_a = np.asarray(rest_q, dtype=float)[active]
-        tcp = self.robot.spec.arms[side].tcp
         steps = [self._col_joint[c] for c in active]
+        chain, parent_jid = self._chain(side, active)
+        Rs0, ps0 = self.kin.forward(base_pose, Q[:1], small_batches=False)
+        parent = (np.asarray(Rs0[parent_jid]), np.asarray(ps0[parent_jid]))
+        if not {st.jid for st in steps} <= {c.jid for c in chain}:
+            raise ValueError("every joint IK moves must lie on the chain to the TCP")
         lam2_eye = s.damping**2 * np.eye(6)
         ok = np.zeros(n, dtype=bool)
         its = np.zeros(n, dtype=int)
@@ -89,8 +140,7 @@ class BatchIk:
             if live.size == 0:
                 break
             Ql = Q[live]
-            Rs, ps = self.kin.forward(base_pose, Ql, small_batches=False)  # rows independent of each other
-            R_tcp, p_tcp = self.kin.frame(Rs, ps, tcp)
+            frames, R_tcp, p_tcp = self._forward(side, chain, parent, Ql)
             e_p = targets[live, :3, 3] - p_tcp
             e_r = _log_rotation(targets[live, :3, :3] @ np.swapaxes(R_tcp, 1, 2))
             perr = np.linalg.norm(e_p, axis=1)
@@ -108,11 +158,14 @@ class BatchIk:
             if not keep.any():
                 break
             live, Ql, e_p, e_r, p_tcp = live[keep], Ql[keep], e_p[keep], e_r[keep], p_tcp[keep]
+            # Geometric Jacobian: world axis w of each joint, and w x (TCP - joint) for the position.
+            W = np.stack([frames[st.jid][0][:, st.axis_index][:, keep] for st in steps])  # (k, 3, n)
+            D = p_tcp.T[None] - np.stack([frames[st.jid][1][:, keep] for st in steps])
             J = np.empty((live.size, 6, k))
-            for j, st in enumerate(steps):
-                w = Rs[st.jid][:, st.axis_index][:, keep].T  # world axis of the joint
-                J[:, :3, j] = np.cross(w, p_tcp - ps[st.jid][:, keep].T)
-                J[:, 3:, j] = w
+            J[:, 0] = (W[:, 1] * D[:, 2] - W[:, 2] * D[:, 1]).T
+            J[:, 1] = (W[:, 2] * D[:, 0] - W[:, 0] * D[:, 2]).T
+            J[:, 2] = (W[:, 0] * D[:, 1] - W[:, 1] * D[:, 0]).T
+            J[:, 3:] = W.transpose(2, 1, 0)
             e = np.concatenate([e_p, e_r], axis=1)
             qa = Ql[:, active]
             dq = _dls_steps(J, e, qa, rest_a, lam2_eye, s.nullspace_gain, np.ones((live.size, k), dtype=bool))

@@ -37,7 +37,7 @@ from .grasps import Grasp, GraspSet, GraspSettings, plan_grasps
 from .handover import HandoverPose, HandoverSettings, handover_poses
 from .placements import PlacementError, instantiate_placements
 from .ik import IkSettings, IkSolver, key_pose_targets
-from .ik_batch import BatchIk
+from .ik_batch import BatchIk, BatchIkResult
 from .objects import ObjectModel, build_object
 from .plan_builder import MotionPiece
 from .regrasp_graph import (
@@ -403,18 +403,7 @@ class Task:
             grasps = self.grasps[side]
             T_obj = np.array([self.placements[n.placement] for n in mine])
             targets = T_obj @ np.array([grasps[n.grasp].T_obj_tcp for n in mine])
-            res = self.ik_batch.solve(side, targets, self.stance.base_pose, self.home, self.home)
-            self.counters["ik_solves"] += len(mine)
-            missed = np.flatnonzero(~res.ok)
-            if missed.size and self.ik_arm_only.settings.restarts > 0:
-                # The arm alone's first restart, from the draw the node's own validation would make.
-                seeds = np.repeat(self.home[None], missed.size, axis=0)
-                cols = self.ik_batch.active_columns(side)
-                for row, k in enumerate(missed):
-                    rng = np.random.default_rng(self.node_seed(mine[k]))
-                    seeds[row, cols] += rng.normal(0.0, self.ik_arm_only.settings.restart_noise_rad, len(cols))
-                again = self.ik_batch.solve(side, targets[missed], self.stance.base_pose, seeds, self.home)
-                res.q[missed], res.ok[missed] = again.q, again.ok
+            res = self._batch_arm_ik(side, targets, [self.node_seed(n) for n in mine])
             Q = res.q.copy()
             Q[:, self.jaw[side]] = [grasps[n.grasp].jaw_value for n in mine]
             robot_com = self.evaluator.evaluate(Q, active=[*self.arm_only[side], self.jaw[side]]).robot_com
@@ -429,6 +418,62 @@ class Task:
                     # Exactly what the node's validation would find first, from the same state.
                     self.node_cache.setdefault(n, Validation(False, "com_margin", "holding the object at the grasp pose"))
         return self.grasp_probes
+
+    def probe_givers(self, nodes: list[HandoverNode]) -> None:
+        """The giver alone at each handover pose (:attr:`giver_at`), for the (pose, giver grasp) pairs
+        of ``nodes`` not known yet, in batches: arm-only IK, margin and collisions holding the object.
+
+        Most handover nodes fail right there (the giver's arm or the object against the body); one
+        by one that was 4-10 ms per pair. Where the arm alone misses (the same two attempts as the
+        one-by-one solve), the node's validation lets the waist help, as before."""
+        keys = [k for k in dict.fromkeys((n.pose, n.giver_grasp, n.giver) for n in nodes) if k not in self.giver_at]
+        for side in ("left", "right"):
+            mine = [k for k in keys if k[2] == side]
+            if not mine:
+                continue
+            grasps = self.grasps[side]
+            T_obj = np.array([self.handover_poses[k[0]].T_world_obj for k in mine])
+            targets = T_obj @ np.array([grasps[k[1]].T_obj_tcp for k in mine])
+            res = self._batch_arm_ik(side, targets, [[self.seed, 2, k[0], k[1], HANDS_INDEX[side]] for k in mine])
+            for k in np.flatnonzero(~res.ok):
+                self.giver_at[mine[k]] = None  # the same two attempts the one-by-one solve makes missed
+            ok = np.flatnonzero(res.ok)
+            if not ok.size:
+                continue
+            Q = res.q[ok]
+            Q[:, self.jaw[side]] = [grasps[mine[k][1]].jaw_value for k in ok]
+            tcp = self.robot.spec.arms[side].tcp
+            robot_com, frames = self.world.kin.com_and_frames(self.stance.base_pose, Q, [tcp])
+            R, p = frames[tcp]
+            T_tcp = np.zeros((len(ok), 4, 4))
+            T_tcp[:, :3, :3], T_tcp[:, :3, 3], T_tcp[:, 3, 3] = R, p, 1.0
+            obj_com = T_obj[ok, :3, :3] @ self.obj.com_local + T_obj[ok, :3, 3]
+            margin = self.stance.polygon.margin(system_com(robot_com, self.robot.total_mass, obj_com, self.obj.mass_kg)[:, :2])
+            collides = self.world.check_batch(self.stance.base_pose, Q, held=[(side, np.eye(4))],
+                                              held_object_poses=T_obj[ok]).collides
+            self.counters["com_states"] += len(ok)
+            self.counters["collision_states"] += len(ok)
+            for row, k in enumerate(ok):
+                cause = ("com_margin" if self.constrained and not margin[row] >= self.evaluator.threshold_m
+                         else "collision" if collides[row] else None)
+                hold = HoldSpec(side, inverse(T_obj[k]) @ T_tcp[row])
+                self.giver_at[mine[k]] = (Q[row], hold, cause, float(margin[row]))
+
+    def _batch_arm_ik(self, side: Side, targets: np.ndarray, seeds: list) -> BatchIkResult:
+        """:meth:`solve_ik` with the arm alone for many targets at once: the attempt from home, then,
+        where it missed, the first restart from the draw the one-by-one solve would make with the
+        generator seeded by ``seeds[k]``."""
+        res = self.ik_batch.solve(side, targets, self.stance.base_pose, self.home, self.home)
+        self.counters["ik_solves"] += len(targets)
+        missed = np.flatnonzero(~res.ok)
+        if missed.size and self.ik_arm_only.settings.restarts > 0:
+            starts = np.repeat(self.home[None], missed.size, axis=0)
+            cols = self.ik_batch.active_columns(side)
+            for row, k in enumerate(missed):
+                starts[row, cols] += np.random.default_rng(seeds[k]).normal(0.0, self.ik_arm_only.settings.restart_noise_rad, len(cols))
+            again = self.ik_batch.solve(side, targets[missed], self.stance.base_pose, starts, self.home)
+            res.q[missed], res.ok[missed] = again.q, again.ok
+        return res
 
     def estimated_margins(self, T_obj: np.ndarray) -> np.ndarray:
         """Quick guesses of a held state's margin, the home posture plus the object at each pose
@@ -964,13 +1009,20 @@ class HandConfigPlanner:
         probe missed gets no margin at all (the highest margin cost): it is validated only when the
         nodes that reach their grasp have run out."""
         t = self.task
-        nodes = [n for n in graph.nodes() if isinstance(n, PlacementNode)]
+        handovers = [n for n in graph.nodes() if isinstance(n, HandoverNode)]
+        if handovers:
+            t.probe_givers(handovers)
         if graph.w.margin == 0.0:
             return
+        nodes = [n for n in graph.nodes() if isinstance(n, PlacementNode)]
         probes = t.probe_grasps(nodes)
         for node in nodes:
             m = probes[node].margin_m
             graph._apply_margin_cost(node, 0.0 if m is None else m)
+        for node in handovers:  # the giver's state there is one of the handover's states
+            giver = t.giver_at.get((node.pose, node.giver_grasp, node.giver))
+            if giver is not None:
+                graph._apply_margin_cost(node, giver[3])
 
     def _assemble_pieces(self, res: SearchResult) -> list[MotionPiece]:
         """Key-pose moves and planned motions in execution order (the builder tracks the object)."""

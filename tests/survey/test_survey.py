@@ -264,3 +264,25 @@ def test_grasp_probes_bound_the_validated_margin_and_prefill_only_certain_failur
             validated_ok += 1
             assert v.margin_m <= probes[node].margin_m + 1e-12
     assert validated_ok > 0
+
+
+def test_batched_giver_probes_classify_as_the_one_state_check_does(scenario):
+    """The givers at the handover poses are solved and checked in batches; each entry's cause and margin
+    must be what the planner's one-state check (pinocchio CoM, per-state collision) finds for it."""
+    from planner.regrasp_graph import HandoverNode
+    from planner.regrasp_planner import HandConfigPlanner, Task
+
+    task = Task(scenario, threshold_m=0.05)
+    planner = HandConfigPlanner(task, "right-left", np.random.default_rng(0))
+    nodes = [n for n in planner.graph_spec().handover_nodes if isinstance(n, HandoverNode)]
+    task.probe_givers(nodes)
+    entries = [v for v in task.giver_at.values() if v is not None]
+    assert len(entries) >= 20
+    causes = set()
+    for q, hold, cause, margin in entries[:60]:
+        assert np.linalg.norm(hold.T_obj_tcp[:3, 3]) < 0.5  # the object really is in that hand
+        want_cause, want_margin = task.classify(q, hold, None)
+        assert cause == want_cause
+        assert margin == pytest.approx(want_margin, abs=1e-9)
+        causes.add(cause)
+    assert len(causes) >= 2, causes  # both outcomes occur, so the comparison means something
