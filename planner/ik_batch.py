@@ -67,23 +67,13 @@ class BatchIk:
         return self._chains[key]
 
     def _forward(self, side: str, chain: list, parent: tuple[np.ndarray, np.ndarray], Q: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
-        """World frames (R (3, 3, N), p (3, N)) of the chain's joints, and the TCP's R (N, 3, 3), p (N, 3).
-        The same operations as :meth:`BatchKinematics.forward`, on the few joints that move."""
+        """World frames (R (3, 3, N), p (3, N)) of the chain's joints, and the TCP's R (N, 3, 3), p (N, 3):
+        :meth:`BatchKinematics.forward`'s joint steps, on the few joints that move."""
         n = Q.shape[0]
         Rp, pp = np.repeat(parent[0], n, axis=2), np.repeat(parent[1], n, axis=1)
         frames = {}
         for st in chain:
-            p = _affine(pp, Rp, st.pos0)
-            R = _rotate(Rp, st.rot0) if st.rot0 is not None else Rp.copy()
-            theta = Q[:, st.q_col]
-            cs, sn = np.cos(theta), np.sin(theta)
-            i, j = ((1, 2), (2, 0), (0, 1))[st.axis_index]
-            ci = R[:, i].copy()
-            cj = R[:, j]
-            R[:, i] = cs * ci + sn * cj
-            R[:, j] = cs * cj - sn * ci
-            frames[st.jid] = (R, p)
-            Rp, pp = R, p
+            Rp, pp = frames[st.jid] = st.place(Rp, pp, Q[:, st.q_col])
         jid, R0, p0 = self.kin._frames[self.robot.spec.arms[side].tcp]
         R_last, p_last = frames[jid]
         return frames, np.moveaxis(_rotate(R_last, R0), 2, 0), _affine(p_last, R_last, p0).T

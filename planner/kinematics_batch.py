@@ -50,6 +50,23 @@ class _JointStep:
     mass: float
     lever: np.ndarray
 
+    def place(self, Rp: np.ndarray, pp: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """This joint's world frame (R (3, 3, N), p (3, N)) from its parent's and its joint values."""
+        p = _affine(pp, Rp, self.pos0)
+        R = _rotate(Rp, self.rot0) if self.rot0 is not None else Rp.copy()
+        if self.kind == "R":
+            cs, sn = np.cos(theta), np.sin(theta)
+            i, j = ((1, 2), (2, 0), (0, 1))[self.axis_index]
+            ci = R[:, i].copy()
+            cj = R[:, j]
+            R[:, i] = cs * ci + sn * cj
+            R[:, j] = cs * cj - sn * ci
+        elif self.kind == "RU":
+            R = np.einsum("ijn,jkn->ikn", R, _rodrigues(self.axis, theta))
+        else:  # prismatic: move along the rotated axis
+            p = p + theta * _matvec(R, self.axis)
+        return R, p
+
 
 class BatchKinematics:
     """Vectorised FK/CoM over a batch of configurations of one robot."""
@@ -147,21 +164,9 @@ class BatchKinematics:
             c = const[s.jid]
             if not c and Rp.shape[2] == 1 and n > 1:
                 Rp, pp = np.repeat(Rp, n, axis=2), np.repeat(pp, n, axis=1)
-            p = _affine(pp, Rp, s.pos0)
-            R = _rotate(Rp, s.rot0) if s.rot0 is not None else Rp.copy()
             col = QT[s.q_col][:1] if c else QT[s.q_col]
             theta = col * s.mult + s.offset if (s.mult != 1.0 or s.offset != 0.0) else col
-            if s.kind == "R":
-                cs, sn = np.cos(theta), np.sin(theta)
-                i, j = ((1, 2), (2, 0), (0, 1))[s.axis_index]
-                ci = R[:, i].copy()
-                cj = R[:, j]
-                R[:, i] = cs * ci + sn * cj
-                R[:, j] = cs * cj - sn * ci
-            elif s.kind == "RU":
-                R = np.einsum("ijn,jkn->ikn", R, _rodrigues(s.axis, theta))
-            else:  # prismatic: move along the rotated axis
-                p = p + theta * _matvec(R, s.axis)
+            R, p = s.place(Rp, pp, theta)
             Rs[s.jid], ps[s.jid] = R, p
             if c and cached is not None:
                 R.setflags(write=False)
