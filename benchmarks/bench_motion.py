@@ -1,4 +1,4 @@
-"""Motion benchmark: IK solves/s, state evaluations/s, T-RRT rounds/s, exploration states/s.
+"""Motion benchmark: IK solves/s (one by one and batched), state evaluations/s, T-RRT rounds/s, exploration states/s.
 
 Run: ``python benchmarks/bench_motion.py [--states N] [--no-collision]``. Short by design
 (a few seconds); figures depend on the machine's load. The survey's target is 4
@@ -14,6 +14,8 @@ import time
 import numpy as np
 
 from planner.ik import IkSolver
+from planner.ik_batch import BatchIk
+from planner.kinematics_batch import BatchKinematics
 from planner.robot_model import load_robot
 from planner.stances import solve_stance
 from planner.state_eval import HoldSpec, StateEvaluator
@@ -65,6 +67,23 @@ def main() -> None:
     ok = sum(ik.solve_both(a, b, stance.q, rng).ok for a, b in both)
     dt = (time.perf_counter() - t0) / len(both)
     print(f"IK waist+2 arms: {1 / dt:5.0f} solves/s ({dt * 1e6:.0f} us/solve, {ok}/{len(both)} reached)")
+
+    # Batched IK (the search's grasp probes): arm alone, one descent per target, all advanced together
+    arm = IkSolver(robot, stance, ik.settings.model_copy(update={"use_waist": False, "restarts": 0}))
+    batch = BatchIk(robot, BatchKinematics(robot), arm.settings)
+    arm_act = robot.arm_indices("right")
+    for n in (100, 1000):
+        Q = np.repeat(stance.q[None], n, axis=0)
+        Q[:, arm_act] = np.clip(stance.q[arm_act] + rng.normal(0, 0.5, (n, len(arm_act))), robot.lower[arm_act], robot.upper[arm_act])
+        T_batch = np.array([arm.tcp_pose(q, "right") for q in Q])
+        t0 = time.perf_counter()
+        res = batch.solve("right", T_batch, stance.base_pose, stance.q, stance.q)
+        dt = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        one = sum(arm.solve_arm("right", Tt, stance.q, rng).ok for Tt in T_batch[:100])
+        dt1 = (time.perf_counter() - t0) / 100
+        print(f"IK arm alone, batched N={n:5d}: {n / dt:7.0f} solves/s ({dt / n * 1e6:.0f} us/solve, {res.ok.sum()}/{n} reached); "
+              f"one by one {1 / dt1:5.0f} solves/s ({one}/100 reached)")
 
     # State evaluation
     for n in (1, 64, 1024, 8192):
