@@ -3,14 +3,15 @@ all of them advanced together in numpy.
 
 Why: the regrasp search weighs every grasp node by the CoM margin it will have, and that margin
 depends on the arm's posture at the grasp, which only IK gives. Solved one by one (pinocchio,
-~1-3 ms per node) that is seconds for the ~1,400 nodes of a paper scenario; advanced together
-(one vectorised forward pass and one batched 6x6 solve per iteration) it is a few hundred
-microseconds per node... for all of them at once.
+~0.7 ms per target) that is about a second for the ~1,400 nodes of a paper scenario; advanced
+together (one vectorised forward pass along the arm's chain and one batched 6x6 solve per
+iteration) it is ~0.1 ms per target at a thousand targets (``benchmarks/bench_motion.py``).
 
 The descent is the first attempt of :class:`planner.ik.IkSolver` (same settings, seed, rest
 posture, step cap, joint-limit handling and stall rule), in world-aligned errors and Jacobians
-instead of LOCAL ones. There are no random restarts: a target this misses is not proven out
-of reach, so callers keep the sequential solver for those.
+instead of LOCAL ``log6`` ones: the iterates differ, so a target can land on another solution
+(the outcomes agree on ~98 % of random reachable targets, see the tests). Restarts are the
+caller's: it passes one start configuration per target.
 """
 
 from __future__ import annotations
