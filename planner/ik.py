@@ -100,9 +100,19 @@ class IkSolver:
 
     def active_indices(self, sides: Sequence[Side]) -> np.ndarray:
         """Wire columns IK moves for these hands: waist (if used) then each arm."""
-        parts = [self.robot.waist_indices()] if self.settings.use_waist else []
-        parts += [self.robot.arm_indices(s) for s in sides]
-        return np.concatenate(parts).astype(int)
+        return active_columns(self.robot, self.settings, sides)
+
+    def attempt_start(self, attempt: int, seed_q: np.ndarray, active: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Where attempt ``attempt`` starts: the seed, then alternately the seed perturbed and a uniform draw
+        within the limits (the batched solver's callers repeat the first restart with this)."""
+        if attempt == 0:
+            return seed_q
+        q0 = seed_q.copy()
+        if attempt % 2 == 1:
+            q0[active] = seed_q[active] + rng.normal(0.0, self.settings.restart_noise_rad, len(active))
+        else:
+            q0[active] = rng.uniform(self.robot.lower[active], self.robot.upper[active])
+        return q0
 
     def _arm_reach(self, side: Side) -> tuple[int, float]:
         """(joint id of the arm's first joint, distance bound from that joint to the TCP)."""
@@ -249,14 +259,7 @@ class IkSolver:
         total_it = 0
         best = (np.inf, np.inf)
         for attempt in range(s.restarts + 1):
-            if attempt == 0:
-                q0 = seed_q
-            else:
-                q0 = seed_q.copy()
-                if attempt % 2 == 1:
-                    q0[active] = seed_q[active] + rng.normal(0.0, s.restart_noise_rad, len(active))
-                else:
-                    q0[active] = rng.uniform(self.robot.lower[active], self.robot.upper[active])
+            q0 = self.attempt_start(attempt, seed_q, active, rng)
             q, it, pe, re, ok = self._attempt(q0, rest, se3, sides, active, vcols)
             total_it += it
             if ok:
@@ -294,6 +297,13 @@ class IkSolver:
         """World TCP pose (4, 4) of a configuration."""
         pin.forwardKinematics(self._model, self._data, self.robot.to_pin_q(self.base_pose, np.asarray(q, dtype=float)))
         return pin.updateFramePlacement(self._model, self._data, self._tcp_fid[side]).homogeneous.copy()
+
+
+def active_columns(robot: RobotModel, settings: IkSettings, sides: Sequence[Side]) -> np.ndarray:
+    """Wire columns IK moves for these hands: waist (if ``settings`` use it) then each arm."""
+    parts = [robot.waist_indices()] if settings.use_waist else []
+    parts += [robot.arm_indices(s) for s in sides]
+    return np.concatenate(parts).astype(int)
 
 
 def key_pose_targets(T_world_tcp_grasp: np.ndarray, approach_m: float = 0.05, lift_m: float = 0.05) -> dict[str, np.ndarray]:

@@ -20,9 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ik import LIMIT_EPS, LIMIT_PASSES, STALL_IMPROVEMENT, STALL_ITERATIONS, IkSettings
+from .ik import LIMIT_EPS, LIMIT_PASSES, STALL_IMPROVEMENT, STALL_ITERATIONS, IkSettings, active_columns
 from .kinematics_batch import BatchKinematics, _affine, _rotate
 from .robot_model import RobotModel
+from .transforms import quat_to_matrix
 
 #: Targets advanced together per chunk: bounds the working arrays (~40 kB per target per joint).
 CHUNK = 2048
@@ -37,6 +38,15 @@ class BatchIkResult:
     iterations: np.ndarray
 
 
+@dataclass(frozen=True)
+class _Chain:
+    """The joints from the root to one hand's TCP, split where the first joint IK moves sits."""
+
+    prefix: list  # root-most first, up to the first moving joint: the same frame for every target
+    moving: list  # from the first moving joint to the TCP's joint
+    steps: list  # the joints IK moves, in the order of the active columns
+
+
 class BatchIk:
     """First-attempt IK of one hand for many targets, from one seed posture."""
 
@@ -44,12 +54,11 @@ class BatchIk:
         self.robot = robot
         self.kin = kinematics
         self.settings = settings
-        self._col_joint = {s.q_col: s for s in kinematics._steps if s.kind == "R" and s.mult == 1.0 and s.offset == 0.0}
-        self._chains: dict[tuple, tuple[list, int]] = {}
+        self._chains: dict[tuple, _Chain] = {}
 
-    def _chain(self, side: str, active: np.ndarray) -> tuple[list, int]:
-        """The joints from the first active one to the TCP, and the id of the joint before them (its
-        frame is the same for every target: only active columns differ between seeds)."""
+    def _chain(self, side: str, active: np.ndarray) -> _Chain:
+        """The chain to ``side``'s TCP; every joint from the first active one on must be a plain revolute
+        joint, and every active joint on the chain."""
         key = (side, active.tobytes())
         if key not in self._chains:
             by_jid = {s.jid: s for s in self.kin._steps}
@@ -59,29 +68,40 @@ class BatchIk:
                 chain.append(by_jid[j])
                 j = by_jid[j].parent
             chain.reverse()
-            first = next(i for i, st in enumerate(chain) if st.q_col in set(active.tolist()))
+            by_col = {st.q_col: st for st in chain}
+            off = [self.robot.joint_names[c] for c in active if c not in by_col]
+            if off:
+                raise ValueError(f"joints IK moves must lie on the chain to the TCP, not {', '.join(off)}")
+            moved = set(active.tolist())
+            first = next(i for i, st in enumerate(chain) if st.q_col in moved)
             moving = chain[first:]
             odd = [self.robot.joint_names[st.q_col] for st in moving if st.kind != "R" or st.mult != 1.0 or st.offset != 0.0]
             if odd:
                 raise ValueError(f"batch IK supports plain revolute joints only, not {', '.join(odd)}")
-            self._chains[key] = (moving, moving[0].parent)
+            self._chains[key] = _Chain(chain[:first], moving, [by_col[c] for c in active])
         return self._chains[key]
 
-    def _forward(self, side: str, chain: list, parent: tuple[np.ndarray, np.ndarray], Q: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
-        """World frames (R (3, 3, N), p (3, N)) of the chain's joints, and the TCP's R (N, 3, 3), p (N, 3):
+    def _parent_frame(self, chain: _Chain, base_pose: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World frame (R (3, 3, 1), p (3, 1)) of the joint before the moving ones, at configuration ``q``."""
+        R, p = quat_to_matrix(base_pose[3:])[:, :, None].copy(), base_pose[:3, None].copy()
+        for st in chain.prefix:
+            R, p = st.place(R, p, st.value(q[st.q_col : st.q_col + 1]))
+        return R, p
+
+    def _forward(self, side: str, chain: _Chain, parent: tuple[np.ndarray, np.ndarray], Q: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
+        """World frames (R (3, 3, N), p (3, N)) of the moving joints, and the TCP's R (N, 3, 3), p (N, 3):
         :meth:`BatchKinematics.forward`'s joint steps, on the few joints that move."""
         n = Q.shape[0]
         Rp, pp = np.repeat(parent[0], n, axis=2), np.repeat(parent[1], n, axis=1)
         frames = {}
-        for st in chain:
+        for st in chain.moving:
             Rp, pp = frames[st.jid] = st.place(Rp, pp, Q[:, st.q_col])
         jid, R0, p0 = self.kin._frames[self.robot.spec.arms[side].tcp]
         R_last, p_last = frames[jid]
         return frames, np.moveaxis(_rotate(R_last, R0), 2, 0), _affine(p_last, R_last, p0).T
 
     def active_columns(self, side: str) -> np.ndarray:
-        parts = [self.robot.waist_indices()] if self.settings.use_waist else []
-        return np.concatenate([*parts, self.robot.arm_indices(side)]).astype(int)
+        return active_columns(self.robot, self.settings, [side])
 
     def solve(self, side: str, targets: np.ndarray, base_pose: np.ndarray, seed_q: np.ndarray,
               rest_q: np.ndarray) -> BatchIkResult:
@@ -91,9 +111,7 @@ class BatchIk:
         targets = np.asarray(targets, dtype=float)
         n = targets.shape[0]
         active = self.active_columns(side)
-        missing = [self.robot.joint_names[c] for c in active if c not in self._col_joint]
-        if missing:
-            raise ValueError(f"batch IK supports plain revolute joints only, not {', '.join(missing)}")
+        chain = self._chain(side, active)
         seed_q = np.asarray(seed_q, dtype=float)
         q_out = np.repeat(seed_q[None], n, axis=0) if seed_q.ndim == 1 else seed_q.copy()
         fixed = np.ones(self.robot.nq, dtype=bool)
@@ -102,25 +120,22 @@ class BatchIk:
             raise ValueError("seeds may differ only in the joints IK moves")
         ok = np.zeros(n, dtype=bool)
         its = np.zeros(n, dtype=int)
+        if n:
+            parent = self._parent_frame(chain, np.asarray(base_pose, dtype=float), q_out[0])
         for lo in range(0, n, CHUNK):
             sl = slice(lo, min(n, lo + CHUNK))
-            q_out[sl], ok[sl], its[sl] = self._descend(side, targets[sl], base_pose, q_out[sl], rest_q, active)
+            q_out[sl], ok[sl], its[sl] = self._descend(side, chain, parent, targets[sl], q_out[sl], rest_q, active)
         return BatchIkResult(q_out, ok, its)
 
-    def _descend(self, side: str, targets: np.ndarray, base_pose: np.ndarray, Q: np.ndarray, rest_q: np.ndarray,
-                 active: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _descend(self, side: str, chain: _Chain, parent: tuple[np.ndarray, np.ndarray], targets: np.ndarray,
+                 Q: np.ndarray, rest_q: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         s = self.settings
         n, k = Q.shape[0], len(active)
         lo, hi = self.robot.lower[active], self.robot.upper[active]
         Q = Q.copy()
         Q[:, active] = np.clip(Q[:, active], lo, hi)
         rest_a = np.asarray(rest_q, dtype=float)[active]
-        steps = [self._col_joint[c] for c in active]
-        chain, parent_jid = self._chain(side, active)
-        Rs0, ps0 = self.kin.forward(base_pose, Q[:1], small_batches=False)
-        parent = (np.asarray(Rs0[parent_jid]), np.asarray(ps0[parent_jid]))
-        if not {st.jid for st in steps} <= {c.jid for c in chain}:
-            raise ValueError("every joint IK moves must lie on the chain to the TCP")
+        steps = chain.steps
         lam2_eye = s.damping**2 * np.eye(6)
         ok = np.zeros(n, dtype=bool)
         its = np.zeros(n, dtype=int)

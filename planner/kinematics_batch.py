@@ -50,6 +50,10 @@ class _JointStep:
     mass: float
     lever: np.ndarray
 
+    def value(self, col: np.ndarray) -> np.ndarray:
+        """The joint's angle (or offset) from its wire column (mimic joints scale and shift it)."""
+        return col * self.mult + self.offset if (self.mult != 1.0 or self.offset != 0.0) else col
+
     def place(self, Rp: np.ndarray, pp: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """This joint's world frame (R (3, 3, N), p (3, N)) from its parent's and its joint values."""
         p = _affine(pp, Rp, self.pos0)
@@ -110,11 +114,8 @@ class BatchKinematics:
         self._frames = {f.name: (int(f.parentJoint), np.array(f.placement.rotation), np.array(f.placement.translation)) for f in model.frames}
         self._data = model.createData()  # scratch for small batches: one kinematics object per thread
 
-    def forward(self, base_pose: np.ndarray, Q: np.ndarray, small_batches: bool = True) -> tuple[list, list]:
+    def forward(self, base_pose: np.ndarray, Q: np.ndarray) -> tuple[list, list]:
         """World rotations ``(3, 3, N)`` and positions ``(3, N)`` of every joint frame, by pinocchio joint id.
-
-        ``small_batches=False`` keeps a few configurations on the vectorised walk too, so a row's
-        result never depends on how many rows came with it (pinocchio rounds differently).
 
         A joint whose column (and every ancestor's) is the same in every row is computed once and
         broadcast: in a plan the legs, the neck and the idle arm never move, so most of the tree is
@@ -123,7 +124,7 @@ class BatchKinematics:
         Q = np.atleast_2d(np.asarray(Q, dtype=float))
         n = Q.shape[0]
         base_pose = np.asarray(base_pose, dtype=float)
-        if small_batches and n <= SMALL_BATCH and base_pose.ndim == 1:
+        if n <= SMALL_BATCH and base_pose.ndim == 1:
             return self._forward_small(base_pose, Q)
         Rs: list = [None] * self._njoints
         ps: list = [None] * self._njoints
@@ -164,9 +165,7 @@ class BatchKinematics:
             c = const[s.jid]
             if not c and Rp.shape[2] == 1 and n > 1:
                 Rp, pp = np.repeat(Rp, n, axis=2), np.repeat(pp, n, axis=1)
-            col = QT[s.q_col][:1] if c else QT[s.q_col]
-            theta = col * s.mult + s.offset if (s.mult != 1.0 or s.offset != 0.0) else col
-            R, p = s.place(Rp, pp, theta)
+            R, p = s.place(Rp, pp, s.value(QT[s.q_col][:1] if c else QT[s.q_col]))
             Rs[s.jid], ps[s.jid] = R, p
             if c and cached is not None:
                 R.setflags(write=False)

@@ -54,7 +54,6 @@ from .regrasp_graph import (
 from .robot_model import RobotModel, load_robot
 from .smoothing import SmoothingSettings, shortcut
 from .stances import Stance, solve_stance
-from .stability import system_com
 from .state_eval import HoldSpec, StateEvaluator
 from .timing import TimingSettings, time_path
 from .transforms import inverse, pose7_to_matrix
@@ -142,6 +141,16 @@ class PlannerResult:
     message: str = ""
     failures: dict[str, int] = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class GraspProbe:
+    """A placement node's arm-only IK solution at the grasp pose (jaw open), and the CoM margin of
+    holding the object there; both None when the batched attempts missed (the node's own validation
+    then solves it, the waist helping)."""
+
+    q: np.ndarray | None
+    margin_m: float | None
 
 
 class Task:
@@ -389,7 +398,7 @@ class Task:
         s = np.linspace(0.0, 1.0, n)[:, None]
         return a[None] * (1 - s) + b[None] * s
 
-    def probe_grasps(self, nodes: list[PlacementNode]) -> dict[PlacementNode, "GraspProbe"]:
+    def probe_grasps(self, nodes: list[PlacementNode]) -> dict[PlacementNode, GraspProbe]:
         """The IK solution at each node's grasp pose and the CoM margin of holding the object there, for
         the nodes not probed yet: batched descents per hand (:mod:`planner.ik_batch`).
 
@@ -411,14 +420,11 @@ class Task:
             Q = res.q.copy()
             Q[:, self.jaw[side]] = [grasps[n.grasp].jaw_value for n in mine]
             robot_com = self.evaluator.evaluate(Q, active=[*self.arm_only[side], self.jaw[side]]).robot_com
-            obj_com = T_obj[:, :3, :3] @ self.obj.com_local + T_obj[:, :3, 3]
-            com = system_com(robot_com, self.robot.total_mass, obj_com, self.obj.mass_kg)
-            margin = self.stance.polygon.margin(com[:, :2])
+            held = self.evaluator.with_object(robot_com, T_obj)  # the object stays where it rests
             self.counters["com_states"] += len(mine)
-            unstable = ~(margin >= self.evaluator.threshold_m)
             for k, n in enumerate(mine):
-                self.grasp_probes[n] = GraspProbe(res.q[k] if res.ok[k] else None, float(margin[k]) if res.ok[k] else None)
-                if res.ok[k] and unstable[k] and self.constrained:
+                self.grasp_probes[n] = GraspProbe(res.q[k] if res.ok[k] else None, float(held.margin[k]) if res.ok[k] else None)
+                if res.ok[k] and not held.stable[k] and self.constrained:
                     # Exactly what the node's validation would find first, from the same state.
                     self.node_cache.setdefault(n, Validation(False, "com_margin", "holding the object at the grasp pose"))
         return self.grasp_probes
@@ -451,17 +457,16 @@ class Task:
             R, p = frames[tcp]
             T_tcp = np.zeros((len(ok), 4, 4))
             T_tcp[:, :3, :3], T_tcp[:, :3, 3], T_tcp[:, 3, 3] = R, p, 1.0
-            obj_com = T_obj[ok, :3, :3] @ self.obj.com_local + T_obj[ok, :3, 3]
-            margin = self.stance.polygon.margin(system_com(robot_com, self.robot.total_mass, obj_com, self.obj.mass_kg)[:, :2])
+            held = self.evaluator.with_object(robot_com, T_obj[ok])
             collides = self.world.check_batch(self.stance.base_pose, Q, held=[(side, np.eye(4))],
                                               held_object_poses=T_obj[ok]).collides
             self.counters["com_states"] += len(ok)
             self.counters["collision_states"] += len(ok)
             for row, k in enumerate(ok):
-                cause = ("com_margin" if self.constrained and not margin[row] >= self.evaluator.threshold_m
+                cause = ("com_margin" if self.constrained and not held.stable[row]
                          else "collision" if collides[row] else None)
                 hold = HoldSpec(side, inverse(T_obj[k]) @ T_tcp[row])
-                self.giver_at[mine[k]] = (Q[row], hold, cause, float(margin[row]))
+                self.giver_at[mine[k]] = (Q[row], hold, cause, float(held.margin[row]))
 
     def _batch_arm_ik(self, side: Side, targets: np.ndarray, seeds: list) -> BatchIkResult:
         """:meth:`solve_ik` with the arm alone for many targets at once: the attempt from home, then,
@@ -471,10 +476,8 @@ class Task:
         self.counters["ik_solves"] += len(targets)
         missed = np.flatnonzero(~res.ok)
         if missed.size and self.ik_arm_only.settings.restarts > 0:
-            starts = np.repeat(self.home[None], missed.size, axis=0)
             cols = self.ik_batch.active_columns(side)
-            for row, k in enumerate(missed):
-                starts[row, cols] += np.random.default_rng(seeds[k]).normal(0.0, self.ik_arm_only.settings.restart_noise_rad, len(cols))
+            starts = np.array([self.ik_arm_only.attempt_start(1, self.home, cols, np.random.default_rng(seeds[k])) for k in missed])
             again = self.ik_batch.solve(side, targets[missed], self.stance.base_pose, starts, self.home)
             res.q[missed], res.ok[missed] = again.q, again.ok
         return res
@@ -482,20 +485,8 @@ class Task:
     def estimated_margins(self, T_obj: np.ndarray) -> np.ndarray:
         """Quick guesses of a held state's margin, the home posture plus the object at each pose
         of T_obj (N, 4, 4) (eq. 1)."""
-        obj_com = T_obj[:, :3, :3] @ self.obj.com_local + T_obj[:, :3, 3]
-        m, M = self.obj.mass_kg, self.robot.total_mass
-        c = (M * self.stance.robot_com[None] + m * obj_com) / (M + m)
-        return self.stance.polygon.margin(c[:, :2])
-
-
-@dataclass(frozen=True)
-class GraspProbe:
-    """A placement node's arm-only IK solution at the grasp pose (jaw open), and the CoM margin of
-    holding the object there; both None when the batched attempts missed (the node's own validation
-    then solves it, the waist helping)."""
-
-    q: np.ndarray | None
-    margin_m: float | None
+        robot_com = np.broadcast_to(self.stance.robot_com, (len(T_obj), 3))
+        return self.evaluator.with_object(robot_com, T_obj).margin
 
 
 class HandConfigPlanner:
@@ -932,7 +923,7 @@ class HandConfigPlanner:
         if not self.task.constrained:  # the unconstrained planner: no margin cost either
             weights = dataclasses.replace(weights, margin=0.0)
         graph = RegraspGraph(spec, weights)
-        self._seed_margin_estimates(graph)
+        self._weigh_nodes(graph)
         t_search = time.perf_counter()
         found: list[SearchResult] = []
         res: SearchResult | None = None
@@ -1010,7 +1001,7 @@ class HandConfigPlanner:
                     self.screen_failures[v.cause or "ik"] += 1
         return dataclasses.replace(spec, placement_nodes=[n for n in spec.placement_nodes if n not in bad])
 
-    def _seed_margin_estimates(self, graph: RegraspGraph) -> None:
+    def _weigh_nodes(self, graph: RegraspGraph) -> None:
         """Before any node is validated, weight placement nodes by the margin of holding the object at
         their grasp (:meth:`Task.probe_grasps`), so the search tries stable ones first. A node whose
         probe missed gets no margin at all (the highest margin cost): it is validated only when the

@@ -391,7 +391,9 @@ class StateEvaluator:
         out[:, 3, 3] = 1.0
         return out
 
-    def _finish(self, robot_com: np.ndarray, object_pose: np.ndarray | None, threshold_m: float | None) -> StateBatch:
+    def with_object(self, robot_com: np.ndarray, object_pose: np.ndarray | None, threshold_m: float | None = None) -> StateBatch:
+        """States from the robot's CoM (N, 3) and the object's world poses (N, 4, 4), or None when nothing is held:
+        the system CoM (eq. 1), its margin and whether it is stable."""
         if object_pose is not None and self.object_mass > 0.0:
             obj_com = object_pose[:, :3, :3] @ self.com_local + object_pose[:, :3, 3]
             com = system_com(robot_com, self.robot_mass, obj_com, self.object_mass)
@@ -434,11 +436,11 @@ class StateEvaluator:
                 raise ValueError(f"joints outside 'active' vary within the batch: {names}")
         rk = self.kinematics(Q[0], active)
         if hold is None:
-            return self._finish(rk.com(Q), None, threshold_m)
+            return self.with_object(rk.com(Q), None, threshold_m)
         tcp = self.tcp_frames[hold.tcp_side]
         robot_com, frames = rk.com_and_frames(Q, (tcp,))
         R, p = frames[tcp]
-        return self._finish(robot_com, self.object_poses(R, p, hold), threshold_m)
+        return self.with_object(robot_com, self.object_poses(R, p, hold), threshold_m)
 
     def _evaluate_small(self, Q: np.ndarray, hold: HoldSpec | None, threshold_m: float | None) -> StateBatch:
         """A few states through pinocchio one by one: cheaper than setting up a reduced tree."""
@@ -453,7 +455,7 @@ class StateEvaluator:
                 poses[i] = pin.updateFramePlacement(model, data, fid).homogeneous
         if poses is not None:
             poses = poses @ hold.T_tcp_obj
-        return self._finish(robot_com, poses, threshold_m)
+        return self.with_object(robot_com, poses, threshold_m)
 
     def evaluate_one(self, q: np.ndarray, hold: HoldSpec | None = None, threshold_m: float | None = None) -> StateOne:
         """One state through pinocchio directly (no batch set-up cost)."""

@@ -87,7 +87,7 @@ def key_path(planner: HandConfigPlanner, should_stop: Callable[[], bool]) -> tup
     from .regrasp_graph import RegraspGraph
 
     graph = RegraspGraph(planner.screen(planner.graph_spec(), should_stop, want=1), planner.task.settings.weights)
-    planner._seed_margin_estimates(graph)
+    planner._weigh_nodes(graph)
     res = graph.search(planner.validate_node, lambda a, b, k: Validation(True), max_iterations=KEY_POSE_ITERATIONS,
                        time_limit_s=planner.task.scenario.limits.time_s, should_stop=should_stop)
     if res.status != "solved":
@@ -201,7 +201,7 @@ def _chains(configs: list[str], n_workers: int) -> list[list[int]]:
 
 def _worker(args: tuple) -> tuple[list[list[ConfigOutcome]], dict]:
     """Run one chain of configurations (see :func:`_chains`): one outcome list per configuration,
-    and what the worker's task worked out (node validations, handover poses), which the parent's adopts."""
+    and what the worker's task worked out (:meth:`Task.validations`), which the parent's adopts."""
     scenario_json, threshold_m, hands_list, states, seeds, settings_json = args
     key = _task_key(scenario_json, threshold_m, settings_json)
     task = _WORKER_TASKS.get(key)
