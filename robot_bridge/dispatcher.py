@@ -359,9 +359,9 @@ class Dispatcher:
                                  "cause": cause})
 
     def _publish_segment(self, seg: TrajectorySegment) -> None:
-        """Put one segment on ``cmd/trajectory`` (the only place that does), encoded in advance when it can be."""
-        payload = self._payloads.get(seg.seq)
-        self._pub_traj.put(payload if payload is not None else encode(seg))
+        """Put one segment of the running execution on ``cmd/trajectory`` (the only place that does), as encoded
+        when the gate passed the plan."""
+        self._pub_traj.put(self._payloads[seg.seq])
 
     def _abort(self, run: "_Run", emit: EventCallback, reason: str, verdict: GateVerdict, started: float,
                wait_ack: bool = False) -> ExecutionResult:
