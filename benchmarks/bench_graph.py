@@ -13,12 +13,10 @@ import statistics
 import time
 
 import networkx as nx
-import numpy as np
 
 from planner.regrasp_graph import SINK, SOURCE, RegraspGraph
 from planner.regrasp_planner import HandConfigPlanner, Task
 from planner.scenarios import load_builtin
-from planner.survey import HAND_CONFIGS
 
 
 def median_s(fn, repeats: int) -> float:
@@ -41,7 +39,7 @@ def main() -> None:
         sc = load_builtin(name)
         task = Task(sc, None, threshold_m=sc.threshold_m)
         for hands in args.hands.split(","):
-            planner = HandConfigPlanner(task, hands, np.random.default_rng([1, HAND_CONFIGS.index(hands)]))
+            planner = HandConfigPlanner(task, hands)
             spec = planner.graph_spec()
             t0 = time.perf_counter()
             graph = RegraspGraph(spec, task.settings.weights)

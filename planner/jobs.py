@@ -15,7 +15,6 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Callable
 
-import numpy as np
 
 from schemas.common import HAND_CONFIGS
 from schemas.plan import PLAN_SCHEMA
@@ -198,8 +197,7 @@ def plan_scenario(
     solved: list[tuple[PlannerResult, HandConfigPlanner]] = []
     ran_out = False
     for k, hands in enumerate(order):
-        rng = np.random.default_rng([scenario.seed, HAND_CONFIGS.index(hands)])
-        planner = HandConfigPlanner(task, hands, rng)
+        planner = HandConfigPlanner(task, hands)
         base = 0.1 + 0.8 * k / len(order)
         span = 0.8 / len(order)
 

@@ -349,12 +349,15 @@ class RegraspGraph:
         should_stop: Callable[[], bool] = lambda: False,
         on_iteration: Callable[[int, Counter], None] | None = None,
         banned_paths: Iterable[tuple[Hashable, ...]] = (),
+        prefetch_edges: Callable[[list[tuple[Node | None, Node | None, str]]], None] | None = None,
     ) -> SearchResult:
         """Find the cheapest fully valid path; never loops forever, never raises on infeasibility.
 
         ``validate_edge(a, b, kind)`` plans the motion from node a to node b (``a`` is None for
         the motion from the robot's home posture to the first node, ``b`` None for the return).
-        Validations are cached, so re-searches cost only the new parts.
+        Validations are cached, so re-searches cost only the new parts. ``prefetch_edges``, if
+        given, is told a candidate path's unvalidated hops (two or more) before they are validated
+        in order, to work on them at once; ``validate_edge`` must give the same verdicts either way.
         """
         started = time.monotonic()
         failures: Counter = Counter()
@@ -418,6 +421,12 @@ class RegraspGraph:
                 hops.append((a, b, self.kind(a, b)))
                 i += 1
             hops.append((path[-1], None, "transit"))
+            if prefetch_edges is not None:
+                todo = [h for h in hops if h not in edge_cache]
+                if len(todo) > 1:
+                    if should_stop():
+                        raise Canceled()
+                    prefetch_edges(todo)
             edge_results: list[Validation] = []
             for a, b, kind in hops:
                 key = (a, b, kind)

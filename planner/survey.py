@@ -26,6 +26,7 @@ from schemas.common import HAND_CONFIGS
 from schemas.survey import SURVEY_SCHEMA, SurveyRow, recommend
 from schemas.scenario import Scenario
 
+from .forking import fork_is_safe, pool_context, spare_cores
 from .regrasp_graph import Canceled as GraphCanceled
 from .regrasp_graph import HandoverNode, PlacementNode, Validation
 from .regrasp_planner import HandConfigPlanner, PlannerSettings, Task
@@ -88,6 +89,7 @@ def key_path(planner: HandConfigPlanner, should_stop: Callable[[], bool]) -> tup
 
     graph = RegraspGraph(planner.screen(planner.graph_spec(), should_stop, want=1), planner.task.settings.weights)
     planner._weigh_nodes(graph)
+    planner._drop_known_failures(graph)
     res = graph.search(planner.validate_node, lambda a, b, k: Validation(True), max_iterations=KEY_POSE_ITERATIONS,
                        time_limit_s=planner.task.scenario.limits.time_s, should_stop=should_stop)
     if res.status != "solved":
@@ -104,8 +106,7 @@ def survey_configuration(task: Task, hands: str, states: int, seed: int | list[i
     """
     seeds = [seed] if isinstance(seed, int) else list(seed)
     t0 = time.perf_counter()
-    rng = np.random.default_rng([seeds[0], HAND_CONFIGS.index(hands), 7])
-    planner = HandConfigPlanner(task, hands, rng)
+    planner = HandConfigPlanner(task, hands)
     try:
         path, reason = key_path(planner, should_stop)
     except GraphCanceled:
@@ -166,18 +167,6 @@ _WORKER_TASKS: dict[str, Task] = {}
 
 def _task_key(scenario_json: str, threshold_m: float, settings_json: str) -> str:
     return f"{scenario_json}|{threshold_m}|{settings_json}"
-
-
-def _pool_context():
-    """``fork`` where it is safe (POSIX, a single-threaded parent: the CLI and benchmarks), which
-    spares each worker ~2 s of imports and task set-up; ``spawn`` otherwise (threads do not
-    survive a fork, and a forked copy of a lock held by another thread deadlocks)."""
-    import multiprocessing as mp
-    import threading
-
-    if "fork" in mp.get_all_start_methods() and threading.active_count() == 1:
-        return mp.get_context("fork")
-    return mp.get_context("spawn")
 
 
 def _chains(configs: list[str], n_workers: int) -> list[list[int]]:
@@ -277,7 +266,7 @@ def run_survey_seeds(
         else:
             sc_json = scenario.model_dump_json(by_alias=True)
             st_json = settings.model_dump_json() if settings is not None else ""
-            context = _pool_context()
+            context = pool_context()
             if context.get_start_method() == "fork":
                 # Forked workers inherit the imported modules and this task: no start-up cost.
                 _WORKER_TASKS.clear()
@@ -358,7 +347,7 @@ def quick_survey(task: Task, should_stop: Callable[[], bool] = lambda: False, st
     more than one core (the task is inherited, and the workers' node validations come back for the
     plan that follows), in this process otherwise (a spawned worker's start-up costs more than it
     saves on this survey's size)."""
-    parallel = (os.cpu_count() or 1) > 1 and _pool_context().get_start_method() == "fork"
+    parallel = spare_cores() > 0 and fork_is_safe()
     doc, _ = run_survey(task.scenario, states=states, threshold_m=task.threshold_m, workers=2 if parallel else 1,
                         task=task, should_stop=should_stop)
     return doc

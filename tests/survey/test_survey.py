@@ -159,7 +159,7 @@ def test_key_poses_do_not_depend_on_which_configuration_ran_first(scenario):
     from planner.survey import key_path
 
     def path_of(task, hands):
-        path, reason = key_path(HandConfigPlanner(task, hands, np.random.default_rng(0)), lambda: False)
+        path, reason = key_path(HandConfigPlanner(task, hands), lambda: False)
         assert path is not None, reason
         return path
 
@@ -195,7 +195,7 @@ def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenar
     assert task.node_cache, "the workers' validations did not reach the caller"
     before = dict(task.node_cache)
     fresh_calls = []
-    planner = HandConfigPlanner(task, "left-left", np.random.default_rng(0))
+    planner = HandConfigPlanner(task, "left-left")
     validate = planner._validate_placement
     planner._validate_placement = lambda node, rng: fresh_calls.append(node) or validate(node, rng)
     path, reason = key_path(planner, lambda: False)
@@ -203,11 +203,11 @@ def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenar
     assert fresh_calls == [] and task.node_cache == before
     # and they are the validations a one-process run makes (each node has its own generator)
     alone = Task(scenario)
-    assert key_path(HandConfigPlanner(alone, "left-left", np.random.default_rng(0)), lambda: False)[0] == path
+    assert key_path(HandConfigPlanner(alone, "left-left"), lambda: False)[0] == path
 
 
 def test_the_cli_progress_bar_leaves_the_process_single_threaded():
-    """The survey forks its workers only from a single-threaded process (see _pool_context)."""
+    """The survey forks its workers only from a single-threaded process (see planner.forking)."""
     import threading
 
     from service.cli.plan import run_with_progress
@@ -243,7 +243,7 @@ def test_grasp_probes_bound_the_validated_margin_and_prefill_only_certain_failur
     from planner.regrasp_planner import HandConfigPlanner, Task
 
     probe_task = Task(scenario)
-    planner = HandConfigPlanner(probe_task, "right-right", np.random.default_rng(0))
+    planner = HandConfigPlanner(probe_task, "right-right")
     nodes = [n for n in planner.graph_spec().placement_nodes if isinstance(n, PlacementNode)][:40]
     margins = np.array([m for m in (p.margin_m for p in probe_task.probe_grasps(nodes).values()) if m is not None])
     assert len(margins) >= 10  # many grasps of a spec are beyond the arm alone (from below, behind)
@@ -251,15 +251,15 @@ def test_grasp_probes_bound_the_validated_margin_and_prefill_only_certain_failur
     threshold = float(np.median(margins)) - probe_task.settings.planning_buffer_m
     task = Task(scenario, threshold_m=threshold)
     probes = task.probe_grasps(nodes)
-    prefilled = {n for n in nodes if n in task.node_cache}
-    assert prefilled, "no node was marked as failing on the margin"
-    planner = HandConfigPlanner(task, "right-right", np.random.default_rng(0))
+    prefilled = {n: task.node_cache[n] for n in nodes if n in task.node_cache}
+    assert any(v.cause == "com_margin" for v in prefilled.values()), "no node was marked as failing on the margin"
+    planner = HandConfigPlanner(task, "right-right")
     validated_ok = 0
     for node in nodes[:24]:
         task.node_cache.pop(node, None)
         v = planner._validate_placement(node, np.random.default_rng(task.node_seed(node)))
         if node in prefilled:
-            assert not v.ok and v.cause == "com_margin" and v.detail == "holding the object at the grasp pose"
+            assert not v.ok and (v.cause, v.detail) == (prefilled[node].cause, prefilled[node].detail)
         elif v.ok and probes[node].margin_m is not None:
             validated_ok += 1
             assert v.margin_m <= probes[node].margin_m + 1e-12
@@ -273,7 +273,7 @@ def test_batched_giver_probes_classify_as_the_one_state_check_does(scenario):
     from planner.regrasp_planner import HandConfigPlanner, Task
 
     task = Task(scenario, threshold_m=0.05)
-    planner = HandConfigPlanner(task, "right-left", np.random.default_rng(0))
+    planner = HandConfigPlanner(task, "right-left")
     nodes = [n for n in planner.graph_spec().handover_nodes if isinstance(n, HandoverNode)]
     task.probe_givers(nodes)
     entries = [v for v in task.giver_at.values() if v is not None]
@@ -286,3 +286,49 @@ def test_batched_giver_probes_classify_as_the_one_state_check_does(scenario):
         assert margin == pytest.approx(want_margin, abs=1e-9)
         causes.add(cause)
     assert len(causes) >= 2, causes  # both outcomes occur, so the comparison means something
+
+
+def test_the_jaw_closing_probe_caches_the_verdict_the_validation_reaches(scenario):
+    """The probes also close the jaw on the resting object from the probed posture, for all probed
+    nodes at once. A node found failing there is cached with the verdict its own validation (from the
+    same posture) reaches, margin included; a probed node not cached gets past that check."""
+    from planner.regrasp_planner import HandConfigPlanner, Task
+
+    task = Task(scenario)
+    planner = HandConfigPlanner(task, "right-right")
+    nodes = planner.graph_spec().placement_nodes
+    probes = task.probe_grasps(nodes)
+    closing = [n for n in nodes if n in task.node_cache and task.node_cache[n].detail == "closing the jaw"]
+    passed = [n for n in nodes if probes[n].q is not None and n not in task.node_cache]
+    assert len(closing) >= 10 and len(passed) >= 10
+    for node in closing[:12]:
+        cached = task.node_cache.pop(node)
+        v = planner._validate_placement(node, np.random.default_rng(task.node_seed(node)))
+        assert (v.ok, v.cause, v.detail) == (False, cached.cause, "closing the jaw")
+        assert v.margin_m == pytest.approx(cached.margin_m, abs=1e-9)
+    for node in passed[:12]:
+        v = planner._validate_placement(node, np.random.default_rng(task.node_seed(node)))
+        assert v.ok or v.detail != "closing the jaw", node
+
+
+def test_nodes_known_to_fail_leave_the_graph_before_the_search_and_are_counted(scenario):
+    """What the probes (or another hand configuration) already proved invalid is removed up front, so
+    the search spends no iteration on it; the removals are counted by cause like the screening's."""
+    from planner.regrasp_graph import RegraspGraph
+    from planner.regrasp_planner import HandConfigPlanner, Task
+
+    task = Task(scenario)
+    planner = HandConfigPlanner(task, "right-left")
+    graph = RegraspGraph(planner.graph_spec(), task.settings.weights)
+    planner._weigh_nodes(graph)
+    known = {n for n in graph.nodes() if n in task.node_cache and not task.node_cache[n].ok}
+    givers = {n for n in graph.nodes() if getattr(n, "pose", None) is not None
+              and (task.giver_at.get((n.pose, n.giver_grasp, n.giver)) or (None, None, None))[2] is not None}
+    assert len(known) >= 10 and len(givers) >= 10
+    before = sum(planner.screen_failures.values())
+    planner._drop_known_failures(graph)
+    alive = set(graph.nodes())
+    assert not (known | givers) & alive
+    assert sum(planner.screen_failures.values()) - before == len(known | givers)
+    # everything else is still there for the search
+    assert all(n in alive for n in planner.graph_spec().placement_nodes if n not in task.node_cache)

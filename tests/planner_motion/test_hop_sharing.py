@@ -1,0 +1,93 @@
+"""A candidate path's motions planned in this process and a forked helper at once.
+
+Forking is safe only from a single-threaded process, and the test process may hold threads of
+other tests (zenoh, uvicorn): each case runs in a fresh interpreter.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+SMALL_BOX = REPO / "tests" / "data" / "small-box.yaml"
+
+
+def _run(script: str, timeout_s: float = 300.0) -> dict:
+    res = subprocess.run([sys.executable, "-c", textwrap.dedent(script)], cwd=REPO, capture_output=True, text=True,
+                         timeout=timeout_s)
+    assert res.returncode == 0, res.stderr[-3000:]
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def test_shared_hops_give_the_plan_planned_one_by_one():
+    """Each hop draws from its own generator: the helper changes where a motion is planned, not what it
+    is. A handover plan, so the handover's own motions (planned by the helper) come back too."""
+    out = _run(f"""
+        import json
+        from planner.jobs import PlanOptions, build_task, plan_scenario
+        from planner.regrasp_planner import PlannerSettings
+        from planner.scenarios import load_scenario
+        sc = load_scenario({str(SMALL_BOX)!r})
+        docs = {{}}
+        for shared in (True, False):
+            task = build_task(sc, PlannerSettings(parallel_motions=shared))
+            docs[shared] = plan_scenario(sc, PlanOptions(hands="right-left"), task=task)
+        print(json.dumps({{str(k): {{"status": d["status"], "q": [p["q"] for p in d["trajectory"]],
+                           "helper": d["stats"]["configurations"]["right-left"]["hops_by_helper"],
+                           "errors": d["stats"]["configurations"]["right-left"].get("helper_errors")}}
+                          for k, d in docs.items()}}))
+    """)
+    shared, alone = out["True"], out["False"]
+    assert shared["status"] == alone["status"] == "solved"
+    assert shared["errors"] is None
+    assert shared["helper"] > 0 and alone["helper"] == 0
+    assert shared["q"] == alone["q"]
+
+
+def test_a_cancel_while_sharing_lands_within_a_second_and_ends_the_helper():
+    out = _run("""
+        import json, multiprocessing, time
+        from planner.fork_share import share_with_child
+        from planner.regrasp_graph import Canceled
+        t0 = time.monotonic()
+        stop = lambda: time.monotonic() - t0 > 0.3
+        def work(job, in_child):
+            end = time.monotonic() + job
+            while time.monotonic() < end:  # the helper does not see the cancel: it is ended
+                if not in_child and stop():
+                    raise Canceled()
+                time.sleep(0.005)
+            return job
+        try:
+            share_with_child([0.05, 30.0, 30.0], work, stop)
+            outcome = "finished"
+        except Canceled:
+            outcome = "canceled"
+        print(json.dumps({"outcome": outcome, "after_s": time.monotonic() - t0,
+                          "children": len(multiprocessing.active_children())}))
+    """)
+    assert out["outcome"] == "canceled"
+    assert out["after_s"] < 0.3 + 1.0
+    assert out["children"] == 0
+
+
+def test_a_failing_helper_is_reported_and_leaves_its_jobs_to_the_caller():
+    out = _run("""
+        import json, os, time
+        from planner.fork_share import share_with_child
+        parent = os.getpid()
+        def work(job, in_child):
+            if in_child:
+                raise ValueError(f"job {job} failed in the helper")
+            time.sleep(0.2)  # leaves the helper time to start and take a job
+            return (job, os.getpid() == parent)
+        done, error = share_with_child(list(range(6)), work, lambda: False)
+        print(json.dumps({"done": sorted(done), "here": all(v[1] for v in done.values()), "error": error}))
+    """)
+    assert "ValueError: job" in out["error"] and "failed in the helper" in out["error"]
+    assert out["here"]  # what came back was computed here
+    assert len(out["done"]) == 5  # the helper took one job and failed it; the caller ran the rest
