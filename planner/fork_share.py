@@ -9,10 +9,12 @@ its key poses are valid.
 
 from __future__ import annotations
 
+import multiprocessing as mp
+import os
+import signal
 import traceback
 from typing import Any, Callable, Sequence
 
-from .forking import pool_context
 from .regrasp_graph import Canceled
 
 #: How often this process looks at ``should_stop`` while it waits for the child (seconds).
@@ -25,11 +27,11 @@ def share_with_child(jobs: Sequence[Any], work: Callable[[Any, bool], Any],
 
     Returns every job's result by index, and the child's error (a traceback) if it failed: its
     unfinished jobs are then missing, for the caller to run itself. ``work`` raising here (a
-    cancel) ends the child too. Call only where :func:`planner.forking.fork_is_safe`.
+    cancel) ends the child too. Call only where :func:`planner.forking.fork_is_safe`. A bare
+    ``os.fork`` (not a multiprocessing process): a service's worker is a daemonic process, which
+    multiprocessing does not let have children.
     """
-    ctx = pool_context()
-    if ctx.get_start_method() != "fork":
-        raise RuntimeError("share_with_child needs fork (a single-threaded POSIX process)")
+    ctx = mp.get_context("fork")
     claimed = ctx.Value("i", 0)
     receive, send = ctx.Pipe(duplex=False)
 
@@ -41,18 +43,24 @@ def share_with_child(jobs: Sequence[Any], work: Callable[[Any, bool], Any],
             claimed.value = k + 1
             return k
 
-    def child() -> None:
-        done: dict[int, Any] = {}
+    pid = os.fork()
+    if pid == 0:  # the child: never returns into the caller's code
+        code = 0
         try:
-            while (k := claim()) is not None:
-                done[k] = work(jobs[k], True)
-            send.send((done, None))
+            receive.close()
+            done: dict[int, Any] = {}
+            try:
+                while (k := claim()) is not None:
+                    done[k] = work(jobs[k], True)
+                send.send((done, None))
+            except BaseException:
+                send.send((done, traceback.format_exc()))
         except BaseException:
-            send.send((done, traceback.format_exc()))
-
-    proc = ctx.Process(target=child, name="regrasp-hops", daemon=True)
-    proc.start()
+            code = 1
+        finally:
+            os._exit(code)
     send.close()
+    reaped = False
     results: dict[int, Any] = {}
     try:
         while (k := claim()) is not None:
@@ -60,13 +68,16 @@ def share_with_child(jobs: Sequence[Any], work: Callable[[Any, bool], Any],
         while not receive.poll(POLL_S):
             if should_stop():
                 raise Canceled()
-            if not proc.is_alive() and not receive.poll(0):
-                return results, f"the helper process ended with exit code {proc.exitcode} and sent nothing"
+            ended, status = os.waitpid(pid, os.WNOHANG)
+            if ended:
+                reaped = True
+                if not receive.poll(0):
+                    return results, f"the helper process ended with status {status} and sent nothing"
         theirs, error = receive.recv()
         results.update(theirs)
         return results, error
     finally:
-        if proc.is_alive():
-            proc.kill()
-        proc.join(timeout=1.0)
+        if not reaped:
+            os.kill(pid, signal.SIGKILL)  # a zombie until reaped: the pid cannot have been reused
+            os.waitpid(pid, 0)
         receive.close()

@@ -12,11 +12,25 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import threading
+import weakref
+
+
+#: Threads their owner declared lock-free (:func:`declare_fork_benign`).
+_benign: "weakref.WeakSet[threading.Thread]" = weakref.WeakSet()
+
+
+def declare_fork_benign(thread: threading.Thread) -> None:
+    """Declare a thread that only sleeps and makes system calls (no locks, no allocation while another
+    thread forks), such as a service worker's parent watch: it does not make forking unsafe."""
+    _benign.add(thread)
 
 
 def fork_is_safe() -> bool:
-    """POSIX fork is available and this process runs one thread."""
-    return "fork" in mp.get_all_start_methods() and threading.active_count() == 1
+    """POSIX fork is available and this process runs one thread, besides threads declared benign."""
+    if "fork" not in mp.get_all_start_methods():
+        return False
+    others = [t for t in threading.enumerate() if t is not threading.current_thread()]
+    return all(t in _benign for t in others)
 
 
 def pool_context():

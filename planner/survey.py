@@ -14,6 +14,7 @@ generator, so the same seed gives the same counts however they are scheduled.
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -347,7 +348,7 @@ def quick_survey(task: Task, should_stop: Callable[[], bool] = lambda: False, st
     more than one core (the task is inherited, and the workers' node validations come back for the
     plan that follows), in this process otherwise (a spawned worker's start-up costs more than it
     saves on this survey's size)."""
-    parallel = spare_cores() > 0 and fork_is_safe()
+    parallel = spare_cores() > 0 and fork_is_safe() and not multiprocessing.current_process().daemon
     doc, _ = run_survey(task.scenario, states=states, threshold_m=task.threshold_m, workers=2 if parallel else 1,
                         task=task, should_stop=should_stop)
     return doc

@@ -25,6 +25,7 @@ from multiprocessing.synchronize import Event
 from typing import Any
 
 from planner.entry import JobContext
+from planner.forking import declare_fork_benign
 
 from .handlers import CANCELED_TYPES, HandlerError, JobCanceled, resolve
 from .results import InvalidResult, package
@@ -121,7 +122,9 @@ def worker_main(conn: Connection, cancel: Event, handlers: dict[str, str], robot
                 nice: int = 0) -> None:
     """Entry point of a local worker process."""
     lower_priority(nice)
-    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watch").start()
+    watch = threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watch")
+    watch.start()
+    declare_fork_benign(watch)  # the planner may still fork its helpers (survey workers, motion hops) here
     jobs = JobHandlers(handlers, robot)
     lock = threading.Lock()
     conn.send(("ready", os.getpid()))
