@@ -137,6 +137,8 @@ def _dist(a: tuple[float, float, float], b: tuple[float, float, float]) -> float
 #: Cost per place in the spec's node order: breaks ties without outweighing real costs (<= 1e-3 for 10^4 nodes).
 TIE_BREAK = 1e-7
 _KINDS = ("start", "end", "transit", "transfer", "handover")
+#: The kinds of motion between key poses (a path's hops; start and end edges carry none).
+HOP_KINDS = _KINDS[2:]
 _KIND_CODE = {k: i for i, k in enumerate(_KINDS)}
 
 

@@ -43,6 +43,7 @@ from .ik_batch import BatchIk, BatchIkResult
 from .objects import ObjectModel, build_object
 from .plan_builder import MotionPiece
 from .regrasp_graph import (
+    HOP_KINDS,
     REMOVE_NODE,
     Canceled,
     GraphSpec,
@@ -63,8 +64,6 @@ from .trrt import TrrtSettings, plan_motion
 
 Side = Literal["left", "right"]
 HANDS_INDEX: dict[str, int] = {"left": 0, "right": 1}
-#: The kinds of motion between key poses (the regrasp graph's hops).
-HOP_KINDS = ("transit", "transfer", "handover")
 HANDS_OF: dict[str, tuple[Side, Side]] = {
     "left-left": ("left", "left"),
     "right-right": ("right", "right"),
@@ -568,6 +567,7 @@ class HandConfigPlanner:
         #: Why the forked helper of :meth:`_prefetch_hops` failed, if it did (its hops are then planned here).
         self.helper_errors: list[str] = []
         self.hops_by_helper = 0
+        self.dropped_known = 0  # nodes removed before the search, their failure known (_drop_known_failures)
 
     # -- graph construction ---------------------------------------------------------------------
     def _cheap_ok(self, side: Side, T_obj: np.ndarray, grasp: Grasp) -> bool:
@@ -1007,7 +1007,8 @@ class HandConfigPlanner:
         stage = dict(self.stage_s)
         stage["search_s"] = max(time.perf_counter() - t_search - sum(stage.values()), 0.0)
         stats = {"graph_nodes": res.graph_nodes if res else 0, "graph_edges": res.graph_edges if res else 0,
-                 "search_iterations": iterations, "nodes_validated": len(self._validated),
+                 "search_iterations": iterations, "nodes_validated": len(self._validated) - self.dropped_known,
+                 "nodes_dropped_known": self.dropped_known,
                  "edges_validated": len(self._edges), "stage_s": stage, "time_s": time.perf_counter() - t0}
         stats["hops_by_helper"] = self.hops_by_helper
         if self.helper_errors:
@@ -1140,10 +1141,11 @@ class HandConfigPlanner:
             else:  # hubs, source and sink
                 continue
             if known:
-                v = self.validate_node(node)
+                v = self.validate_node(node)  # the cached verdict, and the start/goal bookkeeping
                 if not v.ok:
                     graph.remove_node(node)
                     self.screen_failures[v.cause or "ik"] += 1
+                    self.dropped_known += 1
 
     def _assemble_pieces(self, res: SearchResult) -> list[MotionPiece]:
         """Key-pose moves and planned motions in execution order (the builder tracks the object)."""
