@@ -33,6 +33,12 @@ def fork_is_safe() -> bool:
     return all(t in _benign for t in others)
 
 
+def pool_may_fork() -> bool:
+    """A forked multiprocessing pool may start here: :func:`fork_is_safe`, and this is not a daemonic
+    process (multiprocessing lets those start no children; a service's workers are such)."""
+    return fork_is_safe() and not mp.current_process().daemon
+
+
 def pool_context():
     """``fork`` where :func:`fork_is_safe`, ``spawn`` otherwise."""
     return mp.get_context("fork" if fork_is_safe() else "spawn")

@@ -15,7 +15,6 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Callable
 
-
 from schemas.common import HAND_CONFIGS
 from schemas.plan import PLAN_SCHEMA
 from schemas.scenario import Scenario

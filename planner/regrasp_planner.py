@@ -378,19 +378,32 @@ class Task:
     def classify(self, Q: np.ndarray, hold: HoldSpec | None, free_object: np.ndarray | None,
                  grasping: str | None = None) -> tuple[str | None, float]:
         """The first failing cause over states Q (com_margin before collision), and the min margin."""
-        Q = np.atleast_2d(Q)
+        causes, margins = self.classify_groups(np.atleast_2d(Q), 1, hold, free_object, grasping)
+        return causes[0], float(margins[0])
+
+    def classify_groups(self, Q: np.ndarray, groups: int, hold: HoldSpec | None, free_object: np.ndarray | None,
+                        grasping: str | None = None) -> tuple[list[str | None], np.ndarray]:
+        """:meth:`classify` for ``groups`` equal runs of consecutive states of Q at once: each run's first
+        failing cause and min margin. ``free_object`` is one pose, or one per state (N, 4, 4); runs that
+        fail on the margin are not checked for collision."""
+        k = len(Q) // groups
         batch = self.evaluator.evaluate(Q, hold)
         self.counters["com_states"] += len(Q)
-        margin = float(batch.margin.min())
-        if self.constrained and not np.all(batch.stable):
-            return "com_margin", margin
-        held = [(hold.tcp_side, hold.T_obj_tcp)] if hold is not None else []
-        res = self.world.check_batch(self.stance.base_pose, Q, held=held,
-                                     free_object_pose=None if held else free_object, grasping=grasping)
-        self.counters["collision_states"] += len(Q)
-        if res.collides.any():
-            return "collision", margin
-        return None, margin
+        margins = batch.margin.reshape(groups, k).min(axis=1)
+        unstable = ~batch.stable.reshape(groups, k).all(axis=1) if self.constrained else np.zeros(groups, dtype=bool)
+        causes: list[str | None] = ["com_margin" if u else None for u in unstable]
+        check = np.flatnonzero(~unstable)
+        if check.size:
+            rows = (check[:, None] * k + np.arange(k)).ravel()
+            held = [(hold.tcp_side, hold.T_obj_tcp)] if hold is not None else []
+            if free_object is not None and np.ndim(free_object) == 3:
+                free_object = free_object[rows]
+            res = self.world.check_batch(self.stance.base_pose, Q[rows], held=held,
+                                         free_object_pose=None if held else free_object, grasping=grasping)
+            self.counters["collision_states"] += len(rows)
+            for g in check[res.collides.reshape(-1, k).any(axis=1)]:
+                causes[g] = "collision"
+        return causes, margins
 
     def tcp(self, q: np.ndarray, side: Side) -> np.ndarray:
         return self.evaluator.tcp_pose(q, side)
@@ -459,18 +472,11 @@ class Task:
         q_closed[:, jaw] = [grasps[n.grasp].jaw_value for n in nodes]
         s = np.linspace(0.0, 1.0, 3)[None, :, None]  # :meth:`line` with three states, per node
         Q = (q_open[:, None] * (1 - s) + q_closed[:, None] * s).reshape(-1, self.robot.nq)
-        batch = self.evaluator.evaluate(Q)
-        margin = batch.margin.reshape(len(nodes), 3).min(axis=1)
-        stable = batch.stable.reshape(len(nodes), 3).all(axis=1)
         T_obj = np.repeat(np.array([self.placements[n.placement] for n in nodes]), 3, axis=0)
-        collides = self.world.check_batch(self.stance.base_pose, Q, free_object_pose=T_obj, grasping=side).collides
-        collides = collides.reshape(len(nodes), 3).any(axis=1)
-        self.counters["com_states"] += len(Q)
-        self.counters["collision_states"] += len(Q)
-        for k, n in enumerate(nodes):
-            cause = "com_margin" if self.constrained and not stable[k] else "collision" if collides[k] else None
+        causes, margins = self.classify_groups(Q, len(nodes), None, T_obj, grasping=side)
+        for n, cause, margin in zip(nodes, causes, margins):
             if cause:
-                self.node_cache[n] = Validation(False, cause, "closing the jaw", margin_m=float(margin[k]))
+                self.node_cache[n] = Validation(False, cause, "closing the jaw", margin_m=float(margin))
 
     def probe_givers(self, nodes: list[HandoverNode]) -> None:
         """The giver alone at each handover pose (:attr:`giver_at`), for the (pose, giver grasp) pairs
@@ -982,8 +988,7 @@ class HandConfigPlanner:
         if not self.task.constrained:  # the unconstrained planner: no margin cost either
             weights = dataclasses.replace(weights, margin=0.0)
         graph = RegraspGraph(spec, weights)
-        self._weigh_nodes(graph)
-        self._drop_known_failures(graph)
+        self.prepare_search(graph)
         t_search = time.perf_counter()
         found: list[SearchResult] = []
         res: SearchResult | None = None
@@ -1008,9 +1013,8 @@ class HandConfigPlanner:
         stage["search_s"] = max(time.perf_counter() - t_search - sum(stage.values()), 0.0)
         stats = {"graph_nodes": res.graph_nodes if res else 0, "graph_edges": res.graph_edges if res else 0,
                  "search_iterations": iterations, "nodes_validated": len(self._validated) - self.dropped_known,
-                 "nodes_dropped_known": self.dropped_known,
-                 "edges_validated": len(self._edges), "stage_s": stage, "time_s": time.perf_counter() - t0}
-        stats["hops_by_helper"] = self.hops_by_helper
+                 "nodes_dropped_known": self.dropped_known, "edges_validated": len(self._edges),
+                 "hops_by_helper": self.hops_by_helper, "stage_s": stage, "time_s": time.perf_counter() - t0}
         if self.helper_errors:
             stats["helper_errors"] = list(self.helper_errors)
         if not found:
@@ -1059,10 +1063,10 @@ class HandConfigPlanner:
         """One hop's validation; from the helper also what it changed that the parent needs: the
         handover's planned motions and the check counters."""
         a, b, kind = hop
+        if not in_child:
+            return _HopResult(self.validate_edge(a, b, kind))
         before = Counter(self.task.counters)
         v = self.validate_edge(a, b, kind)
-        if not in_child:
-            return _HopResult(v)
         hp = self.handovers.get(b) if isinstance(b, HandoverNode) else None
         return _HopResult(v, hp if hp is not None and hp.motions_planned else None,
                           Counter(self.task.counters) - before, True)
@@ -1102,6 +1106,11 @@ class HandConfigPlanner:
                     self.screen_failures[v.cause or "ik"] += 1
         return dataclasses.replace(spec, placement_nodes=[n for n in spec.placement_nodes if n not in bad])
 
+    def prepare_search(self, graph: RegraspGraph) -> None:
+        """Before the first search: probe and weigh the nodes, then remove those whose failure that made known."""
+        self._weigh_nodes(graph)
+        self._drop_known_failures(graph)
+
     def _weigh_nodes(self, graph: RegraspGraph) -> None:
         """Before any node is validated, weight placement nodes by the margin of holding the object at
         their grasp (:meth:`Task.probe_grasps`), so the search tries stable ones first. A node whose
@@ -1132,14 +1141,13 @@ class HandConfigPlanner:
         cap) before it gave up. Counted like the screening's failures."""
         t = self.task
         for node in list(graph.nodes()):
-            if isinstance(node, PlacementNode):
-                v = t.node_cache.get(node)
-                known = v is not None and not v.ok
-            elif isinstance(node, HandoverNode):
-                giver = t.giver_at.get((node.pose, node.giver_grasp, node.giver))
-                known = node in t.node_cache or (giver is not None and giver[2] is not None)
-            else:  # hubs, source and sink
+            if not isinstance(node, (PlacementNode, HandoverNode)):  # hubs, source and sink
                 continue
+            v = t.node_cache.get(node)
+            known = v is not None and not v.ok
+            if isinstance(node, HandoverNode) and not known:
+                giver = t.giver_at.get((node.pose, node.giver_grasp, node.giver))
+                known = giver is not None and giver[2] is not None
             if known:
                 v = self.validate_node(node)  # the cached verdict, and the start/goal bookkeeping
                 if not v.ok:

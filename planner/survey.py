@@ -14,7 +14,6 @@ generator, so the same seed gives the same counts however they are scheduled.
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -27,7 +26,7 @@ from schemas.common import HAND_CONFIGS
 from schemas.survey import SURVEY_SCHEMA, SurveyRow, recommend
 from schemas.scenario import Scenario
 
-from .forking import fork_is_safe, pool_context, spare_cores
+from .forking import pool_context, pool_may_fork, spare_cores
 from .regrasp_graph import Canceled as GraphCanceled
 from .regrasp_graph import HandoverNode, PlacementNode, Validation
 from .regrasp_planner import HandConfigPlanner, PlannerSettings, Task
@@ -89,8 +88,7 @@ def key_path(planner: HandConfigPlanner, should_stop: Callable[[], bool]) -> tup
     from .regrasp_graph import RegraspGraph
 
     graph = RegraspGraph(planner.screen(planner.graph_spec(), should_stop, want=1), planner.task.settings.weights)
-    planner._weigh_nodes(graph)
-    planner._drop_known_failures(graph)
+    planner.prepare_search(graph)
     res = graph.search(planner.validate_node, lambda a, b, k: Validation(True), max_iterations=KEY_POSE_ITERATIONS,
                        time_limit_s=planner.task.scenario.limits.time_s, should_stop=should_stop)
     if res.status != "solved":
@@ -348,7 +346,7 @@ def quick_survey(task: Task, should_stop: Callable[[], bool] = lambda: False, st
     more than one core (the task is inherited, and the workers' node validations come back for the
     plan that follows), in this process otherwise (a spawned worker's start-up costs more than it
     saves on this survey's size)."""
-    parallel = spare_cores() > 0 and fork_is_safe() and not multiprocessing.current_process().daemon
+    parallel = spare_cores() > 0 and pool_may_fork()
     doc, _ = run_survey(task.scenario, states=states, threshold_m=task.threshold_m, workers=2 if parallel else 1,
                         task=task, should_stop=should_stop)
     return doc
