@@ -79,6 +79,12 @@ class DispatchSettings(BaseSettings):
     ack_timeout_s: float = Field(1.0, gt=0, description="wait for the controller to acknowledge a stop")
     robot_state_event_period_s: float = Field(0.1, gt=0, description="rate of 'robot_state' events (for the audit)")
     state_max_age_s: float = Field(0.5, gt=0, description="a measured state older than this is not used by the gate")
+    state_wait_s: float = Field(
+        1.0, ge=0, le=10.0,
+        description="when a dispatch starts while the controller's token is present but its heartbeat or joint state is "
+                    "not fresh, wait this long for fresh ones before refusing: a host that paused the bridge's process "
+                    "(a VM's steal, a long collection) leaves both stale for a moment although the controller is fine",
+    )
     start_tolerance_rad: float = Field(0.01, gt=0, description="first point vs measured state (sent with each measured "
                                                                  "state: it overrides the gate's own setting)")
 
@@ -282,6 +288,10 @@ class Dispatcher:
     def _execute(self, plan: dict[str, Any] | str | bytes, job_id: str, approved_sha256: str, expires_at: datetime,
                  threshold_m: float | None, emit: EventCallback, stop_event: threading.Event) -> ExecutionResult:
         started = time.monotonic()
+        with self._lock:
+            token = self._token_alive
+        if token:
+            self.wait_for_controller(self.dispatch.state_wait_s)
         problem = self.controller_problem()
         state = self.measured_state()
         if problem is not None:

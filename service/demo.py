@@ -33,8 +33,13 @@ class DemoSettings(BaseModel):
     survey_states: int = Field(400, ge=1, description="states per hand configuration in the demo's survey")
     controller_speed: float = Field(10.0, gt=0, description="the simulated controller plays K times faster than real time")
     workers: int = Field(2, ge=1)
-    watchdog_timeout_s: float = Field(1.0, gt=0, le=5.0, description="bridge watchdog for the simulated controller "
-                                      "(the robot default is 0.25 s)")
+    watchdog_timeout_s: float = Field(3.0, gt=0, le=5.0, description="bridge watchdog for the simulated controller "
+                                      "(the robot default is 0.25 s): the demo shares a laptop or a VM with everything "
+                                      "else, whose pauses of a second would abort it; a lost controller process still "
+                                      "aborts at once, its liveliness token goes with its socket")
+    lease_s: float = Field(3.0, gt=0, le=60, description="zenoh transport lease of the demo's peers (the robot default "
+                                                          "is 1 s): a pause of the machine longer than the lease drops "
+                                                          "the controller's liveliness token and aborts the execution")
     start_timeout_s: float = Field(60.0, gt=0)
     job_timeout_s: float = Field(300.0, gt=0)
 
@@ -103,6 +108,7 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
                # The simulated controller shares the machine's cores with planning workers; on a loaded
                # host a 0.25 s heartbeat gap is the scheduler, not a dead controller. A robot keeps 0.25 s.
                REGRASP_BRIDGE_WATCHDOG_TIMEOUT_S=str(settings.watchdog_timeout_s),
+               REGRASP_BRIDGE_LEASE_S=str(settings.lease_s),
                PYTHONUNBUFFERED="1")
     exe = [sys.executable, "-m", "service.cli.main"]
     with ExitStack() as stack:

@@ -6,11 +6,13 @@ import json
 import subprocess
 import sys
 
+import pytest
 from plan_checker import check_plan
 
 from service.audit.verify import verify
 
 
+@pytest.mark.host_pauses(limit_s=0.5, attempts=2)
 def test_demo_runs_end_to_end(tmp_path):
     out = tmp_path / "demo"
     proc = subprocess.run([sys.executable, "-m", "service.cli.main", "demo", "--out", str(out), "--survey-states", "100"],

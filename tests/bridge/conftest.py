@@ -152,9 +152,10 @@ def make_spy(robot_id: str) -> Spy:
     return spy
 
 
-#: Watchdog of the tests that do not test the watchdog: on a loaded 2-core machine a heartbeat
-#: can be late by several hundred ms, which would abort unrelated cases.
-RELAXED_WATCHDOG_S = 1.0
+#: Watchdog of the tests that do not test the watchdog: the CI machine's host pauses the whole VM
+#: at times for over a second (1.14 and 1.50 s seen), which would abort unrelated cases. A killed
+#: controller is still noticed at once (its liveliness token goes with its socket).
+RELAXED_WATCHDOG_S = 5.0
 
 
 def connect_dispatcher(ctl: ControllerProcess, spy: Spy, dispatch=None, dispatcher_cls=None,

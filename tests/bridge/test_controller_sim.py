@@ -27,6 +27,10 @@ from schemas.bridge import ExecStatus, Heartbeat, JointState, Stop, TrajectorySe
 from .conftest import ControllerProcess, closing_factory, start_controller
 from .plans import cosine_profile
 
+#: Rates, deadlines and watchdogs in wall-clock time: a failure while the VM's host paused the guest
+#: for 0.2 s or more (the production watchdog is 0.25 s) measured the host, and the test runs again.
+pytestmark = pytest.mark.host_pauses(limit_s=0.2)
+
 #: The contract's control period (200 Hz).
 PERIOD_S = 0.005
 #: A bounded wait for anything the controller should do at once.
@@ -159,17 +163,21 @@ def _posture_after(peer: Peer, t: float) -> np.ndarray:
 
 
 def _assert_still(peer: Peer, q: np.ndarray, seconds: float = 0.2) -> None:
-    """Every joint state over the next ``seconds`` of the controller's clock is exactly ``q``.
+    """Every joint state over the next ``seconds`` of the controller's clock, and at least the next 10, is exactly ``q``.
 
     The window is read on the controller's stamps: a pause of this test process (its own garbage
-    collection late in a long suite) delays the arrivals, not the states the controller published.
+    collection late in a long suite) delays the arrivals, not the states the controller published;
+    a pause of the whole machine delays the controller's ticks, hence the count as well as the time.
     """
     t0 = time.monotonic()
     first = peer.wait_for(lambda: next((js for _, js in peer.joints_since(t0)), None), "a joint state")
     end = first.stamp + seconds
-    peer.wait_for(lambda: peer.latest().stamp >= end, f"joint states over {seconds} s")
-    states = [js for _, js in peer.joints_since(t0) if js.stamp <= end]
-    assert len(states) >= 10, "too few joint states to judge"
+
+    def window() -> list[JointState] | None:
+        states = [js for _, js in peer.joints_since(t0)]
+        return states if len(states) >= 10 and states[-1].stamp >= end else None
+
+    states = peer.wait_for(window, f"10 joint states and {seconds} s of them")
     assert all(np.array_equal(js.q, q) for js in states), "the robot moved"
 
 
@@ -308,7 +316,7 @@ def _host_ticks(duration_s: float) -> tuple[float, float]:
     return (len(stamps) - 1) / (stamps[-1] - stamps[0]), float(np.median(np.diff(stamps)))
 
 
-def test_joint_states_at_200_hz(sim):
+def test_joint_states_at_200_hz(sim, host_stalls):
     ctl, peer = sim
     _idle(peer)
     t0 = time.monotonic()
@@ -316,23 +324,27 @@ def test_joint_states_at_200_hz(sim):
     stamps = np.array([js.stamp for _, js in peer.joints_since(t0)])
     intervals = np.diff(stamps)
     median = float(np.median(intervals))
-    rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
-    print(f"joint states: median interval {median * 1000:.2f} ms, {rate:.0f} Hz over {stamps[-1] - stamps[0]:.2f} s "
-          f"(a bare loop on this host meanwhile: {host_hz:.0f} Hz, median {host_median * 1000:.2f} ms)")
+    span = stamps[-1] - stamps[0]
+    rate = (len(stamps) - 1) / span
+    # the controller's ticks are late, not caught up, while the VM's host runs no process of the guest
+    running_rate = (len(stamps) - 1) / max(span - host_stalls.stolen_between(stamps[0], stamps[-1]), PERIOD_S)
+    print(f"joint states: median interval {median * 1000:.2f} ms, {rate:.0f} Hz over {span:.2f} s, {running_rate:.0f} Hz "
+          f"of the time the host let the guest run (a bare loop on this host meanwhile: {host_hz:.0f} Hz, median "
+          f"{host_median * 1000:.2f} ms)")
     assert 0.9 * PERIOD_S <= median <= max(1.1 * PERIOD_S, 1.2 * host_median)
     assert rate <= 1.05 / PERIOD_S  # never faster (no catch-up bursts)
     # and not a fraction of what the host allows (one joint state per tick, no tick skipped by the controller)
-    assert rate >= 0.5 / PERIOD_S or rate >= 0.7 * host_hz, (rate, host_hz)
+    assert running_rate >= 0.5 / PERIOD_S or rate >= 0.7 * host_hz, (rate, running_rate, host_hz)
 
 
 def _play_time(peer: Peer, names: list[str], q0: np.ndarray, dt: float, duration_s: float,
-               speed: float) -> tuple[float, float, float]:
+               speed: float, host_stalls) -> tuple[float, float, float, float]:
     """Playback of a rest-to-rest move of ``duration_s`` (and back) on the controller's own clock:
-    the seconds from the first to the last joint state of the job, how far (in plan seconds)
-    the played index ever ran ahead of ``speed`` x the controller's time, and the plan time played
-    per control tick (one joint state per tick: a host that delays ticks changes the seconds, not
-    this). Timing the replies' arrival instead made a late 'accepted' look like a playback faster
-    than asked."""
+    the seconds from the first to the last joint state of the job, the same less the time the VM's
+    host ran no process of the guest, how far (in plan seconds) the played index ever ran ahead of
+    ``speed`` x the controller's time, and the plan time played per control tick (one joint state per
+    tick: a host that delays ticks changes the seconds, not this). Timing the replies' arrival
+    instead made a late 'accepted' look like a playback faster than asked."""
     j = names.index("LSP")
     half = cosine_move(q0, j, -0.2, duration_s / 2, dt)
     Q = np.vstack([half, half[-2::-1]])
@@ -347,19 +359,25 @@ def _play_time(peer: Peer, names: list[str], q0: np.ndarray, dt: float, duration
     assert len(played) >= 2, "no joint state named the job"
     stamps, index = np.array(played, dtype=float).T
     lead = (index - index[0]) * dt - speed * (stamps - stamps[0])
-    per_tick = (index[-1] - index[0]) * dt / (len(index) - 1)
-    return float(stamps[-1] - stamps[0]), float(lead.max()), float(per_tick)
+    # per tick from consecutive joint states one period apart only: a joint state the test's subscriber lost
+    # (zenoh drops on congestion while a loaded host holds the test process back) would make a tick look longer
+    adjacent = np.diff(stamps) < 1.5 * PERIOD_S
+    assert adjacent.sum() >= 20, f"only {adjacent.sum()} pairs of joint states one period apart"
+    per_tick = np.diff(index)[adjacent].sum() * dt / adjacent.sum()
+    wall = float(stamps[-1] - stamps[0])
+    return wall, wall - host_stalls.stolen_between(stamps[0], stamps[-1]), float(lead.max()), float(per_tick)
 
 
-def test_speed_scales_playback_time(sim, spawn_controller, open_peer):
+def test_speed_scales_playback_time(sim, spawn_controller, open_peer, host_stalls):
     ctl, peer = sim
     names, q0 = _idle(peer)
     dt, duration = 0.01, 2.0
-    t1, lead1, tick1 = _play_time(peer, names, q0, dt, duration, 1.0)
+    t1, run1, lead1, tick1 = _play_time(peer, names, q0, dt, duration, 1.0, host_stalls)
     fast_peer = open_peer(spawn_controller(speed=4.0))
     names4, q4 = _idle(fast_peer)
-    t4, lead4, tick4 = _play_time(fast_peer, names4, q4, dt, duration, 4.0)
-    print(f"{duration} s of plan: {t1:.3f} s at --speed 1, {t4:.3f} s at --speed 4 (ratio {t1 / t4:.2f}); "
+    t4, run4, lead4, tick4 = _play_time(fast_peer, names4, q4, dt, duration, 4.0, host_stalls)
+    print(f"{duration} s of plan: {t1:.3f} s at --speed 1, {t4:.3f} s at --speed 4 (ratio {t1 / t4:.2f}; "
+          f"{run1:.3f} / {run4:.3f} s of the time the host let the guest run); "
           f"plan per tick {tick1 * 1000:.2f} / {tick4 * 1000:.2f} ms; "
           f"index ahead of the clock by at most {lead1 * 1000:.1f} / {lead4 * 1000:.1f} ms of plan")
     # K x the control period of plan per tick: --speed scales the playback itself (a lost joint state
@@ -370,26 +388,32 @@ def test_speed_scales_playback_time(sim, spawn_controller, open_peer):
     assert lead1 <= dt + PERIOD_S and lead4 <= dt + 4.0 * PERIOD_S
     # and in wall time, not slower than asked beyond a loaded host's late ticks (they delay playback and
     # are not caught up: 2.65 s for 2 s and 0.82 s for 0.5 s were seen while the host stole CPU time)
-    assert t1 <= 2.0 * duration and t4 <= 2.0 * duration / 4.0
+    assert run1 <= 2.0 * duration and run4 <= 2.0 * duration / 4.0
 
 
 # --------------------------------------------------------------------------- fault injection: delay
 
 
-def _round_trips(peer: Peer, n: int = 3) -> list[float]:
-    """Seconds from a stop's publication to the controller's 'stopped' reply, n times."""
+def _round_trips(peer: Peer, n: int = 3) -> list[tuple[float, float]]:
+    """(publication, reply) times of a stop and the controller's 'stopped' reply, n times."""
     out = []
     for _ in range(n):
         sent = peer.stop()
         at, _ = peer.reply(sent, "stopped")
-        out.append(at - sent)
+        out.append((sent, at))
     return out
 
 
-def test_delay_ms_adds_latency_to_every_command(sim, spawn_controller, open_peer):
+def test_delay_ms_adds_latency_to_every_command(sim, spawn_controller, open_peer, host_stalls):
+    """Every command waits ``--delay-ms`` more. A round trip is judged on the time the VM's host let the guest
+    run (``host_stalls``: 112 ms without any delay was seen while it did not), never below the delay."""
     ctl, peer = sim
     _idle(peer)
-    base = statistics.median(_round_trips(peer))
+
+    def running(trip: tuple[float, float]) -> float:
+        return trip[1] - trip[0] - host_stalls.stolen_between(*trip)
+
+    base = statistics.median(running(t) for t in _round_trips(peer))
     delay_s = 0.15
     slow_peer = open_peer(spawn_controller("--delay-ms", str(int(delay_s * 1000)), speed=1.0))
     delayed = _round_trips(slow_peer)
@@ -397,12 +421,13 @@ def test_delay_ms_adds_latency_to_every_command(sim, spawn_controller, open_peer
     seg = segments(new_job(), names, np.repeat(q0[None], 3, axis=0), 0.01)[0]
     sent = slow_peer.send(seg)
     at, st = slow_peer.reply(sent, "accepted", seg.job_id)
-    segment_rtt = at - sent
-    print(f"stop round trip: {base * 1000:.1f} ms without delay, {[round(d * 1000, 1) for d in delayed]} ms with "
-          f"--delay-ms {delay_s * 1000:.0f}; segment {segment_rtt * 1000:.1f} ms")
+    trips = [*delayed, (sent, at)]
+    print(f"stop round trip: {base * 1000:.1f} ms without delay, {[round((b - a) * 1000, 1) for a, b in delayed]} ms "
+          f"with --delay-ms {delay_s * 1000:.0f}; segment {(at - sent) * 1000:.1f} ms; of it the host ran no process "
+          f"of the guest for {[round(host_stalls.stolen_between(*t) * 1000) for t in trips]} ms")
     assert base < delay_s / 2
-    for rtt in (*delayed, segment_rtt):
-        assert delay_s <= rtt <= delay_s + 0.15
+    for trip in trips:
+        assert delay_s <= trip[1] - trip[0] and running(trip) <= delay_s + 0.15
 
 
 def test_controller_process_freezes_its_startup_objects_and_shortens_the_switch_interval():

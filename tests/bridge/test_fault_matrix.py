@@ -19,8 +19,13 @@ from robot_bridge.dispatcher import ControllerUnavailableError, Dispatcher, Disp
 from .conftest import approval_for
 from .plans import build_plan, edited, true_min_margin
 
+#: Rates, deadlines and watchdogs in wall-clock time: a failure while the VM's host paused the guest
+#: for 0.2 s or more (the production watchdog is 0.25 s) measured the host, and the test runs again.
+pytestmark = pytest.mark.host_pauses(limit_s=0.2)
+
 #: Behavioural deadline of the contract (controller lost -> job aborted and stop sent), and the
-#: small scheduling margin the tests allow on a loaded 2-core machine.
+#: small scheduling margin the tests allow on a loaded 2-core machine. Time during which the VM's
+#: host ran no process of the guest (``host_stalls``) is allowed on top, and printed.
 LOSS_DEADLINE_S = 0.3
 MARGIN_S = 0.15
 #: QoS of cmd/trajectory and cmd/stop: real-time priority, express, drop on congestion (never block).
@@ -121,7 +126,7 @@ def _most_unacknowledged(rec) -> int:
 def test_unacknowledged_segments_never_exceed_the_window(bridge, long_plan, window):
     """The lookahead fills one acknowledgement at a time (no burst queued in the controller's receive path): at most
     ``max_in_flight_segments`` are ever outstanding, and that many are (13 segments, lookahead 8). The late-ack escape
-    is set out of reach here so that a slow acknowledgement on a loaded machine cannot open the window."""
+    is set out of reach here (1 s) so that a slow acknowledgement on a loaded machine cannot open the window."""
     over = {"in_flight_wait_s": 1.0} | ({} if window is None else {"max_in_flight_segments": window})
     dispatch = DispatchSettings(**over)
     # Real time: with one segment in flight the controller waits a round trip for each, and a loaded machine's
@@ -348,7 +353,20 @@ def _loss_times(rec: Recorder) -> tuple[float, float]:
     return stop_at, finished[0]
 
 
-def test_controller_killed_mid_execution(bridge, long_plan):
+def assert_loss_handled_in_time(host_stalls, lost_at: float, rec: Recorder, what: str) -> None:
+    """The stop went out and the job ended within the deadline of ``lost_at``, not counting time the host
+    ran no process of the guest (a VM pause is not the bridge's latency; the probe does not see this process's
+    own interpreter, so a slow dispatcher is never excused)."""
+    stop_at, finished_at = _loss_times(rec)
+    stolen_stop = host_stalls.stolen_between(lost_at, stop_at)
+    stolen_end = host_stalls.stolen_between(lost_at, finished_at)
+    print(f"{what} -> stop sent {(stop_at - lost_at) * 1000:.1f} ms, job aborted {(finished_at - lost_at) * 1000:.1f} ms "
+          f"(host stalled the guest {stolen_stop * 1000:.0f} / {stolen_end * 1000:.0f} ms of it)")
+    assert 0 < stop_at - lost_at - stolen_stop <= LOSS_DEADLINE_S + MARGIN_S
+    assert 0 < finished_at - lost_at - stolen_end <= LOSS_DEADLINE_S + MARGIN_S
+
+
+def test_controller_killed_mid_execution(bridge, long_plan, host_stalls):
     from robot_bridge.settings import BridgeSettings
 
     # the production watchdog (0.25 s): the 300 ms deadline is what is tested
@@ -364,14 +382,11 @@ def test_controller_killed_mid_execution(bridge, long_plan):
     assert "at" in killed, f"the job ended before the kill: {res.reason}"
     assert res.status == "aborted" and "controller lost" in res.reason
     assert 150 <= res.last_index < len(long_plan["trajectory"]) - 1
-    stop_at, finished_at = _loss_times(rec)
-    print(f"killed -> stop sent {(stop_at - killed['at']) * 1000:.1f} ms, job aborted {(finished_at - killed['at']) * 1000:.1f} ms")
-    assert 0 < stop_at - killed["at"] <= LOSS_DEADLINE_S + MARGIN_S
-    assert 0 < finished_at - killed["at"] <= LOSS_DEADLINE_S + MARGIN_S
+    assert_loss_handled_in_time(host_stalls, killed["at"], rec, "killed")
     assert rec.kinds()[-1] == "finished"
 
 
-def test_frozen_controller_process_aborts_within_the_watchdog(bridge, long_plan):
+def test_frozen_controller_process_aborts_within_the_watchdog(bridge, long_plan, host_stalls):
     """A hung controller (SIGSTOP): its socket stays open and its token lives until the lease ends
     (1 s), so only the heartbeat watchdog can meet the 300 ms deadline."""
     import os
@@ -394,13 +409,10 @@ def test_frozen_controller_process_aborts_within_the_watchdog(bridge, long_plan)
         ctl.kill()  # SIGKILL ends a stopped process too
     assert "at" in frozen, f"the job ended before the freeze: {res.reason}"
     assert res.status == "aborted" and "heartbeat" in res.reason
-    stop_at, finished_at = _loss_times(rec)
-    print(f"frozen -> stop sent {(stop_at - frozen['at']) * 1000:.1f} ms, job aborted {(finished_at - frozen['at']) * 1000:.1f} ms")
-    assert 0 < stop_at - frozen["at"] <= LOSS_DEADLINE_S + MARGIN_S
-    assert finished_at - frozen["at"] <= LOSS_DEADLINE_S + MARGIN_S
+    assert_loss_handled_in_time(host_stalls, frozen["at"], rec, "frozen")
 
 
-def test_heartbeat_stall_aborts_within_the_watchdog(bridge, long_plan):
+def test_heartbeat_stall_aborts_within_the_watchdog(bridge, long_plan, host_stalls):
     from robot_bridge.settings import BridgeSettings
 
     # the production watchdog (0.25 s), so the 300 ms deadline is what is tested
@@ -410,10 +422,8 @@ def test_heartbeat_stall_aborts_within_the_watchdog(bridge, long_plan):
     assert res.status == "aborted" and "heartbeat" in res.reason
     assert ctl.proc.poll() is None  # the controller process is still alive, only its heartbeat froze
     silent_since = disp.last_heartbeat_at()  # the last heartbeat that arrived
-    stop_at, finished_at = _loss_times(rec)
-    print(f"silent -> stop sent {(stop_at - silent_since) * 1000:.1f} ms, job aborted {(finished_at - silent_since) * 1000:.1f} ms")
-    assert BridgeSettings().watchdog_timeout_s <= stop_at - silent_since <= LOSS_DEADLINE_S + MARGIN_S
-    assert finished_at - silent_since <= LOSS_DEADLINE_S + MARGIN_S
+    assert BridgeSettings().watchdog_timeout_s <= _loss_times(rec)[0] - silent_since  # not before the watchdog
+    assert_loss_handled_in_time(host_stalls, silent_since, rec, "silent")
     # the controller is still reachable, so it received and honoured the stop: it no longer moves
     time.sleep(0.1)
     q1 = np.array(disp.measured_state().q)
