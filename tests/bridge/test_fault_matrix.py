@@ -328,6 +328,54 @@ def test_no_controller_means_no_dispatch(bridge, arm_plan):
     assert_nothing_sent(disp, spy, rec)
 
 
+def _freeze_until_state_is_stale(ctl, disp) -> None:
+    """SIGSTOP the controller (as a pause of the machine would hold it) until the dispatcher's joint state is stale."""
+    import os
+    import signal
+
+    os.kill(ctl.proc.pid, signal.SIGSTOP)
+    deadline = time.monotonic() + 3.0
+    while disp.measured_state() is not None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert disp.measured_state() is None and disp.controller_problem() is None  # token and heartbeat still fine
+
+
+def test_dispatch_waits_for_a_fresh_state_after_a_pause(bridge, arm_plan):
+    """A dispatch that starts while the controller's joint state is stale but its token is present waits (up to
+    ``state_wait_s``) for a fresh state instead of refusing: here the controller resumes 0.3 s later."""
+    import os
+    import signal
+
+    ctl, disp, spy = bridge(speed=4.0, dispatch=DispatchSettings(state_max_age_s=0.2))
+    _freeze_until_state_is_stale(ctl, disp)
+    resume = threading.Timer(0.3, os.kill, (ctl.proc.pid, signal.SIGCONT))
+    resume.start()
+    try:
+        res, rec = run(disp, arm_plan)
+    finally:
+        resume.join()
+    assert res.status == "succeeded", res.reason
+    assert rec.kinds()[0] == "gate"
+
+
+def test_a_state_still_stale_after_the_wait_refuses_the_dispatch(bridge, arm_plan):
+    import os
+    import signal
+
+    ctl, disp, spy = bridge(speed=4.0, dispatch=DispatchSettings(state_max_age_s=0.2, state_wait_s=0.3))
+    _freeze_until_state_is_stale(ctl, disp)
+    rec = Recorder()
+    try:
+        started = time.monotonic()
+        with pytest.raises(ControllerUnavailableError, match="joint state is unknown"):
+            run(disp, arm_plan, on_event=rec)
+        waited = time.monotonic() - started
+    finally:
+        os.kill(ctl.proc.pid, signal.SIGCONT)
+    assert waited >= 0.3
+    assert_nothing_sent(disp, spy, rec)
+
+
 # --------------------------------------------------------------------------- faults during execution
 
 
