@@ -49,6 +49,11 @@ from robot_bridge.zenoh_session import encode, open_session  # noqa: E402
 from schemas.bridge import ExecStatus  # noqa: E402
 from schemas.plan import plan_sha256  # noqa: E402
 from tests.bridge.plans import build_plan, stance_state  # noqa: E402
+from tests.host_stalls import HostStallProbe  # noqa: E402
+
+#: The pause probe's resolution here: a real-time sleeper woken 0.5 ms late was held back by the host
+#: (or an interrupt), not by this machine's own processes.
+PAUSE_RESOLUTION_S = 0.0005
 
 ROBOT_ID = "bench"
 #: The benchmark's arm move (joint -> rad) and its duration: well inside the velocity and acceleration limits.
@@ -98,6 +103,10 @@ class Conditions:
         return f"[load {os.getloadavg()[0]:.2f}{stolen}]"
 
 
+def ms(spans: list[tuple[float, float]]) -> list[float]:
+    return [(b - a) * 1000 for a, b in spans]
+
+
 def pct(values: list[float], q: float) -> float:
     return float(np.percentile(np.array(values), q))
 
@@ -141,15 +150,30 @@ class ExecObserver:
         self.session.close()
 
 
-def segment_latency(endpoint: str, segment_s: float, plans: list[dict], min_jobs: int, min_segments: int) -> None:
+def clear_of_pauses(probe: HostStallProbe, spans: list[tuple[float, float]]) -> list[bool]:
+    """Whether the host let the guest run through each (start, end) span (no pause the probe saw overlaps it)."""
+    time.sleep(0.05)  # the last pauses are reported a moment after they end
+    return [not probe.stalls_between(a, b, settle_s=0.0) for a, b in spans]
+
+
+def pause_summary(probe: HostStallProbe, spans: list[tuple[float, float]]) -> str:
+    """The figures again over the samples no host pause touched (``probe.mode``: realtime, or normal priority)."""
+    clear = clear_of_pauses(probe, spans)
+    kept = [d for d, ok in zip(ms(spans), clear) if ok]
+    head = f"{len(kept)} of {len(spans)} clear of host pauses (probe: {probe.mode} priority, {probe.late_s * 1000:g} ms)"
+    return f"{head}: {summary(kept)}" if kept else head
+
+
+def segment_latency(endpoint: str, segment_s: float, plans: list[dict], min_jobs: int, min_segments: int,
+                    probe: HostStallProbe) -> None:
     """Execute the plans (forward, back, ...) until both minimums are met; print the one-way segment latencies."""
     disp = Dispatcher(BridgeSettings(robot_id=ROBOT_ID, connect=[endpoint]), DispatchSettings(segment_duration_s=segment_s))
     try:
         assert disp.wait_for_controller(20.0), disp.controller_problem()
         conditions = Conditions()
-        latencies: list[float] = []
+        spans: list[tuple[float, float]] = []
         k = 0
-        while k < min_jobs or len(latencies) < min_segments or k % 2:  # end back at the start posture
+        while k < min_jobs or len(spans) < min_segments or k % 2:  # end back at the start posture
             sent: dict[int, float] = {}
             got: dict[int, float] = {}
 
@@ -161,33 +185,35 @@ def segment_latency(endpoint: str, segment_s: float, plans: list[dict], min_jobs
 
             res = execute(disp, plans[k % 2], f"bench-{segment_s}-{k}", on_event)
             assert res.status == "succeeded", res.reason
-            latencies += [(got[s] - sent[s]) * 1000 for s in got if s in sent]
+            spans += [(sent[s], got[s]) for s in got if s in sent]
             k += 1
         segs = split_segments(plans[0], "bench-0", "0" * 64, 0, segment_s)
         size = len(encode(segs[0]))
+        latencies = ms(spans)
         print(f"segment latency bridge -> controller, {segment_s:g} s segments ({len(segs[0].points)} points, "
               f"{size / 1000:.1f} kB): {len(latencies)} segments over {k} plans: {summary(latencies)} (target p99 <= 2 ms) "
-              f"{conditions}")
+              f"{conditions}; {pause_summary(probe, spans)}")
     finally:
         disp.close()
 
 
-def idle_stops(disp: Dispatcher, watch: ExecObserver, n: int) -> list[float]:
+def idle_stops(disp: Dispatcher, watch: ExecObserver, n: int) -> list[tuple[float, float]]:
+    """(published, received) of ``n`` stops while the controller is idle."""
     out = []
     for _ in range(n):
         t0 = disp.stop(None, reason="bench")
         at = watch.stop_received(t0)
         if at is not None:
-            out.append((at - t0) * 1000)
+            out.append((t0, at))
         time.sleep(disp.settings.stop_repeats * disp.settings.stop_repeat_period_s + 0.02)  # let this stop's repeats pass
     return out
 
 
 def busy_stops(disp: Dispatcher, watch: ExecObserver, n: int, rng: np.random.Generator,
-               speed: float) -> tuple[list[float], list[float]]:
+               speed: float) -> tuple[list[tuple[float, float]], list[float]]:
     """Stop the arm move at a random moment of its motion, then bring the arm back from where it stopped.
 
-    Returns the stop times (ms) and the fractions of the move played when each stop took hold."""
+    Returns (published, received) of each stop and the fractions of the move played when each stop took hold."""
     names, q_start, _ = stance_state()
     forward = build_plan(MOVES, duration_s=MOVE_S)
     lead = 0.05  # build_plan's rest before the move starts (plan seconds)
@@ -210,7 +236,7 @@ def busy_stops(disp: Dispatcher, watch: ExecObserver, n: int, rng: np.random.Gen
         runner.join(10.0)
         assert result and result[0].status == "aborted", result
         if at is not None:
-            out.append((at - t0) * 1000)
+            out.append((t0, at))
         # Back to the start: the same move scaled to where the arm stopped, reversed (at rest at both ends),
         # once the repeats of the two stops (the request's and the execution's abort) have passed.
         time.sleep(2 * disp.settings.stop_repeats * disp.settings.stop_repeat_period_s + 0.05)
@@ -247,6 +273,7 @@ def main() -> None:
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} (tails grow with load)")
     names, q, _ = stance_state()
     production_s = DispatchSettings.model_fields["segment_duration_s"].default
+    probe = HostStallProbe(PAUSE_RESOLUTION_S)
     with tempfile.TemporaryDirectory() as tmp:
         qfile = Path(tmp) / "q.json"
         qfile.write_text(json.dumps({"joint_names": names, "q": q}))
@@ -261,7 +288,7 @@ def main() -> None:
             forward = build_plan(MOVES, duration_s=MOVE_S)
             plans = [forward, reverse(forward)]
             for segment_s in dict.fromkeys((args.segment_s, production_s)):
-                segment_latency(endpoint, segment_s, plans, args.jobs, args.min_segments)
+                segment_latency(endpoint, segment_s, plans, args.jobs, args.min_segments, probe)
 
             watch = ExecObserver(endpoint)
             disp = Dispatcher(BridgeSettings(robot_id=ROBOT_ID, connect=[endpoint]))
@@ -270,18 +297,19 @@ def main() -> None:
                 conditions = Conditions()
                 idle = idle_stops(disp, watch, args.stops)
                 print(f"stop propagation bridge -> controller halt, idle ({len(idle)} of {args.stops} stops): "
-                      f"{summary(idle)} (target <= 10 ms) {conditions}")
+                      f"{summary(ms(idle))} (target <= 10 ms) {conditions}; {pause_summary(probe, idle)}")
                 conditions = Conditions()
                 busy, played = busy_stops(disp, watch, args.busy_stops, np.random.default_rng(args.seed), args.speed)
                 print(f"stop propagation bridge -> controller halt, mid-execution ({len(busy)} of {args.busy_stops} "
-                      f"stops, the arm stopped at {min(played):.0%}-{max(played):.0%} of its move): {summary(busy)} "
-                      f"(target <= 10 ms) {conditions}")
+                      f"stops, the arm stopped at {min(played):.0%}-{max(played):.0%} of its move): {summary(ms(busy))} "
+                      f"(target <= 10 ms) {conditions}; {pause_summary(probe, busy)}")
             finally:
                 disp.close()
                 watch.close()
         finally:
             proc.terminate()
             proc.wait(timeout=10)
+            probe.close()
 
 
 if __name__ == "__main__":

@@ -20,20 +20,26 @@ import sys
 import threading
 import time
 
-#: A wake-up this much later than asked counts as a stall (a 2-core guest running three busy
-#: processes delays a wake-up by a few ms without any stall of the host).
+#: A wake-up this much later than asked counts as a stall (the probe runs at real-time priority
+#: where it may, so the guest's own busy processes do not delay it; where it may not, a 2-core
+#: guest running three busy processes delays a wake-up by a few ms without any stall of the host).
 LATE_S = 0.015
 
-_SAMPLER = f"""
-import sys, time
-period, late = 0.001, {LATE_S}
+_SAMPLER = """
+import os, sys, time
+period, late = 0.001, float(sys.argv[1])
+try:  # SCHED_FIFO: only the host (or the kernel's interrupts) can hold a real-time sleeper back
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    mode = "realtime"
+except (OSError, AttributeError):
+    mode = "normal"
 last = time.monotonic()
-print("ready", flush=True)
+print("ready", mode, flush=True)
 while True:
     time.sleep(period)
     now = time.monotonic()
     if now - last > period + late:
-        sys.stdout.write(f"{{last!r}} {{now!r}}\\n")
+        sys.stdout.write(f"{last!r} {now!r}\\n")
         sys.stdout.flush()
     last = now
 """
@@ -42,8 +48,11 @@ while True:
 class HostStallProbe:
     """A sampler subprocess and the stalls it reported, as (start, end) monotonic times (the clock is system-wide)."""
 
-    def __init__(self) -> None:
-        self._proc = subprocess.Popen([sys.executable, "-c", _SAMPLER], stdout=subprocess.PIPE, text=True, bufsize=1)
+    def __init__(self, late_s: float = LATE_S) -> None:
+        self.late_s = late_s
+        self.mode = "starting"  # "realtime" or "normal" once the sampler runs
+        self._proc = subprocess.Popen([sys.executable, "-c", _SAMPLER, repr(late_s)], stdout=subprocess.PIPE, text=True,
+                                      bufsize=1)
         self._lock = threading.Lock()
         self._starts: list[float] = []
         self._ends: list[float] = []
@@ -58,6 +67,7 @@ class HostStallProbe:
         assert self._proc.stdout is not None
         for line in self._proc.stdout:
             if line.startswith("ready"):
+                self.mode = line.split()[1]
                 self._ready.set()
                 continue
             start, end = (float(x) for x in line.split())
