@@ -51,9 +51,10 @@ from schemas.plan import plan_sha256  # noqa: E402
 from tests.bridge.plans import build_plan, stance_state  # noqa: E402
 from tests.host_stalls import HostStallProbe  # noqa: E402
 
-#: The pause probe's resolution here: a real-time sleeper woken 0.5 ms late was held back by the host
-#: (or an interrupt), not by this machine's own processes.
+#: The pause probe's resolution here: a real-time sleeper woken every 1 ms and 0.5 ms late was held
+#: back by the host (or an interrupt), not by this machine's own processes.
 PAUSE_RESOLUTION_S = 0.0005
+PAUSE_PERIOD_S = 0.001
 
 ROBOT_ID = "bench"
 #: The benchmark's arm move (joint -> rad) and its duration: well inside the velocity and acceleration limits.
@@ -273,7 +274,7 @@ def main() -> None:
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} (tails grow with load)")
     names, q, _ = stance_state()
     production_s = DispatchSettings.model_fields["segment_duration_s"].default
-    probe = HostStallProbe(PAUSE_RESOLUTION_S)
+    probe = HostStallProbe(PAUSE_RESOLUTION_S, PAUSE_PERIOD_S)
     with tempfile.TemporaryDirectory() as tmp:
         qfile = Path(tmp) / "q.json"
         qfile.write_text(json.dumps({"joint_names": names, "q": q}))

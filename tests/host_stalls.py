@@ -4,7 +4,7 @@ The CI machine is a VM whose host takes the CPU in bursts: every process of the 
 once, for tens of milliseconds and at times over a second, while the clocks run on. A deadline
 test (abort within 300 ms of losing the controller, 200 Hz joint states) measured across such a
 pause measures the host, not the bridge. This probe is a separate process that wakes every
-millisecond and reports each wake-up that came late; a stall that hit it hit the whole guest.
+``period_s`` and reports each wake-up that came late; a stall that hit it hit the whole guest.
 Being outside the test's process, it does not see the test's own interpreter (a thread holding
 the GIL, a collection), so a slow bridge is never excused by it.
 
@@ -27,7 +27,7 @@ LATE_S = 0.015
 
 _SAMPLER = """
 import os, sys, time
-period, late = 0.001, float(sys.argv[1])
+period, late = float(sys.argv[2]), float(sys.argv[1])
 try:  # SCHED_FIFO: only the host (or the kernel's interrupts) can hold a real-time sleeper back
     os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
     mode = "realtime"
@@ -48,11 +48,11 @@ while True:
 class HostStallProbe:
     """A sampler subprocess and the stalls it reported, as (start, end) monotonic times (the clock is system-wide)."""
 
-    def __init__(self, late_s: float = LATE_S) -> None:
+    def __init__(self, late_s: float = LATE_S, period_s: float = 0.005) -> None:
         self.late_s = late_s
         self.mode = "starting"  # "realtime" or "normal" once the sampler runs
-        self._proc = subprocess.Popen([sys.executable, "-c", _SAMPLER, repr(late_s)], stdout=subprocess.PIPE, text=True,
-                                      bufsize=1)
+        self._proc = subprocess.Popen([sys.executable, "-c", _SAMPLER, repr(late_s), repr(period_s)],
+                                      stdout=subprocess.PIPE, text=True, bufsize=1)
         self._lock = threading.Lock()
         self._starts: list[float] = []
         self._ends: list[float] = []
