@@ -12,6 +12,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[2]
 SMALL_BOX = REPO / "tests" / "data" / "small-box.yaml"
 
@@ -48,6 +50,7 @@ def test_shared_hops_give_the_plan_planned_one_by_one():
     assert shared["q"] == alone["q"]
 
 
+@pytest.mark.host_pauses(limit_s=0.2)
 def test_a_cancel_while_sharing_lands_within_a_second_and_ends_the_helper():
     out = _run("""
         import json, os, time

@@ -77,6 +77,7 @@ def test_invalid_goal_and_bad_input_are_reported(robot, task, right_active, upri
     assert res.status == "bad_input" and "not active" in res.reason
 
 
+@pytest.mark.host_pauses(limit_s=0.2)
 def test_iteration_cap_and_cancel(robot, task, right_active):
     start, goal, mid, _ = task
 

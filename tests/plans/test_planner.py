@@ -185,6 +185,7 @@ def test_end_out_of_reach_is_named(small_box, end):
     assert f"the {end} pose is out of reach of the right hand" in doc["failure"]["message"]
 
 
+@pytest.mark.host_pauses(limit_s=0.2)
 def test_time_limit_bounds_the_whole_run_including_the_auto_survey(small_box):
     """A limit too short for the survey of `auto` ends TIMEOUT soon after the limit, not after the survey."""
     from planner.jobs import build_task

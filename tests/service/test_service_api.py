@@ -61,6 +61,7 @@ def test_submit_progress_result_and_provenance(server: Server, alice: httpx.Clie
     assert prov["code_version"] and "numpy" in prov["library_versions"]
 
 
+@pytest.mark.host_pauses(limit_s=0.2)
 def test_cancel_while_planning_stops_within_1s(alice: httpx.Client) -> None:
     job = submit(alice, "busy-30")
     wait_state(alice, job["id"], {"planning"})
@@ -74,6 +75,7 @@ def test_cancel_while_planning_stops_within_1s(alice: httpx.Client) -> None:
     assert time.monotonic() - t0 < 3.0  # and the client saw it soon after (polling and a loaded machine included)
 
 
+@pytest.mark.host_pauses(limit_s=0.2)
 def test_cancel_of_a_handler_that_never_polls_kills_it_within_1s(alice: httpx.Client) -> None:
     job = submit(alice, "hang-30")
     wait_state(alice, job["id"], {"planning"})
