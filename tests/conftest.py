@@ -56,8 +56,10 @@ def pytest_runtest_protocol(item, nextitem):
     for attempt in range(1, attempts + 1):
         started = time.monotonic()
         reports = runtestprotocol(item, nextitem=nextitem, log=False)
-        longest = max(probe.stalls_between(started, time.monotonic()), default=0.0)
-        if not any(r.failed for r in reports) or longest < limit_s or attempt == attempts:
+        if not any(r.failed for r in reports) or attempt == attempts:
+            break
+        longest = max(probe.stalls_between(started, time.monotonic()), default=0.0)  # after a failure only
+        if longest < limit_s:
             break
         reporter = item.config.pluginmanager.get_plugin("terminalreporter")
         if reporter is not None:

@@ -7,6 +7,8 @@ proves that nothing was sent.
 
 from __future__ import annotations
 
+import os
+import signal
 import threading
 import time
 
@@ -330,9 +332,6 @@ def test_no_controller_means_no_dispatch(bridge, arm_plan):
 
 def _freeze_until_state_is_stale(ctl, disp) -> None:
     """SIGSTOP the controller (as a pause of the machine would hold it) until the dispatcher's joint state is stale."""
-    import os
-    import signal
-
     os.kill(ctl.proc.pid, signal.SIGSTOP)
     deadline = time.monotonic() + 3.0
     while disp.measured_state() is not None and time.monotonic() < deadline:
@@ -343,9 +342,6 @@ def _freeze_until_state_is_stale(ctl, disp) -> None:
 def test_dispatch_waits_for_a_fresh_state_after_a_pause(bridge, arm_plan):
     """A dispatch that starts while the controller's joint state is stale but its token is present waits (up to
     ``state_wait_s``) for a fresh state instead of refusing: here the controller resumes 0.3 s later."""
-    import os
-    import signal
-
     ctl, disp, spy = bridge(speed=4.0, dispatch=DispatchSettings(state_max_age_s=0.2))
     _freeze_until_state_is_stale(ctl, disp)
     resume = threading.Timer(0.3, os.kill, (ctl.proc.pid, signal.SIGCONT))
@@ -359,9 +355,6 @@ def test_dispatch_waits_for_a_fresh_state_after_a_pause(bridge, arm_plan):
 
 
 def test_a_state_still_stale_after_the_wait_refuses_the_dispatch(bridge, arm_plan):
-    import os
-    import signal
-
     ctl, disp, spy = bridge(speed=4.0, dispatch=DispatchSettings(state_max_age_s=0.2, state_wait_s=0.3))
     _freeze_until_state_is_stale(ctl, disp)
     rec = Recorder()
@@ -437,9 +430,6 @@ def test_controller_killed_mid_execution(bridge, long_plan, host_stalls):
 def test_frozen_controller_process_aborts_within_the_watchdog(bridge, long_plan, host_stalls):
     """A hung controller (SIGSTOP): its socket stays open and its token lives until the lease ends
     (1 s), so only the heartbeat watchdog can meet the 300 ms deadline."""
-    import os
-    import signal
-
     from robot_bridge.settings import BridgeSettings
 
     settings = BridgeSettings()
