@@ -15,7 +15,7 @@ import numpy as np
 
 from .state_eval import HoldSpec, StateEvaluator
 from .timing import zmp_cart_table
-from .transforms import matrix_to_pose7
+from .transforms import matrices_to_pose7
 
 Kind = Literal["transit", "transfer", "handover", "approach", "retreat"]
 
@@ -112,16 +112,11 @@ def assemble(pieces: list[MotionPiece], evaluator: StateEvaluator, dt: float, st
 
 
 def trajectory_points(traj: TimedTrajectory) -> list[dict]:
-    """The plan's ``trajectory`` entries, floats at full precision."""
-    out = []
-    for i in range(len(traj.t)):
-        out.append({
-            "t": float(traj.t[i]),
-            "q": traj.Q[i].tolist(),
-            "holding": traj.holding[i],
-            "object_pose": matrix_to_pose7(traj.object_pose[i]).tolist(),
-            "com": traj.com[i].tolist(),
-            "margin_m": float(traj.margin[i]),
-            "zmp": traj.zmp[i].tolist(),
-        })
-    return out
+    """The plan's ``trajectory`` entries, floats at full precision (arrays converted whole: a plan
+    has thousands of points, and per-point conversions cost ~0.4 s on a 50 s plan)."""
+    poses = matrices_to_pose7(traj.object_pose).tolist()
+    return [
+        {"t": t, "q": q, "holding": holding, "object_pose": pose, "com": com, "margin_m": margin, "zmp": zmp}
+        for t, q, holding, pose, com, margin, zmp in zip(
+            traj.t.tolist(), traj.Q.tolist(), traj.holding, poses, traj.com.tolist(), traj.margin.tolist(), traj.zmp.tolist())
+    ]

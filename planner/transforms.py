@@ -73,6 +73,38 @@ def matrix_to_pose7(T: np.ndarray) -> np.ndarray:
     return np.concatenate([T[:3, 3], matrix_to_quat(T[:3, :3])])
 
 
+def matrices_to_pose7(T: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) rigid transforms -> (N, 7) ``[x y z qx qy qz qw]`` with qw >= 0: :func:`matrix_to_pose7`
+    for many poses at once (a plan has thousands of points)."""
+    T = np.asarray(T, dtype=float)
+    R = T[:, :3, :3]
+    n = T.shape[0]
+    q = np.empty((n, 4))
+    tr = R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2]
+    # Shepperd's method, branch per row on the largest diagonal term.
+    cases = np.argmax(np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], axis=1), axis=1)
+    for c in range(4):
+        m = cases == c
+        if not m.any():
+            continue
+        r = R[m]
+        if c == 0:
+            s = np.sqrt(1.0 + tr[m]) * 2
+            q[m] = np.stack([(r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s, (r[:, 1, 0] - r[:, 0, 1]) / s, 0.25 * s], axis=1)
+        elif c == 1:
+            s = np.sqrt(1.0 + r[:, 0, 0] - r[:, 1, 1] - r[:, 2, 2]) * 2
+            q[m] = np.stack([0.25 * s, (r[:, 0, 1] + r[:, 1, 0]) / s, (r[:, 0, 2] + r[:, 2, 0]) / s, (r[:, 2, 1] - r[:, 1, 2]) / s], axis=1)
+        elif c == 2:
+            s = np.sqrt(1.0 + r[:, 1, 1] - r[:, 0, 0] - r[:, 2, 2]) * 2
+            q[m] = np.stack([(r[:, 0, 1] + r[:, 1, 0]) / s, 0.25 * s, (r[:, 1, 2] + r[:, 2, 1]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s], axis=1)
+        else:
+            s = np.sqrt(1.0 + r[:, 2, 2] - r[:, 0, 0] - r[:, 1, 1]) * 2
+            q[m] = np.stack([(r[:, 0, 2] + r[:, 2, 0]) / s, (r[:, 1, 2] + r[:, 2, 1]) / s, 0.25 * s, (r[:, 1, 0] - r[:, 0, 1]) / s], axis=1)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[q[:, 3] < 0] *= -1
+    return np.hstack([T[:, :3, 3], q])
+
+
 def make_transform(R: np.ndarray | None = None, p: np.ndarray | None = None) -> np.ndarray:
     """4x4 matrix from a rotation and a translation (either may be omitted)."""
     T = np.eye(4)

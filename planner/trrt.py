@@ -42,6 +42,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from .state_eval import HoldSpec, StateEvaluator
+from .transforms import matrices_to_pose7
 
 #: validity(Q (N, n)) -> (valid (N,) bool, margin (N,) float)
 Validity = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -529,37 +530,6 @@ class Exploration:
         return int((~self.stable).sum())
 
 
-def matrix_to_pose7(T: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) rigid transforms -> (N, 7) ``[x y z qx qy qz qw]`` with qw >= 0."""
-    T = np.asarray(T, dtype=float)
-    R = T[:, :3, :3]
-    n = T.shape[0]
-    q = np.empty((n, 4))
-    tr = R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2]
-    # Shepperd's method, branch per row on the largest diagonal term.
-    cases = np.argmax(np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], axis=1), axis=1)
-    for c in range(4):
-        m = cases == c
-        if not m.any():
-            continue
-        r = R[m]
-        if c == 0:
-            s = np.sqrt(1.0 + tr[m]) * 2
-            q[m] = np.stack([(r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s, (r[:, 1, 0] - r[:, 0, 1]) / s, 0.25 * s], axis=1)
-        elif c == 1:
-            s = np.sqrt(1.0 + r[:, 0, 0] - r[:, 1, 1] - r[:, 2, 2]) * 2
-            q[m] = np.stack([0.25 * s, (r[:, 0, 1] + r[:, 1, 0]) / s, (r[:, 0, 2] + r[:, 2, 0]) / s, (r[:, 2, 1] - r[:, 1, 2]) / s], axis=1)
-        elif c == 2:
-            s = np.sqrt(1.0 + r[:, 1, 1] - r[:, 0, 0] - r[:, 2, 2]) * 2
-            q[m] = np.stack([(r[:, 0, 1] + r[:, 1, 0]) / s, 0.25 * s, (r[:, 1, 2] + r[:, 2, 1]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s], axis=1)
-        else:
-            s = np.sqrt(1.0 + r[:, 2, 2] - r[:, 0, 0] - r[:, 1, 1]) * 2
-            q[m] = np.stack([(r[:, 0, 2] + r[:, 2, 0]) / s, (r[:, 1, 2] + r[:, 2, 1]) / s, 0.25 * s, (r[:, 1, 0] - r[:, 0, 1]) / s], axis=1)
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    q[q[:, 3] < 0] *= -1
-    return np.hstack([T[:, :3, 3], q])
-
-
 class _Recorder:
     """Collects evaluated states up to the budget."""
 
@@ -646,7 +616,7 @@ def explore(
         rejected["joint_limits"] += int((~within).sum())
         rejected["collision"] += int((within & ~free).sum())
         keep = free
-        pose7 = matrix_to_pose7(batch.object_pose[keep]) if batch.object_pose is not None else None
+        pose7 = matrices_to_pose7(batch.object_pose[keep]) if batch.object_pose is not None else None
         label = leg.hold.label if leg.hold is not None else "none"
         if keep.any():
             idx = np.flatnonzero(keep)

@@ -11,6 +11,7 @@ from planner.transforms import (
     axis_angle_to_matrix,
     inverse,
     matrix_to_axis_angle,
+    matrices_to_pose7,
     matrix_to_pose7,
     matrix_to_rpy,
     pose7_to_matrix,
@@ -32,6 +33,10 @@ def test_pose7_round_trip(p, q):
     # same rotation up to the quaternion sign
     assert np.allclose(pose7_to_matrix(back), T, atol=1e-9)
     assert back[6] >= 0
+    # the batch form gives the same pose (a half turn has two quaternions with qw = 0)
+    many = matrices_to_pose7(np.stack([T, T]))
+    assert np.allclose(many[1, :3], back[:3], atol=1e-12)
+    assert min(np.abs(many[1, 3:] - back[3:]).max(), np.abs(many[1, 3:] + back[3:]).max()) < 1e-12
 
 
 @settings(max_examples=60, deadline=None)

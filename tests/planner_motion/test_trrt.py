@@ -8,7 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from planner.trrt import ExploreLeg, TrrtSettings, explore, matrix_to_pose7, plan_motion
+from planner.transforms import matrices_to_pose7
+from planner.trrt import ExploreLeg, TrrtSettings, explore, plan_motion
 
 RESOLUTION = 0.02
 
@@ -147,7 +148,7 @@ def test_exploration_counts_and_flags(robot, upright, evaluator, hold_right, rig
         assert m == pytest.approx(ex.margin[i], abs=1e-9)
         assert bool(ex.stable[i]) == (m >= 0.03)
         T = evaluator.tcp_pose(ex.q[i], "right") @ np.linalg.inv(hold_right.T_obj_tcp)
-        assert np.allclose(ex.object_pose[i], matrix_to_pose7(T[None])[0], atol=1e-9)
+        assert np.allclose(ex.object_pose[i], matrices_to_pose7(T[None])[0], atol=1e-9)
     again = explore([ExploreLeg(start, goal, hold_right, right_active)], evaluator, collision_free, n, np.random.default_rng(1))
     assert np.array_equal(again.q, ex.q) and np.array_equal(again.stable, ex.stable)
 
