@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from planner.transforms import (
     axis_angle_to_matrix,
     inverse,
-    matrix_to_axis_angle,
     matrices_to_pose7,
+    matrix_to_axis_angle,
     matrix_to_pose7,
     matrix_to_rpy,
     pose7_to_matrix,
