@@ -168,29 +168,41 @@ def _task_key(scenario_json: str, threshold_m: float, settings_json: str) -> str
     return f"{scenario_json}|{threshold_m}|{settings_json}"
 
 
-def _chains(configs: list[str], n_workers: int) -> list[list[int]]:
-    """Which configurations (indices) each pool task runs, in order.
+SINGLE_ARM = ("left-left", "right-right")
 
-    With a worker per configuration, each runs alone, dual-arm ones (the longest: handover key
-    poses) submitted first. With fewer workers, the configurations that pick with the same hand
-    share a worker, single-arm first: the dual-arm one then reuses the pick nodes the other
-    validated (measured on upright: left-right's key poses 3.7 s alone, 2.3 s after left-left).
+
+def _rounds(configs: list[str], n_workers: int) -> list[list[list[int]]]:
+    """Which configurations (indices) each pool task runs, round by round: the rounds run one after
+    the other, and each starts from everything the earlier rounds worked out (the parent adopts it
+    and forks the round's workers after).
+
+    With a worker per configuration, one round, each configuration alone, dual-arm ones (the
+    longest: handover key poses) submitted first. With fewer, the single-arm configurations first,
+    then the dual-arm ones: a dual-arm configuration probes the grasps of both hands, and after the
+    first round both are known (chains by picking hand probed the other hand's grasps again in each
+    worker: measured 0.3-0.6 s per worker). The one-process survey runs the same order, so the
+    outcomes are the same in any process layout.
     """
-    order = sorted(range(len(configs)), key=lambda k: (configs[k] in ("left-left", "right-right"), k))
     if n_workers >= len(configs):
-        return [[k] for k in order]
-    groups: dict[str, list[int]] = {}
-    for k in sorted(range(len(configs)), key=lambda k: (configs[k] not in ("left-left", "right-right"), k)):
-        groups.setdefault(configs[k].split("-")[0], []).append(k)
-    if len(groups) != n_workers:
-        return [[k] for k in order]
-    return list(groups.values())
+        return [[[k] for k in sorted(range(len(configs)), key=lambda k: (configs[k] in SINGLE_ARM, k))]]
+    rounds = []
+    for single in (True, False):
+        mine = [k for k in range(len(configs)) if (configs[k] in SINGLE_ARM) == single]
+        while mine:  # at most two of each kind: more only if a caller repeats a configuration
+            chunk, mine = mine[:n_workers], mine[n_workers:]
+            rounds.append([[k] for k in chunk])
+    return rounds
+
+
+def _serial_order(configs: list[str]) -> list[int]:
+    """The one-process survey's order: the order of :func:`_rounds`."""
+    return [k for rnd in _rounds(configs, 1) for chain in rnd for k in chain]
 
 
 def _worker(args: tuple) -> tuple[list[list[ConfigOutcome]], dict]:
-    """Run one chain of configurations (see :func:`_chains`): one outcome list per configuration,
+    """Run one chain of configurations (see :func:`_rounds`): one outcome list per configuration,
     and what the worker's task worked out (:meth:`Task.validations`), which the parent's adopts."""
-    scenario_json, threshold_m, hands_list, states, seeds, settings_json = args
+    scenario_json, threshold_m, hands_list, states, seeds, settings_json, known, then_handover_poses = args
     key = _task_key(scenario_json, threshold_m, settings_json)
     task = _WORKER_TASKS.get(key)
     if task is None:
@@ -199,7 +211,11 @@ def _worker(args: tuple) -> tuple[list[list[ConfigOutcome]], dict]:
         task = Task(scenario, settings, threshold_m=threshold_m)
         _WORKER_TASKS.clear()
         _WORKER_TASKS[key] = task
+    if known is not None:
+        task.adopt(known)
     outcomes = [survey_configuration(task, hands, states, list(seeds)) for hands in hands_list]
+    if then_handover_poses:
+        task.handover_poses  # noqa: B018 - computed here once for the next round's workers (0.3-0.8 s each)
     return outcomes, task.validations()
 
 
@@ -258,10 +274,11 @@ def run_survey_seeds(
         n_workers = min(len(configs), workers if workers is not None else (os.cpu_count() or 1))
         progress(0.05, f"exploring {len(configs)} hand configurations, {states} states each")
         if n_workers <= 1:
-            per_config = []
-            for k, h in enumerate(configs):
-                per_config.append(survey_configuration(task, h, states, list(seeds), should_stop))
-                progress(0.05 + 0.9 * (k + 1) / len(configs), f"{h} done")
+            by_index: dict[int, list[ConfigOutcome]] = {}
+            for k in _serial_order(configs):
+                by_index[k] = survey_configuration(task, configs[k], states, list(seeds), should_stop)
+                progress(0.05 + 0.9 * len(by_index) / len(configs), f"{configs[k]} done")
+            per_config = [by_index[k] for k in range(len(configs))]
         else:
             sc_json = scenario.model_dump_json(by_alias=True)
             st_json = settings.model_dump_json() if settings is not None else ""
@@ -270,31 +287,39 @@ def run_survey_seeds(
                 # Forked workers inherit the imported modules and this task: no start-up cost.
                 _WORKER_TASKS.clear()
                 _WORKER_TASKS[_task_key(sc_json, threshold, st_json)] = task
-            chains = _chains(configs, n_workers)
+            results: dict[int, list[ConfigOutcome]] = {}
             try:
                 with ProcessPoolExecutor(max_workers=n_workers, mp_context=context) as pool:
-                    futures = {tuple(ch): pool.submit(_worker, (sc_json, threshold, [configs[k] for k in ch], states, list(seeds), st_json))
-                               for ch in chains}
-                    results: dict[int, list[ConfigOutcome]] = {}
-                    pending = set(futures.values())
-                    while pending:
-                        finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-                        for ch, f in futures.items():
-                            if f in finished:
-                                chain_outcomes, validations = f.result()
-                                task.adopt(validations)
-                                for k, outcome in zip(ch, chain_outcomes):
-                                    results[k] = outcome
-                                progress(0.05 + 0.9 * len(results) / len(configs), f"{', '.join(configs[k] for k in ch)} done")
-                        if pending and should_stop():
-                            for g in pending:
-                                g.cancel()
-                            # The pool forgets its processes when shut down: take them first.
-                            procs = list((getattr(pool, "_processes", None) or {}).values())
-                            pool.shutdown(wait=False, cancel_futures=True)
-                            for proc in procs:
-                                proc.kill()
-                            raise SurveyCanceled() from None
+                    rounds = _rounds(configs, n_workers)
+                    for r, chains in enumerate(rounds):
+                        # A later round starts from what the earlier ones found (sent along: a
+                        # worker may have been started before the parent adopted it). The first
+                        # chain of a round before a dual-arm one also works out the handover poses,
+                        # which every dual-arm configuration needs.
+                        known = task.validations() if r else None
+                        poses_next = any(configs[k] not in SINGLE_ARM for later in rounds[r + 1:] for ch in later for k in ch)
+                        futures = {tuple(ch): pool.submit(_worker, (sc_json, threshold, [configs[k] for k in ch], states,
+                                                                    list(seeds), st_json, known, poses_next and i == 0))
+                                   for i, ch in enumerate(chains)}
+                        pending = set(futures.values())
+                        while pending:
+                            finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                            for ch, f in futures.items():
+                                if f in finished:
+                                    chain_outcomes, validations = f.result()
+                                    task.adopt(validations)
+                                    for k, outcome in zip(ch, chain_outcomes):
+                                        results[k] = outcome
+                                    progress(0.05 + 0.9 * len(results) / len(configs), f"{', '.join(configs[k] for k in ch)} done")
+                            if pending and should_stop():
+                                for g in pending:
+                                    g.cancel()
+                                # The pool forgets its processes when shut down: take them first.
+                                procs = list((getattr(pool, "_processes", None) or {}).values())
+                                pool.shutdown(wait=False, cancel_futures=True)
+                                for proc in procs:
+                                    proc.kill()
+                                raise SurveyCanceled() from None
                     per_config = [results[k] for k in range(len(configs))]
             finally:
                 _WORKER_TASKS.clear()  # the parent keeps no task alive once its workers are gone

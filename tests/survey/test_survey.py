@@ -171,13 +171,16 @@ def test_key_poses_do_not_depend_on_which_configuration_ran_first(scenario):
     assert path_of(shared, "left-left") == alone
 
 
-def test_chained_configurations_count_as_when_run_alone(scenario):
-    """Three configurations on two workers: the two picking with the left hand share a worker
-    (left-left first, left-right reusing its validated nodes); counts equal the one-process run."""
-    from planner.survey import _chains
+def test_configurations_in_rounds_count_as_in_one_process(scenario):
+    """Three configurations on two workers: the single-arm ones first, one per worker, then the
+    dual-arm one, starting from both hands' probes and validated nodes; the one-process survey runs
+    the same order, and the counts are equal."""
+    from planner.survey import _rounds, _serial_order
 
-    hands = ["right-right", "left-left", "left-right"]
-    assert _chains(hands, 2) == [[0], [1, 2]]
+    hands = ["right-right", "left-right", "left-left"]
+    assert _rounds(hands, 2) == [[[0], [2]], [[1]]]
+    assert _serial_order(hands) == [0, 2, 1]
+    assert _rounds(hands, 3) == [[[1], [0], [2]]]  # a worker each: one round, the dual-arm one first
     alone, _ = run_survey(scenario, states=200, hands=hands, workers=1)
     chained, _ = run_survey(scenario, states=200, hands=hands, workers=2)
     assert [(r["hands"], r["stable"], r["unstable"]) for r in chained["rows"]] == \
