@@ -171,38 +171,38 @@ def _task_key(scenario_json: str, threshold_m: float, settings_json: str) -> str
 SINGLE_ARM = ("left-left", "right-right")
 
 
-def _rounds(configs: list[str], n_workers: int) -> list[list[list[int]]]:
-    """Which configurations (indices) each pool task runs, round by round: the rounds run one after
-    the other, and each starts from everything the earlier rounds worked out (the parent adopts it
-    and forks the round's workers after).
+def _rounds(configs: list[str], n_workers: int) -> list[list[int]]:
+    """The configurations (indices) each round runs, one pool task each; a round starts when the one
+    before it has ended, from everything the earlier rounds worked out (sent to its workers).
 
-    With a worker per configuration, one round, each configuration alone, dual-arm ones (the
-    longest: handover key poses) submitted first. With fewer, the single-arm configurations first,
-    then the dual-arm ones: a dual-arm configuration probes the grasps of both hands, and after the
-    first round both are known (chains by picking hand probed the other hand's grasps again in each
-    worker: measured 0.3-0.6 s per worker). The one-process survey runs the same order, so the
-    outcomes are the same in any process layout.
+    With a worker per configuration, one round, dual-arm configurations (the longest: handover key
+    poses) submitted first. With fewer, the single-arm configurations first, then the dual-arm ones:
+    a dual-arm configuration probes the grasps of both hands, and after the first round both are
+    known (with chains by picking hand, each worker probed the other hand's grasps again: measured
+    0.3-0.6 s per worker). The one-process survey runs the same order, so each configuration starts
+    from the same probes and key poses in any process layout.
     """
     if n_workers >= len(configs):
-        return [[[k] for k in sorted(range(len(configs)), key=lambda k: (configs[k] in SINGLE_ARM, k))]]
+        return [sorted(range(len(configs)), key=lambda k: (configs[k] in SINGLE_ARM, k))]
     rounds = []
     for single in (True, False):
         mine = [k for k in range(len(configs)) if (configs[k] in SINGLE_ARM) == single]
         while mine:  # at most two of each kind: more only if a caller repeats a configuration
-            chunk, mine = mine[:n_workers], mine[n_workers:]
-            rounds.append([[k] for k in chunk])
+            rounds.append(mine[:n_workers])
+            mine = mine[n_workers:]
     return rounds
 
 
 def _serial_order(configs: list[str]) -> list[int]:
     """The one-process survey's order: the order of :func:`_rounds`."""
-    return [k for rnd in _rounds(configs, 1) for chain in rnd for k in chain]
+    return [k for rnd in _rounds(configs, 1) for k in rnd]
 
 
-def _worker(args: tuple) -> tuple[list[list[ConfigOutcome]], dict]:
-    """Run one chain of configurations (see :func:`_rounds`): one outcome list per configuration,
-    and what the worker's task worked out (:meth:`Task.validations`), which the parent's adopts."""
-    scenario_json, threshold_m, hands_list, states, seeds, settings_json, known, then_handover_poses = args
+def _worker(args: tuple) -> tuple[list[ConfigOutcome], dict]:
+    """Run one configuration (see :func:`_rounds`) after adopting what earlier rounds found: one
+    outcome per seed, and what the worker's task worked out (:meth:`Task.validations`), which the
+    parent's adopts."""
+    scenario_json, threshold_m, hands, states, seeds, settings_json, known, then_handover_poses = args
     key = _task_key(scenario_json, threshold_m, settings_json)
     task = _WORKER_TASKS.get(key)
     if task is None:
@@ -213,7 +213,7 @@ def _worker(args: tuple) -> tuple[list[list[ConfigOutcome]], dict]:
         _WORKER_TASKS[key] = task
     if known is not None:
         task.adopt(known)
-    outcomes = [survey_configuration(task, hands, states, list(seeds)) for hands in hands_list]
+    outcomes = survey_configuration(task, hands, states, list(seeds))
     if then_handover_poses:
         task.handover_poses  # noqa: B018 - computed here once for the next round's workers (0.3-0.8 s each)
     return outcomes, task.validations()
@@ -291,26 +291,24 @@ def run_survey_seeds(
             try:
                 with ProcessPoolExecutor(max_workers=n_workers, mp_context=context) as pool:
                     rounds = _rounds(configs, n_workers)
-                    for r, chains in enumerate(rounds):
-                        # A later round starts from what the earlier ones found (sent along: a
-                        # worker may have been started before the parent adopted it). The first
-                        # chain of a round before a dual-arm one also works out the handover poses,
-                        # which every dual-arm configuration needs.
+                    for r, ks in enumerate(rounds):
+                        # A later round starts from what the earlier ones found (sent along: the
+                        # workers were forked before the parent adopted it). The first task of a
+                        # round before a dual-arm one also works out the handover poses, which
+                        # every dual-arm configuration needs.
                         known = task.validations() if r else None
-                        poses_next = any(configs[k] not in SINGLE_ARM for later in rounds[r + 1:] for ch in later for k in ch)
-                        futures = {tuple(ch): pool.submit(_worker, (sc_json, threshold, [configs[k] for k in ch], states,
-                                                                    list(seeds), st_json, known, poses_next and i == 0))
-                                   for i, ch in enumerate(chains)}
+                        poses_next = any(configs[k] not in SINGLE_ARM for later in rounds[r + 1:] for k in later)
+                        futures = {k: pool.submit(_worker, (sc_json, threshold, configs[k], states, list(seeds), st_json,
+                                                            known, poses_next and i == 0))
+                                   for i, k in enumerate(ks)}
                         pending = set(futures.values())
                         while pending:
                             finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-                            for ch, f in futures.items():
+                            for k, f in futures.items():
                                 if f in finished:
-                                    chain_outcomes, validations = f.result()
+                                    results[k], validations = f.result()
                                     task.adopt(validations)
-                                    for k, outcome in zip(ch, chain_outcomes):
-                                        results[k] = outcome
-                                    progress(0.05 + 0.9 * len(results) / len(configs), f"{', '.join(configs[k] for k in ch)} done")
+                                    progress(0.05 + 0.9 * len(results) / len(configs), f"{configs[k]} done")
                             if pending and should_stop():
                                 for g in pending:
                                     g.cancel()

@@ -178,9 +178,9 @@ def test_configurations_in_rounds_count_as_in_one_process(scenario):
     from planner.survey import _rounds, _serial_order
 
     hands = ["right-right", "left-right", "left-left"]
-    assert _rounds(hands, 2) == [[[0], [2]], [[1]]]
+    assert _rounds(hands, 2) == [[0, 2], [1]]
     assert _serial_order(hands) == [0, 2, 1]
-    assert _rounds(hands, 3) == [[[1], [0], [2]]]  # a worker each: one round, the dual-arm one first
+    assert _rounds(hands, 3) == [[1, 0, 2]]  # a worker each: one round, the dual-arm one first
     alone, _ = run_survey(scenario, states=200, hands=hands, workers=1)
     chained, _ = run_survey(scenario, states=200, hands=hands, workers=2)
     assert [(r["hands"], r["stable"], r["unstable"]) for r in chained["rows"]] == \
