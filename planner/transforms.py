@@ -34,26 +34,6 @@ def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
     return out
 
 
-def matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    """Quaternion ``[qx, qy, qz, qw]`` with ``qw >= 0`` from a rotation matrix (Shepperd's method)."""
-    R = np.asarray(R, dtype=float)
-    tr = np.trace(R)
-    if tr > 0:
-        s = 2.0 * np.sqrt(tr + 1.0)
-        q = np.array([(R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, 0.25 * s])
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = np.array([0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s, (R[2, 1] - R[1, 2]) / s])
-    elif R[1, 1] > R[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = np.array([(R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s, (R[0, 2] - R[2, 0]) / s])
-    else:
-        s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = np.array([(R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s, (R[1, 0] - R[0, 1]) / s])
-    q /= np.linalg.norm(q)
-    return -q if q[3] < 0 else q
-
-
 def pose7_to_matrix(pose: np.ndarray | list[float]) -> np.ndarray:
     """4x4 homogeneous matrix from ``[x, y, z, qx, qy, qz, qw]``."""
     p = np.asarray(pose, dtype=float)
@@ -68,14 +48,13 @@ def pose7_to_matrix(pose: np.ndarray | list[float]) -> np.ndarray:
 
 
 def matrix_to_pose7(T: np.ndarray) -> np.ndarray:
-    """``[x, y, z, qx, qy, qz, qw]`` from a 4x4 homogeneous matrix."""
-    T = np.asarray(T, dtype=float)
-    return np.concatenate([T[:3, 3], matrix_to_quat(T[:3, :3])])
+    """``[x, y, z, qx, qy, qz, qw]`` (qw >= 0) from a 4x4 homogeneous matrix."""
+    return matrices_to_pose7(np.asarray(T, dtype=float)[None])[0]
 
 
 def matrices_to_pose7(T: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) rigid transforms -> (N, 7) ``[x y z qx qy qz qw]`` with qw >= 0: :func:`matrix_to_pose7`
-    for many poses at once (a plan has thousands of points)."""
+    """(N, 4, 4) rigid transforms -> (N, 7) ``[x y z qx qy qz qw]`` with qw >= 0, all at once (a plan
+    has thousands of points)."""
     T = np.asarray(T, dtype=float)
     R = T[:, :3, :3]
     n = T.shape[0]
