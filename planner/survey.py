@@ -29,7 +29,7 @@ from schemas.scenario import Scenario
 from .forking import pool_context, pool_may_fork, spare_cores
 from .regrasp_graph import Canceled as GraphCanceled
 from .regrasp_graph import HandoverNode, PlacementNode, Validation
-from .regrasp_planner import HandConfigPlanner, PlannerSettings, Task
+from .regrasp_planner import HANDS_OF, HandConfigPlanner, PlannerSettings, Task
 from .state_eval import HoldSpec
 from .trrt import ExploreLeg, TrrtSettings, explore
 
@@ -168,7 +168,8 @@ def _task_key(scenario_json: str, threshold_m: float, settings_json: str) -> str
     return f"{scenario_json}|{threshold_m}|{settings_json}"
 
 
-SINGLE_ARM = ("left-left", "right-right")
+#: The configurations that pick and place with the same hand.
+SINGLE_ARM = tuple(h for h, (pick, place) in HANDS_OF.items() if pick == place)
 
 
 def _rounds(configs: list[str], n_workers: int) -> list[list[int]]:
