@@ -177,7 +177,8 @@ class Task:
         planning_threshold = self.threshold_m + s.planning_buffer_m if self.constrained else 0.0
         self.evaluator = StateEvaluator(self.robot, self.stance, planning_threshold, self.obj.mass_kg, self.obj.com_local)
         self.timings: dict[str, float] = {}
-        self.counters: dict[str, int] = {"ik_solves": 0, "collision_states": 0, "com_states": 0}
+        #: Checks done for this task; a Counter, so that a helper process's counts add on (update adds).
+        self.counters: Counter = Counter({"ik_solves": 0, "collision_states": 0, "com_states": 0})
         t1 = time.perf_counter()
         self.grasps: dict[Side, list[Grasp]] = {}
         self.grasp_cache_hit: dict[Side, bool] = {}
