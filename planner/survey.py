@@ -23,7 +23,7 @@ from typing import Any, Callable
 import numpy as np
 
 from schemas.common import HAND_CONFIGS
-from schemas.survey import SURVEY_SCHEMA, SurveyRow, recommend
+from schemas.survey import SURVEY_SCHEMA, TIE_ORDER, SurveyRow, recommend
 from schemas.scenario import Scenario
 
 from .forking import pool_context, pool_may_fork, spare_cores
@@ -194,6 +194,20 @@ def _rounds(configs: list[str], n_workers: int) -> list[list[int]]:
     return rounds
 
 
+def _outranked(hands: str, done: list[ConfigOutcome], states: int) -> str | None:
+    """Why ``hands`` cannot be recommended over a configuration already surveyed, or None.
+
+    A configuration whose every state was stable (R = 1, C = N) can at best be tied, and a tie
+    goes to the one earlier in the contract's order (:func:`schemas.survey.recommend`): the
+    configurations after it need no survey when only the recommendation is wanted."""
+    for o in sorted(done, key=lambda o: TIE_ORDER.index(o.hands)):
+        if (o.reason is None and o.unstable == 0 and o.stable == states
+                and TIE_ORDER.index(o.hands) < TIE_ORDER.index(hands)):
+            return (f"not surveyed: {o.hands} had all {states} states stable (R = 1), which {hands} "
+                    f"could at best tie, and a tie goes to {o.hands}")
+    return None
+
+
 def _serial_order(configs: list[str]) -> list[int]:
     """The one-process survey's order: the order of :func:`_rounds`."""
     return [k for rnd in _rounds(configs, 1) for k in rnd]
@@ -232,11 +246,15 @@ def run_survey(
     should_stop: Callable[[], bool] = lambda: False,
     progress: Callable[[float, str], None] = lambda f, m: None,
     task: Task | None = None,
+    recommendation_only: bool = False,
 ) -> tuple[dict[str, Any], list[ConfigOutcome]]:
-    """The survey document (CONTRACT.md section 4) and the per-configuration outcomes (with states)."""
+    """The survey document (CONTRACT.md section 4) and the per-configuration outcomes (with states).
+
+    With ``recommendation_only``, a configuration that cannot be recommended over one already
+    surveyed (:func:`_outranked`) is not surveyed: its row has no ratio and says why."""
     docs = run_survey_seeds(scenario, [scenario.seed if seed is None else seed], states=states, threshold_m=threshold_m,
                             hands=hands, workers=workers, settings=settings, should_stop=should_stop, progress=progress,
-                            task=task)
+                            task=task, recommendation_only=recommendation_only)
     return docs[0]
 
 
@@ -252,9 +270,12 @@ def run_survey_seeds(
     should_stop: Callable[[], bool] = lambda: False,
     progress: Callable[[float, str], None] = lambda f, m: None,
     task: Task | None = None,
+    recommendation_only: bool = False,
 ) -> list[tuple[dict[str, Any], list[ConfigOutcome]]]:
     """One survey per seed; key poses are found once per configuration and shared by the seeds."""
     t0 = time.perf_counter()
+    if recommendation_only and len(seeds) != 1:
+        raise ValueError("recommendation_only needs exactly one seed: the seeds could recommend differently")
     if states is None:
         states = scenario.survey.states_per_configuration or DEFAULT_STATES
     if states < 1:
@@ -277,7 +298,9 @@ def run_survey_seeds(
         if n_workers <= 1:
             by_index: dict[int, list[ConfigOutcome]] = {}
             for k in _serial_order(configs):
-                by_index[k] = survey_configuration(task, configs[k], states, list(seeds), should_stop)
+                why = _outranked(configs[k], [o[0] for o in by_index.values()], states) if recommendation_only else None
+                by_index[k] = ([ConfigOutcome(configs[k], 0, 0, why, {})] if why else
+                               survey_configuration(task, configs[k], states, list(seeds), should_stop))
                 progress(0.05 + 0.9 * len(by_index) / len(configs), f"{configs[k]} done")
             per_config = [by_index[k] for k in range(len(configs))]
         else:
@@ -293,6 +316,12 @@ def run_survey_seeds(
                 with ProcessPoolExecutor(max_workers=n_workers, mp_context=context) as pool:
                     rounds = _rounds(configs, n_workers)
                     for r, ks in enumerate(rounds):
+                        if recommendation_only:
+                            for k in ks:
+                                why = _outranked(configs[k], [o[0] for o in results.values()], states)
+                                if why:
+                                    results[k] = [ConfigOutcome(configs[k], 0, 0, why, {})]
+                            ks = [k for k in ks if k not in results]
                         # A later round starts from what the earlier ones found (sent along: the
                         # workers were forked before the parent adopted it). The first task of a
                         # round before a dual-arm one also works out the handover poses, which
@@ -372,7 +401,7 @@ def quick_survey(task: Task, should_stop: Callable[[], bool] = lambda: False, st
     saves on this survey's size)."""
     parallel = spare_cores() > 0 and pool_may_fork()
     doc, _ = run_survey(task.scenario, states=states, threshold_m=task.threshold_m, workers=2 if parallel else 1,
-                        task=task, should_stop=should_stop)
+                        task=task, should_stop=should_stop, recommendation_only=True)
     return doc
 
 

@@ -92,3 +92,26 @@ def test_hands_auto_order_agrees_with_the_rule_for_any_counts(order, pairs):
     ranked = by_the_contract(rows)
     assert tried == ranked + [h for h in CONTRACT_ORDER if h not in ranked]
     assert tried[0] == (doc["recommended"] or "left-left")
+
+
+@given(st.permutations(CONTRACT_ORDER), st.lists(st.one_of(st.none(), st.integers(0, 4)), min_size=4, max_size=4))
+def test_a_survey_for_the_recommendation_only_recommends_what_the_whole_survey_does(order, stable):
+    """`hands: auto` skips the configurations a surveyed one outranks whatever they would count
+    (planner.survey._outranked), in the one-process order of any request: the recommendation is unchanged. Four
+    states per configuration make R = 1 and ties common; None is a configuration without key poses."""
+    from planner.survey import ConfigOutcome, _outranked, _serial_order
+
+    n = 4
+    whole = [ConfigOutcome(h, 0, 0, "no feasible grasp or key poses", {}) if c is None else ConfigOutcome(h, c, n - c, None, {})
+             for h, c in zip(order, stable)]
+    done: list[ConfigOutcome] = []
+    for k in _serial_order(order):
+        why = _outranked(order[k], done, n)
+        done.append(ConfigOutcome(order[k], 0, 0, why, {}) if why else whole[k])
+
+    def rows(outcomes):
+        return [SurveyRow(hands=o.hands, stable=o.stable, unstable=o.unstable, ratio=o.ratio, reason=o.reason) for o in outcomes]
+
+    assert recommend(rows(done)) == recommend(rows(whole))
+    skipped = [o.hands for o in done if o.reason and o.reason.startswith("not surveyed")]
+    assert all(CONTRACT_ORDER.index(h) > CONTRACT_ORDER.index(recommend(rows(whole))) for h in skipped)

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 
 from planner.collision import CollisionWorld
 from planner.scenarios import load_scenario
-from planner.survey import run_survey, write_states
+from planner.survey import run_survey, run_survey_seeds, write_states
 from service.cli.main import cli
 
 from .independent import Independent
@@ -185,6 +185,24 @@ def test_configurations_in_rounds_count_as_in_one_process(scenario):
     chained, _ = run_survey(scenario, states=200, hands=hands, workers=2)
     assert [(r["hands"], r["stable"], r["unstable"]) for r in chained["rows"]] == \
         [(r["hands"], r["stable"], r["unstable"]) for r in alone["rows"]]
+
+
+def test_a_survey_for_the_recommendation_only_skips_what_cannot_win(scenario, surveyed):
+    """`hands: auto` needs only the recommendation: once left-left has every state stable (R = 1), a
+    configuration after it in the tie order can at best tie and lose, so it is not surveyed. The
+    recommendation and the surveyed rows are those of the whole survey; a round's configurations run
+    together, so none of them is skipped for another of the same round."""
+    full = {r["hands"]: r for r in surveyed[0]["rows"]}
+    assert full["left-left"]["unstable"] == 0 and full["left-left"]["stable"] == STATES  # the premise
+    doc, _ = run_survey(scenario, states=STATES, hands=["left-left", "right-right"], workers=1, recommendation_only=True)
+    rows = {r["hands"]: r for r in doc["rows"]}
+    assert doc["recommended"] == surveyed[0]["recommended"] == "left-left"
+    assert rows["left-left"] == full["left-left"]
+    assert rows["right-right"]["ratio"] is None and "not surveyed: left-left had all 300 states stable" in rows["right-right"]["reason"]
+    together, _ = run_survey(scenario, states=STATES, hands=["left-left", "right-right"], workers=2, recommendation_only=True)
+    assert together["rows"] == doc["rows"][:1] + [full["right-right"]]
+    with pytest.raises(ValueError, match="one seed"):
+        run_survey_seeds(scenario, [1, 2], states=STATES, hands=["left-left"], workers=1, recommendation_only=True)
 
 
 def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenario):
