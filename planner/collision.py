@@ -40,6 +40,9 @@ from .transforms import inverse, pose7_to_matrix
 _SCREEN_SLACK_M = 1e-6
 #: Guard against the cross-product axes of nearly parallel box edges in the SAT.
 _SAT_EPS = 1e-9
+#: Added to the slack of the batch-wide box screen: its sums round differently from the per-state
+#: screen's, and it must pass every pair that one would.
+_ENVELOPE_ROUNDING_M = 1e-9
 
 
 class CollisionSettings(BaseModel):
@@ -597,11 +600,20 @@ class CollisionWorld:
             return hits
         # screen: world axis-aligned boxes of the oriented boxes (one small matmul per body)
         ext = (np.abs(Rw) @ self._half[: Rw.shape[0], None, :, None])[..., 0]  # (B, N, 3)
-        slack = _SCREEN_SLACK_M - tol[:, None, None]
-        near = np.all(np.abs(pw[ia] - pw[ib]) < ext[ia] + ext[ib] + slack, axis=2)
+        slack = _SCREEN_SLACK_M - tol
+        # First each body's box over the whole batch: pairs whose batch boxes are apart are apart in
+        # every state, and only the rest are screened state by state (measured on T-RRT batches:
+        # 12 % of the pairs remain; the screen took 1.4 of the 1.9 ms of a call). The same pairs
+        # pass, in the same order, as when every pair is screened in every state.
+        lo, hi = (pw - ext).min(axis=1), (pw + ext).max(axis=1)  # (B, 3)
+        wide = slack[:, None] + _ENVELOPE_ROUNDING_M  # never stricter than the state-by-state screen
+        pair = np.flatnonzero(np.all((lo[ia] < hi[ib] + wide) & (lo[ib] < hi[ia] + wide), axis=1))
+        ja, jb = ia[pair], ib[pair]
+        near = np.all(np.abs(pw[ja] - pw[jb]) < ext[ja] + ext[jb] + slack[pair, None, None], axis=2)
         kp, ks = np.nonzero(near)
         if kp.size == 0:
             return hits
+        kp = pair[kp]
         a, b = ia[kp], ib[kp]
         depth = obb_penetration(Rw[a, ks], pw[a, ks], self._half[a], Rw[b, ks], pw[b, ks], self._half[b])
         cand = depth > tol[kp]
