@@ -174,8 +174,8 @@ class BatchKinematics:
         if n > 1:
             for jid in range(1, self._njoints):
                 if Rs[jid] is not None and Rs[jid].shape[2] == 1:
-                    Rs[jid] = np.broadcast_to(Rs[jid], (3, 3, n))
-                    ps[jid] = np.broadcast_to(ps[jid], (3, n))
+                    Rs[jid] = _stretch(Rs[jid], n)
+                    ps[jid] = _stretch(ps[jid], n)
         return Rs, ps
 
     def _forward_small(self, base_pose: np.ndarray, Q: np.ndarray) -> tuple[list, list]:
@@ -214,6 +214,16 @@ class BatchKinematics:
     def com_and_frames(self, base_pose: np.ndarray, Q: np.ndarray, frames: list[str]) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, np.ndarray]]]:
         Rs, ps = self.forward(base_pose, Q)
         return self._com_from(Rs, ps), {f: self.frame(Rs, ps, f) for f in frames}
+
+
+def _stretch(a: np.ndarray, n: int) -> np.ndarray:
+    """A read-only view of ``a`` (last axis of length 1) repeated n times along the last axis:
+    ``np.broadcast_to``, built directly (1.4 against 6.5 us; a forward pass makes ~40 of them)."""
+    if not a.flags.c_contiguous:
+        return np.broadcast_to(a, (*a.shape[:-1], n))
+    out = np.ndarray((*a.shape[:-1], n), a.dtype, a, 0, (*a.strides[:-1], 0))
+    out.flags.writeable = False
+    return out
 
 
 def _matvec(R: np.ndarray, v: np.ndarray) -> np.ndarray:
