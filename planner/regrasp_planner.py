@@ -152,9 +152,10 @@ class PlannerResult:
 
 @dataclass(frozen=True)
 class GraspProbe:
-    """A placement node's arm-only IK solution at the grasp pose (jaw open), and the CoM margin of
-    holding the object there; both None when the batched attempts missed (the node's own validation
-    then solves it, the waist helping)."""
+    """A placement node's IK solution at the grasp pose (jaw open), and the CoM margin of holding the
+    object there: the arm alone first (:meth:`Task.probe_grasps`), the waist helping where it missed
+    (:meth:`Task.probe_grasps_with_waist`, once a search reaches such a node); both None while no
+    batched attempt reached (the node's own validation then solves it one by one)."""
 
     q: np.ndarray | None
     margin_m: float | None
@@ -196,6 +197,7 @@ class Task:
         # The arm-only attempt is a cheap first try (few restarts); the waist joins when it fails.
         self.ik_arm_only = IkSolver(self.robot, self.stance, s.ik.model_copy(update={"use_waist": False, "restarts": s.arm_only_restarts}))
         self.ik_batch = BatchIk(self.robot, self.world.kin, self.ik_arm_only.settings)
+        self.ik_batch_waist = BatchIk(self.robot, self.world.kin, self.ik.settings)
         self.home = self.stance.q.copy()
         self.jaw = {side: self.robot.joint_index(self.robot.spec.arms[side].gripper.joint) for side in ("left", "right")}
         for side in ("left", "right"):
@@ -225,6 +227,8 @@ class Task:
         self.giver_at: dict = {}
         #: placement node -> its grasp probe (see :meth:`probe_grasps`)
         self.grasp_probes: dict[PlacementNode, GraspProbe] = {}
+        #: placement nodes whose probe missed and then let the waist help (:meth:`probe_grasps_with_waist`)
+        self.waist_probed: set[PlacementNode] = set()
         self.timings["placements_s"] = time.perf_counter() - t2
         self.timings["setup_s"] = time.perf_counter() - t0
 
@@ -444,19 +448,49 @@ class Task:
             T_obj = np.array([self.placements[n.placement] for n in mine])
             targets = T_obj @ np.array([grasps[n.grasp].T_obj_tcp for n in mine])
             res = self._batch_arm_ik(side, targets, [self.node_seed(n) for n in mine])
-            Q = res.q.copy()
-            Q[:, self.jaw[side]] = [grasps[n.grasp].jaw_value for n in mine]
-            robot_com = self.evaluator.evaluate(Q, active=[*self.arm_only[side], self.jaw[side]]).robot_com
-            held = self.evaluator.with_object(robot_com, T_obj)  # the object stays where it rests
-            self.counters["com_states"] += len(mine)
-            for k, n in enumerate(mine):
-                self.grasp_probes[n] = GraspProbe(res.q[k] if res.ok[k] else None, float(held.margin[k]) if res.ok[k] else None)
-                if res.ok[k] and not held.stable[k] and self.constrained:
-                    # Exactly what the node's validation would find first, from the same state.
-                    self.node_cache.setdefault(n, Validation(False, "com_margin", "holding the object at the grasp pose"))
-            self._probe_jaw_closing(side, [n for k, n in enumerate(mine) if res.ok[k] and n not in self.node_cache],
-                                    grasps)
+            self._record_probes(side, mine, T_obj, res, self.arm_only[side])
         return self.grasp_probes
+
+    def probe_grasps_with_waist(self, side: Side) -> None:
+        """For every placement node of ``side`` whose probe missed (the arm alone did not reach) and
+        that has no verdict yet: one batched descent with the waist helping, from home, then the same
+        margin and jaw-closing probes; a node's validation starts from the posture found.
+
+        Called when a search first validates such a node. Those nodes come last in the search (no
+        margin, the highest cost), so most searches never get there; one that does validates them
+        by the dozen (measured on crouched left-right, which has no key path: 67 of them, 8 ms each
+        one by one, most failing on the margin at the grasp)."""
+        mine = [n for n, p in self.grasp_probes.items()
+                if p.q is None and n.hand == side and n not in self.waist_probed and n not in self.node_cache]
+        if not mine:
+            return
+        self.waist_probed.update(mine)
+        grasps = self.grasps[side]
+        T_obj = np.array([self.placements[n.placement] for n in mine])
+        targets = T_obj @ np.array([grasps[n.grasp].T_obj_tcp for n in mine])
+        res = self.ik_batch_waist.solve(side, targets, self.stance.base_pose, self.home, self.home)
+        self.counters["ik_solves"] += len(mine)
+        reached = np.flatnonzero(res.ok)
+        if reached.size:
+            self._record_probes(side, [mine[k] for k in reached], T_obj[reached],
+                                BatchIkResult(res.q[reached], res.ok[reached], res.iterations[reached]), self.active[side])
+
+    def _record_probes(self, side: Side, nodes: list[PlacementNode], T_obj: np.ndarray, res: BatchIkResult,
+                       moving: np.ndarray) -> None:
+        """Store the probes of ``nodes`` from their batched IK (``moving``: the columns it moved), with the
+        margin of holding the object at the grasp; cache the verdicts the validation would reach first."""
+        grasps = self.grasps[side]
+        Q = res.q.copy()
+        Q[:, self.jaw[side]] = [grasps[n.grasp].jaw_value for n in nodes]
+        robot_com = self.evaluator.evaluate(Q, active=[*moving, self.jaw[side]]).robot_com
+        held = self.evaluator.with_object(robot_com, T_obj)  # the object stays where it rests
+        self.counters["com_states"] += len(nodes)
+        for k, n in enumerate(nodes):
+            self.grasp_probes[n] = GraspProbe(res.q[k] if res.ok[k] else None, float(held.margin[k]) if res.ok[k] else None)
+            if res.ok[k] and not held.stable[k] and self.constrained:
+                # Exactly what the node's validation would find first, from the same state.
+                self.node_cache.setdefault(n, Validation(False, "com_margin", "holding the object at the grasp pose"))
+        self._probe_jaw_closing(side, [n for k, n in enumerate(nodes) if res.ok[k] and n not in self.node_cache], grasps)
 
     def _probe_jaw_closing(self, side: Side, nodes: list[PlacementNode], grasps: list[Grasp]) -> None:
         """The node validation's second check, batched over probed nodes: the jaw closing on the resting
@@ -666,6 +700,12 @@ class HandConfigPlanner:
         T_pre, T_lift = targets["pregrasp"], targets["lift"]
         # Cheapest decisive checks first: the grasp pose, then the held object there, then lift, then pre-grasp.
         probe = t.grasp_probes.get(node)
+        if probe is not None and probe.q is None and node not in t.waist_probed:
+            t.probe_grasps_with_waist(side)
+            v = t.node_cache.get(node)
+            if v is not None:
+                return v  # the batch found what this validation would find first
+            probe = t.grasp_probes[node]
         q_grasp = probe.q.copy() if probe is not None and probe.q is not None else t.solve_ik(side, T_grasp, t.home, rng)
         if q_grasp is None:
             return Validation(False, "ik", "grasp pose out of reach")

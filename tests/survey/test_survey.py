@@ -332,6 +332,55 @@ def test_the_jaw_closing_probe_caches_the_verdict_the_validation_reaches(scenari
         assert v.ok or v.detail != "closing the jaw", node
 
 
+def test_a_search_reaching_a_node_the_arm_alone_missed_probes_all_such_nodes_with_the_waist(scenario):
+    """Nodes whose batched arm-only probe missed come last in the search. When a validation first
+    reaches one, every such node of that hand is probed at once with the waist helping: a posture
+    found reaches the grasp within the IK tolerance and the joint limits, its margin is the one of
+    holding the object there (recomputed through pinocchio), a margin failure is cached with the
+    verdict the node's own validation reaches, and the validation starts from that posture."""
+    from planner.regrasp_planner import HandConfigPlanner, Task
+
+    task = Task(scenario)
+    planner = HandConfigPlanner(task, "right-right")
+    nodes = planner.graph_spec().placement_nodes
+    probes = task.probe_grasps(nodes)
+    missed = [n for n in nodes if probes[n].q is None and n not in task.node_cache]
+    assert len(missed) >= 10
+    planner.validate_node(missed[0])
+    assert set(missed) <= task.waist_probed
+    reached = [n for n in missed if task.grasp_probes[n].q is not None]
+    assert len(reached) >= 5, "the waist reached none of the grasps the arm alone missed"
+    waist = task.robot.waist_indices()
+    moved = 0
+    for node in reached:
+        q, margin = task.grasp_probes[node].q, task.grasp_probes[node].margin_m
+        assert np.all(q >= task.robot.lower - 1e-9) and np.all(q <= task.robot.upper + 1e-9)
+        moved += bool(np.any(np.abs(q[waist] - task.home[waist]) > 1e-6))
+        grasp = task.grasps["right"][node.grasp]
+        T_obj = task.placements[node.placement]
+        T = task.tcp(q, "right")
+        assert np.linalg.norm(T[:3, 3] - (T_obj @ grasp.T_obj_tcp)[:3, 3]) <= task.settings.ik.pos_tol_m + 1e-9
+        closed = q.copy()
+        closed[task.jaw["right"]] = grasp.jaw_value
+        robot_com = task.evaluator.evaluate_one(closed).robot_com
+        assert margin == pytest.approx(float(task.evaluator.with_object(robot_com[None], T_obj[None]).margin[0]), abs=1e-9)
+    assert moved >= 1  # the waist did help
+    cached = [n for n in reached if n in task.node_cache and task.node_cache[n].cause == "com_margin"]
+    fresh = [n for n in reached if n not in task.node_cache]
+    assert cached and fresh
+    for node in cached[:8]:
+        verdict = task.node_cache.pop(node)
+        v = planner._validate_placement(node, np.random.default_rng(task.node_seed(node)))
+        assert (v.ok, v.cause, v.detail) == (False, verdict.cause, verdict.detail)
+    started = 0
+    for node in fresh[:8]:
+        v = planner._validate_placement(node, np.random.default_rng(task.node_seed(node)))
+        if v.ok:  # the key poses start from the probed posture
+            assert np.array_equal(v.payload.q_grasp_open[waist], task.grasp_probes[node].q[waist])
+            started += 1
+    assert started >= 1
+
+
 def test_nodes_known_to_fail_leave_the_graph_before_the_search_and_are_counted(scenario):
     """What the probes (or another hand configuration) already proved invalid is removed up front, so
     the search spends no iteration on it; the removals are counted by cause like the screening's."""
