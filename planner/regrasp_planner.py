@@ -331,6 +331,7 @@ class Task:
         """What this copy of the task has worked out so far (for a worker process to hand back; see
         :meth:`adopt`): node validations, grasp probes, the givers alone at handover poses, the handover poses."""
         return {"nodes": dict(self.node_cache), "givers": dict(self.giver_at), "probes": dict(self.grasp_probes),
+                "waist_probed": set(self.waist_probed),
                 "handover_poses": self._handover_cache, "handover_poses_s": self.timings.get("handover_poses_s")}
 
     def adopt(self, validations: dict) -> None:
@@ -342,7 +343,10 @@ class Task:
         for k, v in validations["givers"].items():
             self.giver_at.setdefault(k, v)
         for k, v in validations["probes"].items():
-            self.grasp_probes.setdefault(k, v)
+            mine = self.grasp_probes.get(k)
+            if mine is None or (mine.q is None and v.q is not None):  # the other copy's waist reached it
+                self.grasp_probes[k] = v
+        self.waist_probed |= validations["waist_probed"]
         if self._handover_cache is None and validations["handover_poses"] is not None:
             self._handover_cache = validations["handover_poses"]
             self.timings["handover_poses_s"] = validations["handover_poses_s"]

@@ -379,6 +379,13 @@ def test_a_search_reaching_a_node_the_arm_alone_missed_probes_all_such_nodes_wit
             assert np.array_equal(v.payload.q_grasp_open[waist], task.grasp_probes[node].q[waist])
             started += 1
     assert started >= 1
+    # A survey worker hands this over: another copy of the task, whose arm-only probes missed the same
+    # nodes, takes the waist's postures and does not probe them again.
+    other = Task(scenario)
+    other.probe_grasps(nodes)
+    other.adopt(task.validations())
+    assert set(missed) <= other.waist_probed
+    assert all(np.array_equal(other.grasp_probes[n].q, task.grasp_probes[n].q) for n in reached)
 
 
 def test_nodes_known_to_fail_leave_the_graph_before_the_search_and_are_counted(scenario):
