@@ -605,9 +605,12 @@ class CollisionWorld:
         # every state, and only the rest are screened state by state (measured on T-RRT batches:
         # 12 % of the pairs remain; the screen took 1.4 of the 1.9 ms of a call). The same pairs
         # pass, in the same order, as when every pair is screened in every state.
-        lo, hi = (pw - ext).min(axis=1), (pw + ext).max(axis=1)  # (B, 3)
-        wide = slack[:, None] + _ENVELOPE_ROUNDING_M  # never stricter than the state-by-state screen
-        pair = np.flatnonzero(np.all((lo[ia] < hi[ib] + wide) & (lo[ib] < hi[ia] + wide), axis=1))
+        if N > 1:
+            lo, hi = (pw - ext).min(axis=1), (pw + ext).max(axis=1)  # (B, 3)
+            wide = slack[:, None] + _ENVELOPE_ROUNDING_M  # never stricter than the state-by-state screen
+            pair = np.flatnonzero(np.all((lo[ia] < hi[ib] + wide) & (lo[ib] < hi[ia] + wide), axis=1))
+        else:
+            pair = np.arange(P)  # one state: its boxes are the batch's
         ja, jb = ia[pair], ib[pair]
         near = np.all(np.abs(pw[ja] - pw[jb]) < ext[ja] + ext[jb] + slack[pair, None, None], axis=2)
         kp, ks = np.nonzero(near)
