@@ -448,9 +448,7 @@ class Task:
             mine = [n for n in todo if n.hand == side]
             if not mine:
                 continue
-            grasps = self.grasps[side]
-            T_obj = np.array([self.placements[n.placement] for n in mine])
-            targets = T_obj @ np.array([grasps[n.grasp].T_obj_tcp for n in mine])
+            T_obj, targets = self._grasp_targets(side, mine)
             res = self._batch_arm_ik(side, targets, [self.node_seed(n) for n in mine])
             self._record_probes(side, mine, T_obj, res, self.arm_only[side])
         return self.grasp_probes
@@ -469,15 +467,18 @@ class Task:
         if not mine:
             return
         self.waist_probed.update(mine)
-        grasps = self.grasps[side]
-        T_obj = np.array([self.placements[n.placement] for n in mine])
-        targets = T_obj @ np.array([grasps[n.grasp].T_obj_tcp for n in mine])
+        T_obj, targets = self._grasp_targets(side, mine)
         res = self.ik_batch_waist.solve(side, targets, self.stance.base_pose, self.home, self.home)
         self.counters["ik_solves"] += len(mine)
         reached = np.flatnonzero(res.ok)
         if reached.size:
             self._record_probes(side, [mine[k] for k in reached], T_obj[reached],
                                 BatchIkResult(res.q[reached], res.ok[reached], res.iterations[reached]), self.active[side])
+
+    def _grasp_targets(self, side: Side, nodes: list[PlacementNode]) -> tuple[np.ndarray, np.ndarray]:
+        """The resting object's poses (N, 4, 4) at ``nodes`` and ``side``'s TCP targets (N, 4, 4) there."""
+        T_obj = np.array([self.placements[n.placement] for n in nodes])
+        return T_obj, T_obj @ np.array([self.grasps[side][n.grasp].T_obj_tcp for n in nodes])
 
     def _record_probes(self, side: Side, nodes: list[PlacementNode], T_obj: np.ndarray, res: BatchIkResult,
                        moving: np.ndarray) -> None:

@@ -194,6 +194,13 @@ def _rounds(configs: list[str], n_workers: int) -> list[list[int]]:
     return rounds
 
 
+def _skipped(hands: str, done: dict[int, list[ConfigOutcome]], states: int) -> list[ConfigOutcome] | None:
+    """The outcome (one seed) of a configuration not surveyed because one already surveyed (``done``:
+    outcomes by configuration index) outranks it (:func:`_outranked`), or None: survey it."""
+    why = _outranked(hands, [o[0] for o in done.values()], states)
+    return [ConfigOutcome(hands, 0, 0, why, {})] if why else None
+
+
 def _outranked(hands: str, done: list[ConfigOutcome], states: int) -> str | None:
     """Why ``hands`` cannot be recommended over a configuration already surveyed, or None.
 
@@ -298,9 +305,8 @@ def run_survey_seeds(
         if n_workers <= 1:
             by_index: dict[int, list[ConfigOutcome]] = {}
             for k in _serial_order(configs):
-                why = _outranked(configs[k], [o[0] for o in by_index.values()], states) if recommendation_only else None
-                by_index[k] = ([ConfigOutcome(configs[k], 0, 0, why, {})] if why else
-                               survey_configuration(task, configs[k], states, list(seeds), should_stop))
+                skip = _skipped(configs[k], by_index, states) if recommendation_only else None
+                by_index[k] = skip or survey_configuration(task, configs[k], states, list(seeds), should_stop)
                 progress(0.05 + 0.9 * len(by_index) / len(configs), f"{configs[k]} done")
             per_config = [by_index[k] for k in range(len(configs))]
         else:
@@ -317,11 +323,11 @@ def run_survey_seeds(
                     rounds = _rounds(configs, n_workers)
                     for r, ks in enumerate(rounds):
                         if recommendation_only:
-                            for k in ks:
-                                why = _outranked(configs[k], [o[0] for o in results.values()], states)
-                                if why:
-                                    results[k] = [ConfigOutcome(configs[k], 0, 0, why, {})]
+                            skipped = {k: _skipped(configs[k], results, states) for k in ks}
+                            results.update({k: out for k, out in skipped.items() if out})
                             ks = [k for k in ks if k not in results]
+                            if not ks:
+                                continue  # nothing left to send this round's workers
                         # A later round starts from what the earlier ones found (sent along: the
                         # workers were forked before the parent adopted it). The first task of a
                         # round before a dual-arm one also works out the handover poses, which
