@@ -29,7 +29,8 @@ import numpy as np
 import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field
 
-from .kinematics_batch import BatchKinematics
+from .box_kernels import bodies_world, screen_pairs
+from .kinematics_batch import BatchKinematics, _block
 from .objects import ObjectModel
 from .robot_model import RobotModel
 from .robots.spec import Side
@@ -556,15 +557,11 @@ class CollisionWorld:
     def _robot_world(self, Rs: list, ps: list, out: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """World rotation (n_robot, N, 3, 3) and OBB centre (n_robot, N, 3) of every robot body."""
         N = Rs[1].shape[2]
-        RJ = np.array([Rs[j] for j in self._uniq_joints]).transpose(0, 3, 1, 2)[self._joint_slot]  # (n, N, 3, 3)
-        pJ = np.array([ps[j] for j in self._uniq_joints]).transpose(0, 2, 1)
         n = self.n_robot
         if out is None:
             out = (np.empty((n, N, 3, 3)), np.empty((n, N, 3)))
-        Rw, pw = out
-        np.matmul(RJ, self._local_R[:n, None], out=Rw)
-        pw[...] = (RJ @ self._local_p[:n, None, :, None])[..., 0] + pJ[self._joint_slot]
-        return Rw, pw
+        bodies_world(_block(Rs), _block(ps), self._robot_joints, self._local_R[:n], self._local_p[:n], *out)
+        return out
 
     def _all_world(self, Rs: list, ps: list, T_obj: np.ndarray | None, N: int) -> tuple[np.ndarray, np.ndarray]:
         B, n = len(self.bodies), self.n_robot
@@ -598,34 +595,19 @@ class CollisionWorld:
         hits = np.zeros((P, N), dtype=bool)
         if P == 0:
             return hits
-        # screen: world axis-aligned boxes of the oriented boxes (one small matmul per body)
-        ext = (np.abs(Rw) @ self._half[: Rw.shape[0], None, :, None])[..., 0]  # (B, N, 3)
-        slack = _SCREEN_SLACK_M - tol
-        # First each body's box over the whole batch: pairs whose batch boxes are apart are apart in
-        # every state, and only the rest are screened state by state (measured on T-RRT batches:
-        # 12 % of the pairs remain; the screen took 1.4 of the 1.9 ms of a call). The same pairs
-        # pass, in the same order, as when every pair is screened in every state.
-        if N > 1:
-            lo, hi = (pw - ext).min(axis=1), (pw + ext).max(axis=1)  # (B, 3)
-            wide = slack[:, None] + _ENVELOPE_ROUNDING_M  # never stricter than the state-by-state screen
-            pair = np.flatnonzero(np.all((lo[ia] < hi[ib] + wide) & (lo[ib] < hi[ia] + wide), axis=1))
-        else:
-            pair = np.arange(P)  # one state: its boxes are the batch's
-        ja, jb = ia[pair], ib[pair]
-        near = np.all(np.abs(pw[ja] - pw[jb]) < ext[ja] + ext[jb] + slack[pair, None, None], axis=2)
-        kp, ks = np.nonzero(near)
+        # Box screens (each body's box over the whole batch, then per state: measured on T-RRT batches,
+        # 12 % of the pairs pass the first), then the separating-axis test where boxes meet: the
+        # candidates are the (pair, state)s whose oriented boxes penetrate deeper than the tolerance.
+        kp, ks = screen_pairs(Rw, pw, self._half[: Rw.shape[0]], ia, ib, _SCREEN_SLACK_M - tol, tol, _SAT_EPS,
+                              _ENVELOPE_ROUNDING_M)
         if kp.size == 0:
             return hits
-        kp = pair[kp]
         a, b = ia[kp], ib[kp]
-        depth = obb_penetration(Rw[a, ks], pw[a, ks], self._half[a], Rw[b, ks], pw[b, ks], self._half[b])
-        cand = depth > tol[kp]
-        exact = self._is_box[a] & self._is_box[b]
-        sure = cand & exact
-        hits[kp[sure], ks[sure]] = True
+        exact = self._is_box[a] & self._is_box[b]  # for two boxes the test is exact
+        hits[kp[exact], ks[exact]] = True
         done = np.zeros(N, dtype=bool)
-        done[ks[sure]] = True
-        for k in np.flatnonzero(cand & ~exact):
+        done[ks[exact]] = True
+        for k in np.flatnonzero(~exact):
             s = ks[k]
             if first_only and done[s]:
                 continue  # this state already collides; its first pair is reported below

@@ -23,6 +23,7 @@ import numpy as np
 from .ik import LIMIT_EPS, LIMIT_PASSES, STALL_IMPROVEMENT, STALL_ITERATIONS, IkSettings, active_columns
 from .kinematics_batch import BatchKinematics, _affine, _rotate
 from .robot_model import RobotModel
+from .tree_kernels import TreeSpec, tree_spec, walk
 from .transforms import quat_to_matrix
 
 #: Targets advanced together per chunk: bounds the working arrays (~40 kB per target per joint).
@@ -43,8 +44,9 @@ class _Chain:
     """The joints from the root to one hand's TCP, split where the first joint IK moves sits."""
 
     prefix: list  # root-most first, up to the first moving joint: the same frame for every target
-    moving: list  # from the first moving joint to the TCP's joint
-    steps: list  # the joints IK moves, in the order of the active columns
+    tree: TreeSpec  # slot 0: the frame before the moving joints (given); then the moving joints to the TCP's
+    step_slots: np.ndarray  # the slots of the joints IK moves, in the order of the active columns
+    step_axes: np.ndarray  # their rotation axes (index of the frame's column)
 
 
 class BatchIk:
@@ -78,7 +80,15 @@ class BatchIk:
             odd = [self.robot.joint_names[st.q_col] for st in moving if st.kind != "R" or st.mult != 1.0 or st.offset != 0.0]
             if odd:
                 raise ValueError(f"batch IK supports plain revolute joints only, not {', '.join(odd)}")
-            self._chains[key] = _Chain(chain[:first], moving, [by_col[c] for c in active])
+            slot = {st.jid: k + 1 for k, st in enumerate(moving)}
+            slot[moving[0].parent] = 0
+            root = dict(parent=-1, R0=None, p0=np.zeros(3), kind="F", axis_index=0, axis=np.zeros(3), col=0, mult=1.0, offset=0.0)
+            rows = [root] + [dict(parent=slot[st.parent], R0=st.rot0, p0=st.pos0, kind=st.kind, axis_index=st.axis_index,
+                                  axis=st.axis, col=st.q_col, mult=st.mult, offset=st.offset) for st in moving]
+            tree = tree_spec(**{k: [r[k] for r in rows] for k in rows[0]})
+            steps = [by_col[c] for c in active]
+            self._chains[key] = _Chain(chain[:first], tree, np.array([slot[st.jid] for st in steps]),
+                                       np.array([st.axis_index for st in steps]))
         return self._chains[key]
 
     def _parent_frame(self, chain: _Chain, base_pose: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -88,17 +98,18 @@ class BatchIk:
             R, p = st.place(R, p, st.value(q[st.q_col : st.q_col + 1]))
         return R, p
 
-    def _forward(self, side: str, chain: _Chain, parent: tuple[np.ndarray, np.ndarray], Q: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
-        """World frames (R (3, 3, N), p (3, N)) of the moving joints, and the TCP's R (N, 3, 3), p (N, 3):
-        :meth:`BatchKinematics.forward`'s joint steps, on the few joints that move."""
+    def _forward(self, side: str, chain: _Chain, parent: tuple[np.ndarray, np.ndarray], Q: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """World frames (R (S, 3, 3, N), p (S, 3, N)) of the chain's slots, and the TCP's R (N, 3, 3),
+        p (N, 3): :meth:`BatchKinematics.forward`'s walk, on the few joints that move."""
         n = Q.shape[0]
-        Rp, pp = np.repeat(parent[0], n, axis=2), np.repeat(parent[1], n, axis=1)
-        frames = {}
-        for st in chain.moving:
-            Rp, pp = frames[st.jid] = st.place(Rp, pp, Q[:, st.q_col])
-        jid, R0, p0 = self.kin._frames[self.robot.spec.arms[side].tcp]
-        R_last, p_last = frames[jid]
-        return frames, np.moveaxis(_rotate(R_last, R0), 2, 0), _affine(p_last, R_last, p0).T
+        R = np.empty((chain.tree.size, 3, 3, n))
+        p = np.empty((chain.tree.size, 3, n))
+        R[0], p[0] = parent
+        walk(chain.tree, Q, R, p, first=1)
+        _, R0, p0 = self.kin._frames[self.robot.spec.arms[side].tcp]
+        R_last, p_last = R[-1], p[-1]  # the TCP hangs from the chain's last joint
+        return R, p, np.moveaxis(_rotate(R_last, R0), 2, 0), _affine(p_last, R_last, p0).T
 
     def active_columns(self, side: str) -> np.ndarray:
         return active_columns(self.robot, self.settings, [side])
@@ -135,7 +146,6 @@ class BatchIk:
         Q = Q.copy()
         Q[:, active] = np.clip(Q[:, active], lo, hi)
         rest_a = np.asarray(rest_q, dtype=float)[active]
-        steps = chain.steps
         lam2_eye = s.damping**2 * np.eye(6)
         ok = np.zeros(n, dtype=bool)
         its = np.zeros(n, dtype=int)
@@ -146,7 +156,7 @@ class BatchIk:
             if live.size == 0:
                 break
             Ql = Q[live]
-            frames, R_tcp, p_tcp = self._forward(side, chain, parent, Ql)
+            R_all, p_all, R_tcp, p_tcp = self._forward(side, chain, parent, Ql)
             e_p = targets[live, :3, 3] - p_tcp
             e_r = _log_rotation(targets[live, :3, :3] @ np.swapaxes(R_tcp, 1, 2))
             perr = np.linalg.norm(e_p, axis=1)
@@ -165,8 +175,8 @@ class BatchIk:
                 break
             live, Ql, e_p, e_r, p_tcp = live[keep], Ql[keep], e_p[keep], e_r[keep], p_tcp[keep]
             # Geometric Jacobian: world axis w of each joint, and w x (TCP - joint) for the position.
-            W = np.stack([frames[st.jid][0][:, st.axis_index][:, keep] for st in steps])  # (k, 3, n)
-            D = p_tcp.T[None] - np.stack([frames[st.jid][1][:, keep] for st in steps])
+            W = R_all[chain.step_slots, :, chain.step_axes][:, :, keep]  # (k, 3, n)
+            D = p_tcp.T[None] - p_all[chain.step_slots][:, :, keep]
             J = np.empty((live.size, 6, k))
             J[:, 0] = (W[:, 1] * D[:, 2] - W[:, 2] * D[:, 1]).T
             J[:, 1] = (W[:, 2] * D[:, 0] - W[:, 0] * D[:, 2]).T

@@ -1,14 +1,11 @@
-"""Batched forward kinematics and CoM in numpy, many configurations per call.
+"""Batched forward kinematics and CoM, many configurations per call.
 
 The planner and the survey evaluate thousands of states at once; a Python loop
 over pinocchio would spend its time in call overhead. This path walks the joint
-tree once per batch, each step a handful of vectorised array operations over all
-states. It is validated against pinocchio in the tests (1e-9).
+tree once per batch in compiled code (:mod:`planner.tree_kernels`). It is
+validated against pinocchio in the tests (1e-9).
 
-Layout: structure of arrays, rotations ``(3, 3, N)`` and positions ``(3, N)`` per joint,
-so every update is a contiguous vector operation. Joint
-rotations about a principal axis are applied as two column updates instead of a
-3x3 product.
+Layout: structure of arrays, rotations ``(3, 3, N)`` and positions ``(3, N)`` per joint.
 """
 
 from __future__ import annotations
@@ -20,13 +17,7 @@ import pinocchio as pin
 
 from .robot_model import RobotModel
 from .transforms import quat_to_matrix
-
-#: Constant-subtree results kept per kinematics object (one per stance posture and moving set in use).
-CONST_CACHE_SIZE = 8
-#: Up to this many configurations, pinocchio's forward pass per configuration is faster than the
-#: vectorised walk, whose ~300 array operations cost ~1 ms whatever the batch size (measured:
-#: 0.1 ms per configuration against 1.0 ms per call). Key-pose checks send 1-3 configurations.
-SMALL_BATCH = 6
+from .tree_kernels import tree_spec, walk, weighted_sum
 
 _AXIS_KIND = {
     "JointModelRX": ("R", 0), "JointModelRY": ("R", 1), "JointModelRZ": ("R", 2),
@@ -109,84 +100,34 @@ class BatchKinematics:
         self._root_lever = np.array(root_inertia.lever)
         self.total_mass = float(sum(s.mass for s in steps) + self._root_mass)
         self._njoints = model.njoints
-        self._step_cols = np.array([s.q_col for s in steps], dtype=int)
-        self._const_cache: dict[tuple, dict] = {}
+        # The tree by joint id; ids 0 (the universe) and 1 (the floating base) are filled by forward().
+        fixed = [dict(parent=-1, R0=None, p0=np.zeros(3), kind="F", axis_index=0, axis=np.zeros(3), col=0, mult=1.0, offset=0.0)] * 2
+        slots = fixed + [dict(parent=s.parent, R0=s.rot0, p0=s.pos0, kind=s.kind, axis_index=max(s.axis_index, 0), axis=s.axis,
+                              col=s.q_col, mult=s.mult, offset=s.offset) for s in steps]
+        self._tree = tree_spec(**{k: [sl[k] for sl in slots] for k in slots[0]})
+        massive = [(1, self._root_mass, self._root_lever)] + [(s.jid, s.mass, s.lever) for s in steps if s.mass > 0]
+        self._mass_slots = np.array([m[0] for m in massive], dtype=np.int64)
+        self._slot_mass = np.array([m[1] for m in massive])
+        self._slot_lever = np.array([m[2] for m in massive]).reshape(-1, 3)
         self._frames = {f.name: (int(f.parentJoint), np.array(f.placement.rotation), np.array(f.placement.translation)) for f in model.frames}
-        self._data = model.createData()  # scratch for small batches: one kinematics object per thread
 
     def forward(self, base_pose: np.ndarray, Q: np.ndarray) -> tuple[list, list]:
         """World rotations ``(3, 3, N)`` and positions ``(3, N)`` of every joint frame, by pinocchio joint id.
 
-        A joint whose column (and every ancestor's) is the same in every row is computed once and
-        broadcast: in a plan the legs, the neck and the idle arm never move, so most of the tree is
-        constant across a batch. Broadcast entries are read-only views.
-        """
+        ``base_pose``: the floating base's pose (7,), or one per configuration (N, 7). The entries are
+        views of one ``(njoints, 3, 3, N)`` block (:func:`planner.tree_kernels.walk`)."""
         Q = np.atleast_2d(np.asarray(Q, dtype=float))
         n = Q.shape[0]
         base_pose = np.asarray(base_pose, dtype=float)
-        if n <= SMALL_BATCH and base_pose.ndim == 1:
-            return self._forward_small(base_pose, Q)
-        Rs: list = [None] * self._njoints
-        ps: list = [None] * self._njoints
-        const = [False] * self._njoints
+        R = np.empty((self._njoints, 3, 3, n))
+        p = np.empty((self._njoints, 3, n))
         if base_pose.ndim == 1:
-            Rs[1] = quat_to_matrix(base_pose[3:])[:, :, None].copy()
-            ps[1] = base_pose[:3, None].copy()
-            const[1] = True
+            R[1] = quat_to_matrix(base_pose[3:])[:, :, None]
+            p[1] = base_pose[:3, None]
         else:
-            Rs[1] = np.moveaxis(quat_to_matrix(base_pose[:, 3:]), 0, 2).copy()
-            ps[1] = base_pose[:, :3].T.copy()
-        const_cols = np.all(Q == Q[0], axis=0) if n > 1 else np.ones(Q.shape[1], dtype=bool)
-        # A joint's frame is the same for every configuration when its parent's is and its column is.
-        for s in self._steps:
-            const[s.jid] = const[s.parent] and bool(const_cols[s.q_col])
-        QT = Q.T
-        cached = None
-        if n > 1 and const[1]:
-            # The constant part of the tree (legs, neck, idle arm at the stance) is the same from one
-            # batch to the next: its joint frames are computed once and reused (read-only).
-            mask = np.array([const[s.jid] for s in self._steps])
-            cols = self._step_cols[mask]
-            key = (base_pose.tobytes(), mask.tobytes(), Q[0, cols].tobytes())
-            cached = self._const_cache.get(key)
-            if cached is None:
-                cached = self._const_cache[key] = {}
-                if len(self._const_cache) > CONST_CACHE_SIZE:
-                    self._const_cache.pop(next(iter(self._const_cache)))
-                fill = True
-            else:
-                fill = False
-                for jid, (R, p) in cached.items():
-                    Rs[jid], ps[jid] = R, p
-        for s in self._steps:
-            if cached is not None and not fill and const[s.jid]:
-                continue
-            Rp, pp = Rs[s.parent], ps[s.parent]
-            c = const[s.jid]
-            if not c and Rp.shape[2] == 1 and n > 1:
-                Rp, pp = np.repeat(Rp, n, axis=2), np.repeat(pp, n, axis=1)
-            R, p = s.place(Rp, pp, s.value(QT[s.q_col][:1] if c else QT[s.q_col]))
-            Rs[s.jid], ps[s.jid] = R, p
-            if c and cached is not None:
-                R.setflags(write=False)
-                p.setflags(write=False)
-                cached[s.jid] = (R, p)
-        if n > 1:
-            for jid in range(1, self._njoints):
-                if Rs[jid] is not None and Rs[jid].shape[2] == 1:
-                    Rs[jid] = _stretch(Rs[jid], n)
-                    ps[jid] = _stretch(ps[jid], n)
-        return Rs, ps
-
-    def _forward_small(self, base_pose: np.ndarray, Q: np.ndarray) -> tuple[list, list]:
-        """:meth:`forward` for a few configurations: pinocchio's forward pass, one per configuration."""
-        model, data = self.robot.pin_model, self._data
-        T = np.empty((Q.shape[0], self._njoints, 4, 4))
-        for i, q in enumerate(Q):
-            pin.forwardKinematics(model, data, self.robot.to_pin_q(base_pose, q))
-            T[i] = [M.homogeneous for M in data.oMi]
-        R = np.moveaxis(T[:, :, :3, :3], 0, -1)  # (J, 3, 3, N)
-        p = np.moveaxis(T[:, :, :3, 3], 0, -1)  # (J, 3, N)
+            R[1] = np.moveaxis(quat_to_matrix(base_pose[:, 3:]), 0, 2)
+            p[1] = base_pose[:, :3].T
+        walk(self._tree, Q, R, p, first=2)
         return [None, *R[1:]], [None, *p[1:]]
 
     def com(self, base_pose: np.ndarray, Q: np.ndarray) -> np.ndarray:
@@ -195,11 +136,8 @@ class BatchKinematics:
         return self._com_from(Rs, ps)
 
     def _com_from(self, Rs: list, ps: list) -> np.ndarray:
-        acc = self._root_mass * _affine(ps[1], Rs[1], self._root_lever)
-        for s in self._steps:
-            if s.mass > 0:
-                acc += s.mass * _affine(ps[s.jid], Rs[s.jid], s.lever)
-        return (acc / self.total_mass).T
+        R, p = _block(Rs), _block(ps)
+        return weighted_sum(R, p, self._mass_slots, self._slot_mass, self._slot_lever, np.zeros(3), self.total_mass)
 
     def frame(self, Rs: list, ps: list, name: str) -> tuple[np.ndarray, np.ndarray]:
         """World (R (N, 3, 3), p (N, 3)) of a named frame from a ``forward`` result."""
@@ -216,14 +154,12 @@ class BatchKinematics:
         return self._com_from(Rs, ps), {f: self.frame(Rs, ps, f) for f in frames}
 
 
-def _stretch(a: np.ndarray, n: int) -> np.ndarray:
-    """A read-only view of ``a`` (last axis of length 1) repeated n times along the last axis:
-    ``np.broadcast_to``, built directly (1.4 against 6.5 us; a forward pass makes ~40 of them)."""
-    if not a.flags.c_contiguous:
-        return np.broadcast_to(a, (*a.shape[:-1], n))
-    out = np.ndarray((*a.shape[:-1], n), a.dtype, a, 0, (*a.strides[:-1], 0))
-    out.flags.writeable = False
-    return out
+def _block(frames: list) -> np.ndarray:
+    """The ``(njoints, ...)`` block whose views a :meth:`BatchKinematics.forward` list holds."""
+    base = frames[1].base
+    if base is None or base.shape[1:] != frames[1].shape:
+        raise ValueError("frames must come from BatchKinematics.forward")
+    return base
 
 
 def _matvec(R: np.ndarray, v: np.ndarray) -> np.ndarray:

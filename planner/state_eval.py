@@ -28,11 +28,12 @@ from typing import Literal, Sequence
 import numpy as np
 import pinocchio as pin
 
-from .kinematics_batch import _affine, _matvec, _rodrigues
+from .kinematics_batch import _affine
 from .robot_model import RobotModel
 from .stability import system_com
 from .stances import Stance
 from .transforms import inverse
+from .tree_kernels import tree_spec, walk, weighted_sum
 
 HoldSide = Literal["left", "right", "both"]
 #: How many reduced kinematic trees one evaluator keeps (one per active joint set / fixed posture).
@@ -201,6 +202,14 @@ class ReducedKinematics:
             )
             for s in steps_raw
         ]
+        steps = self._steps
+        self._tree = tree_spec(parent=[s.anchor for s in steps], R0=[s.R_rel for s in steps], p0=[s.p_rel for s in steps],
+                               kind=[s.kind for s in steps], axis_index=[max(s.axis_index, 0) for s in steps],
+                               axis=[s.axis for s in steps], col=[s.col for s in steps], mult=[s.mult for s in steps],
+                               offset=[s.offset for s in steps])
+        self._mass_slots = np.array([k for k, s in enumerate(steps) if s.mass > 0.0], dtype=np.int64)
+        self._slot_mass = np.array([steps[k].mass for k in self._mass_slots], dtype=float)
+        self._slot_lever = np.array([steps[k].lever for k in self._mass_slots], dtype=float).reshape(-1, 3)
         self._frames: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
         for name in frames:
             parent_joint, placement = st.frame(robot, name)
@@ -213,46 +222,16 @@ class ReducedKinematics:
     def frames(self) -> tuple[str, ...]:
         return tuple(self._frames)
 
-    def _forward(self, Q: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        """Rotations (3, 3, N) and positions (3, N) of every moving joint frame."""
+    def _forward(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rotations (S, 3, 3, N) and positions (S, 3, N) of every moving joint frame."""
         n = Q.shape[0]
-        Rs: list[np.ndarray] = []
-        ps: list[np.ndarray] = []
-        for s in self._steps:
-            if s.anchor < 0:
-                R0 = s.R_rel if s.R_rel is not None else np.eye(3)
-                R = np.repeat(R0[:, :, None], n, axis=2)
-                p = np.repeat(s.p_rel[:, None], n, axis=1)
-            else:
-                Rp, pp = Rs[s.anchor], ps[s.anchor]
-                p = _affine(pp, Rp, s.p_rel)
-                R = np.einsum("ijn,jk->ikn", Rp, s.R_rel) if s.R_rel is not None else Rp.copy()
-            theta = Q[:, s.col]
-            if s.mult != 1.0 or s.offset != 0.0:
-                theta = theta * s.mult + s.offset
-            if s.kind == "R":
-                c, sn = np.cos(theta), np.sin(theta)
-                i, j = ((1, 2), (2, 0), (0, 1))[s.axis_index]
-                ci = R[:, i].copy()
-                cj = R[:, j].copy()
-                R[:, i] = c * ci + sn * cj
-                R[:, j] = c * cj - sn * ci
-            elif s.kind == "P":
-                p = p + theta * R[:, s.axis_index]
-            elif s.kind == "PU":
-                p = p + theta * _matvec(R, s.axis)
-            else:  # RU
-                R = np.einsum("ijn,jkn->ikn", R, _rodrigues(s.axis, theta))
-            Rs.append(R)
-            ps.append(p)
-        return Rs, ps
+        R = np.empty((self._tree.size, 3, 3, n))
+        p = np.empty((self._tree.size, 3, n))
+        walk(self._tree, Q, R, p)
+        return R, p
 
-    def _com(self, Rs: list[np.ndarray], ps: list[np.ndarray], n: int) -> np.ndarray:
-        acc = np.repeat(self._fixed_moment[:, None], n, axis=1)
-        for s, R, p in zip(self._steps, Rs, ps):
-            if s.mass > 0.0:
-                acc += s.mass * _affine(p, R, s.lever)
-        return (acc / self.total_mass).T
+    def _com(self, Rs: np.ndarray, ps: np.ndarray, n: int) -> np.ndarray:
+        return weighted_sum(Rs, ps, self._mass_slots, self._slot_mass, self._slot_lever, self._fixed_moment, self.total_mass)
 
     def _frame(self, Rs: list[np.ndarray], ps: list[np.ndarray], name: str, n: int) -> tuple[np.ndarray, np.ndarray]:
         a, R0, p0 = self._frames[name]
