@@ -20,11 +20,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ik import LIMIT_EPS, LIMIT_PASSES, STALL_IMPROVEMENT, STALL_ITERATIONS, IkSettings, active_columns
+from .ik import (
+    LIMIT_EPS,
+    LIMIT_PASSES,
+    STALL_IMPROVEMENT,
+    STALL_ITERATIONS,
+    IkSettings,
+    active_columns,
+)
 from .kinematics_batch import BatchKinematics, _affine, _rotate
 from .robot_model import RobotModel
-from .tree_kernels import TreeSpec, tree_spec, walk
 from .transforms import quat_to_matrix
+from .tree_kernels import ROOT_SLOT, TreeSpec, tree_from_rows, walk
 
 #: Targets advanced together per chunk: bounds the working arrays (~40 kB per target per joint).
 CHUNK = 2048
@@ -82,10 +89,7 @@ class BatchIk:
                 raise ValueError(f"batch IK supports plain revolute joints only, not {', '.join(odd)}")
             slot = {st.jid: k + 1 for k, st in enumerate(moving)}
             slot[moving[0].parent] = 0
-            root = dict(parent=-1, R0=None, p0=np.zeros(3), kind="F", axis_index=0, axis=np.zeros(3), col=0, mult=1.0, offset=0.0)
-            rows = [root] + [dict(parent=slot[st.parent], R0=st.rot0, p0=st.pos0, kind=st.kind, axis_index=st.axis_index,
-                                  axis=st.axis, col=st.q_col, mult=st.mult, offset=st.offset) for st in moving]
-            tree = tree_spec(**{k: [r[k] for r in rows] for k in rows[0]})
+            tree = tree_from_rows([ROOT_SLOT, *(st.slot(slot[st.parent]) for st in moving)])
             steps = [by_col[c] for c in active]
             self._chains[key] = _Chain(chain[:first], tree, np.array([slot[st.jid] for st in steps]),
                                        np.array([st.axis_index for st in steps]))

@@ -27,6 +27,6 @@ if "NUMBA_CACHE_DIR" not in os.environ:
     if not _writable(here) and not _writable(Path.home() / ".cache" / "numba"):
         os.environ["NUMBA_CACHE_DIR"] = str(Path(tempfile.gettempdir()) / f"regrasp-numba-{os.getuid()}")
 
-from numba import njit  # noqa: E402  (after the cache directory is settled)
+from numba import njit  # after the cache directory is settled
 
 __all__ = ["njit"]

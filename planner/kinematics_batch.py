@@ -17,7 +17,7 @@ import pinocchio as pin
 
 from .robot_model import RobotModel
 from .transforms import quat_to_matrix
-from .tree_kernels import tree_spec, walk, weighted_sum
+from .tree_kernels import ROOT_SLOT, tree_from_rows, walk, weighted_sum
 
 _AXIS_KIND = {
     "JointModelRX": ("R", 0), "JointModelRY": ("R", 1), "JointModelRZ": ("R", 2),
@@ -40,6 +40,11 @@ class _JointStep:
     offset: float
     mass: float
     lever: np.ndarray
+
+    def slot(self, parent: int) -> dict:
+        """This joint as a :mod:`planner.tree_kernels` slot hanging from slot ``parent``."""
+        return {"parent": parent, "R0": self.rot0, "p0": self.pos0, "kind": self.kind, "axis_index": max(self.axis_index, 0),
+                "axis": self.axis, "col": self.q_col, "mult": self.mult, "offset": self.offset}
 
     def value(self, col: np.ndarray) -> np.ndarray:
         """The joint's angle (or offset) from its wire column (mimic joints scale and shift it)."""
@@ -101,10 +106,7 @@ class BatchKinematics:
         self.total_mass = float(sum(s.mass for s in steps) + self._root_mass)
         self._njoints = model.njoints
         # The tree by joint id; ids 0 (the universe) and 1 (the floating base) are filled by forward().
-        fixed = [dict(parent=-1, R0=None, p0=np.zeros(3), kind="F", axis_index=0, axis=np.zeros(3), col=0, mult=1.0, offset=0.0)] * 2
-        slots = fixed + [dict(parent=s.parent, R0=s.rot0, p0=s.pos0, kind=s.kind, axis_index=max(s.axis_index, 0), axis=s.axis,
-                              col=s.q_col, mult=s.mult, offset=s.offset) for s in steps]
-        self._tree = tree_spec(**{k: [sl[k] for sl in slots] for k in slots[0]})
+        self._tree = tree_from_rows([ROOT_SLOT, ROOT_SLOT, *(s.slot(s.parent) for s in steps)])
         massive = [(1, self._root_mass, self._root_lever)] + [(s.jid, s.mass, s.lever) for s in steps if s.mass > 0]
         self._mass_slots = np.array([m[0] for m in massive], dtype=np.int64)
         self._slot_mass = np.array([m[1] for m in massive])

@@ -14,10 +14,11 @@ configuration. Outputs use the layout of :mod:`planner.kinematics_batch`: rotati
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
+
 from .jit import njit
 
 #: Joint kinds: revolute about a principal axis, prismatic along one, their unaligned variants, and
@@ -62,6 +63,17 @@ def tree_spec(parent: Sequence[int], R0: Sequence[np.ndarray | None], p0: Sequen
         mult=np.asarray(mult, dtype=float).reshape(n),
         offset=np.asarray(offset, dtype=float).reshape(n),
     )
+
+
+#: A slot whose frame the caller fills in before the walk (a root: the floating base, or the frame
+#: an arm chain hangs from).
+ROOT_SLOT = {"parent": -1, "R0": None, "p0": np.zeros(3), "kind": "F", "axis_index": 0, "axis": np.zeros(3), "col": 0,
+             "mult": 1.0, "offset": 0.0}
+
+
+def tree_from_rows(rows: Sequence[dict]) -> TreeSpec:
+    """A :class:`TreeSpec` from one dict of :func:`tree_spec`'s arguments per slot."""
+    return tree_spec(**{k: [r[k] for r in rows] for k in ROOT_SLOT})
 
 
 def walk(spec: TreeSpec, Q: np.ndarray, R: np.ndarray, p: np.ndarray, first: int = 0) -> None:
