@@ -33,17 +33,21 @@ from .robot_model import RobotModel
 from .transforms import quat_to_matrix
 from .tree_kernels import ROOT_SLOT, TreeSpec, tree_from_rows
 
-#: Targets advanced together per chunk: bounds the working arrays (~40 kB per target per joint).
-CHUNK = 2048
-
 
 @dataclass(frozen=True)
 class BatchIkResult:
-    """``q`` (N, nq): the solutions (rows where ``ok`` is False hold the last iterate); iterations per row."""
+    """``q`` (N, nq): the solutions (rows where ``ok`` is False hold the last iterate); iterations per row,
+    and the TCP's position (m) and rotation (rad) errors at the last iteration."""
 
     q: np.ndarray
     ok: np.ndarray
     iterations: np.ndarray
+    pos_err: np.ndarray
+    rot_err: np.ndarray
+
+    def take(self, rows: np.ndarray) -> BatchIkResult:
+        """The results of ``rows`` only."""
+        return BatchIkResult(self.q[rows], self.ok[rows], self.iterations[rows], self.pos_err[rows], self.rot_err[rows])
 
 
 @dataclass(frozen=True)
@@ -120,17 +124,13 @@ class BatchIk:
         fixed[active] = False
         if n and np.any(q_out[:, fixed] != q_out[0, fixed]):
             raise ValueError("seeds may differ only in the joints IK moves")
-        ok = np.zeros(n, dtype=bool)
-        its = np.zeros(n, dtype=int)
-        if n:
-            parent = self._parent_frame(chain, np.asarray(base_pose, dtype=float), q_out[0])
-        for lo in range(0, n, CHUNK):
-            sl = slice(lo, min(n, lo + CHUNK))
-            q_out[sl], ok[sl], its[sl] = self._descend(side, chain, parent, targets[sl], q_out[sl], rest_q, active)
-        return BatchIkResult(q_out, ok, its)
+        if not n:
+            return BatchIkResult(q_out, np.zeros(0, dtype=bool), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0))
+        parent = self._parent_frame(chain, np.asarray(base_pose, dtype=float), q_out[0])
+        return self._descend(side, chain, parent, targets, q_out, rest_q, active)
 
     def _descend(self, side: str, chain: _Chain, parent: tuple[np.ndarray, np.ndarray], targets: np.ndarray,
-                 Q: np.ndarray, rest_q: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 Q: np.ndarray, rest_q: np.ndarray, active: np.ndarray) -> BatchIkResult:
         """Every target's descent from its row of ``Q`` (compiled: :func:`planner.ik_kernels.descend`)."""
         s = self.settings
         n = Q.shape[0]
@@ -138,15 +138,16 @@ class BatchIk:
         Q = np.array(Q, dtype=float, order="C")
         Q[:, active] = np.clip(Q[:, active], lo, hi)
         t = chain.tree
-        R = np.empty((t.size, 3, 3))
-        p = np.empty((t.size, 3))
-        R[0], p[0] = parent[0][:, :, 0], parent[1][:, 0]
+        R = np.empty((t.size, 3, 3, 1))
+        p = np.empty((t.size, 3, 1))
+        R[0], p[0] = parent
         _, tcp_R0, tcp_p0 = self.kin._frames[self.robot.spec.arms[side].tcp]
         ok = np.zeros(n, dtype=bool)
         its = np.zeros(n, dtype=np.int64)
+        pos_err, rot_err = np.empty(n), np.empty(n)
         descend(np.ascontiguousarray(targets, dtype=float), Q, np.asarray(active, dtype=np.int64), lo, hi,
                 np.asarray(rest_q, dtype=float)[active], t.parent, t.R0, t.p0, t.kind, t.axis_index, t.axis, t.col, t.mult,
                 t.offset, chain.step_slots, chain.step_axes, np.ascontiguousarray(tcp_R0), np.ascontiguousarray(tcp_p0),
                 s.pos_tol_m, s.rot_tol_rad, s.max_iterations, s.damping**2, s.nullspace_gain, s.max_step_rad,
-                STALL_IMPROVEMENT, STALL_ITERATIONS, LIMIT_EPS, LIMIT_PASSES, R, p, ok, its)
-        return Q, ok, its
+                STALL_IMPROVEMENT, STALL_ITERATIONS, LIMIT_EPS, LIMIT_PASSES, R, p, ok, its, pos_err, rot_err)
+        return BatchIkResult(Q, ok, its, pos_err, rot_err)

@@ -4,7 +4,7 @@ Why compiled: each target's descent is a short loop (15-60 iterations) of tiny l
 arm chain's forward pass, a 6 x k Jacobian, a 6 x 6 solve). Advanced together in numpy the batch
 paid ~40 array operations per iteration whatever the number of targets still running, and the
 stragglers kept it iterating (measured: 0.14 s for 1,088 giver targets). Here every target runs its
-own loop to its own end. The iteration is :meth:`planner.ik_batch.BatchIk._descend`'s description:
+own loop to its own end. The iteration is that of :mod:`planner.ik_batch` and :class:`planner.ik.IkSolver`:
 world-aligned errors and geometric Jacobian, the pull to the rest posture, joints pinned at a limit
 that the step pushes further frozen and the step re-solved, the step capped, the stall rule.
 """
@@ -14,19 +14,18 @@ from __future__ import annotations
 import numpy as np
 
 from .jit import njit
-from .tree_kernels import walk_state
 
 
 @njit(cache=True, nogil=True)
 def descend(targets, Q, active, lo, hi, rest_a, parent, R0, p0, kind, axis_index, axis, col, mult, offset,
             step_slots, step_axes, tcp_R0, tcp_p0, pos_tol, rot_tol, max_iterations, lam2, gain, max_step,
-            stall_improvement, stall_iterations, limit_eps, limit_passes, R, p, ok, its):  # pragma: no cover - compiled
-    """Run every target's descent; ``Q`` (N, nq) holds the starts and receives the results.
+            stall_improvement, stall_iterations, limit_eps, limit_passes, R, p, ok, its, pos_err, rot_err):  # pragma: no cover - compiled
+    """Run every target's descent; ``Q`` (N, nq) holds the starts and receives the results, ``ok``,
+    ``its``, ``pos_err`` and ``rot_err`` (N,) the outcome, iterations and last errors.
 
-    ``R`` (S, 3, 3) and ``p`` (S, 3) hold the chain's slot 0 (the frame the moving joints hang from)
-    and are scratch for the rest."""
+    ``R`` (S, 3, 3, 1) and ``p`` (S, 3, 1) hold the chain's slot 0 (the frame the moving joints hang
+    from) and are scratch for the rest."""
     k = active.shape[0]
-    rot = np.empty((3, 3))
     J = np.empty((6, k))
     Jf = np.empty((6, k))
     e = np.empty(6)
@@ -46,23 +45,25 @@ def descend(targets, Q, active, lo, hi, rest_a, parent, R0, p0, kind, axis_index
         since = 0
         ok[n] = False
         for it in range(1, max_iterations + 2):
-            walk_state(q, parent, R0, p0, kind, axis_index, axis, col, mult, offset, 1, R, p, rot)
+            _chain(q, parent, R0, p0, axis_index, col, R, p)
             # the TCP: the last slot's frame times the TCP placement
             for i in range(3):
-                v = p[last, i]
+                v = p[last, i, 0]
                 for m in range(3):
-                    v += R[last, i, m] * tcp_p0[m]
+                    v += R[last, i, m, 0] * tcp_p0[m]
                 e[i] = targets[n, i, 3] - v
                 tcp[i] = v
                 for j in range(3):
                     v = 0.0
                     for m in range(3):
-                        v += R[last, i, m] * tcp_R0[m, j]
+                        v += R[last, i, m, 0] * tcp_R0[m, j]
                     Rt[i, j] = v
             _rotation_error(targets[n], Rt, e)
             perr = np.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
             rerr = np.sqrt(e[3] * e[3] + e[4] * e[4] + e[5] * e[5])
             its[n] = it
+            pos_err[n] = perr
+            rot_err[n] = rerr
             if perr <= pos_tol and rerr <= rot_tol:
                 ok[n] = True
                 break
@@ -78,8 +79,8 @@ def descend(targets, Q, active, lo, hi, rest_a, parent, R0, p0, kind, axis_index
             for c in range(k):
                 s = step_slots[c]
                 a = step_axes[c]
-                wx, wy, wz = R[s, 0, a], R[s, 1, a], R[s, 2, a]
-                dx, dy, dz = tcp[0] - p[s, 0], tcp[1] - p[s, 1], tcp[2] - p[s, 2]
+                wx, wy, wz = R[s, 0, a, 0], R[s, 1, a, 0], R[s, 2, a, 0]
+                dx, dy, dz = tcp[0] - p[s, 0, 0], tcp[1] - p[s, 1, 0], tcp[2] - p[s, 2, 0]
                 J[0, c] = wy * dz - wz * dy
                 J[1, c] = wz * dx - wx * dz
                 J[2, c] = wx * dy - wy * dx
@@ -110,6 +111,33 @@ def descend(targets, Q, active, lo, hi, rest_a, parent, R0, p0, kind, axis_index
             scale = max_step / big if big > max_step else 1.0
             for c in range(k):
                 q[active[c]] = min(max(q[active[c]] + dq[c] * scale, lo[c]), hi[c])
+
+
+@njit(cache=True, nogil=True)
+def _chain(q, parent, R0, p0, axis_index, col, R, p):  # pragma: no cover - compiled
+    """The arm chain's frames at ``q``: :func:`planner.tree_kernels.walk` for one configuration of plain
+    revolute joints (the only kind the batch IK moves), slot 0 given."""
+    for k in range(1, parent.shape[0]):
+        a = parent[k]
+        for i in range(3):
+            v = p[a, i, 0]
+            for m in range(3):
+                v += R[a, i, m, 0] * p0[k, m]
+            p[k, i, 0] = v
+            for j in range(3):
+                v = 0.0
+                for m in range(3):
+                    v += R[a, i, m, 0] * R0[k, m, j]
+                R[k, i, j, 0] = v
+        cs = np.cos(q[col[k]])
+        sn = np.sin(q[col[k]])
+        ii = (axis_index[k] + 1) % 3
+        jj = (axis_index[k] + 2) % 3
+        for i in range(3):
+            ci = R[k, i, ii, 0]
+            cj = R[k, i, jj, 0]
+            R[k, i, ii, 0] = cs * ci + sn * cj
+            R[k, i, jj, 0] = cs * cj - sn * ci
 
 
 @njit(cache=True, nogil=True)

@@ -106,6 +106,7 @@ class BatchKinematics:
         self.total_mass = float(sum(s.mass for s in steps) + self._root_mass)
         self._njoints = model.njoints
         # The tree by joint id; ids 0 (the universe) and 1 (the floating base) are filled by forward().
+        self._base: tuple[bytes, np.ndarray | None] = (b"", None)  # the last base pose and its rotation
         self._tree = tree_from_rows([ROOT_SLOT, ROOT_SLOT, *(s.slot(s.parent) for s in steps)])
         massive = [(1, self._root_mass, self._root_lever)] + [(s.jid, s.mass, s.lever) for s in steps if s.mass > 0]
         self._mass_slots = np.array([m[0] for m in massive], dtype=np.int64)
@@ -124,7 +125,10 @@ class BatchKinematics:
         R = np.empty((self._njoints, 3, 3, n))
         p = np.empty((self._njoints, 3, n))
         if base_pose.ndim == 1:
-            R[1] = quat_to_matrix(base_pose[3:])[:, :, None]
+            key = base_pose.tobytes()
+            if key != self._base[0]:  # one stance per planner: its rotation is computed once
+                self._base = (key, quat_to_matrix(base_pose[3:])[:, :, None])
+            R[1] = self._base[1]
             p[1] = base_pose[:3, None]
         else:
             R[1] = np.moveaxis(quat_to_matrix(base_pose[:, 3:]), 0, 2)

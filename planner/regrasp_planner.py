@@ -472,8 +472,7 @@ class Task:
         self.counters["ik_solves"] += len(mine)
         reached = np.flatnonzero(res.ok)
         if reached.size:
-            self._record_probes(side, [mine[k] for k in reached], T_obj[reached],
-                                BatchIkResult(res.q[reached], res.ok[reached], res.iterations[reached]), self.active[side])
+            self._record_probes(side, [mine[k] for k in reached], T_obj[reached], res.take(reached), self.active[side])
 
     def _grasp_targets(self, side: Side, nodes: list[PlacementNode]) -> tuple[np.ndarray, np.ndarray]:
         """The resting object's poses (N, 4, 4) at ``nodes`` and ``side``'s TCP targets (N, 4, 4) there."""

@@ -95,66 +95,60 @@ def weighted_sum(R: np.ndarray, p: np.ndarray, slots: np.ndarray, mass: np.ndarr
 @njit(cache=True, nogil=True)
 def _walk(Q, parent, R0, p0, kind, axis_index, axis, col, mult, offset, first, R, p):  # pragma: no cover - compiled
     rot = np.empty((3, 3))
-    for n in range(Q.shape[0]):
-        walk_state(Q[n], parent, R0, p0, kind, axis_index, axis, col, mult, offset, first, R[:, :, :, n], p[:, :, n], rot)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def walk_state(q, parent, R0, p0, kind, axis_index, axis, col, mult, offset, first, R, p, rot):  # pragma: no cover - compiled
-    """One configuration ``q``: slots ``first..`` of ``R`` (S, 3, 3) and ``p`` (S, 3); ``rot`` (3, 3) is scratch.
-    Compiled code calls it directly (the batch IK's descent)."""
     for k in range(first, parent.shape[0]):
         a = parent[k]
-        if a >= 0:
-            for i in range(3):
-                v = p[a, i]
-                for m in range(3):
-                    v += R[a, i, m] * p0[k, m]
-                p[k, i] = v
-                for j in range(3):
-                    v = 0.0
-                    for m in range(3):
-                        v += R[a, i, m] * R0[k, m, j]
-                    R[k, i, j] = v
-        else:
-            for i in range(3):
-                p[k, i] = p0[k, i]
-                for j in range(3):
-                    R[k, i, j] = R0[k, i, j]
-        th = q[col[k]] * mult[k] + offset[k]
+        c = col[k]
         kd = kind[k]
-        if kd == 0:
-            cs = np.cos(th)
-            sn = np.sin(th)
-            ii = (axis_index[k] + 1) % 3
-            jj = (axis_index[k] + 2) % 3
-            for i in range(3):
-                ci = R[k, i, ii]
-                cj = R[k, i, jj]
-                R[k, i, ii] = cs * ci + sn * cj
-                R[k, i, jj] = cs * cj - sn * ci
-        elif kd == 1 or kd == 3:
-            for i in range(3):
-                p[k, i] += th * (R[k, i, 0] * axis[k, 0] + R[k, i, 1] * axis[k, 1] + R[k, i, 2] * axis[k, 2])
-        elif kd == 2:  # unaligned revolute: R @ (I + sin K + (1 - cos) K^2), K the axis' cross-product matrix
-            x, y, z = axis[k, 0], axis[k, 1], axis[k, 2]
-            cs = np.cos(th)
-            sn = np.sin(th)
-            t = 1.0 - cs
-            rot[0, 0] = 1.0 - t * (y * y + z * z)
-            rot[0, 1] = -sn * z + t * x * y
-            rot[0, 2] = sn * y + t * x * z
-            rot[1, 0] = sn * z + t * x * y
-            rot[1, 1] = 1.0 - t * (x * x + z * z)
-            rot[1, 2] = -sn * x + t * y * z
-            rot[2, 0] = -sn * y + t * x * z
-            rot[2, 1] = sn * x + t * y * z
-            rot[2, 2] = 1.0 - t * (x * x + y * y)
-            for i in range(3):
-                r0 = R[k, i, 0] * rot[0, 0] + R[k, i, 1] * rot[1, 0] + R[k, i, 2] * rot[2, 0]
-                r1 = R[k, i, 0] * rot[0, 1] + R[k, i, 1] * rot[1, 1] + R[k, i, 2] * rot[2, 1]
-                r2 = R[k, i, 0] * rot[0, 2] + R[k, i, 1] * rot[1, 2] + R[k, i, 2] * rot[2, 2]
-                R[k, i, 0], R[k, i, 1], R[k, i, 2] = r0, r1, r2
+        ii = (axis_index[k] + 1) % 3
+        jj = (axis_index[k] + 2) % 3
+        for n in range(Q.shape[0]):  # states innermost: the arrays' last axis
+            th = Q[n, c] * mult[k] + offset[k]
+            if a >= 0:
+                for i in range(3):
+                    v = p[a, i, n]
+                    for m in range(3):
+                        v += R[a, i, m, n] * p0[k, m]
+                    p[k, i, n] = v
+                    for j in range(3):
+                        v = 0.0
+                        for m in range(3):
+                            v += R[a, i, m, n] * R0[k, m, j]
+                        R[k, i, j, n] = v
+            else:
+                for i in range(3):
+                    p[k, i, n] = p0[k, i]
+                    for j in range(3):
+                        R[k, i, j, n] = R0[k, i, j]
+            if kd == 0:
+                cs = np.cos(th)
+                sn = np.sin(th)
+                for i in range(3):
+                    ci = R[k, i, ii, n]
+                    cj = R[k, i, jj, n]
+                    R[k, i, ii, n] = cs * ci + sn * cj
+                    R[k, i, jj, n] = cs * cj - sn * ci
+            elif kd == 1 or kd == 3:
+                for i in range(3):
+                    p[k, i, n] += th * (R[k, i, 0, n] * axis[k, 0] + R[k, i, 1, n] * axis[k, 1] + R[k, i, 2, n] * axis[k, 2])
+            elif kd == 2:  # unaligned revolute: R @ (I + sin K + (1 - cos) K^2), K the axis' cross-product matrix
+                x, y, z = axis[k, 0], axis[k, 1], axis[k, 2]
+                cs = np.cos(th)
+                sn = np.sin(th)
+                t = 1.0 - cs
+                rot[0, 0] = 1.0 - t * (y * y + z * z)
+                rot[0, 1] = -sn * z + t * x * y
+                rot[0, 2] = sn * y + t * x * z
+                rot[1, 0] = sn * z + t * x * y
+                rot[1, 1] = 1.0 - t * (x * x + z * z)
+                rot[1, 2] = -sn * x + t * y * z
+                rot[2, 0] = -sn * y + t * x * z
+                rot[2, 1] = sn * x + t * y * z
+                rot[2, 2] = 1.0 - t * (x * x + y * y)
+                for i in range(3):
+                    r0 = R[k, i, 0, n] * rot[0, 0] + R[k, i, 1, n] * rot[1, 0] + R[k, i, 2, n] * rot[2, 0]
+                    r1 = R[k, i, 0, n] * rot[0, 1] + R[k, i, 1, n] * rot[1, 1] + R[k, i, 2, n] * rot[2, 1]
+                    r2 = R[k, i, 0, n] * rot[0, 2] + R[k, i, 1, n] * rot[1, 2] + R[k, i, 2, n] * rot[2, 2]
+                    R[k, i, 0, n], R[k, i, 1, n], R[k, i, 2, n] = r0, r1, r2
 
 
 @njit(cache=True, nogil=True)

@@ -66,11 +66,21 @@ def test_out_of_reach_target_returns_none_with_reason(robot, upright, ik):
     assert res.q is None and res.code == "OUT_OF_REACH" and "reach" in res.reason
 
 
-def test_unreachable_orientation_returns_no_convergence(robot, upright):
-    # Within the sphere of reach but behind the back, palm facing the body: no solution inside the limits.
+def test_unreachable_target_within_the_reach_sphere_returns_no_convergence(robot, upright):
+    """Behind the back on the other side: within the arm's reach sphere (so not OUT_OF_REACH), but no
+    posture within the limits gets near it (none of 20,000 random ones comes within 6 cm)."""
+    from planner.kinematics_batch import BatchKinematics
+
     solver = IkSolver(robot, upright, IkSettings(restarts=2))
+    target = np.array([-0.4, 0.4, 0.9])
+    active = solver.active_indices(["right"])
+    Q = np.repeat(upright.q[None], 20000, axis=0)
+    Q[:, active] = np.random.default_rng(1).uniform(robot.lower[active], robot.upper[active], (len(Q), len(active)))
+    tcp = robot.spec.arms["right"].tcp
+    _, frames = BatchKinematics(robot).com_and_frames(upright.base_pose, Q, [tcp])
+    assert np.linalg.norm(frames[tcp][1] - target, axis=1).min() > 0.06
     T = np.eye(4)
-    T[:3, 3] = [-0.3, 0.5, 1.0]
+    T[:3, 3] = target
     res = solver.solve_arm("right", T, upright.q, np.random.default_rng(0))
     assert res.q is None and res.code == "NO_CONVERGENCE" and "residual" in res.reason
 
