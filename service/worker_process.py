@@ -62,6 +62,12 @@ class JobHandlers:
             from planner.robot_model import load_robot
 
             load_robot(robot)  # cached for the life of the process: handlers reuse it
+            try:
+                from planner.warmup import warm_up
+
+                warm_up(robot)  # the compiled kernels ready before the first job's time limit starts
+            except Exception:  # noqa: BLE001, S110 - an optimisation: a real fault shows again in the job that meets it
+                pass
 
     def run(self, kind: str, request: dict[str, Any], ctx: JobContext) -> Outcome:
         """Run one job to its outcome; never raises (every failure becomes the job's error)."""

@@ -74,7 +74,10 @@ def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, surve
     if stances_only:
         console.print(f"[green]done[/]: artefacts in {out.resolve()}")
         return
+    from planner.warmup import warm_up
     from service.demo import DemoSettings, run_demo
+
+    console.print(f"  planner kernels ready in {warm_up(robot_name):.1f} s (compiled on a machine's first run, then loaded from cache)")
 
     settings = DemoSettings(scenario=scenario, survey_states=survey_states, controller_speed=speed)
     console.print("[bold]2. The paper's scenario through the service, the gate and the simulated robot[/]")
