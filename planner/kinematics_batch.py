@@ -105,8 +105,8 @@ class BatchKinematics:
         self._root_lever = np.array(root_inertia.lever)
         self.total_mass = float(sum(s.mass for s in steps) + self._root_mass)
         self._njoints = model.njoints
-        # The tree by joint id; ids 0 (the universe) and 1 (the floating base) are filled by forward().
         self._base: tuple[bytes, np.ndarray | None] = (b"", None)  # the last base pose and its rotation
+        # The tree by joint id; id 1 (the floating base) is filled by forward(), id 0 (the universe) unused.
         self._tree = tree_from_rows([ROOT_SLOT, ROOT_SLOT, *(s.slot(s.parent) for s in steps)])
         massive = [(1, self._root_mass, self._root_lever)] + [(s.jid, s.mass, s.lever) for s in steps if s.mass > 0]
         self._mass_slots = np.array([m[0] for m in massive], dtype=np.int64)
