@@ -36,6 +36,9 @@ def main() -> None:
     ap.add_argument("--states", type=int, default=20_000, help="states per exploration run")
     ap.add_argument("--no-collision", action="store_true", help="skip the runs with the collision checker")
     args = ap.parse_args()
+    from planner.warmup import warm_up
+
+    warm_up()  # steady state: the compiled kernels loaded (or compiled, on a machine's first run)
 
     robot = load_robot("hrp5p")
     stance = solve_stance(robot, "upright")

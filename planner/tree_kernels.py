@@ -155,16 +155,17 @@ def _walk(Q, parent, R0, p0, kind, axis_index, axis, col, mult, offset, first, R
 def _weighted_sum(R, p, slots, mass, lever, base_moment, total_mass, out):  # pragma: no cover - compiled
     N = R.shape[3]
     for n in range(N):
-        x = base_moment[0]
-        y = base_moment[1]
-        z = base_moment[2]
-        for t in range(slots.shape[0]):
-            k = slots[t]
-            m = mass[t]
-            lx, ly, lz = lever[t, 0], lever[t, 1], lever[t, 2]
-            x += m * (p[k, 0, n] + R[k, 0, 0, n] * lx + R[k, 0, 1, n] * ly + R[k, 0, 2, n] * lz)
-            y += m * (p[k, 1, n] + R[k, 1, 0, n] * lx + R[k, 1, 1, n] * ly + R[k, 1, 2, n] * lz)
-            z += m * (p[k, 2, n] + R[k, 2, 0, n] * lx + R[k, 2, 1, n] * ly + R[k, 2, 2, n] * lz)
-        out[n, 0] = x / total_mass
-        out[n, 1] = y / total_mass
-        out[n, 2] = z / total_mass
+        out[n, 0] = base_moment[0]
+        out[n, 1] = base_moment[1]
+        out[n, 2] = base_moment[2]
+    for t in range(slots.shape[0]):  # slots outermost, states innermost: the arrays' last axis
+        k = slots[t]
+        m = mass[t]
+        lx, ly, lz = lever[t, 0], lever[t, 1], lever[t, 2]
+        for i in range(3):
+            for n in range(N):
+                out[n, i] += m * (p[k, i, n] + R[k, i, 0, n] * lx + R[k, i, 1, n] * ly + R[k, i, 2, n] * lz)
+    for n in range(N):
+        out[n, 0] /= total_mass
+        out[n, 1] /= total_mass
+        out[n, 2] /= total_mass
