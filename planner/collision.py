@@ -29,7 +29,7 @@ import numpy as np
 import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field
 
-from .box_kernels import bodies_world, screen_pairs
+from .box_kernels import SAT_EPS, bodies_world, hypotheses_hit, obb_penetration, screen_pairs
 from .kinematics_batch import BatchKinematics, _block
 from .objects import ObjectModel
 from .robot_model import RobotModel
@@ -39,8 +39,6 @@ from .transforms import inverse, pose7_to_matrix
 
 #: Margin on the bounding-box screen; the SAT and fcl decide exactly afterwards.
 _SCREEN_SLACK_M = 1e-6
-#: Guard against the cross-product axes of nearly parallel box edges in the SAT.
-_SAT_EPS = 1e-9
 #: Added to the slack of the batch-wide box screen: its sums round differently from the per-state
 #: screen's, and it must pass every pair that one would.
 _ENVELOPE_ROUNDING_M = 1e-9
@@ -127,43 +125,6 @@ def _half_extents(kind: str, dims: tuple[float, ...]) -> np.ndarray:
     if kind == "sphere":
         return np.full(3, dims[0])
     raise ValueError(f"unsupported collision shape {kind!r}")
-
-
-# ---------------------------------------------------------------------------------------------
-# Oriented-box separating-axis test, vectorised
-
-
-_I = np.repeat(np.arange(3), 3)
-_J = np.tile(np.arange(3), 3)
-_I1, _I2 = (_I + 1) % 3, (_I + 2) % 3
-_J1, _J2 = (_J + 1) % 3, (_J + 2) % 3
-
-
-def obb_penetration(
-    Ra: np.ndarray, ca: np.ndarray, ea: np.ndarray, Rb: np.ndarray, cb: np.ndarray, eb: np.ndarray
-) -> np.ndarray:
-    """Penetration depth of oriented boxes (K pairs); negative = separated by at least that much.
-
-    Rotations (K, 3, 3), centres (K, 3), half sizes (K, 3). The separating-axis theorem
-    with the 15 axes of two boxes is exact for boxes; the smallest overlap over the axes
-    is the penetration depth (a lower bound of the separation distance when negative).
-    """
-    RaT = np.swapaxes(Ra, 1, 2)
-    R = RaT @ Rb  # b's axes in a's frame
-    t = (RaT @ (cb - ca)[:, :, None])[:, :, 0]  # b's centre in a's frame
-    absR = np.abs(R) + _SAT_EPS
-    # the 3 axes of a, then the 3 axes of b
-    d_a = ea + (absR @ eb[:, :, None])[:, :, 0] - np.abs(t)
-    tb = (np.swapaxes(R, 1, 2) @ t[:, :, None])[:, :, 0]
-    d_b = (np.swapaxes(absR, 1, 2) @ ea[:, :, None])[:, :, 0] + eb - np.abs(tb)
-    # the 9 cross axes a_i x b_j, all at once
-    ra = ea[:, _I1] * absR[:, _I2, _J] + ea[:, _I2] * absR[:, _I1, _J]
-    rb = eb[:, _J1] * absR[:, _I, _J2] + eb[:, _J2] * absR[:, _I, _J1]
-    proj = np.abs(t[:, _I2] * R[:, _I1, _J] - t[:, _I1] * R[:, _I2, _J])
-    norm = np.sqrt(np.maximum(1.0 - R[:, _I, _J] ** 2, 0.0))
-    valid = norm > 1e-6
-    d_x = np.where(valid, (ra + rb - proj) / np.where(valid, norm, 1.0), np.inf)
-    return np.minimum(np.minimum(d_a.min(axis=1), d_b.min(axis=1)), d_x.min(axis=1))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -329,29 +290,24 @@ def shapes_collide(
     """
     K = poses_a.shape[0]
     poses_b = np.broadcast_to(poses_b, (K, len(bodies_b), 4, 4))
-    hit = np.zeros(K, dtype=bool)
+
+    def boxes(bodies: Sequence[_Body], poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        R = poses[..., :3, :3]
+        centres = poses[..., :3, 3] + (R @ np.array([b.obb_offset for b in bodies])[None, :, :, None])[..., 0]
+        return R, centres, np.array([b.half for b in bodies])
+
+    is_box = np.array([b.kind == "box" for b in bodies_a]), np.array([b.kind == "box" for b in bodies_b])
+    # Every box pair screened at once (compiled): two boxes are decided there (the SAT is exact for
+    # boxes); the other shapes' candidates go to fcl, pair by pair, until one hypothesis collides.
+    hit, cand = hypotheses_hit(*boxes(bodies_a, poses_a), *boxes(bodies_b, poses_b), *is_box, tolerance)
     objs_a = [_make_fcl_object(b) for b in bodies_a]
     objs_b = [_make_fcl_object(b) for b in bodies_b]
-    for ia, ba in enumerate(bodies_a):
-        Ta = poses_a[:, ia]
-        for ib, bb in enumerate(bodies_b):
-            idx = np.flatnonzero(~hit)
-            if idx.size == 0:
-                return hit
-            Tb = poses_b[:, ib]
-            ca = Ta[idx, :3, 3] + Ta[idx, :3, :3] @ ba.obb_offset
-            cb = Tb[idx, :3, 3] + Tb[idx, :3, :3] @ bb.obb_offset
-            depth = obb_penetration(Ta[idx, :3, :3], ca, np.broadcast_to(ba.half, (idx.size, 3)),
-                                    Tb[idx, :3, :3], cb, np.broadcast_to(bb.half, (idx.size, 3)))
-            cand = idx[depth > tolerance]
-            if ba.kind == "box" and bb.kind == "box":
-                hit[cand] = True
-                continue
-            for k in cand:
-                _set_tf(objs_a[ia], Ta[k, :3, :3], Ta[k, :3, 3])
-                _set_tf(objs_b[ib], Tb[k, :3, :3], Tb[k, :3, 3])
-                if _fcl_collide(objs_a[ia], objs_b[ib], tolerance):
-                    hit[k] = True
+    for k, ia, ib in cand:
+        if hit[k]:
+            continue
+        _set_tf(objs_a[ia], poses_a[k, ia, :3, :3], poses_a[k, ia, :3, 3])
+        _set_tf(objs_b[ib], poses_b[k, ib, :3, :3], poses_b[k, ib, :3, 3])
+        hit[k] = _fcl_collide(objs_a[ia], objs_b[ib], tolerance)
     return hit
 
 
@@ -598,7 +554,7 @@ class CollisionWorld:
         # Box screens (each body's box over the whole batch, then per state: measured on T-RRT batches,
         # 12 % of the pairs pass the first), then the separating-axis test where boxes meet: the
         # candidates are the (pair, state)s whose oriented boxes penetrate deeper than the tolerance.
-        kp, ks = screen_pairs(Rw, pw, self._half[: Rw.shape[0]], ia, ib, _SCREEN_SLACK_M - tol, tol, _SAT_EPS,
+        kp, ks = screen_pairs(Rw, pw, self._half[: Rw.shape[0]], ia, ib, _SCREEN_SLACK_M - tol, tol, SAT_EPS,
                               _ENVELOPE_ROUNDING_M)
         if kp.size == 0:
             return hits

@@ -22,13 +22,16 @@ def kernels() -> dict:
     return {
         "tree_kernels._walk": tree_kernels._walk, "tree_kernels._weighted_sum": tree_kernels._weighted_sum,
         "box_kernels._bodies_world": box_kernels._bodies_world, "box_kernels._world_boxes": box_kernels._world_boxes,
-        "box_kernels._screen_pairs": box_kernels._screen_pairs, "ik_kernels.descend": ik_kernels.descend,
+        "box_kernels._screen_pairs": box_kernels._screen_pairs, "box_kernels._obb_depths": box_kernels._obb_depths,
+        "box_kernels._hypotheses_hit": box_kernels._hypotheses_hit,
+        "ik_kernels.descend": ik_kernels.descend,
     }
 
 
 def warm_up(robot_name: str = "hrp5p") -> float:
     """Run every kernel once on a small real problem (a stance, a table, a few configurations, one IK
     target); returns the seconds it took."""
+    from .box_kernels import hypotheses_hit, obb_penetration
     from .collision import CollisionWorld, EnvBox
     from .ik import IkSettings, IkSolver
     from .robot_model import load_robot
@@ -48,6 +51,9 @@ def warm_up(robot_name: str = "hrp5p") -> float:
     Q[:, arm] += np.linspace(-0.1, 0.1, len(Q))[:, None]
     world.check_batch(stance.base_pose, Q)  # forward walk, body boxes, screen (a batch)
     world.check_batch(stance.base_pose, Q[:1])  # and one state
+    box = (np.eye(3)[None], np.zeros((1, 3)), np.full((1, 3), 0.1))
+    obb_penetration(*box, *box)  # the SAT on its own
+    hypotheses_hit(box[0][None], box[1][None], box[2], box[0][None], box[1][None], box[2], [True], [True], 0.0)  # hand filters
     evaluator = StateEvaluator(robot, stance, 0.0, 1.0, np.zeros(3))
     evaluator.evaluate(Q, HoldSpec(side, np.eye(4)), active=arm)  # reduced walk, CoM sum
     target = ik.tcp_pose(Q[-1], side)
