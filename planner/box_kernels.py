@@ -107,17 +107,19 @@ def _world_boxes(Rw, pw, half, ext, lo, hi):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def _obb_depths(Ra, ca, ea, Rb, cb, eb, eps, out):  # pragma: no cover - compiled
+    R, A, t = np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
     for k in range(out.shape[0]):
-        out[k] = _obb_depth(Ra[k], ca[k], ea[k], Rb[k], cb[k], eb[k], eps)
+        out[k] = _obb_depth(Ra[k], ca[k], ea[k], Rb[k], cb[k], eb[k], eps, R, A, t)
 
 
 @njit(cache=True, nogil=True)
 def _hypotheses_hit(Ra, ca, ea, Rb, cb, eb, box_a, box_b, tol, eps, hit, cand):  # pragma: no cover - compiled
+    R, A, t = np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
     n = 0
     for k in range(Ra.shape[0]):
         for a in range(Ra.shape[1]):
             for b in range(Rb.shape[1]):
-                if _obb_depth(Ra[k, a], ca[k, a], ea[a], Rb[k, b], cb[k, b], eb[b], eps) > tol:
+                if _obb_depth(Ra[k, a], ca[k, a], ea[a], Rb[k, b], cb[k, b], eb[b], eps, R, A, t) > tol:
                     if box_a[a] and box_b[b]:
                         hit[k] = True
                     else:
@@ -131,11 +133,9 @@ def _hypotheses_hit(Ra, ca, ea, Rb, cb, eb, box_a, box_b, tol, eps, hit, cand): 
 
 
 @njit(cache=True, nogil=True)
-def _obb_depth(Ra, ca, ea, Rb, cb, eb, eps):  # pragma: no cover - compiled
-    """:func:`obb_penetration` for one pair."""
-    R = np.empty((3, 3))
-    A = np.empty((3, 3))
-    t = np.empty(3)
+def _obb_depth(Ra, ca, ea, Rb, cb, eb, eps, R, A, t):  # pragma: no cover - compiled
+    """:func:`obb_penetration` for one pair; ``R``, ``A`` (3, 3) and ``t`` (3,) are the caller's scratch
+    (one allocation per kernel call, not per pair)."""
     for i in range(3):
         v = 0.0
         for m in range(3):
@@ -173,6 +173,7 @@ def _obb_depth(Ra, ca, ea, Rb, cb, eb, eps):  # pragma: no cover - compiled
 @njit(cache=True, nogil=True)
 def _screen_pairs(Rw, pw, ext, lo, hi, half, ia, ib, slack, tol, sat_eps, envelope_rounding, kp, ks):  # pragma: no cover - compiled
     N = Rw.shape[1]
+    R, A, t = np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
     count = 0
     for k in range(ia.shape[0]):
         a = ia[k]
@@ -194,7 +195,7 @@ def _screen_pairs(Rw, pw, ext, lo, hi, half, ia, ib, slack, tol, sat_eps, envelo
                     break
             if not near:
                 continue
-            d = _obb_depth(Rw[a, s], pw[a, s], half[a], Rw[b, s], pw[b, s], half[b], sat_eps)
+            d = _obb_depth(Rw[a, s], pw[a, s], half[a], Rw[b, s], pw[b, s], half[b], sat_eps, R, A, t)
             if d > tol[k]:
                 kp[count] = k
                 ks[count] = s

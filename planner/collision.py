@@ -29,7 +29,7 @@ import numpy as np
 import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field
 
-from .box_kernels import SAT_EPS, bodies_world, hypotheses_hit, obb_penetration, screen_pairs
+from .box_kernels import SAT_EPS, bodies_world, hypotheses_hit, screen_pairs
 from .kinematics_batch import BatchKinematics, _block
 from .objects import ObjectModel
 from .robot_model import RobotModel

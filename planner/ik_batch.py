@@ -30,7 +30,6 @@ from .ik import (
 from .ik_kernels import descend
 from .kinematics_batch import BatchKinematics
 from .robot_model import RobotModel
-from .transforms import quat_to_matrix
 from .tree_kernels import ROOT_SLOT, TreeSpec, tree_from_rows
 
 
@@ -54,7 +53,7 @@ class BatchIkResult:
 class _Chain:
     """The joints from the root to one hand's TCP, split where the first joint IK moves sits."""
 
-    prefix: list  # root-most first, up to the first moving joint: the same frame for every target
+    parent_jid: int  # the joint the first moving one hangs from: the same frame for every target
     tree: TreeSpec  # slot 0: the frame before the moving joints (given); then the moving joints to the TCP's
     step_slots: np.ndarray  # the slots of the joints IK moves, in the order of the active columns
     step_axes: np.ndarray  # their rotation axes (index of the frame's column)
@@ -95,16 +94,14 @@ class BatchIk:
             slot[moving[0].parent] = 0
             tree = tree_from_rows([ROOT_SLOT, *(st.slot(slot[st.parent]) for st in moving)])
             steps = [by_col[c] for c in active]
-            self._chains[key] = _Chain(chain[:first], tree, np.array([slot[st.jid] for st in steps]),
+            self._chains[key] = _Chain(moving[0].parent, tree, np.array([slot[st.jid] for st in steps]),
                                        np.array([st.axis_index for st in steps]))
         return self._chains[key]
 
     def _parent_frame(self, chain: _Chain, base_pose: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World frame (R (3, 3, 1), p (3, 1)) of the joint before the moving ones, at configuration ``q``."""
-        R, p = quat_to_matrix(base_pose[3:])[:, :, None].copy(), base_pose[:3, None].copy()
-        for st in chain.prefix:
-            R, p = st.place(R, p, st.value(q[st.q_col : st.q_col + 1]))
-        return R, p
+        Rs, ps = self.kin.forward(base_pose, q[None])
+        return Rs[chain.parent_jid], ps[chain.parent_jid]
 
     def active_columns(self, side: str) -> np.ndarray:
         return active_columns(self.robot, self.settings, [side])
@@ -146,8 +143,7 @@ class BatchIk:
         its = np.zeros(n, dtype=np.int64)
         pos_err, rot_err = np.empty(n), np.empty(n)
         descend(np.ascontiguousarray(targets, dtype=float), Q, np.asarray(active, dtype=np.int64), lo, hi,
-                np.asarray(rest_q, dtype=float)[active], t.parent, t.R0, t.p0, t.kind, t.axis_index, t.axis, t.col, t.mult,
-                t.offset, chain.step_slots, chain.step_axes, np.ascontiguousarray(tcp_R0), np.ascontiguousarray(tcp_p0),
+                np.asarray(rest_q, dtype=float)[active], t.parent, t.R0, t.p0, t.axis_index, t.col, chain.step_slots, chain.step_axes, np.ascontiguousarray(tcp_R0), np.ascontiguousarray(tcp_p0),
                 s.pos_tol_m, s.rot_tol_rad, s.max_iterations, s.damping**2, s.nullspace_gain, s.max_step_rad,
                 STALL_IMPROVEMENT, STALL_ITERATIONS, LIMIT_EPS, LIMIT_PASSES, R, p, ok, its, pos_err, rot_err)
         return BatchIkResult(Q, ok, its, pos_err, rot_err)

@@ -17,7 +17,7 @@ from .jit import njit
 
 
 @njit(cache=True, nogil=True)
-def descend(targets, Q, active, lo, hi, rest_a, parent, R0, p0, kind, axis_index, axis, col, mult, offset,
+def descend(targets, Q, active, lo, hi, rest_a, parent, R0, p0, axis_index, col,
             step_slots, step_axes, tcp_R0, tcp_p0, pos_tol, rot_tol, max_iterations, lam2, gain, max_step,
             stall_improvement, stall_iterations, limit_eps, limit_passes, R, p, ok, its, pos_err, rot_err):  # pragma: no cover - compiled
     """Run every target's descent; ``Q`` (N, nq) holds the starts and receives the results, ``ok``,

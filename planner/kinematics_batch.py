@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from .robot_model import RobotModel
 from .transforms import quat_to_matrix
@@ -45,27 +44,6 @@ class _JointStep:
         """This joint as a :mod:`planner.tree_kernels` slot hanging from slot ``parent``."""
         return {"parent": parent, "R0": self.rot0, "p0": self.pos0, "kind": self.kind, "axis_index": max(self.axis_index, 0),
                 "axis": self.axis, "col": self.q_col, "mult": self.mult, "offset": self.offset}
-
-    def value(self, col: np.ndarray) -> np.ndarray:
-        """The joint's angle (or offset) from its wire column (mimic joints scale and shift it)."""
-        return col * self.mult + self.offset if (self.mult != 1.0 or self.offset != 0.0) else col
-
-    def place(self, Rp: np.ndarray, pp: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """This joint's world frame (R (3, 3, N), p (3, N)) from its parent's and its joint values."""
-        p = _affine(pp, Rp, self.pos0)
-        R = _rotate(Rp, self.rot0) if self.rot0 is not None else Rp.copy()
-        if self.kind == "R":
-            cs, sn = np.cos(theta), np.sin(theta)
-            i, j = ((1, 2), (2, 0), (0, 1))[self.axis_index]
-            ci = R[:, i].copy()
-            cj = R[:, j]
-            R[:, i] = cs * ci + sn * cj
-            R[:, j] = cs * cj - sn * ci
-        elif self.kind == "RU":
-            R = np.einsum("ijn,jkn->ikn", R, _rodrigues(self.axis, theta))
-        else:  # prismatic: move along the rotated axis
-            p = p + theta * _matvec(R, self.axis)
-        return R, p
 
 
 class BatchKinematics:
@@ -168,15 +146,6 @@ def _block(frames: list) -> np.ndarray:
     return base
 
 
-def _matvec(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """R (3, 3, N) times a constant vector v (3,): (3, N), skipping zero components."""
-    out = np.zeros((3, R.shape[2]))
-    for j in range(3):
-        if v[j] != 0.0:
-            out += R[:, j] * v[j]
-    return out
-
-
 def _affine(p: np.ndarray, R: np.ndarray, v: np.ndarray) -> np.ndarray:
     """p + R v for a constant vector v."""
     out = p.copy()
@@ -189,15 +158,3 @@ def _affine(p: np.ndarray, R: np.ndarray, v: np.ndarray) -> np.ndarray:
 def _rotate(R: np.ndarray, R0: np.ndarray) -> np.ndarray:
     """R (3, 3, N) times a constant rotation R0 (3, 3)."""
     return np.einsum("ijn,jk->ikn", R, R0)
-
-
-def _rodrigues(axis: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    k = axis / np.linalg.norm(axis)
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    c, s = np.cos(theta), np.sin(theta)
-    out = np.eye(3)[:, :, None] + s[None, None, :] * K[:, :, None] + (1 - c)[None, None, :] * (K @ K)[:, :, None]
-    return out
-
-
-def pin_se3(R: np.ndarray, p: np.ndarray) -> pin.SE3:
-    return pin.SE3(np.asarray(R), np.asarray(p))

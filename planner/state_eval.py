@@ -234,7 +234,7 @@ class ReducedKinematics:
         walk(self._tree, Q, R, p)
         return R, p
 
-    def _com(self, Rs: np.ndarray, ps: np.ndarray, n: int) -> np.ndarray:
+    def _com(self, Rs: np.ndarray, ps: np.ndarray) -> np.ndarray:
         return weighted_sum(Rs, ps, self._mass_slots, self._slot_mass, self._slot_lever, self._fixed_moment, self.total_mass)
 
     def _frame(self, Rs: list[np.ndarray], ps: list[np.ndarray], name: str, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -249,7 +249,7 @@ class ReducedKinematics:
         """Robot CoM in the world, (N, 3)."""
         Q = np.atleast_2d(np.asarray(Q, dtype=float))
         Rs, ps = self._forward(Q)
-        return self._com(Rs, ps, Q.shape[0])
+        return self._com(Rs, ps)
 
     def com_and_frames(self, Q: np.ndarray, frames: Sequence[str] | None = None) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, np.ndarray]]]:
         """Robot CoM (N, 3) and world (R (N, 3, 3), p (N, 3)) of the requested frames (default: all built)."""
@@ -257,7 +257,7 @@ class ReducedKinematics:
         n = Q.shape[0]
         Rs, ps = self._forward(Q)
         names = self.frames if frames is None else frames
-        return self._com(Rs, ps, n), {f: self._frame(Rs, ps, f, n) for f in names}
+        return self._com(Rs, ps), {f: self._frame(Rs, ps, f, n) for f in names}
 
 
 _I3 = np.eye(3)

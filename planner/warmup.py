@@ -1,7 +1,7 @@
 """Compile the planner's kernels (or load them from numba's cache) before work that has a deadline.
 
 The compiled inner loops (:mod:`planner.tree_kernels`, :mod:`planner.box_kernels`,
-:mod:`planner.ik_kernels`) are compiled on their first call: once per machine, ~20 s on two cores,
+:mod:`planner.ik_kernels`) are compiled on their first call: once per machine, ~10 s on two cores,
 after which every process loads the machine code from the cache in a fraction of a second. A job
 with a time limit, a test with a timeout or a service worker should not pay that inside its budget:
 :func:`warm_up` makes every kernel ready, through the same calls planning makes, so the argument
@@ -13,19 +13,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
-
-def kernels() -> dict:
-    """Every compiled kernel, by name."""
-    from . import box_kernels, ik_kernels, tree_kernels
-
-    return {
-        "tree_kernels._walk": tree_kernels._walk, "tree_kernels._weighted_sum": tree_kernels._weighted_sum,
-        "box_kernels._bodies_world": box_kernels._bodies_world, "box_kernels._world_boxes": box_kernels._world_boxes,
-        "box_kernels._screen_pairs": box_kernels._screen_pairs, "box_kernels._obb_depths": box_kernels._obb_depths,
-        "box_kernels._hypotheses_hit": box_kernels._hypotheses_hit,
-        "ik_kernels.descend": ik_kernels.descend,
-    }
 
 
 def warm_up(robot_name: str = "hrp5p") -> float:

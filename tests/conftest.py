@@ -33,7 +33,7 @@ def host_stalls():
 
 def pytest_sessionstart(session):
     """The planner's compiled kernels ready before any test starts a timed job or a subprocess: a fresh
-    checkout compiles them once here (~20 s on two cores), and every process after loads them from
+    checkout compiles them once here (~10 s on two cores), and every process after loads them from
     numba's cache (planner/warmup.py)."""
     from planner.warmup import warm_up
 

@@ -8,7 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from planner.collision import CollisionWorld, EnvBox, obb_penetration
+from planner.box_kernels import obb_penetration
+from planner.collision import CollisionWorld, EnvBox
 from planner.transforms import axis_angle_to_matrix, make_transform
 
 
