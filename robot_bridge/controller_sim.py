@@ -4,7 +4,10 @@ It stands in its initial posture (given as data: the CLI computes the stance), a
 at its control rate (200 Hz) it publishes joint states, a heartbeat and, while a
 job runs, progress. Segments are buffered and played by linear interpolation at
 ``dt_s`` from the start of segment 0, ``speed`` times faster than real time when
-asked. Like a real controller it trusts nothing: it rejects out-of-order segments,
+asked. Playback starts once a start buffer of motion is held (a jitter buffer: a
+bridge paused for a moment by its host must not starve a controller that has only
+just begun), or the whole job, or when the buffer has waited its own length.
+Like a real controller it trusts nothing: it rejects out-of-order segments,
 drops stale or duplicated ones (by ``seq``), checks joint limits and continuity
 itself, holds the last command when the next point does not arrive in time, and
 honours every stop at once.
@@ -49,6 +52,12 @@ class ControllerSimSettings(BaseModel):
 
     speed: float = Field(1.0, gt=0, le=1000, description="play trajectories this many times faster than real time")
     rate_hz: float = Field(200.0, gt=0, le=2000, description="control and joint-state rate")
+    start_buffer_s: float = Field(
+        0.5, ge=0, le=10.0,
+        description="wall-clock time of motion held before playback starts (plan time / speed), unless the whole job "
+                    "is held first or the first segment has waited this long: at 10x a 0.25 s segment lasts 25 ms, and "
+                    "a bridge paused longer than that by its host (a VM's steal) starved a controller that began at once",
+    )
     progress_period_s: float = Field(0.05, gt=0, description="period of 'executing' progress reports")
     start_tolerance_rad: float = Field(0.02, gt=0, description="segment 0's first point vs the current posture")
     limit_tolerance_rel: float = Field(1e-6, ge=0, description="slack on the velocity limits")
@@ -82,6 +91,8 @@ class _Job:
     """What the controller knows about the job it plays (or last played)."""
 
     def __init__(self, seg: TrajectorySegment, columns: np.ndarray):
+        self.created = time.monotonic()
+        self.playing = False  # the start buffer is full (or waited long enough): playback runs
         self.job_id = seg.job_id
         self.plan_sha256 = seg.plan_sha256
         self.dt = seg.dt_s
@@ -305,7 +316,7 @@ class ControllerSim:
             with self._lock:
                 job = self._job
                 if job is not None and job.state == "executing":
-                    events = self._advance(job, period * self.sim.speed)
+                    events = self._advance(job, period * self.sim.speed, now)
                 q = self.q.copy()
                 job_id = job.job_id if job is not None else None
                 index = job.index if job is not None else None
@@ -336,9 +347,15 @@ class ControllerSim:
         after = self.sim.freeze_heartbeat_after_s
         return after is not None and self._first_accept is not None and now - self._first_accept >= after
 
-    def _advance(self, job: _Job, step: float) -> list[tuple[str, str]]:
-        """Move the playback by ``step`` plan seconds; hold the last command when points are missing."""
+    def _advance(self, job: _Job, step: float, now: float) -> list[tuple[str, str]]:
+        """Move the playback by ``step`` plan seconds once the start buffer is full; hold the last command when
+        points are missing."""
         total_known = job.count
+        if not job.playing:
+            held_s = (total_known - 1) * job.dt / self.sim.speed
+            job.playing = job.complete or held_s >= self.sim.start_buffer_s or now - job.created >= self.sim.start_buffer_s
+            if not job.playing:
+                return []
         tau = job.tau + step
         f = tau / job.dt
         i = int(math.floor(f))

@@ -49,6 +49,9 @@ def _initial_q_file(path: str) -> tuple[list[str], list[float]]:
 @click.option("--initial-q", type=click.Path(exists=True, dir_okay=False), default=None,
               help="JSON {joint_names, q}: start in this posture instead of solving the stance.")
 @click.option("--speed", type=float, default=1.0, show_default=True, help="Play trajectories K times faster than real time.")
+@click.option("--start-buffer-ms", type=click.FloatRange(0.0, 10_000.0), default=None,
+              help="Wall-clock time of motion held before playback starts, or the whole job, or after waiting as long "
+                   "(default: the settings' start_buffer_s).")
 @click.option("--listen", "listen", multiple=True, help="zenoh endpoint to listen on (repeatable); default tcp/127.0.0.1:7447.")
 @click.option("--connect", "connect", multiple=True, help="zenoh endpoint to connect to (repeatable).")
 @click.option("--drop-rate", type=click.FloatRange(0.0, 1.0), default=0.0, show_default=True,
@@ -61,7 +64,8 @@ def _initial_q_file(path: str) -> tuple[list[str], list[float]]:
               help="Fault: stop the heartbeat T s after the first accepted segment, staying alive otherwise.")
 @click.option("--heartbeat-period-s", type=click.FloatRange(min=0.001), default=None, help="Heartbeat period (default 0.05 s).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the drop decisions.")
-def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str | None, speed: float, listen: tuple[str, ...],
+def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str | None, speed: float,
+                   start_buffer_ms: float | None, listen: tuple[str, ...],
                    connect: tuple[str, ...], drop_rate: float, delay_ms: float, crash_after: int | None,
                    freeze_heartbeat_after_s: float | None, heartbeat_period_s: float | None, seed: int) -> None:
     """Run a simulated controller that speaks the bridge protocol until interrupted."""
@@ -82,7 +86,8 @@ def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str
         overrides["watchdog_timeout_s"] = max(0.25, 5 * heartbeat_period_s)
     try:
         bridge = BridgeSettings(**overrides)
-        sim = ControllerSimSettings(speed=speed, drop_rate=drop_rate, delay_ms=delay_ms, crash_after=crash_after,
+        buffer = {} if start_buffer_ms is None else {"start_buffer_s": start_buffer_ms / 1000.0}
+        sim = ControllerSimSettings(speed=speed, **buffer, drop_rate=drop_rate, delay_ms=delay_ms, crash_after=crash_after,
                                     freeze_heartbeat_after_s=freeze_heartbeat_after_s, seed=seed)
         limits = limits_from_urdf(str(files.urdf), names)
     except (ValidationError, ValueError) as exc:

@@ -17,7 +17,11 @@ from typing import Callable
 import numpy as np
 import pytest
 
-from robot_bridge.controller_sim import JointLimits, limits_from_urdf
+from robot_bridge.controller_sim import (
+    ControllerSimSettings,
+    JointLimits,
+    limits_from_urdf,
+)
 from robot_bridge.dispatcher import split_segments
 from robot_bridge.robot_files import robot_files
 from robot_bridge.settings import BridgeSettings, Keys
@@ -252,6 +256,52 @@ def test_controller_holds_its_last_command_when_starved(sim):
     at, st = peer.reply(late, "rejected", segs[1].job_id)
     assert "already ended" in st.reason
     _assert_still(peer, first_last)
+
+
+# --------------------------------------------------------------------------- the start buffer
+
+
+def _move_in_short_segments(peer: Peer, names: list[str]) -> tuple[np.ndarray, np.ndarray, list[TrajectorySegment]]:
+    """A 1 s move of one arm joint from the current posture, cut into 0.1 s segments (each less than the
+    start buffer): the posture, the points and the segments."""
+    _, q0 = _idle(peer)
+    dt = 0.01
+    Q = cosine_move(q0, names.index("RSP"), -0.1, 1.0, dt)
+    segs = segments(new_job(), names, Q, dt, duration_s=0.1)
+    assert (len(segs[0].points) - 1) * dt < ControllerSimSettings().start_buffer_s
+    return q0, Q, segs
+
+
+def test_playback_waits_for_its_start_buffer_instead_of_starving(sim, limits):
+    """Segment 0 holds 0.1 s of a 1 s move, less than the start buffer: the controller holds its posture (it
+    neither plays nor starves) while the rest comes later, then plays the whole move to its end."""
+    _, peer = sim
+    q0, Q, segs = _move_in_short_segments(peer, limits[0])
+    sent = peer.send(segs[0])
+    peer.reply(sent, "accepted", segs[0].job_id)
+    _assert_still(peer, q0, seconds=0.15)  # well inside the buffer's own wait (0.5 s)
+    for seg in segs[1:]:
+        peer.send(seg)
+    done, _ = peer.reply(sent, "succeeded", segs[0].job_id)
+    assert np.allclose(_posture_after(peer, done), Q[-1], atol=1e-12)
+    with peer._lock:
+        statuses = {st.status for _, st in peer.exec if st.job_id == segs[0].job_id}
+    assert "starved" not in statuses
+
+
+def test_a_start_buffer_that_never_fills_starts_once_it_has_waited_its_own_length(sim, limits):
+    """Only segment 0 (0.1 s of a longer move) ever comes: playback starts start_buffer_s after it arrived,
+    plays it, and then starves, holding the last command (within segment 0's last interval)."""
+    _, peer = sim
+    q0, _, segs = _move_in_short_segments(peer, limits[0])
+    sent = peer.send(segs[0])
+    at, _ = peer.reply(sent, "starved", segs[0].job_id)
+    played = np.array(segs[0].points)  # the controller's joint order (segments() keeps it)
+    assert at - sent >= ControllerSimSettings().start_buffer_s + 0.95 * (len(played) - 1) * segs[0].dt_s
+    held = _posture_after(peer, at)
+    step = np.abs(played[-1] - played[-2])
+    assert np.all(np.abs(held - played[-1]) <= step + 1e-12)  # on segment 0's last interval: it was played
+    assert np.abs(held - q0).max() > 0.5 * np.abs(played[-1] - q0).max()
 
 
 # --------------------------------------------------------------------------- playback between the points
