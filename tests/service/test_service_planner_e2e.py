@@ -19,8 +19,8 @@ PLAN_TIMEOUT_S = 400
 PLANNER_TIME_LIMIT_S = 300
 
 
-#: The simulated controller plays this many times faster than real time (faster starves it on a loaded
-#: 2-core machine: the bridge keeps only a few 1 s segments ahead of it).
+#: The simulated controller plays this many times faster than real time: the bridge's default lookahead
+#: (2 s of trajectory) is then 1 s of wall time, ample on a loaded 2-core machine.
 SIM_SPEED = 2
 #: States per hand configuration of the survey that is cancelled: minutes of work per configuration.
 LONG_SURVEY_STATES = 500_000
