@@ -53,7 +53,7 @@ def bodies_world(R: np.ndarray, p: np.ndarray, body_joint: np.ndarray, local_R: 
 
 
 def screen_pairs(Rw: np.ndarray, pw: np.ndarray, half: np.ndarray, ia: np.ndarray, ib: np.ndarray, slack: np.ndarray,
-                 tol: np.ndarray, sat_eps: float, envelope_rounding: float) -> tuple[np.ndarray, np.ndarray]:
+                 tol: np.ndarray, envelope_rounding: float) -> tuple[np.ndarray, np.ndarray]:
     """The (pair, state) candidates of body pairs ``ia``, ``ib`` over the states of ``Rw`` (B, N, 3, 3),
     ``pw`` (B, N, 3), pair-major: the oriented boxes (half sizes ``half`` (B, 3)) penetrate deeper than
     ``tol`` (P,). Screens first, per pair: the world axis-aligned boxes of the two bodies over the
@@ -67,7 +67,7 @@ def screen_pairs(Rw: np.ndarray, pw: np.ndarray, half: np.ndarray, ia: np.ndarra
     P = ia.size
     kp = np.empty(P * N, dtype=np.int64)
     ks = np.empty(P * N, dtype=np.int64)
-    n = _screen_pairs(Rw, pw, ext, lo, hi, half, ia, ib, slack, tol, sat_eps, envelope_rounding, kp, ks)
+    n = _screen_pairs(Rw, pw, ext, lo, hi, half, ia, ib, slack, tol, SAT_EPS, envelope_rounding, kp, ks)
     return kp[:n], ks[:n]
 
 

@@ -29,7 +29,7 @@ import numpy as np
 import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field
 
-from .box_kernels import SAT_EPS, bodies_world, hypotheses_hit, screen_pairs
+from .box_kernels import bodies_world, hypotheses_hit, screen_pairs
 from .kinematics_batch import BatchKinematics, _block
 from .objects import ObjectModel
 from .robot_model import RobotModel
@@ -554,7 +554,7 @@ class CollisionWorld:
         # Box screens (each body's box over the whole batch, then per state: measured on T-RRT batches,
         # 12 % of the pairs pass the first), then the separating-axis test where boxes meet: the
         # candidates are the (pair, state)s whose oriented boxes penetrate deeper than the tolerance.
-        kp, ks = screen_pairs(Rw, pw, self._half[: Rw.shape[0]], ia, ib, _SCREEN_SLACK_M - tol, tol, SAT_EPS,
+        kp, ks = screen_pairs(Rw, pw, self._half[: Rw.shape[0]], ia, ib, _SCREEN_SLACK_M - tol, tol,
                               _ENVELOPE_ROUNDING_M)
         if kp.size == 0:
             return hits

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Literal, Mapping, Sequence
+from typing import TYPE_CHECKING, Literal, Mapping, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -26,6 +26,10 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .robot_model import RobotModel
 from .stances import Stance
+
+if TYPE_CHECKING:  # ik_batch imports this module
+    from .ik_batch import BatchIk
+    from .kinematics_batch import BatchKinematics
 
 Side = Literal["left", "right"]
 #: An attempt stops when its error has not improved by 2 % for this many iterations.
@@ -78,12 +82,13 @@ class IkResult:
 class IkSolver:
     """Upper-body IK for one robot in one stance (legs, neck and unused arm stay as in ``seed_q``).
 
-    One hand's attempts run the compiled descent (:meth:`_attempt_one_hand`), two hands' (a handover
+    One hand's attempts run the compiled descent (:attr:`batch`), two hands' (a handover
     with the shared waist) pinocchio's LOCAL ``log6`` descent (:meth:`_attempt`). Holds a pinocchio
     ``Data`` scratch buffer: one solver per thread.
     """
 
-    def __init__(self, robot: RobotModel, stance: Stance, settings: IkSettings | None = None):
+    def __init__(self, robot: RobotModel, stance: Stance, settings: IkSettings | None = None,
+                 kinematics: BatchKinematics | None = None):
         self.robot = robot
         self.stance = stance
         self.settings = settings or IkSettings()
@@ -99,7 +104,8 @@ class IkSolver:
         self._pin_q_col = np.array([int(idx_qs[self._model.getJointId(n)]) for n in robot.joint_names], dtype=int)
         self.solves = 0
         self.total_time_s = 0.0
-        self._one_hand = None  # the compiled one-hand descent, built on first use
+        self._kinematics = kinematics  # the batched forward pass its compiled descent uses (else its own)
+        self._batch: BatchIk | None = None
 
     def active_indices(self, sides: Sequence[Side]) -> np.ndarray:
         """Wire columns IK moves for these hands: waist (if used) then each arm."""
@@ -203,15 +209,21 @@ class IkSolver:
         e, J, pmax, rmax = self._errors(qp, targets, sides)
         return q, it, pmax, rmax, bool(pmax <= s.pos_tol_m and rmax <= s.rot_tol_rad)
 
-    def _attempt_one_hand(self, side: Side, q0: np.ndarray, rest: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, int, float, float, bool]:
-        """:meth:`_attempt` for one hand, compiled (:mod:`planner.ik_kernels`): the same descent in world-aligned
-        errors and the geometric Jacobian, ~3 us per iteration instead of ~0.2 ms through pinocchio."""
-        if self._one_hand is None:
+    @property
+    def batch(self) -> BatchIk:
+        """This solver's one-hand descent for many targets at once (compiled, :mod:`planner.ik_batch`, same
+        settings), built on first use; its own one-hand attempts run through it too."""
+        if self._batch is None:
             from .ik_batch import BatchIk  # ik_batch builds on this module's settings and rules
             from .kinematics_batch import BatchKinematics
 
-            self._one_hand = BatchIk(self.robot, BatchKinematics(self.robot), self.settings)
-        r = self._one_hand.solve(side, np.asarray(target, dtype=float)[None], self.base_pose, q0, rest)
+            self._batch = BatchIk(self.robot, self._kinematics or BatchKinematics(self.robot), self.settings)
+        return self._batch
+
+    def _attempt_one_hand(self, side: Side, q0: np.ndarray, rest: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, int, float, float, bool]:
+        """:meth:`_attempt` for one hand, compiled (:attr:`batch`): the same descent in world-aligned errors and
+        the geometric Jacobian, ~3 us per iteration instead of ~0.2 ms through pinocchio."""
+        r = self.batch.solve(side, np.asarray(target, dtype=float)[None], self.base_pose, q0, rest)
         return r.q[0], int(r.iterations[0]), float(r.pos_err[0]), float(r.rot_err[0]), bool(r.ok[0])
 
     @staticmethod

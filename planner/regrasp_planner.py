@@ -39,7 +39,7 @@ from .placements import PlacementError, instantiate_placements
 from .ik import IkSettings, IkSolver, key_pose_targets
 from .fork_share import share_with_child
 from .forking import fork_is_safe, spare_cores
-from .ik_batch import BatchIk, BatchIkResult
+from .ik_batch import BatchIkResult
 from .objects import ObjectModel, build_object
 from .plan_builder import MotionPiece
 from .regrasp_graph import (
@@ -193,11 +193,10 @@ class Task:
             moving_joints=[*self.robot.spec.waist, *[j for a in self.robot.spec.arms.values() for j in a.chain],
                            *[a.gripper.joint for a in self.robot.spec.arms.values()]],
         )
-        self.ik = IkSolver(self.robot, self.stance, s.ik)
+        self.ik = IkSolver(self.robot, self.stance, s.ik, kinematics=self.world.kin)
         # The arm-only attempt is a cheap first try (few restarts); the waist joins when it fails.
-        self.ik_arm_only = IkSolver(self.robot, self.stance, s.ik.model_copy(update={"use_waist": False, "restarts": s.arm_only_restarts}))
-        self.ik_batch = BatchIk(self.robot, self.world.kin, self.ik_arm_only.settings)
-        self.ik_batch_waist = BatchIk(self.robot, self.world.kin, self.ik.settings)
+        self.ik_arm_only = IkSolver(self.robot, self.stance, s.ik.model_copy(update={"use_waist": False, "restarts": s.arm_only_restarts}),
+                                    kinematics=self.world.kin)
         self.home = self.stance.q.copy()
         self.jaw = {side: self.robot.joint_index(self.robot.spec.arms[side].gripper.joint) for side in ("left", "right")}
         for side in ("left", "right"):
@@ -468,7 +467,7 @@ class Task:
             return
         self.waist_probed.update(mine)
         T_obj, targets = self._grasp_targets(side, mine)
-        res = self.ik_batch_waist.solve(side, targets, self.stance.base_pose, self.home, self.home)
+        res = self.ik.batch.solve(side, targets, self.stance.base_pose, self.home, self.home)
         self.counters["ik_solves"] += len(mine)
         reached = np.flatnonzero(res.ok)
         if reached.size:
@@ -560,13 +559,13 @@ class Task:
         """:meth:`solve_ik` with the arm alone for many targets at once: the attempt from home, then,
         where it missed, the first restart from the draw the one-by-one solve would make with the
         generator seeded by ``seeds[k]``."""
-        res = self.ik_batch.solve(side, targets, self.stance.base_pose, self.home, self.home)
+        res = self.ik_arm_only.batch.solve(side, targets, self.stance.base_pose, self.home, self.home)
         self.counters["ik_solves"] += len(targets)
         missed = np.flatnonzero(~res.ok)
         if missed.size and self.ik_arm_only.settings.restarts > 0:
-            cols = self.ik_batch.active_columns(side)
+            cols = self.ik_arm_only.batch.active_columns(side)
             starts = np.array([self.ik_arm_only.attempt_start(1, self.home, cols, np.random.default_rng(seeds[k])) for k in missed])
-            again = self.ik_batch.solve(side, targets[missed], self.stance.base_pose, starts, self.home)
+            again = self.ik_arm_only.batch.solve(side, targets[missed], self.stance.base_pose, starts, self.home)
             res.q[missed], res.ok[missed] = again.q, again.ok
         return res
 

@@ -16,6 +16,7 @@ runner is the only writer, so a worker that is killed cannot leave a half-writte
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 import time
@@ -66,8 +67,9 @@ class JobHandlers:
                 from planner.warmup import warm_up
 
                 warm_up(robot)  # the compiled kernels ready before the first job's time limit starts
-            except Exception:  # noqa: BLE001, S110 - an optimisation: a real fault shows again in the job that meets it
-                pass
+            except Exception:  # an optimisation: a real fault shows again in the job that meets it
+                logging.getLogger("regrasp.worker").warning("planner warm-up failed; kernels compile in the first job",
+                                                            exc_info=True)
 
     def run(self, kind: str, request: dict[str, Any], ctx: JobContext) -> Outcome:
         """Run one job to its outcome; never raises (every failure becomes the job's error)."""

@@ -148,7 +148,7 @@ def test_compiled_screen_finds_exactly_the_boxes_the_sat_finds(seed, n_states):
     half = rng.uniform(0.005, 0.08, (B, 3))
     ia, ib = np.triu_indices(B, 1)
     tol = rng.choice([0.0, 0.005], ia.size)
-    kp, ks = screen_pairs(Rw, pw, half, ia, ib, 1e-6 - tol, tol, 1e-9, 1e-9)
+    kp, ks = screen_pairs(Rw, pw, half, ia, ib, 1e-6 - tol, tol, 1e-9)
     got = set(zip(kp.tolist(), ks.tolist()))
     assert len(got) == kp.size  # no (pair, state) twice
     for k in range(ia.size):
