@@ -46,6 +46,11 @@ def free_port() -> int:
 #: zenoh robot id of the test servers' bridge, so no other test's controller is ever seen.
 BRIDGE_ROBOT_ID = "svctest"
 BRIDGE_WATCHDOG_S = 2.0
+#: The zenoh lease both peers of a service test announce. A lease shorter than the relaxed watchdog would
+#: still drop the controller's token on a 1 s stall of either process (CI aborted a real-planner execution
+#: with "liveliness token ... is absent" and no host pause), so the watchdog would not be the binding check
+#: these tests relax. The bridge's own tests keep the 1 s default lease; SIGKILL closes the link at once.
+BRIDGE_LEASE_S = 3.0
 
 
 def start_controller_sim(data_dir: Path, port: int, speed: float, **settings: Any) -> subprocess.Popen[bytes]:
@@ -55,6 +60,7 @@ def start_controller_sim(data_dir: Path, port: int, speed: float, **settings: An
     """
     log = open(data_dir / "controller-sim.log", "ab")
     env = dict(os.environ)
+    env["REGRASP_BRIDGE_LEASE_S"] = str(BRIDGE_LEASE_S)
     env.update({f"REGRASP_{key.upper()}": str(value) for key, value in settings.items()})
     return subprocess.Popen(
         [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", BRIDGE_ROBOT_ID,
@@ -88,6 +94,7 @@ def service_env(bridge_port: int | None = None, **settings: Any) -> dict[str, st
     # The bridge's 250 ms controller watchdog is tested by the bridge's own tests; here, on a loaded
     # shared machine, a late heartbeat of the simulated controller must not abort the service's test.
     env["REGRASP_BRIDGE_WATCHDOG_TIMEOUT_S"] = str(BRIDGE_WATCHDOG_S)
+    env["REGRASP_BRIDGE_LEASE_S"] = str(BRIDGE_LEASE_S)
     env["PYTHONPATH"] = os.pathsep.join([str(HERE), str(ROOT), env.get("PYTHONPATH", "")])
     env["REGRASP_TOKENS"] = json.dumps(TOKENS)
     env["REGRASP_HANDLERS"] = json.dumps(HANDLERS)

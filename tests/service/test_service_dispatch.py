@@ -17,7 +17,7 @@ import pytest
 from conftest import (BRIDGE_WATCHDOG_S, Server, free_port, job_events, start_controller_sim, stop_process,
                       submit_approved_plan, wait_controller_alive, wait_state)
 
-#: Executions on the simulated controller in wall-clock time (a 2 s watchdog, a 1 s zenoh lease): a failure
+#: Executions on the simulated controller in wall-clock time (a 2 s watchdog, a 3 s zenoh lease): a failure
 #: while the VM's host paused the guest for 0.5 s or more measured the host, and the test runs again.
 pytestmark = pytest.mark.host_pauses(limit_s=0.5)
 END_STATES = {"succeeded", "aborted", "rejected", "failed"}
@@ -104,8 +104,8 @@ def test_gate_veto_rejects(rig: tuple[Server, int], sim: None) -> None:
 
 #: How each fault is made and the abort reason it must give. SIGKILL: the kernel closes the zenoh link, so
 #: the controller's liveliness token goes at once. SIGSTOP: the link stays open but silent; the zenoh
-#: lease (1 s by default) would drop it before the 2 s watchdog, so both peers announce a 6 s lease here
-#: and the bridge's heartbeat watchdog is what must notice the stall.
+#: lease (1 s by default, 3 s in the service tests) could drop it before the 2 s watchdog and its margin, so
+#: both peers announce a 6 s lease here and the bridge's heartbeat watchdog is what must notice the stall.
 FAULTS = {
     "killed": (signal.SIGKILL, {}, "controller lost: "),
     "stalled": (signal.SIGSTOP, {"bridge_lease_s": "6"}, "controller lost: controller heartbeat lost: "),
