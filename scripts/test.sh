@@ -1,11 +1,16 @@
 #!/usr/bin/env bash
-# Install the project with its test extra, the Debian packages the browser tests
-# need (where we are root), and run the whole test suite.
+# Install the project with its test extra, the Debian packages some tests need
+# (where we are root): chromium for the console's browser tests, docker-compose to
+# validate docker/compose.yaml (it only parses the file; no Docker engine runs).
+# Then run the whole test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python -m pip install -q -e '.[test]'
-if [ "$(id -u)" = "0" ] && ! command -v chromium >/dev/null 2>&1; then
-  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
-    || echo "note: could not install chromium; the browser tests will skip and say why" >&2
+missing=()
+command -v chromium >/dev/null 2>&1 || missing+=(chromium)
+command -v docker-compose >/dev/null 2>&1 || docker compose version >/dev/null 2>&1 || missing+=(docker-compose)
+if [ "$(id -u)" = "0" ] && [ ${#missing[@]} -gt 0 ]; then
+  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null) \
+    || echo "note: could not install ${missing[*]}; the tests that need them will skip and say why" >&2
 fi
 exec python -m pytest "$@"
