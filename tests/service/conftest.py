@@ -48,8 +48,7 @@ BRIDGE_ROBOT_ID = "svctest"
 BRIDGE_WATCHDOG_S = 2.0
 #: The zenoh lease both peers of a service test announce. A lease shorter than the relaxed watchdog would
 #: still drop the controller's token on a 1 s stall of either process (CI aborted a real-planner execution
-#: with "liveliness token ... is absent" and no host pause), so the watchdog would not be the binding check
-#: these tests relax. The bridge's own tests keep the 1 s default lease; SIGKILL closes the link at once.
+#: with "liveliness token ... is absent"), so the watchdog would not be the binding check these tests relax. The bridge's own tests keep the 1 s default lease; SIGKILL closes the link at once.
 BRIDGE_LEASE_S = 3.0
 
 
