@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# Install the project with its test extra, the Debian packages some tests need
+# Install the project with its test extra at the tested versions (constraints.txt), the Debian packages some tests need
 # (where we are root): chromium for the console's browser tests, docker-compose to
 # validate docker/compose.yaml (it only parses the file; no Docker engine runs).
 # Then run the whole test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-python -m pip install -q -e '.[test]'
+python -m pip install -q -c constraints.txt -e '.[test]'
 missing=()
 command -v chromium >/dev/null 2>&1 || missing+=(chromium)
 command -v docker-compose >/dev/null 2>&1 || docker compose version >/dev/null 2>&1 || missing+=(docker-compose)
