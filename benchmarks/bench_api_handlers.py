@@ -6,7 +6,7 @@ import hashlib
 import time
 from typing import Any
 
-from planner.entry import Canceled
+from planner.errors import Canceled
 
 
 def run(request: dict[str, Any], ctx: Any) -> dict[str, Any]:

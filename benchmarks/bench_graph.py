@@ -14,9 +14,9 @@ import time
 
 import networkx as nx
 
-from planner.regrasp_graph import SINK, SOURCE, RegraspGraph
-from planner.regrasp_planner import HandConfigPlanner, Task
-from planner.scenarios import load_builtin
+from planner.regrasp.graph import SINK, SOURCE, RegraspGraph
+from planner.regrasp.planner import HandConfigPlanner, Task
+from planner.scene.scenarios import load_builtin
 
 
 def median_s(fn, repeats: int) -> float:

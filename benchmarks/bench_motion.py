@@ -13,13 +13,13 @@ import time
 
 import numpy as np
 
-from planner.ik import IkSolver
-from planner.ik_batch import BatchIk
-from planner.kinematics_batch import BatchKinematics
-from planner.robot_model import load_robot
-from planner.stances import solve_stance
-from planner.state_eval import HoldSpec, StateEvaluator
-from planner.trrt import ExploreLeg, TrrtSettings, explore, plan_motion
+from planner.motion.ik import IkSolver
+from planner.motion.ik_batch import BatchIk
+from planner.kinematics.batch import BatchKinematics
+from planner.robot.model import load_robot
+from planner.stability.stances import solve_stance
+from planner.stability.evaluator import HoldSpec, StateEvaluator
+from planner.motion.trrt import ExploreLeg, TrrtSettings, explore, plan_motion
 
 COM_LOCAL = np.array([0.15, 0.08, 0.15])
 
@@ -129,8 +129,8 @@ def main() -> None:
     if args.no_collision:
         return
     try:
-        from planner.collision import CollisionWorld, EnvBox
-        from planner.objects import build_object
+        from planner.scene.collision import CollisionWorld, EnvBox
+        from planner.scene.objects import build_object
         from schemas.scenario import ObjectDef
     except ImportError as exc:  # the collision checker is another area's work
         print(f"collision checker unavailable: {exc}")

@@ -17,8 +17,8 @@ import statistics
 import tempfile
 import time
 
-from planner.jobs import PlanOptions, plan_scenario
-from planner.scenarios import load_builtin
+from planner.jobs.plan_job import PlanOptions, plan_scenario
+from planner.scene.scenarios import load_builtin
 
 PAPER = ("upright", "staggered", "crouched", "one-legged")
 DRILLS = ("drill-handover", "drill-upright")

@@ -10,9 +10,9 @@ import time
 
 import numpy as np
 
-from planner.kinematics_batch import BatchKinematics
-from planner.robot_model import center_of_mass, load_robot
-from planner.stances import solve_stance
+from planner.kinematics.batch import BatchKinematics
+from planner.robot.model import center_of_mass, load_robot
+from planner.stability.stances import solve_stance
 
 
 def main() -> None:

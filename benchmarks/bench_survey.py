@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 import time
 
-from planner.scenarios import load_builtin
-from planner.survey import run_survey
+from planner.scene.scenarios import load_builtin
+from planner.survey.runner import run_survey
 
 
 def main() -> None:

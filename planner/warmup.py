@@ -1,7 +1,7 @@
 """Compile the planner's kernels (or load them from numba's cache) before work that has a deadline.
 
-The compiled inner loops (:mod:`planner.tree_kernels`, :mod:`planner.box_kernels`,
-:mod:`planner.ik_kernels`) are compiled on their first call: once per machine, ~10 s on two cores,
+The compiled inner loops (:mod:`planner.compiled.tree_kernels`, :mod:`planner.compiled.box_kernels`,
+:mod:`planner.compiled.ik_kernels`) are compiled on their first call: once per machine, ~10 s on two cores,
 after which every process loads the machine code from the cache in a fraction of a second. A job
 with a time limit, a test with a timeout or a service worker should not pay that inside its budget:
 :func:`warm_up` makes every kernel ready, through the same calls planning makes, so the argument
@@ -18,12 +18,12 @@ import numpy as np
 def warm_up(robot_name: str = "hrp5p") -> float:
     """Run every kernel once on a small real problem (a stance, a table, a few configurations, one IK
     target); returns the seconds it took."""
-    from .box_kernels import hypotheses_hit, obb_penetration
-    from .collision import CollisionWorld, EnvBox
-    from .ik import IkSettings, IkSolver
-    from .robot_model import load_robot
-    from .stances import solve_stance
-    from .state_eval import HoldSpec, StateEvaluator
+    from planner.compiled.box_kernels import hypotheses_hit, obb_penetration
+    from planner.scene.collision import CollisionWorld, EnvBox
+    from planner.motion.ik import IkSettings, IkSolver
+    from planner.robot.model import load_robot
+    from planner.stability.stances import solve_stance
+    from planner.stability.evaluator import HoldSpec, StateEvaluator
 
     t0 = time.perf_counter()
     robot = load_robot(robot_name)

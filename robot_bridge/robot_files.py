@@ -1,9 +1,8 @@
 """Find a robot's URDF and spec file as DATA, without importing the planner.
 
 The safety gate is an independent channel: it reads the same files the planner
-ships (``planner/robots/data/NAME.urdf`` and ``NAME.yaml``) but never runs the
-planner's code. The directory is found next to this package (both are installed
-side by side), so ``planner`` never enters ``sys.modules``.
+ships (``NAME.urdf`` and ``NAME.yaml`` in the data-only package :mod:`robot_data`)
+but never runs the planner's code, so ``planner`` never enters ``sys.modules``.
 """
 
 from __future__ import annotations
@@ -16,8 +15,8 @@ from typing import Any
 
 import yaml
 
-#: Where the robot files live inside the planner package.
-_DATA_PARTS = ("robots", "data")
+import robot_data
+
 #: Acceleration limit groups of the spec file.
 _ACC_GROUPS = ("legs", "waist", "neck", "arms", "grippers")
 
@@ -28,7 +27,7 @@ class RobotFilesError(ValueError):
 
 def robot_data_dir() -> Path:
     """The directory holding ``*.urdf`` and ``*.yaml`` robot files."""
-    path = Path(__file__).resolve().parent.parent.joinpath("planner", *_DATA_PARTS)
+    path = robot_data.data_dir()
     if not path.is_dir():
         raise RobotFilesError(f"the robot data files are not installed (no directory {path})")
     return path

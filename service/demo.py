@@ -215,7 +215,7 @@ def _lookahead_segments(speed: float) -> int:
 
 
 def _stance_of(scenario: str) -> str:
-    from planner.scenarios import load_scenario
+    from planner.scene.scenarios import load_scenario
 
     st = load_scenario(scenario).stance
     return st if isinstance(st, str) else st.name

@@ -1,6 +1,6 @@
 """The job handler table: job kind -> ``"module:function"`` run by the workers.
 
-The default table points at ``planner.entry`` (CONTRACT.md section 5 job kinds);
+The default table points at ``planner.jobs.entry`` (one function per job kind);
 tests and deployments can point a kind somewhere else through settings.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib
 from typing import Any, Callable
 
-from planner.entry import Canceled
+from planner.errors import Canceled
 
 Handler = Callable[[dict[str, Any], Any], dict[str, Any]]
 
@@ -33,9 +33,9 @@ def resolve(target: str) -> Handler:
     return fn
 
 
-class JobCanceled(Exception):
-    """Raised by service-side contexts when a cancelled job polls (handlers may raise planner.entry.Canceled too)."""
+class JobCanceled(Canceled):
+    """Raised by service-side contexts when a cancelled job polls: the planner's one cancellation type."""
 
 
-#: The exception types that mean "the job was cancelled": ours and planner.entry.Canceled.
-CANCELED_TYPES: tuple[type[BaseException], ...] = (JobCanceled, Canceled)
+#: The exception types that mean "the job was cancelled" (every one derives from the planner's).
+CANCELED_TYPES: tuple[type[BaseException], ...] = (Canceled,)

@@ -19,7 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from planner.stances import BUILTIN_STANCES as STANCES
+from planner.stability.stances import BUILTIN_STANCES as STANCES
 from schemas.common import HAND_CONFIGS
 
 #: The paper's Tables I-IV: (C, U, R) per hand configuration.
@@ -73,8 +73,8 @@ def _mean_sd(values: list[float]) -> tuple[float | None, float | None]:
 
 
 def _survey_rows(scenario, settings: PaperSettings, states: int, seeds: tuple[int, ...], stance: str | None = None) -> dict[str, Any]:
-    from planner.jobs import resolve_scenario
-    from planner.survey import run_survey_seeds
+    from planner.jobs.plan_job import resolve_scenario
+    from planner.survey.runner import run_survey_seeds
 
     t0 = time.perf_counter()
     sc = resolve_scenario(scenario, stance=stance, states_per_configuration=states)
@@ -95,8 +95,8 @@ def _survey_rows(scenario, settings: PaperSettings, states: int, seeds: tuple[in
 
 
 def _plan(scenario: str, hands: str | None, threshold_m: float | None, iterations: int, stance: str | None = None) -> dict[str, Any]:
-    from planner.jobs import PlanOptions, plan_scenario, resolve_scenario
-    from planner.scenarios import with_overrides
+    from planner.jobs.plan_job import PlanOptions, plan_scenario, resolve_scenario
+    from planner.scene.scenarios import with_overrides
 
     sc = resolve_scenario(scenario, stance=stance)
     data_limits = {"max_iterations": iterations}
@@ -258,7 +258,7 @@ def _fmt_mm(v: float | None) -> str:
 
 INCONSISTENCIES = [
     ("The crouched object is 15 kg in the simulation set-up and 8 kg in the analysis.",
-     "We follow 15 kg, the figure of the set-up paragraph that describes the run (planner/scenario_data/crouched.yaml)."),
+     "We follow 15 kg, the figure of the set-up paragraph that describes the run (planner/scene/scenario_data/crouched.yaml)."),
     ("The analysis paragraph headed 'staggered' (the second one) describes the one-legged results (Table IV, Fig. 5).",
      "We read it as the one-legged analysis and check its claim against our one-legged table."),
     ("'0 unstable poses recorded' stands beside U = 135 for the staggered left-hand configuration.",

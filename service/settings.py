@@ -19,10 +19,10 @@ import yaml
 from pydantic import BaseModel, Field, field_validator
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
-#: Job kind -> "module:function" run by the workers (planner/entry.py).
+#: Job kind -> "module:function" run by the workers (planner/jobs/entry.py).
 DEFAULT_HANDLERS: dict[str, str] = {
-    "plan": "planner.entry:run_plan",
-    "survey": "planner.entry:run_survey",
+    "plan": "planner.jobs.entry:run_plan",
+    "survey": "planner.jobs.entry:run_survey",
 }
 
 

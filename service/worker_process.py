@@ -25,7 +25,7 @@ from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Event
 from typing import Any
 
-from planner.entry import JobContext
+from planner.jobs.entry import JobContext
 from planner.forking import declare_fork_benign
 
 from .handlers import CANCELED_TYPES, HandlerError, JobCanceled, resolve
@@ -60,7 +60,7 @@ class JobHandlers:
             except Exception as exc:  # noqa: BLE001 - reported with each job of that kind; the worker stays up
                 self.errors[kind] = str(exc) if isinstance(exc, HandlerError) else f"job handler {target!r}: {exc!r}"
         if robot:
-            from planner.robot_model import load_robot
+            from planner.robot.model import load_robot
 
             load_robot(robot)  # cached for the life of the process: handlers reuse it
             try:

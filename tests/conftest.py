@@ -13,14 +13,14 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 @pytest.fixture(scope="session")
 def hrp5p():
-    from planner.robot_model import load_robot
+    from planner.robot.model import load_robot
 
     return load_robot("hrp5p")
 
 
 @pytest.fixture(scope="session")
 def stances(hrp5p):
-    from planner.stances import BUILTIN_STANCES, solve_stance
+    from planner.stability.stances import BUILTIN_STANCES, solve_stance
 
     return {name: solve_stance(hrp5p, name) for name in BUILTIN_STANCES}
 

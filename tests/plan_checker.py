@@ -31,9 +31,9 @@ class CheckReport:
 
 
 def _urdf_and_spec(robot_name: str):
-    import importlib.resources as res
+    import robot_data
 
-    data = res.files("planner.robots") / "data"
+    data = robot_data.data_dir()
     spec = yaml.safe_load((data / f"{robot_name}.yaml").read_text())
     return str(data / spec["urdf"]), spec
 

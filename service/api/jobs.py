@@ -17,7 +17,7 @@ from fastapi import APIRouter, Body, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
-from planner.scenarios import builtin_names
+from planner.scene.scenarios import builtin_names
 from schemas.jobs import (
     CANCELABLE_STATES, EXECUTION_STATES, TERMINAL_STATES, ApproveBody, Job, JobKind, JobList, JobState,
     JobSubmit, ReasonBody,

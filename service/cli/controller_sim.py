@@ -20,8 +20,8 @@ from .common import fail
 
 
 def _stance_posture(robot: str, stance: str) -> tuple[list[str], list[float]]:
-    from planner.robot_model import load_robot
-    from planner.stances import StanceError, solve_stance
+    from planner.robot.model import load_robot
+    from planner.stability.stances import StanceError, solve_stance
 
     try:
         model = load_robot(robot)

@@ -19,7 +19,7 @@ def run_with_progress(label: str, fn):
     """Run fn(progress_callback) under a rich progress bar.
 
     The bar is redrawn by the callback, not by rich's refresh thread: the process stays
-    single-threaded, so the survey can fork its worker processes (see planner.survey).
+    single-threaded, so the survey can fork its worker processes (see planner.survey.runner).
     """
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                   TimeElapsedColumn(), TextColumn("{task.fields[msg]}"), console=console, transient=True,
@@ -94,7 +94,7 @@ def plot_plan(plan: dict, path: Path, compare: dict | None = None) -> Path:
 def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, solutions, time_limit_s, out_path,
          plot_path, compare_threshold_mm, quiet) -> None:
     """Plan a regrasp task: pick, regrasp or hand over, and place, keeping the CoM margin."""
-    from planner.jobs import PlanningInputError, PlanOptions, plan_scenario, resolve_scenario
+    from planner.jobs.plan_job import PlanningInputError, PlanOptions, plan_scenario, resolve_scenario
 
     ref = check_scenario_args(scenario_file, scenario_name)
     threshold_m = mm_to_m("--threshold-mm", threshold_mm)

@@ -16,7 +16,7 @@ def robot() -> None:
 @robot.command("list")
 def list_robots() -> None:
     """Print the available robots, one per line."""
-    from planner.robots.registry import DEFAULT_ROBOT, load_spec, robot_names
+    from planner.robot.registry import DEFAULT_ROBOT, load_spec, robot_names
 
     for name in robot_names():
         mark = " (default)" if name == DEFAULT_ROBOT else ""
@@ -27,7 +27,7 @@ def list_robots() -> None:
 @click.argument("name")
 def urdf(name: str) -> None:
     """Print the absolute path of NAME's URDF (loads in pinocchio with a free-flyer root)."""
-    from planner.robots.registry import UnknownRobotError, urdf_path
+    from planner.robot.registry import UnknownRobotError, urdf_path
 
     try:
         click.echo(str(urdf_path(name)))
@@ -40,9 +40,9 @@ def urdf(name: str) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print machine-readable JSON.")
 def info(name: str, as_json: bool) -> None:
     """Describe a robot: mass, height, joints, limits and built-in stances."""
-    from planner.robot_info import robot_info
-    from planner.robot_model import load_robot
-    from planner.robots.registry import UnknownRobotError
+    from planner.robot.info import robot_info
+    from planner.robot.model import load_robot
+    from planner.robot.registry import UnknownRobotError
 
     try:
         doc = robot_info(load_robot(name))

@@ -16,7 +16,7 @@ def scenario() -> None:
 @scenario.command("list")
 def list_scenarios() -> None:
     """Print the built-in scenarios with their stance, object and threshold."""
-    from planner.scenarios import builtin_names, load_builtin
+    from planner.scene.scenarios import builtin_names, load_builtin
 
     for name in builtin_names():
         sc = load_builtin(name)
@@ -31,7 +31,7 @@ def list_scenarios() -> None:
 @click.argument("name")
 def show(name: str) -> None:
     """Print a built-in scenario (or a scenario file) as resolved YAML."""
-    from planner.scenarios import ScenarioError, load_scenario
+    from planner.scene.scenarios import ScenarioError, load_scenario
 
     try:
         sc = load_scenario(name)
@@ -44,7 +44,7 @@ def show(name: str) -> None:
 @click.argument("file")
 def check(file: str) -> None:
     """Validate a scenario file (or built-in name): schema, robot, stance, threshold, object, start/goal."""
-    from planner.scenarios import ScenarioError, check_scenario, load_scenario
+    from planner.scene.scenarios import ScenarioError, check_scenario, load_scenario
 
     try:
         sc = load_scenario(file)

@@ -115,9 +115,9 @@ def stance_matrix(docs: list[dict]) -> Table:
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), help="Write the bar chart and CoM scatter to this directory.")
 def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, workers, as_json, states_out, all_stances, plot_dir) -> None:
     """Count stable (C) and unstable (U) explored states per hand configuration; R = C / (C + U)."""
-    from planner.jobs import PlanningInputError, resolve_scenario
-    from planner.stances import BUILTIN_STANCES
-    from planner.survey import run_survey, write_states
+    from planner.jobs.plan_job import PlanningInputError, resolve_scenario
+    from planner.stability.stances import BUILTIN_STANCES
+    from planner.survey.runner import run_survey, write_states
 
     ref = check_scenario_args(scenario_file, scenario_name)
     # With --json, stdout carries the document alone; everything else goes to stderr. File paths are
@@ -148,7 +148,7 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
         if len(reasons) == 1 and "inradius" in (next(iter(reasons)) or ""):
             fail(next(iter(reasons)))  # no state can be stable: nothing was surveyed
     if states_out:
-        from planner.robot_model import load_robot
+        from planner.robot.model import load_robot
 
         doc, outcomes = docs[0]
         n = write_states(states_out, doc, outcomes, {"joint_names": list(load_robot(doc["robot"]["name"]).joint_names)})

@@ -58,13 +58,3 @@ class Executor(Protocol):
 
     def close(self) -> None:
         """Stop every worker."""
-
-
-def make_executor(settings: ServiceSettings) -> Executor:
-    if settings.executor == "ray":
-        from .ray_executor import RayExecutor
-
-        return RayExecutor(settings)
-    from .local import LocalExecutor
-
-    return LocalExecutor(settings)

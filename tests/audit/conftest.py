@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from planner.robots.registry import urdf_path
+from planner.robot.registry import urdf_path
 
 
 @pytest.fixture(scope="session")

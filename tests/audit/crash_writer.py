@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import sys
 
-from planner.robots.registry import urdf_path
+from planner.robot.registry import urdf_path
 from service.audit import AuditWriter
 from tests.audit.conftest import tiny_plan
 

@@ -8,7 +8,7 @@ import numpy as np
 import pinocchio as pin
 from mcap.reader import make_reader
 
-from planner.robot_model import frame_poses, load_robot
+from planner.robot.model import frame_poses, load_robot
 from service.audit import AuditWriter, shrink_polygon, verify
 from service.audit.urdf_frames import parse_urdf
 

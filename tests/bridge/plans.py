@@ -21,8 +21,8 @@ G = 9.81
 
 @lru_cache(maxsize=None)
 def _robot_and_stance(robot_name: str, stance: str):
-    from planner.robot_model import load_robot
-    from planner.stances import solve_stance
+    from planner.robot.model import load_robot
+    from planner.stability.stances import solve_stance
 
     robot = load_robot(robot_name)
     return robot, solve_stance(robot, stance)
@@ -56,7 +56,7 @@ def build_plan(
 
     ``holding`` other than "none": the object rides rigidly with that hand (its TCP), from the first point.
     """
-    from planner.kinematics_batch import BatchKinematics
+    from planner.kinematics.batch import BatchKinematics
 
     robot, st = _robot_and_stance(robot_name, stance)
     moves = moves if moves is not None else {"RSP": -0.3}
@@ -109,8 +109,8 @@ def build_plan(
 
 def true_min_margin(plan: dict, oversample: int = 2) -> float:
     """The planner's view of the plan's smallest CoM margin over points and midpoints (linear q)."""
-    from planner.kinematics_batch import BatchKinematics, quat_to_matrix
-    from planner.stability import SupportPolygon
+    from planner.kinematics.batch import BatchKinematics, quat_to_matrix
+    from planner.stability.support_polygon import SupportPolygon
 
     robot, st = _robot_and_stance(plan["robot"]["name"], plan["stance"]["name"])
     Q = np.array([p["q"] for p in plan["trajectory"]])

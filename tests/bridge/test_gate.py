@@ -50,8 +50,8 @@ def test_gate_imports_neither_planner_nor_pinocchio():
 def test_gate_kinematics_agree_with_planner_and_pinocchio(robot_name):
     import pinocchio as pin
 
-    from planner.kinematics_batch import BatchKinematics
-    from planner.robot_model import frame_poses, load_robot
+    from planner.kinematics.batch import BatchKinematics
+    from planner.robot.model import frame_poses, load_robot
     from robot_bridge.robot_files import robot_files
     from robot_bridge.urdf_kinematics import BatchFK, load_urdf
 
@@ -349,7 +349,7 @@ def _per_sample_reference(plan: dict, S: int, oversample: int) -> dict:
     """
     import pinocchio as pin
 
-    from planner.robot_model import frame_poses
+    from planner.robot.model import frame_poses
     from scipy.spatial.transform import Rotation
 
     from .plans import _robot_and_stance

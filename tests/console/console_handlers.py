@@ -21,7 +21,7 @@ CANCEL_POLL_S = 0.02
 
 def run_plan(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
     if request.get("scenario") == SLOW_SCENARIO:
-        from planner.entry import Canceled
+        from planner.errors import Canceled
 
         end = time.monotonic() + SLOW_LIMIT_S
         while time.monotonic() < end:

@@ -94,8 +94,8 @@ def test_demo_stance_step_prints_the_recomputed_com_and_margin(tmp_path, demo_st
     import numpy as np
     from shapely.geometry import Point, Polygon
 
-    from planner.robot_model import center_of_mass, load_robot
-    from planner.stances import solve_stance
+    from planner.robot.model import center_of_mass, load_robot
+    from planner.stability.stances import solve_stance
     from service.cli.demo import stance_step
 
     robot = load_robot("hrp5p")

@@ -6,11 +6,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from planner.kinematics_batch import BatchKinematics
-from planner.robot_info import standing_height
-from planner.robot_model import UnknownNameError, center_of_mass, frame_poses, load_robot
-from planner.robots import hrp5p_urdf
-from planner.robots.registry import UnknownRobotError, urdf_path
+from planner.kinematics.batch import BatchKinematics
+from planner.robot.info import standing_height
+from planner.robot.model import UnknownNameError, center_of_mass, frame_poses, load_robot
+from planner.robot import hrp5p_urdf
+from planner.robot.registry import UnknownRobotError, urdf_path
 
 
 def test_regenerating_gives_the_committed_urdf():
@@ -46,7 +46,7 @@ def test_contract_frames_and_sole_boxes(hrp5p, stances):
         assert sole.rotation[:, 2] == pytest.approx([0, 0, 1], abs=1e-3)
     # TCP: z is the approach direction out of the palm; with arms hanging it points down-forward.
     assert rtcp.rotation[2, 2] < 0 and ltcp.rotation[2, 2] < 0
-    from planner.stances import sole_size
+    from planner.stability.stances import sole_size
 
     assert sole_size(hrp5p, "l_sole") == pytest.approx((0.23, 0.13))
 

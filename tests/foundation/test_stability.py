@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from planner.stability import (
+from planner.stability.support_polygon import (
     DegeneratePolygonError,
     SupportPolygon,
     convex_hull_ccw,

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.collision import CollisionWorld, environment_boxes
-from planner.objects import build_object
-from planner.placements import check_resting
-from planner.scenarios import builtin_names, load_builtin
-from planner.stances import solve_stance
+from planner.scene.collision import CollisionWorld, environment_boxes
+from planner.scene.objects import build_object
+from planner.scene.placements import check_resting
+from planner.scene.scenarios import builtin_names, load_builtin
+from planner.stability.stances import solve_stance
 from planner.transforms import pose7_to_matrix
 
 PAPER = {

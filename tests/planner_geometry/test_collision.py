@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from planner.box_kernels import obb_penetration
-from planner.collision import CollisionWorld, EnvBox
+from planner.compiled.box_kernels import obb_penetration
+from planner.scene.collision import CollisionWorld, EnvBox
 from planner.transforms import axis_angle_to_matrix, make_transform
 
 
@@ -137,7 +137,7 @@ def test_compiled_screen_finds_exactly_the_boxes_the_sat_finds(seed, n_states):
     """The compiled screen (batch boxes, state boxes, then the SAT) keeps exactly the (pair, state)s
     whose oriented boxes penetrate deeper than their tolerance by the vectorised SAT: the screens
     drop nothing the SAT would keep."""
-    from planner.box_kernels import screen_pairs
+    from planner.compiled.box_kernels import screen_pairs
 
     rng = np.random.default_rng(seed)
     B = 6
@@ -163,9 +163,9 @@ def test_compiled_screen_finds_exactly_the_boxes_the_sat_finds(seed, n_states):
 def test_handover_needs_both_holders(hrp5p, stances, drill_obj, drill_grasps):
     """At a handover both hands close on the object: list both holders, or the second hand's
     fingers count as colliding with the object."""
-    from planner.collision import hand_geometry
-    from planner.handover import handover_poses
-    from planner.ik import IkSolver
+    from planner.scene.collision import hand_geometry
+    from planner.grasping.handover import handover_poses
+    from planner.motion.ik import IkSolver
 
     st = stances["upright"]
     right, left = drill_grasps["right"], drill_grasps["left"]
@@ -194,7 +194,7 @@ def test_mesh_object_collides_through_its_triangles(hrp5p, stances, tmp_path):
     """A non-box mesh object (an off-centre sphere, so the OBB offset matters) collides exactly."""
     import trimesh
 
-    from planner.objects import build_object
+    from planner.scene.objects import build_object
     from schemas.scenario import ObjectDef
 
     sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.04)

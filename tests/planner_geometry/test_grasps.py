@@ -5,8 +5,8 @@ from __future__ import annotations
 import fcl
 import numpy as np
 
-from planner.collision import hand_bodies, hand_geometry
-from planner.grasps import GraspSettings, first_hits, plan_grasps
+from planner.scene.collision import hand_bodies, hand_geometry
+from planner.grasping.grasps import GraspSettings, first_hits, plan_grasps
 
 
 def test_box_grasps_are_antipodal_and_fit_the_jaw(hrp5p, box_obj, box_grasps):
@@ -100,7 +100,7 @@ def test_corrupt_cache_file_is_recomputed(hrp5p, box_obj, tmp_path):
 from hypothesis import given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from planner.objects import build_object  # noqa: E402
+from planner.scene.objects import build_object  # noqa: E402
 from schemas.scenario import ObjectDef  # noqa: E402
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from planner.objects import ObjectModelError, box_union_mesh, build_object, carrier_boxes, rectilinear_boxes
-from planner.scenarios import DATA_DIR
+from planner.scene.objects import ObjectModelError, box_union_mesh, build_object, carrier_boxes, rectilinear_boxes
+from planner.scene.scenarios import DATA_DIR
 from schemas.scenario import ObjectDef
 
 

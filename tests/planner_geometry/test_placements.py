@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.placements import (
+from planner.scene.placements import (
     PlacementError,
     PlacementSettings,
     check_resting,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from planner.regrasp_graph import (
+from planner.regrasp.graph import (
     Canceled,
     GraphSpec,
     GraphWeights,
@@ -131,7 +131,7 @@ def test_removed_nodes_and_edges_leave_the_search():
 from hypothesis import given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from planner.regrasp_graph import SINK, SOURCE  # noqa: E402
+from planner.regrasp.graph import SINK, SOURCE  # noqa: E402
 
 
 def _dual_spec(n_grasps: int, n_placements: int, n_poses: int) -> GraphSpec:

@@ -7,9 +7,9 @@ import pinocchio as pin
 import pytest
 from shapely.geometry import Point, Polygon
 
-from planner.robot_model import load_robot
-from planner.state_eval import HoldSpec, StateEvaluator
-from planner.stances import solve_stance
+from planner.robot.model import load_robot
+from planner.stability.evaluator import HoldSpec, StateEvaluator
+from planner.stability.stances import solve_stance
 
 COM_LOCAL = np.array([0.15, 0.08, 0.15])
 

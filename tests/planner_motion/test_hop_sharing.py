@@ -30,9 +30,9 @@ def test_shared_hops_give_the_plan_planned_one_by_one():
     is. A handover plan, so the handover's own motions (planned by the helper) come back too."""
     out = _run(f"""
         import json
-        from planner.jobs import PlanOptions, build_task, plan_scenario
-        from planner.regrasp_planner import PlannerSettings
-        from planner.scenarios import load_scenario
+        from planner.jobs.plan_job import PlanOptions, build_task, plan_scenario
+        from planner.regrasp.planner import PlannerSettings
+        from planner.scene.scenarios import load_scenario
         sc = load_scenario({str(SMALL_BOX)!r})
         docs = {{}}
         for shared in (True, False):
@@ -57,8 +57,8 @@ def test_shared_hops_give_the_plan_planned_one_by_one():
 def test_a_cancel_while_sharing_lands_within_a_second_and_ends_the_helper():
     out = _run("""
         import json, os, time
-        from planner.fork_share import share_with_child
-        from planner.regrasp_graph import Canceled
+        from planner.regrasp.fork_share import share_with_child
+        from planner.regrasp.graph import Canceled
         t0 = time.monotonic()
         stop = lambda: time.monotonic() - t0 > 0.3
         def work(job, in_child):
@@ -87,7 +87,7 @@ def test_a_cancel_while_sharing_lands_within_a_second_and_ends_the_helper():
 def test_a_failing_helper_is_reported_and_leaves_its_jobs_to_the_caller():
     out = _run("""
         import json, os, time
-        from planner.fork_share import share_with_child
+        from planner.regrasp.fork_share import share_with_child
         parent = os.getpid()
         def work(job, in_child):
             if in_child:

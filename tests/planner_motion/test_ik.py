@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.ik import IkSettings, IkSolver
+from planner.motion.ik import IkSettings, IkSolver
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +69,7 @@ def test_out_of_reach_target_returns_none_with_reason(robot, upright, ik):
 def test_unreachable_target_within_the_reach_sphere_returns_no_convergence(robot, upright):
     """Behind the back on the other side: within the arm's reach sphere (so not OUT_OF_REACH), but no
     posture within the limits gets near it (none of 20,000 random ones comes within 6 cm)."""
-    from planner.kinematics_batch import BatchKinematics
+    from planner.kinematics.batch import BatchKinematics
 
     solver = IkSolver(robot, upright, IkSettings(restarts=2))
     target = np.array([-0.4, 0.4, 0.9])
@@ -94,7 +94,7 @@ def test_bad_input_is_reported(robot, upright, ik):
 
 
 def test_key_pose_targets_back_off_along_the_approach():
-    from planner.ik import key_pose_targets
+    from planner.motion.ik import key_pose_targets
 
     T = np.eye(4)
     T[:3, :3] = np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]])  # approach (z) along world +x

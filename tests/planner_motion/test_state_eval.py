@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from planner.state_eval import HoldSpec, ReducedKinematics, StateEvaluator
+from planner.stability.evaluator import HoldSpec, ReducedKinematics, StateEvaluator
 
 from .conftest import COM_LOCAL
 
@@ -101,8 +101,8 @@ def test_heavier_object_moves_com_towards_object_com_as_eq1(robot, upright, hold
 
 def test_second_model_with_mimic_fingers():
     """Nothing is specific to one model: JVRC-1 (finger mimic joints with multipliers) is exact too."""
-    from planner.robot_model import center_of_mass, load_robot
-    from planner.stances import solve_stance
+    from planner.robot.model import center_of_mass, load_robot
+    from planner.stability.stances import solve_stance
 
     robot = load_robot("jvrc1")
     stance = solve_stance(robot, "upright")

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from shapely.geometry import Point, Polygon
 
-from planner.smoothing import path_length, shortcut
-from planner.timing import TimingSettings, time_parameterize, time_path
-from planner.trrt import plan_motion
+from planner.motion.smoothing import path_length, shortcut
+from planner.motion.timing import TimingSettings, time_parameterize, time_path
+from planner.motion.trrt import plan_motion
 
 DT = 0.005
 G = 9.81
@@ -55,7 +55,7 @@ def test_samples_stay_on_the_straight_segments(robot, upright, right_active):
 
 
 def test_zmp_kept_inside_with_a_heavy_object(robot, upright, right_active, hold_right):
-    from planner.state_eval import StateEvaluator
+    from planner.stability.evaluator import StateEvaluator
 
     ev = StateEvaluator(robot, upright, 0.0, 8.0, np.array([0.15, 0.08, 0.15]))
     # A fast swing whose full-speed ZMP leaves the polygon while its static margin stays >= 1 cm.
@@ -80,7 +80,7 @@ def test_zmp_kept_inside_with_a_heavy_object(robot, upright, right_active, hold_
 
 
 def test_static_margin_failure_is_explained(robot, upright, right_active, hold_right):
-    from planner.state_eval import StateEvaluator
+    from planner.stability.evaluator import StateEvaluator
 
     ev = StateEvaluator(robot, upright, 0.03, 40.0, np.array([0.15, 0.08, 0.15]))
     W = _waypoints(robot, upright, right_active, [0.8])

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from planner.transforms import matrices_to_pose7
-from planner.trrt import ExploreLeg, TrrtSettings, explore, plan_motion
+from planner.motion.trrt import ExploreLeg, TrrtSettings, explore, plan_motion
 
 RESOLUTION = 0.02
 
@@ -155,7 +155,7 @@ def test_exploration_counts_and_flags(robot, upright, evaluator, hold_right, rig
 
 def test_exploration_through_a_handover(robot, upright, evaluator, hold_right):
     """Two legs (right hand to the handover, left hand away from it) with both arms active."""
-    from planner.state_eval import HoldSpec
+    from planner.stability.evaluator import HoldSpec
 
     both = np.r_[robot.waist_indices(), robot.arm_indices("left"), robot.arm_indices("right")]
     start = upright.q.copy()
@@ -185,7 +185,7 @@ def test_exploration_through_a_handover(robot, upright, evaluator, hold_right):
 def test_exploration_aims_a_share_of_its_samples_at_the_other_end(robot, upright, right_active):
     """Goal bias (the paper's start/end bias): each tree grows from one end of the leg, and a
     ``goal_bias`` share of its samples is the other tree's root; the rest are uniform."""
-    from planner.trrt import _Search
+    from planner.motion.trrt import _Search
 
     start = upright.q.copy()
     goal = start.copy()

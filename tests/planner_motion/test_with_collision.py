@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-collision = pytest.importorskip("planner.collision")
+collision = pytest.importorskip("planner.scene.collision")
 
-from planner.trrt import ExploreLeg, explore, make_validity, plan_motion  # noqa: E402
+from planner.motion.trrt import ExploreLeg, explore, make_validity, plan_motion  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def world(robot, upright, right_active):
-    from planner.objects import build_object
+    from planner.scene.objects import build_object
     from schemas.scenario import ObjectDef
 
     table = np.eye(4)

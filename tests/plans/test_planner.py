@@ -9,8 +9,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from planner.jobs import PlanningInputError, PlanOptions, plan_scenario
-from planner.scenarios import load_scenario, with_overrides
+from planner.jobs.plan_job import PlanningInputError, PlanOptions, plan_scenario
+from planner.scene.scenarios import load_scenario, with_overrides
 from schemas.plan import Plan, plan_sha256
 from plan_checker import check_plan
 
@@ -27,7 +27,7 @@ def small_box():
 @pytest.fixture(scope="module")
 def small_task(small_box):
     """One task shared by the plans below: node validations are reused across them (order-independent)."""
-    from planner.jobs import build_task
+    from planner.jobs.plan_job import build_task
 
     return build_task(small_box)
 
@@ -69,7 +69,7 @@ def test_goal_not_resting_on_a_table_is_rejected(small_box):
     bad = with_overrides(small_box)
     data = bad.model_dump(by_alias=True)
     data["goal_pose"][2] += 0.05
-    from planner.scenarios import parse_scenario
+    from planner.scene.scenarios import parse_scenario
 
     doc = plan_scenario(parse_scenario(data), PlanOptions())
     assert doc["status"] == "infeasible" and doc["failure"]["code"] == "GOAL_INVALID"
@@ -77,7 +77,7 @@ def test_goal_not_resting_on_a_table_is_rejected(small_box):
 
 
 def test_object_too_heavy_is_infeasible_within_its_time_limit(small_box):
-    from planner.scenarios import parse_scenario
+    from planner.scene.scenarios import parse_scenario
 
     data = small_box.model_dump(by_alias=True)
     data["object"]["mass_kg"] = 60.0
@@ -100,7 +100,7 @@ def test_unknown_hands_is_a_usage_error(small_box):
 @settings(max_examples=3, deadline=None, suppress_health_check=list(HealthCheck))
 @given(mass=st.floats(0.5, 6.0), com_y=st.floats(-0.04, 0.04), start_y=st.floats(-0.26, -0.18))
 def test_plan_is_either_valid_or_infeasible_with_a_reason(small_box, mass, com_y, start_y):
-    from planner.scenarios import parse_scenario
+    from planner.scene.scenarios import parse_scenario
 
     data = small_box.model_dump(by_alias=True)
     data["object"]["mass_kg"] = mass
@@ -164,7 +164,7 @@ def test_k_best_solutions_list_the_others_as_alternatives(small_box, small_task,
 
 
 def test_start_inside_an_obstacle_names_the_obstacle(small_box):
-    from planner.scenarios import parse_scenario
+    from planner.scene.scenarios import parse_scenario
 
     data = small_box.model_dump(by_alias=True)
     data["obstacles"] = [{"name": "crate", "pose": [0.42, -0.22, 0.82, 0, 0, 0, 1], "size": [0.1, 0.1, 0.1]}]
@@ -175,7 +175,7 @@ def test_start_inside_an_obstacle_names_the_obstacle(small_box):
 
 @pytest.mark.parametrize("end", ["start", "goal"])
 def test_end_out_of_reach_is_named(small_box, end):
-    from planner.scenarios import parse_scenario
+    from planner.scene.scenarios import parse_scenario
 
     data = small_box.model_dump(by_alias=True)
     data["tables"] = [{"name": "table", "pose": [0.8, 0, 0.375, 0, 0, 0, 1], "size": [1.0, 1.2, 0.75]}]
@@ -192,7 +192,7 @@ SURVEY_CUT_LIMIT_S = 0.2
 @pytest.mark.host_pauses(limit_s=0.2)
 def test_time_limit_bounds_the_whole_run_including_the_auto_survey(small_box):
     """A limit too short for the survey of `auto` ends TIMEOUT soon after the limit, not after the survey."""
-    from planner.jobs import build_task
+    from planner.jobs.plan_job import build_task
 
     # The survey alone takes ~0.6 s on an idle 2-core machine (the whole plan ~0.85 s); CI once solved the
     # plan inside a 0.5 s limit, so the limit is a third of the survey's time.
@@ -218,9 +218,9 @@ def test_graph_node_order_does_not_depend_on_the_hash_seed():
 
     script = (
         "import numpy as np, hashlib\n"
-        "from planner.scenarios import load_scenario\n"
-        "from planner.jobs import build_task\n"
-        "from planner.regrasp_planner import HandConfigPlanner\n"
+        "from planner.scene.scenarios import load_scenario\n"
+        "from planner.jobs.plan_job import build_task\n"
+        "from planner.regrasp.planner import HandConfigPlanner\n"
         f"task = build_task(load_scenario({str(DATA / 'small-box.yaml')!r}))\n"
         "spec = HandConfigPlanner(task, 'right-left').graph_spec()\n"
         "print(hashlib.sha256(repr(spec.placement_nodes).encode()).hexdigest(), len(spec.placement_nodes))\n"

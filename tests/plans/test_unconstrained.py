@@ -19,8 +19,8 @@ def test_zero_threshold_plans_differently_and_comes_too_close(tmp_path):
     assert check_plan(constrained).errors == []
     assert plot.read_bytes()[:4] == b"\x89PNG"
     # The comparison plan, as the CLI planned it (same seed, same hands, threshold 0).
-    from planner.jobs import PlanOptions, plan_scenario
-    from planner.scenarios import load_builtin
+    from planner.jobs.plan_job import PlanOptions, plan_scenario
+    from planner.scene.scenarios import load_builtin
 
     free = plan_scenario(load_builtin("upright"), PlanOptions(hands="right-right", threshold_m=0.0))
     assert free["status"] == "solved"

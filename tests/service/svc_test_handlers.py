@@ -16,7 +16,7 @@ import signal
 import time
 from typing import Any
 
-from planner.entry import Canceled
+from planner.errors import Canceled
 
 
 def _spin(seconds: float, ctx: Any, poll: bool) -> int:
@@ -79,7 +79,7 @@ def robot_loads() -> dict[str, Any]:
     build). A worker that preloaded its robot and then runs this handler shows one
     miss and at least one hit (the call below) however many jobs it has run.
     """
-    from planner.robot_model import load_robot
+    from planner.robot.model import load_robot
 
     load_robot("hrp5p")
     info = load_robot.cache_info()
@@ -99,9 +99,9 @@ def stand(request: dict[str, Any], ctx: Any, duration_s: float = STAND_DURATION_
 
     ``bad_joint`` puts one joint past its URDF limit from the middle on: the gate must veto it.
     """
-    from planner.robot_model import center_of_mass, load_robot
-    from planner.robots.registry import urdf_sha256
-    from planner.stances import solve_stance
+    from planner.robot.model import center_of_mass, load_robot
+    from planner.robot.registry import urdf_sha256
+    from planner.stability.stances import solve_stance
 
     robot = load_robot("hrp5p")
     stance = solve_stance(robot, "upright")

@@ -15,7 +15,7 @@ import pinocchio as pin
 from shapely.geometry import Polygon
 
 from plan_checker import _box_sizes, _mimics, _pin_q, _signed_margin, _sole_hull
-from planner.robots.registry import urdf_path
+from planner.robot.registry import urdf_path
 
 #: A sole whose frame is this close to z = 0 stands on the ground.
 ON_GROUND_M = 1e-3

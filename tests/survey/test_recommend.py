@@ -68,7 +68,7 @@ def test_recommend_agrees_with_the_rule_for_any_counts(drawn):
 def test_hands_auto_tries_the_configurations_in_the_survey_s_order(monkeypatch):
     """--hands auto ranks the quick survey's rows: the recommended first, then by the same rule, then the
     configurations without a ratio in the contract's order."""
-    import planner.jobs as jobs
+    import planner.jobs.plan_job as jobs
 
     rows = [row("left-left", 6, 2), row("right-right", 0, 0), row("left-right", 3, 1), row("right-left", 9, 1)]
     doc = {"rows": [r.model_dump() for r in rows], "recommended": recommend(rows)}
@@ -82,7 +82,7 @@ def test_hands_auto_tries_the_configurations_in_the_survey_s_order(monkeypatch):
 
 @given(st.permutations(CONTRACT_ORDER), st.lists(st.tuples(counts, counts), min_size=4, max_size=4))
 def test_hands_auto_order_agrees_with_the_rule_for_any_counts(order, pairs):
-    import planner.jobs as jobs
+    import planner.jobs.plan_job as jobs
 
     rows = [row(h, c, u) for h, (c, u) in zip(order, pairs)]
     doc = {"rows": [r.model_dump() for r in rows], "recommended": recommend(rows)}
@@ -97,9 +97,9 @@ def test_hands_auto_order_agrees_with_the_rule_for_any_counts(order, pairs):
 @given(st.permutations(CONTRACT_ORDER), st.lists(st.one_of(st.none(), st.integers(0, 4)), min_size=4, max_size=4))
 def test_a_survey_for_the_recommendation_only_recommends_what_the_whole_survey_does(order, stable):
     """`hands: auto` skips the configurations a surveyed one outranks whatever they would count
-    (planner.survey._outranked), in the one-process order of any request: the recommendation is unchanged. Four
+    (planner.survey.runner._outranked), in the one-process order of any request: the recommendation is unchanged. Four
     states per configuration make R = 1 and ties common; None is a configuration without key poses."""
-    from planner.survey import ConfigOutcome, _outranked, _serial_order
+    from planner.survey.runner import ConfigOutcome, _outranked, _serial_order
 
     n = 4
     whole = [ConfigOutcome(h, 0, 0, "no feasible grasp or key poses", {}) if c is None else ConfigOutcome(h, c, n - c, None, {})

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from planner.collision import CollisionWorld
-from planner.scenarios import load_scenario
-from planner.survey import run_survey, run_survey_seeds, write_states
+from planner.scene.collision import CollisionWorld
+from planner.scene.scenarios import load_scenario
+from planner.survey.runner import run_survey, run_survey_seeds, write_states
 from service.cli.main import cli
 
 from .independent import Independent
@@ -33,7 +33,7 @@ def scenario():
 def surveyed(scenario, tmp_path_factory):
     doc, outcomes = run_survey(scenario, states=STATES, hands=HANDS, workers=1)
     path = tmp_path_factory.mktemp("survey") / "states.npz"
-    from planner.robot_model import load_robot
+    from planner.robot.model import load_robot
 
     write_states(str(path), doc, outcomes, {"joint_names": list(load_robot("hrp5p").joint_names)})
     return doc, outcomes, dict(np.load(path, allow_pickle=False))
@@ -79,9 +79,9 @@ def test_an_independent_recomputation_agrees_with_the_stable_flags(surveyed):
 
 def test_a_colliding_state_is_never_counted(scenario, surveyed):
     _, outcomes, _ = surveyed
-    from planner.objects import build_object
-    from planner.robot_model import load_robot
-    from planner.stances import solve_stance
+    from planner.scene.objects import build_object
+    from planner.robot.model import load_robot
+    from planner.stability.stances import solve_stance
 
     robot = load_robot("hrp5p")
     stance = solve_stance(robot, scenario.stance)
@@ -155,8 +155,8 @@ def test_unknown_hands_are_rejected(scenario):
 def test_key_poses_do_not_depend_on_which_configuration_ran_first(scenario):
     """Node validations are shared by a task's hand configurations and each node draws from its own
     generator, so a configuration finds the same key path whatever was validated before it."""
-    from planner.regrasp_planner import HandConfigPlanner, Task
-    from planner.survey import key_path
+    from planner.regrasp.planner import HandConfigPlanner, Task
+    from planner.survey.runner import key_path
 
     def path_of(task, hands):
         path, reason = key_path(HandConfigPlanner(task, hands), lambda: False)
@@ -175,7 +175,7 @@ def test_configurations_in_rounds_count_as_in_one_process(scenario):
     """Three configurations on two workers: the single-arm ones first, one per worker, then the
     dual-arm one, starting from both hands' probes and validated nodes; the one-process survey runs
     the same order, and the counts are equal."""
-    from planner.survey import _rounds, _serial_order
+    from planner.survey.runner import _rounds, _serial_order
 
     hands = ["right-right", "left-right", "left-left"]
     assert _rounds(hands, 2) == [[0, 2], [1]]
@@ -208,8 +208,8 @@ def test_a_survey_for_the_recommendation_only_skips_what_cannot_win(scenario, su
 def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenario):
     """Workers validate key-pose nodes in their own copies of the task; the caller's task adopts them,
     so the plan after a `hands: auto` survey finds its key path without validating a node again."""
-    from planner.regrasp_planner import HandConfigPlanner, Task
-    from planner.survey import key_path
+    from planner.regrasp.planner import HandConfigPlanner, Task
+    from planner.survey.runner import key_path
 
     task = Task(scenario)
     run_survey(scenario, states=50, hands=["right-right", "left-left"], workers=2, task=task)
@@ -241,7 +241,7 @@ def test_the_cli_progress_bar_leaves_the_process_single_threaded():
 def test_the_state_count_defaults_to_the_scenario_then_10000_and_zero_is_refused(scenario):
     """CONTRACT 4: N from the scenario, 10,000 by default. (A threshold beyond the polygon skips the
     exploration itself, so the count is read without running 10,000 states.)"""
-    from planner.jobs import build_task
+    from planner.jobs.plan_job import build_task
 
     assert "survey" not in scenario.model_dump(exclude_unset=True)  # the fixture names no count
     task = build_task(scenario)
@@ -260,8 +260,8 @@ def test_grasp_probes_bound_the_validated_margin_and_prefill_only_certain_failur
     object there) before validating any. The probe must be optimistic (the node's validated margin is
     never larger: its lift starts from that very state), and a node it marks as failing on the margin
     must be one its own validation rejects for that reason."""
-    from planner.regrasp_graph import PlacementNode
-    from planner.regrasp_planner import HandConfigPlanner, Task
+    from planner.regrasp.graph import PlacementNode
+    from planner.regrasp.planner import HandConfigPlanner, Task
 
     probe_task = Task(scenario)
     planner = HandConfigPlanner(probe_task, "right-right")
@@ -290,8 +290,8 @@ def test_grasp_probes_bound_the_validated_margin_and_prefill_only_certain_failur
 def test_batched_giver_probes_classify_as_the_one_state_check_does(scenario):
     """The givers at the handover poses are solved and checked in batches; each entry's cause and margin
     must be what the planner's one-state check (pinocchio CoM, per-state collision) finds for it."""
-    from planner.regrasp_graph import HandoverNode
-    from planner.regrasp_planner import HandConfigPlanner, Task
+    from planner.regrasp.graph import HandoverNode
+    from planner.regrasp.planner import HandConfigPlanner, Task
 
     task = Task(scenario, threshold_m=0.05)
     planner = HandConfigPlanner(task, "right-left")
@@ -313,7 +313,7 @@ def test_the_jaw_closing_probe_caches_the_verdict_the_validation_reaches(scenari
     """The probes also close the jaw on the resting object from the probed posture, for all probed
     nodes at once. A node found failing there is cached with the verdict its own validation (from the
     same posture) reaches, margin included; a probed node not cached gets past that check."""
-    from planner.regrasp_planner import HandConfigPlanner, Task
+    from planner.regrasp.planner import HandConfigPlanner, Task
 
     task = Task(scenario)
     planner = HandConfigPlanner(task, "right-right")
@@ -338,7 +338,7 @@ def test_a_search_reaching_a_node_the_arm_alone_missed_probes_all_such_nodes_wit
     found reaches the grasp within the IK tolerance and the joint limits, its margin is the one of
     holding the object there (recomputed through pinocchio), a margin failure is cached with the
     verdict the node's own validation reaches, and the validation starts from that posture."""
-    from planner.regrasp_planner import HandConfigPlanner, Task
+    from planner.regrasp.planner import HandConfigPlanner, Task
 
     task = Task(scenario)
     planner = HandConfigPlanner(task, "right-right")
@@ -391,8 +391,8 @@ def test_a_search_reaching_a_node_the_arm_alone_missed_probes_all_such_nodes_wit
 def test_nodes_known_to_fail_leave_the_graph_before_the_search_and_are_counted(scenario):
     """What the probes (or another hand configuration) already proved invalid is removed up front, so
     the search spends no iteration on it; the removals are counted by cause like the screening's."""
-    from planner.regrasp_graph import RegraspGraph
-    from planner.regrasp_planner import HandConfigPlanner, Task
+    from planner.regrasp.graph import RegraspGraph
+    from planner.regrasp.planner import HandConfigPlanner, Task
 
     task = Task(scenario)
     planner = HandConfigPlanner(task, "right-left")

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from planner.stances import BUILTIN_STANCES
+from planner.stability.stances import BUILTIN_STANCES
 from service.cli.main import cli
 from service.cli.survey import LABELS
 
@@ -27,7 +27,7 @@ HANDS = ["left-left"]
 
 @pytest.fixture(scope="module")
 def all_stances(tmp_path_factory):
-    import planner.survey as survey_module
+    import planner.survey.runner as survey_module
 
     out = tmp_path_factory.mktemp("all-stances")
     real = survey_module.run_survey
@@ -120,7 +120,7 @@ def test_the_matrix_json_form_holds_every_stance_document(tmp_path):
     stance but the staggered one could meet, and there no key poses either, so nothing is explored)."""
     import json
 
-    import planner.survey as survey_module
+    import planner.survey.runner as survey_module
 
     real = survey_module.run_survey
     with pytest.MonkeyPatch.context() as mp:

@@ -27,7 +27,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rich.console import Console
 
-from planner.state_eval import HoldSpec, StateEvaluator
+from planner.stability.evaluator import HoldSpec, StateEvaluator
 from service.cli.main import cli
 
 from .independent import Independent
@@ -43,14 +43,14 @@ NEAR = 1e-9
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    import planner.survey as survey_module
+    import planner.survey.runner as survey_module
 
     out = tmp_path_factory.mktemp("one-legged-survey")
     real = survey_module.run_survey
     captured = {}
 
     def two_configurations(scenario, **kwargs):
-        from planner.regrasp_planner import Task
+        from planner.regrasp.planner import Task
 
         captured["task"] = Task(scenario)  # what run_survey would build; kept for its handover poses
         doc, outcomes = real(scenario, hands=HANDS, task=captured["task"], **kwargs)
@@ -112,9 +112,9 @@ def groups(run, indep):
 @pytest.fixture(scope="module")
 def evaluator_args(run):
     """What the project's StateEvaluator needs for this scenario, built from the project's own loaders."""
-    from planner.robot_model import load_robot
-    from planner.scenarios import load_scenario
-    from planner.stances import solve_stance
+    from planner.robot.model import load_robot
+    from planner.scene.scenarios import load_scenario
+    from planner.stability.stances import solve_stance
 
     scenario = load_scenario(SCENARIO)
     robot = load_robot(scenario.robot)
@@ -244,9 +244,9 @@ def test_a_heavier_object_moves_each_com_towards_the_object_as_equation_1(run, g
 def test_no_counted_state_collides(run, groups, evaluator_args):
     """Every stored state, rechecked with its grasp in a collision world built afresh from the scenario;
     the exploration did meet colliding states (rejected, not counted), and the check does see a collision."""
-    from planner.collision import CollisionWorld
-    from planner.objects import build_object
-    from planner.scenarios import load_scenario
+    from planner.scene.collision import CollisionWorld
+    from planner.scene.objects import build_object
+    from planner.scene.scenarios import load_scenario
 
     robot, stance, _ = evaluator_args
     scenario = load_scenario(SCENARIO)
@@ -421,8 +421,8 @@ def test_plan_hands_auto_takes_the_survey_s_recommendation(run, tmp_path):
     """``regrasp plan --hands auto`` on this task plans with the configuration the survey recommends for the
     scenario's seed (its quick survey's ratios are in the plan's stats). The CLI's task is the survey
     fixture's (built from the same scenario): its validated key poses are reused, which keeps this fast."""
-    import planner.jobs as jobs
-    from planner.survey import run_survey
+    import planner.jobs.plan_job as jobs
+    from planner.survey.runner import run_survey
 
     def warm_task(scenario, settings=None):
         assert scenario.stance == run.task.scenario.stance and scenario.threshold_m == run.task.threshold_m

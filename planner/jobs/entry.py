@@ -1,0 +1,32 @@
+"""Entry points the service's workers call: one function per job kind.
+
+A worker process calls ``run_plan(request, ctx)`` or ``run_survey(request, ctx)`` with the job's
+request (the HTTP API's job request, docs/contract.md) and a context that reports progress and
+tells whether the job was cancelled. They return the plan or survey document as a JSON-ready
+dict, and raise :class:`planner.errors.Canceled` when the context asked them to stop.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+from planner.errors import Canceled
+from planner.jobs.plan_job import plan_job, survey_job
+
+__all__ = ["Canceled", "JobContext", "run_plan", "run_survey"]
+
+
+class JobContext(Protocol):
+    def progress(self, fraction: float, message: str) -> None:
+        """Report progress in [0, 1] with a short human-readable message."""
+
+    def cancelled(self) -> bool:
+        """True once the job was asked to stop; long loops poll it and raise :class:`Canceled`."""
+
+
+def run_plan(request: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
+    return plan_job(request, ctx)
+
+
+def run_survey(request: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
+    return survey_job(request, ctx)

@@ -1,0 +1,287 @@
+"""Plan and survey jobs: a scenario (plus overrides) in, a contract document out.
+
+Used by ``regrasp plan``/``regrasp survey`` and by the service's workers (through
+:mod:`planner.jobs.entry`). Bad input that prevents planning raises :class:`planner.errors.InputError`
+(a usage error); planning that runs and finds nothing returns ``status: infeasible``
+with a failure code and the failures counted by cause.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata as md
+import platform
+import time
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from schemas.common import HAND_CONFIGS
+from schemas.plan import PLAN_SCHEMA
+from schemas.scenario import Scenario
+
+from planner.scene.objects import ObjectModelError
+from planner.scene.placements import PlacementError
+from planner.regrasp.plan_assembly import assemble, trajectory_points
+from planner.regrasp.planner import HandConfigPlanner, PlannerResult, PlannerSettings, Task
+from planner.errors import Canceled, InputError
+from planner.errors import InputError as PlanningInputError  # the name callers import
+from planner.scene.scenarios import resolve_scenario, with_overrides
+from planner.stability.stances import StanceError
+from planner.survey.runner import quick_survey, run_survey_request
+
+ProgressFn = Callable[[float, str], None]
+StopFn = Callable[[], bool]
+
+
+@dataclass
+class PlanOptions:
+    hands: str | None = None
+    threshold_m: float | None = None
+    seed: int | None = None
+    solutions: int = 1
+    stance: Any = None
+    time_limit_s: float | None = None
+
+
+def library_versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for dist in ("hrp-regrasp", "numpy", "pin", "python-fcl", "trimesh", "networkx", "scipy", "pydantic"):
+        try:
+            out[dist] = md.version(dist)
+        except md.PackageNotFoundError:
+            pass
+    return out
+
+
+def _infeasible(task_or_none: Task | None, scenario: Scenario, code: str, message: str, counts: dict | None = None,
+                hands: str | None = None, stats: dict | None = None) -> dict[str, Any]:
+    from planner.robot.model import load_robot
+    from planner.stability.stances import solve_stance
+
+    robot = task_or_none.robot if task_or_none else load_robot(scenario.robot)
+    try:
+        stance = task_or_none.stance if task_or_none else solve_stance(robot, scenario.stance)
+        stance_doc = stance.result().model_dump()
+        polygon = stance.polygon.vertices.tolist()
+    except (StanceError, ValueError):
+        stance_doc = {"name": str(scenario.stance if isinstance(scenario.stance, str) else scenario.stance.name),
+                      "base_pose": [0, 0, 0, 0, 0, 0, 1.0], "feet": []}
+        polygon = []
+    return {
+        "schema": PLAN_SCHEMA,
+        "status": "infeasible",
+        "failure": {"code": code, "message": message, "counts": dict(counts or {})},
+        "robot": {"name": robot.name, "urdf_sha256": robot.urdf_sha256, "joint_names": list(robot.joint_names)},
+        "scenario": scenario.model_dump(by_alias=True, mode="json"),
+        "stance": stance_doc,
+        "support_polygon": polygon,
+        "object": {"name": scenario.object.name, "mass_kg": scenario.object.mass_kg,
+                   "com_local": list(scenario.object.com_local or [0.0, 0.0, 0.0]),
+                   "start_pose": list(scenario.start_pose), "goal_pose": list(scenario.goal_pose)},
+        "threshold_m": scenario.threshold_m,
+        "hands": hands,
+        "dt_s": 0.005,
+        "trajectory": [],
+        "segments": [],
+        "min_margin_m": None,
+        "alternatives": [],
+        "stats": stats or {},
+    }
+
+
+def build_task(scenario: Scenario, settings: PlannerSettings | None = None) -> Task:
+    """The task, or an :class:`InputError` whose message names the problem."""
+    return Task(scenario, settings)
+
+
+def _failure_counts(results: list[tuple[PlannerResult, HandConfigPlanner]]) -> dict[str, int]:
+    """Removed states by cause, summed over the hand configurations that ran."""
+    counts: Counter = Counter()
+    for r, _ in results:
+        counts.update(r.failures)
+    return dict(counts)
+
+
+def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]:
+    """The failure code: an end (start or goal) no node could hold says so; else the search's own code."""
+    if res.failure_code in ("TIMEOUT", "START_INVALID", "GOAL_INVALID"):  # decided by the planner itself
+        return res.failure_code, res.message
+    for end, failures, ok, hand in (("start", planner.start_failures, planner.start_ok, planner.start_hand),
+                                    ("goal", planner.goal_failures, planner.goal_ok, planner.goal_hand)):
+        if failures and not ok:
+            if max(failures, key=failures.get) == "com_margin":
+                return "NO_STABLE_GRASP", (f"no grasp of the object at its {end} pose keeps the CoM margin >= the "
+                                           f"threshold with the {hand} hand ({dict(failures)})")
+            return f"{end.upper()}_INVALID", f"the {end} pose cannot be grasped by the {hand} hand: {dict(failures)}"
+    return res.failure_code or "NO_PATH", res.message or f"no valid plan; failures by cause: {dict(res.failures)}"
+
+
+def plan_scenario(
+    scenario: Scenario,
+    options: PlanOptions | None = None,
+    *,
+    settings: PlannerSettings | None = None,
+    progress: ProgressFn = lambda f, m: None,
+    should_stop: StopFn = lambda: False,
+    task: Task | None = None,
+) -> dict[str, Any]:
+    """Plan one scenario; returns the plan document (CONTRACT.md section 3)."""
+    options = options or PlanOptions()
+    t_start = time.perf_counter()
+    scenario = with_overrides(scenario, stance=options.stance, threshold_m=options.threshold_m,
+                              hands=options.hands, seed=options.seed, time_limit_s=options.time_limit_s)
+    progress(0.02, "setting up the task")
+    try:
+        task = task or build_task(scenario, settings)
+    except ObjectModelError as exc:
+        raise InputError(f"object: {exc}") from None
+    except PlacementError as exc:
+        code = "START_INVALID" if exc.end == "start" else "GOAL_INVALID"
+        return _infeasible(None, scenario, code, str(exc), stats={"time_s": time.perf_counter() - t_start})
+    inradius = task.stance.polygon.inradius
+    if task.threshold_m > inradius:
+        return _infeasible(task, scenario, "THRESHOLD_TOO_LARGE",
+                           f"threshold {task.threshold_m * 1000:.1f} mm is larger than the support polygon's inradius "
+                           f"{inradius * 1000:.1f} mm in stance {task.stance.name!r}: no state can be stable",
+                           stats={"time_s": time.perf_counter() - t_start})
+    hands_choice = scenario.hands
+    survey_doc = None
+    # The time limit covers everything after the request is read: the survey of `auto`, screening
+    # the start and goal, the searches and their motions all stop once it has passed.
+    deadline = t_start + scenario.limits.time_s
+
+    def late() -> bool:
+        return time.perf_counter() > deadline
+
+    def stop_or_late() -> bool:
+        return should_stop() or late()
+
+    def timed_out(results: list) -> dict[str, Any]:
+        return _infeasible(task, scenario, "TIMEOUT", f"no valid plan within the time limit of {scenario.limits.time_s:g} s",
+                           _failure_counts(results), stats={"time_s": time.perf_counter() - t_start})
+
+    if hands_choice == "auto":
+        progress(0.05, "surveying hand configurations (auto)")
+        t_survey = time.perf_counter()
+        try:
+            order, survey_doc = _auto_order(task, stop_or_late)
+            task.timings["auto_survey_s"] = time.perf_counter() - t_survey
+        except Canceled:
+            if should_stop():
+                raise
+            return timed_out([])
+    else:
+        order = [hands_choice]
+    results: list[tuple[PlannerResult, HandConfigPlanner]] = []
+    solved: list[tuple[PlannerResult, HandConfigPlanner]] = []
+    ran_out = False
+    for k, hands in enumerate(order):
+        planner = HandConfigPlanner(task, hands)
+        base = 0.1 + 0.8 * k / len(order)
+        span = 0.8 / len(order)
+
+        def on_iter(i: int, failures: dict, base=base, span=span, hands=hands) -> None:
+            progress(base + span * min(i / scenario.limits.max_iterations, 1.0) * 0.5,
+                     f"{hands}: search iteration {i}, failures {failures}")
+
+        if late():
+            ran_out = True
+            break
+        try:
+            res = planner.plan(max_iterations=scenario.limits.max_iterations,
+                               time_limit_s=max(deadline - time.perf_counter(), 0.01),
+                               should_stop=stop_or_late, on_iteration=on_iter, solutions=options.solutions)
+        except Canceled:
+            if should_stop():
+                raise
+            ran_out = True  # the deadline passed inside screening or a motion
+            break
+        if res.status == "solved":
+            progress(base + span * 0.9, f"{hands}: assembling the trajectory")
+        results.append((res, planner))
+        if res.status == "solved":
+            solved.append((res, planner))
+            if options.solutions <= len(solved) and hands_choice != "auto":
+                break
+            if hands_choice == "auto":
+                break
+    stats: dict[str, Any] = {
+        "time_s": None, "setup": dict(task.timings), "grasp_cache_hit": task.grasp_cache_hit,
+        "grasps": {s: len(g) for s, g in task.grasps.items()}, "placements": len(task.placements),
+        "handover_poses": len(task._handover_cache or []), "seed": scenario.seed,
+        "configurations": {r.hands: {"status": r.status, "failures": r.failures, **r.stats} for r, _ in results},
+        "counters": dict(task.counters), "library_versions": library_versions(),
+    }
+    if survey_doc is not None:
+        stats["survey"] = {row["hands"]: row.get("ratio") for row in survey_doc["rows"]}
+    if not solved:
+        if ran_out or not results:
+            return timed_out(results)
+        res, planner = results[-1]
+        code, message = _code_for(res, planner)
+        stats["time_s"] = time.perf_counter() - t_start
+        return _infeasible(task, scenario, code, message, _failure_counts(results), hands=order[-1] if len(order) == 1 else None, stats=stats)
+    best, planner = min(solved, key=lambda rp: rp[0].cost)
+    t_asm = time.perf_counter()
+    traj = assemble(best.pieces, task.evaluator, task.settings.timing.dt_s, task.placements[task.start_id])
+    stats["assembly_s"] = time.perf_counter() - t_asm
+    stats["time_s"] = time.perf_counter() - t_start
+    stats["failures"] = dict(best.failures)
+    stats["cost"] = best.cost
+    elapsed = stats["time_s"]
+    counters = task.counters
+    stats["rates_per_s"] = {k.replace("_states", "_checks").replace("_solves", "_solves"): v / elapsed for k, v in counters.items()}
+    progress(0.99, "writing the plan")
+    alternatives = []
+    for r, _ in solved:
+        for cost, pieces in ([(r.cost, None)] if r is not best else []) + list(getattr(r, "others", [])):
+            margin = None
+            if pieces is not None:
+                alt = assemble(pieces, task.evaluator, task.settings.timing.dt_s, task.placements[task.start_id])
+                margin = float(alt.margin.min())
+            alternatives.append({"hands": r.hands, "cost": cost, "min_margin_m": margin})
+    alternatives.sort(key=lambda a: a["cost"])
+    return {
+        "schema": PLAN_SCHEMA,
+        "status": "solved",
+        "failure": None,
+        "robot": {"name": task.robot.name, "urdf_sha256": task.robot.urdf_sha256, "joint_names": list(task.robot.joint_names)},
+        "scenario": scenario.model_dump(by_alias=True, mode="json"),
+        "stance": task.stance.result().model_dump(),
+        "support_polygon": task.stance.polygon.vertices.tolist(),
+        "object": {"name": task.obj.name, "mass_kg": task.obj.mass_kg, "com_local": task.obj.com_local.tolist(),
+                   "start_pose": list(scenario.start_pose), "goal_pose": list(scenario.goal_pose)},
+        "threshold_m": task.threshold_m,
+        "hands": best.hands,
+        "dt_s": task.settings.timing.dt_s,
+        "trajectory": trajectory_points(traj),
+        "segments": traj.segments,
+        "min_margin_m": float(traj.margin.min()),
+        "alternatives": alternatives,
+        "stats": stats,
+    }
+
+
+def _auto_order(task: Task, should_stop: StopFn) -> tuple[list[str], dict | None]:
+    """Hand configurations ordered by the survey's ratio R (highest first)."""
+    doc = quick_survey(task, should_stop=should_stop)
+    rows = [r for r in doc["rows"] if r.get("ratio") is not None]
+    rows.sort(key=lambda r: (-r["ratio"], -r["stable"], HAND_CONFIGS.index(r["hands"])))
+    order = [r["hands"] for r in rows] + [h for h in HAND_CONFIGS if h not in {r["hands"] for r in rows}]
+    return order, doc
+
+
+def plan_job(request: dict[str, Any], ctx) -> dict[str, Any]:
+    """The service's plan job: CONTRACT.md section 5 request -> plan document."""
+    scenario = resolve_scenario(request["scenario"])
+    options = PlanOptions(hands=request.get("hands"), threshold_m=request.get("threshold_m"), seed=request.get("seed"),
+                          stance=request.get("stance"), time_limit_s=request.get("time_limit_s"))
+
+    def stop() -> bool:
+        return bool(ctx.cancelled())
+
+    return plan_scenario(scenario, options, progress=ctx.progress, should_stop=stop)
+
+
+def survey_job(request: dict[str, Any], ctx) -> dict[str, Any]:
+    return run_survey_request(request, ctx)

@@ -1,0 +1,688 @@
+"""Collision checking with python-fcl on the model's primitives, batched over configurations.
+
+What is checked (each pair once, in this order, the first hit reported):
+
+- the held object against the tables and obstacles (touching within
+  ``object_env_tolerance_m`` is not a collision: an object is picked from and put on a table);
+- the robot against the tables and obstacles;
+- the robot against the object, resting or held, except the fingers of the hand that grasps
+  or holds it (those touch it by design);
+- robot self-collision, minus the pairs an SRDF would disable: geometric neighbours in the
+  kinematic tree and pairs already touching in the default posture or a reference posture
+  such as the stance's (computed once). The two hands are an ordinary pair, so hand against
+  hand at a handover is covered.
+
+How it is fast: every body is bounded by an oriented box. A batch of states is screened with
+the world axis-aligned boxes of those, then with the separating-axis test on the oriented
+boxes, all in numpy over (pairs x states). Box-box pairs are decided exactly there (the SAT is exact for boxes);
+only pairs with a sphere, cylinder, capsule or mesh that pass the screen go to fcl's
+narrow phase, with transforms set from the precomputed arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import fcl
+import numpy as np
+import pinocchio as pin
+from pydantic import BaseModel, ConfigDict, Field
+
+from planner.compiled.box_kernels import bodies_world, hypotheses_hit, screen_pairs
+from planner.kinematics.batch import BatchKinematics, _block
+from planner.scene.objects import ObjectModel
+from planner.robot.model import RobotModel
+from planner.robot.spec import Side
+from planner.robot.urdf_geometry import collision_primitives
+from planner.transforms import inverse, pose7_to_matrix
+
+#: Margin on the bounding-box screen; the SAT and fcl decide exactly afterwards.
+_SCREEN_SLACK_M = 1e-6
+#: Added to the slack of the batch-wide box screen: its sums round differently from the per-state
+#: screen's, and it must pass every pair that one would.
+_ENVELOPE_ROUNDING_M = 1e-9
+
+
+class CollisionSettings(BaseModel):
+    """Tolerances of the collision checker (metres)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    # 5 mm: a held object put down by IK (1 mm, 0.01 rad over a 0.3 m object: ~4 mm at its far
+    # edge) may sink that much at the place pose; it is also the contract's goal tolerance.
+    object_env_tolerance_m: float = Field(
+        0.005, ge=0, description="held object vs table/obstacle: penetration up to this is contact, not collision"
+    )
+    object_robot_tolerance_m: float = Field(0.0, ge=0, description="object vs robot bodies (fingers of the holding hand are skipped)")
+    self_tolerance_m: float = Field(0.0, ge=0, description="robot vs robot")
+    env_tolerance_m: float = Field(0.0, ge=0, description="robot vs tables and obstacles")
+    default_touch_margin_m: float = Field(
+        0.0, ge=0, description="self pairs closer than this in the default posture are disabled (like an SRDF)"
+    )
+
+
+@dataclass(frozen=True)
+class Collision:
+    """The first colliding pair of a state, by body name (``link`` or ``link#k``, ``env:NAME``, ``object``)."""
+
+    body_a: str
+    body_b: str
+    kind: str  # "self" | "env" | "object" | "object-env"
+
+    def __str__(self) -> str:
+        return f"{self.body_a} vs {self.body_b} ({self.kind})"
+
+
+@dataclass(frozen=True)
+class EnvBox:
+    """A static box of the environment (table or obstacle)."""
+
+    name: str
+    pose: np.ndarray  # 4x4 of the box centre in the world
+    size: tuple[float, float, float]
+
+
+@dataclass
+class _Body:
+    name: str
+    group: str  # robot | env | object
+    kind: str  # box | cylinder | sphere | capsule | mesh
+    dims: tuple[float, ...]
+    local: np.ndarray  # 4x4: parent (joint, world or object frame) -> shape centre
+    half: np.ndarray  # half sizes of the oriented bounding box (shape frame)
+    obb_offset: np.ndarray  # OBB centre in the shape frame (non-zero only for meshes)
+    joint: int = -1  # pinocchio joint id for robot bodies
+    link: str = ""
+    geometry: object = field(default=None, repr=False)
+
+
+def _fcl_geometry(kind: str, dims: tuple[float, ...], mesh=None):
+    if kind == "box":
+        return fcl.Box(*dims)
+    if kind == "cylinder":
+        return fcl.Cylinder(dims[0], dims[1])
+    if kind == "capsule":
+        return fcl.Capsule(dims[0], dims[1])
+    if kind == "sphere":
+        return fcl.Sphere(dims[0])
+    if kind == "mesh":
+        bvh = fcl.BVHModel()
+        bvh.beginModel(len(mesh.vertices), len(mesh.faces))
+        bvh.addSubModel(np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int32))
+        bvh.endModel()
+        return bvh
+    raise ValueError(f"unsupported collision shape {kind!r}")
+
+
+def _half_extents(kind: str, dims: tuple[float, ...]) -> np.ndarray:
+    if kind == "box":
+        return np.asarray(dims, dtype=float) / 2.0
+    if kind == "cylinder":
+        return np.array([dims[0], dims[0], dims[1] / 2.0])
+    if kind == "capsule":
+        return np.array([dims[0], dims[0], dims[1] / 2.0 + dims[0]])
+    if kind == "sphere":
+        return np.full(3, dims[0])
+    raise ValueError(f"unsupported collision shape {kind!r}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Hand geometry in the TCP frame (used by grasps and handovers)
+
+
+@dataclass(frozen=True)
+class HandShape:
+    link: str
+    kind: str
+    dims: tuple[float, ...]
+    T_tcp_shape0: np.ndarray  # pose in the TCP frame with the jaw at 0
+    is_finger: bool
+
+
+@dataclass(frozen=True)
+class HandGeometry:
+    """The hand's collision primitives in its TCP frame, fingers as a function of the jaw value.
+
+    Read from the URDF (link primitives) and pinocchio (link placements), so nothing here
+    is specific to one robot: the hand is every link rigidly attached to the TCP's parent
+    joint plus the links moved by the gripper joint and its mimic joints (sliding or
+    rotating: the placements come from forward kinematics at the requested jaw value).
+    """
+
+    side: str
+    shapes: tuple[HandShape, ...]
+    max_opening_m: float
+    opening_per_unit: float
+    robot: RobotModel = field(repr=False, compare=False)
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def at_opening(self, opening_m: float) -> list[tuple[str, str, tuple[float, ...], np.ndarray]]:
+        """(link, kind, dims, T_tcp_shape) of every shape with the jaw opened to ``opening_m``."""
+        value = round(float(opening_m) / self.opening_per_unit, 12)
+        poses = self._cache.get(value)
+        if poses is None:
+            poses = _hand_shape_poses(self.robot, self.side, value)[1]
+            self._cache[value] = poses
+        return [(s.link, s.kind, s.dims, T.copy()) for s, T in zip(self.shapes, poses)]
+
+    def signature(self) -> bytes:
+        """Bytes that identify the geometry (cache keys): shapes at the jaw closed and fully open."""
+        parts = [f"{self.max_opening_m:.9f}/{self.opening_per_unit:.9f}".encode()]
+        full = [T for *_rest, T in self.at_opening(self.max_opening_m)]
+        for s, T_open in zip(self.shapes, full):
+            # "+ 0.0" turns -0.0 into 0.0, so mirrored hands with equal geometry share a signature
+            parts.append(f"{s.kind}{(np.round(s.dims, 9) + 0.0).tolist()}{s.is_finger}".encode())
+            parts.append((np.round(s.T_tcp_shape0, 9) + 0.0).tobytes())
+            parts.append((np.round(T_open, 9) + 0.0).tobytes())
+        return b"|".join(parts)
+
+
+def _hand_links(robot: RobotModel, side: Side) -> tuple[set[int], set[int]]:
+    """(pinocchio joint ids that carry the hand, those that carry fingers)."""
+    model = robot.pin_model
+    arm = robot.spec.arms[side]
+    tcp_joint = int(model.frames[robot.frame_id(arm.tcp)].parentJoint)
+    finger_joints = {int(model.getJointId(arm.gripper.joint))}
+    for mimic, (master, _k, _b) in robot.mimic.items():
+        if master == arm.gripper.joint:
+            finger_joints.add(int(model.getJointId(mimic)))
+    return {tcp_joint}, finger_joints
+
+
+def hand_geometry(robot: RobotModel, side: Side) -> HandGeometry:
+    """The hand of ``side`` in its TCP frame (see :class:`HandGeometry`), derived once per robot model."""
+
+    def build() -> HandGeometry:
+        shapes, _poses = _hand_shape_poses(robot, side, 0.0)
+        if not shapes:
+            raise ValueError(f"robot {robot.name!r}: the {side} hand has no collision primitives")
+        arm = robot.spec.arms[side]
+        return HandGeometry(side, tuple(shapes), arm.gripper.max_opening_m, arm.gripper.opening_per_unit, robot)
+
+    return robot.derived(("hand_geometry", side), build)
+
+
+def _hand_setup(robot: RobotModel, side: Side) -> tuple:
+    """What FK of one hand needs, derived once per robot model: frame ids, the hand's primitives, a posture."""
+
+    def build() -> tuple:
+        model = robot.pin_model
+        arm = robot.spec.arms[side]
+        palm_joints, finger_joints = _hand_links(robot, side)
+        link_joint = {f.name: int(f.parentJoint) for f in model.frames if f.type == pin.FrameType.BODY}
+        prims = []
+        for prim in collision_primitives(robot.urdf_path):
+            jid = link_joint.get(prim.link)
+            if jid is not None and jid in palm_joints | finger_joints:
+                prims.append((prim, int(model.getFrameId(prim.link)), jid in finger_joints))
+        return robot.frame_id(arm.tcp), robot.joint_index(arm.gripper.joint), tuple(prims), robot.default_q()
+
+    return robot.derived(("hand_setup", side), build)
+
+
+def _hand_shape_poses(robot: RobotModel, side: Side, jaw_value: float) -> tuple[list[HandShape], list[np.ndarray]]:
+    """The hand's shapes and their poses in the TCP frame at one jaw value (pinocchio FK)."""
+    model = robot.pin_model
+    tcp_fid, jaw, prims, q0 = _hand_setup(robot, side)
+    data = robot.create_data()
+    q = q0.copy()
+    q[jaw] = jaw_value
+    pin.forwardKinematics(model, data, robot.to_pin_q(np.array([0, 0, 0, 0, 0, 0, 1.0]), q))
+    T_tcp_w = inverse(pin.updateFramePlacement(model, data, tcp_fid).homogeneous)
+    shapes, poses = [], []
+    for prim, fid, is_finger in prims:
+        T = T_tcp_w @ pin.updateFramePlacement(model, data, fid).homogeneous @ prim.origin
+        shapes.append(HandShape(prim.link, prim.kind, tuple(prim.dims), T, is_finger))
+        poses.append(T)
+    return shapes, poses
+
+
+# ---------------------------------------------------------------------------------------------
+# Shape sets: small helper for "these shapes at these poses vs those shapes at those poses"
+
+
+def object_bodies(obj: ObjectModel) -> list[_Body]:
+    """Collision bodies of an object in its frame: its primitives, or one BVH for a mesh."""
+    out = []
+    if obj.primitives:
+        for k, p in enumerate(obj.primitives):
+            out.append(_Body(f"object#{k}" if len(obj.primitives) > 1 else "object", "object", p.kind, p.dims, p.origin,
+                             _half_extents(p.kind, p.dims), np.zeros(3), geometry=_fcl_geometry(p.kind, p.dims)))
+    else:
+        # the mesh in its own frame; the OBB is the axis-aligned box of the vertices
+        lo, hi = obj.mesh.bounds
+        out.append(_Body("object", "object", "mesh", (), np.eye(4), (hi - lo) / 2.0, (hi + lo) / 2.0,
+                         geometry=_fcl_geometry("mesh", (), obj.mesh)))
+    return out
+
+
+def _make_fcl_object(body: _Body) -> fcl.CollisionObject:
+    return fcl.CollisionObject(body.geometry, fcl.Transform())
+
+
+def _fcl_collide(oa: fcl.CollisionObject, ob: fcl.CollisionObject, tolerance: float) -> bool:
+    if tolerance <= 0.0:
+        return fcl.collide(oa, ob, fcl.CollisionRequest(), fcl.CollisionResult()) > 0
+    req = fcl.CollisionRequest(num_max_contacts=4, enable_contact=True)
+    res = fcl.CollisionResult()
+    if fcl.collide(oa, ob, req, res) == 0:
+        return False
+    return max(c.penetration_depth for c in res.contacts) > tolerance
+
+
+def _set_tf(o: fcl.CollisionObject, R: np.ndarray, p: np.ndarray) -> None:
+    o.setTransform(fcl.Transform(R, p))
+
+
+def shapes_collide(
+    bodies_a: Sequence[_Body], poses_a: np.ndarray, bodies_b: Sequence[_Body], poses_b: np.ndarray, tolerance: float = 0.0
+) -> np.ndarray:
+    """Whether any body of set a collides with any body of set b, for K pose hypotheses.
+
+    ``poses_a`` (K, len(a), 4, 4) and ``poses_b`` (K, len(b), 4, 4) or (len(b), 4, 4) are the
+    poses of the bodies' shape frames (their ``local`` transforms already applied). Used by
+    the grasp and handover filters, which test many hand poses against one object.
+    """
+    K = poses_a.shape[0]
+    poses_b = np.broadcast_to(poses_b, (K, len(bodies_b), 4, 4))
+
+    def boxes(bodies: Sequence[_Body], poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        R = poses[..., :3, :3]
+        centres = poses[..., :3, 3] + (R @ np.array([b.obb_offset for b in bodies])[None, :, :, None])[..., 0]
+        return R, centres, np.array([b.half for b in bodies])
+
+    is_box = np.array([b.kind == "box" for b in bodies_a]), np.array([b.kind == "box" for b in bodies_b])
+    # Every box pair screened at once (compiled): two boxes are decided there (the SAT is exact for
+    # boxes); the other shapes' candidates go to fcl, pair by pair, until one hypothesis collides.
+    hit, cand = hypotheses_hit(*boxes(bodies_a, poses_a), *boxes(bodies_b, poses_b), *is_box, tolerance)
+    objs_a = [_make_fcl_object(b) for b in bodies_a]
+    objs_b = [_make_fcl_object(b) for b in bodies_b]
+    for k, ia, ib in cand:
+        if hit[k]:
+            continue
+        _set_tf(objs_a[ia], poses_a[k, ia, :3, :3], poses_a[k, ia, :3, 3])
+        _set_tf(objs_b[ib], poses_b[k, ib, :3, :3], poses_b[k, ib, :3, 3])
+        hit[k] = _fcl_collide(objs_a[ia], objs_b[ib], tolerance)
+    return hit
+
+
+def hand_bodies(hand: HandGeometry, opening_m: float, include_fingers: bool = True) -> list[_Body]:
+    """The hand's shapes as bodies whose parent frame is the TCP."""
+    out = []
+    for (link, kind, dims, T), s in zip(hand.at_opening(opening_m), hand.shapes):
+        if s.is_finger and not include_fingers:
+            continue
+        out.append(_Body(link, "robot", kind, dims, T, _half_extents(kind, dims), np.zeros(3), link=link,
+                         geometry=_fcl_geometry(kind, dims)))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The world
+
+
+def environment_boxes(scenario) -> list[EnvBox]:
+    """Tables and obstacles of a scenario as :class:`EnvBox` (tables first)."""
+    return [EnvBox(b.name, pose7_to_matrix(b.pose), tuple(b.size)) for b in [*scenario.tables, *scenario.obstacles]]
+
+
+@dataclass
+class BatchResult:
+    """Per state: whether it collides, and the first colliding pair (None when free)."""
+
+    collides: np.ndarray
+    first: list[Collision | None]
+
+
+class CollisionWorld:
+    """Robot + environment boxes + (optionally) the object; its shapes are fixed at construction.
+
+    Not thread-safe: the fcl objects hold scratch transforms, so use one world per thread or
+    process (building one takes a few tens of milliseconds).
+
+    ``check``/``check_batch`` take the stance's base pose and wire configurations ``q``;
+    ``check_forward`` takes a :meth:`BatchKinematics.forward` result computed elsewhere, so a
+    planner that already has the joint frames pays no second FK.
+    """
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        environment: Iterable[EnvBox] = (),
+        obj: ObjectModel | None = None,
+        settings: CollisionSettings | None = None,
+        kinematics: BatchKinematics | None = None,
+        reference_postures: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+        moving_joints: Sequence[str] | None = None,
+    ):
+        """``reference_postures``: (base_pose, q) pairs, such as the stance posture, whose touching
+        self pairs are disabled like the default posture's. ``moving_joints``: when given (e.g. the
+        waist and arms while the feet stay planted), pairs of two bodies that none of these joints
+        moves are dropped: they cannot change during a plan, so check the stance once with a
+        world built without ``moving_joints``."""
+        self.robot = robot
+        self._reference_postures = [(np.asarray(b, float), np.asarray(q, float)) for b, q in reference_postures]
+        self.settings = settings or CollisionSettings()
+        self.kin = kinematics or BatchKinematics(robot)
+        self.obj = obj
+        model = robot.pin_model
+        link_joint = {f.name: int(f.parentJoint) for f in model.frames if f.type == pin.FrameType.BODY}
+        link_frame = {f.name: f for f in model.frames if f.type == pin.FrameType.BODY}
+        bodies: list[_Body] = []
+        prims = collision_primitives(robot.urdf_path)
+        per_link: dict[str, int] = {}
+        for p in prims:
+            per_link[p.link] = per_link.get(p.link, 0) + 1
+        seen: dict[str, int] = {}
+        for p in prims:
+            if p.link not in link_joint:
+                continue
+            k = seen.get(p.link, 0)
+            seen[p.link] = k + 1
+            name = p.link if per_link[p.link] == 1 else f"{p.link}#{k}"
+            local = link_frame[p.link].placement.homogeneous @ p.origin
+            bodies.append(_Body(name, "robot", p.kind, tuple(p.dims), local, _half_extents(p.kind, p.dims), np.zeros(3),
+                                joint=link_joint[p.link], link=p.link, geometry=_fcl_geometry(p.kind, tuple(p.dims))))
+        self.n_robot = len(bodies)
+        self.env = tuple(environment)
+        for e in self.env:
+            bodies.append(_Body(f"env:{e.name}", "env", "box", tuple(e.size), np.asarray(e.pose, float),
+                                np.asarray(e.size, float) / 2.0, np.zeros(3), geometry=fcl.Box(*e.size)))
+        self.n_env = len(self.env)
+        obj_bodies = object_bodies(obj) if obj is not None else []
+        bodies.extend(obj_bodies)
+        self.n_obj = len(obj_bodies)
+        self.bodies = bodies
+        self._fcl = [_make_fcl_object(b) for b in bodies]
+        B = len(bodies)
+        self._half = np.array([b.half for b in bodies])
+        self._radius = np.linalg.norm(self._half, axis=1)
+        self._is_box = np.array([b.kind == "box" for b in bodies])
+        self._local_R = np.array([b.local[:3, :3] for b in bodies])
+        self._local_p = np.array([b.local[:3, 3] + b.local[:3, :3] @ b.obb_offset for b in bodies])
+        self._robot_joints = np.array([b.joint for b in bodies[: self.n_robot]], dtype=int)
+        self._uniq_joints, self._joint_slot = np.unique(self._robot_joints, return_inverse=True)
+        self._env_slice = slice(self.n_robot, self.n_robot + self.n_env)
+        self._obj_slice = slice(self.n_robot + self.n_env, B)
+        # finger bodies per side
+        self._fingers: dict[str, np.ndarray] = {}
+        self._tcp: dict[str, str] = {}
+        for side, arm in robot.spec.arms.items():
+            _, fj = _hand_links(robot, side)
+            self._fingers[side] = np.array([i for i in range(self.n_robot) if bodies[i].joint in fj], dtype=int)
+            self._tcp[side] = arm.tcp
+        self.disabled = self._disabled_self_pairs()
+        moving = np.ones(B, dtype=bool)
+        moving[self.n_robot:] = False
+        moving[self._obj_slice] = True  # the object may move (held) or be placed anywhere
+        if moving_joints is not None:
+            mj = {int(model.getJointId(robot.joint_names[robot.joint_index(n)])) for n in moving_joints}
+            for i in range(self.n_robot):
+                support = {int(j) for j in model.supports[bodies[i].joint]}
+                moving[i] = bool(support & mj)
+        self._moving = moving
+        self._build_pairs()
+
+    # -- construction helpers -------------------------------------------------------------------
+
+    @classmethod
+    def from_scenario(cls, robot: RobotModel, scenario, obj: ObjectModel | None, **kwargs) -> "CollisionWorld":
+        """World of a :class:`schemas.scenario.Scenario`: its tables and obstacles as boxes.
+
+        Keyword arguments go to the constructor (settings, kinematics, reference_postures, moving_joints).
+        """
+        return cls(robot, environment_boxes(scenario), obj, **kwargs)
+
+    def _geometric_parent(self) -> dict[str, str | None]:
+        """Nearest ancestor link that has collision geometry, per link with geometry."""
+        model = self.robot.pin_model
+        geom_links = {b.link for b in self.bodies[: self.n_robot]}
+        # parent link of each link: walk the frame tree up through joint frames to a body frame
+        parent_of: dict[str, str | None] = {}
+        for f in model.frames:
+            if f.type != pin.FrameType.BODY:
+                continue
+            pf = model.frames[f.parentFrame]
+            # walk up through joint frames to the body frame that carries this one
+            while pf.type != pin.FrameType.BODY and pf.name != "universe":
+                pf = model.frames[pf.parentFrame]
+            parent_of[f.name] = None if pf.name == "universe" or pf.name == f.name else pf.name
+        out: dict[str, str | None] = {}
+        for link in geom_links:
+            p = parent_of.get(link)
+            while p is not None and p not in geom_links:
+                p = parent_of.get(p)
+            out[link] = p
+        return out
+
+    def _disabled_self_pairs(self) -> set[tuple[str, str]]:
+        """Link pairs never checked, as an SRDF would list them: geometric neighbours (a link and the
+        nearest ancestor that has geometry) and pairs touching in the default posture or in one of
+        the reference postures (computed once here)."""
+        gp = self._geometric_parent()
+        disabled: set[tuple[str, str]] = set()
+        for link, parent in gp.items():
+            if parent is not None:
+                disabled.add(tuple(sorted((link, parent))))  # type: ignore[arg-type]
+        robot = self.robot
+        base = np.array([0, 0, robot.spec.upright.pelvis_height_m, 0, 0, 0, 1.0])
+        n = self.n_robot
+        ia, ib = np.triu_indices(n, 1)
+        same = np.array([self.bodies[i].link == self.bodies[j].link for i, j in zip(ia, ib)], dtype=bool)
+        ia, ib = ia[~same], ib[~same]
+        postures = [(base, robot.default_q())] + self._reference_postures
+        for pbase, pq in postures:
+            Rw, pw = self._robot_world(*self.kin.forward(pbase, pq[None, :]))
+            hits = self._pair_hits(Rw, pw, ia, ib, np.full(ia.size, -self.settings.default_touch_margin_m))
+            for k in np.flatnonzero(hits[:, 0]):
+                disabled.add(tuple(sorted((self.bodies[ia[k]].link, self.bodies[ib[k]].link))))  # type: ignore[arg-type]
+        return disabled
+
+    def _build_pairs(self) -> None:
+        s = self.settings
+        n, B = self.n_robot, len(self.bodies)
+        ia, ib = np.triu_indices(n, 1)
+        keep = np.array([
+            self.bodies[i].link != self.bodies[j].link and tuple(sorted((self.bodies[i].link, self.bodies[j].link))) not in self.disabled
+            for i, j in zip(ia, ib)
+        ], dtype=bool)
+        keep &= self._moving[ia] | self._moving[ib]
+        self._self_pairs = (ia[keep], ib[keep])
+        er, ee = np.meshgrid(np.arange(n), np.arange(self._env_slice.start, self._env_slice.stop), indexing="ij")
+        er, ee = er.ravel(), ee.ravel()
+        keep = self._moving[er]
+        self._env_pairs = (er[keep], ee[keep])
+        orr, oo = np.meshgrid(np.arange(n), np.arange(self._obj_slice.start, B), indexing="ij")
+        self._obj_pairs = (orr.ravel(), oo.ravel())
+        oe_o, oe_e = np.meshgrid(np.arange(self._obj_slice.start, B), np.arange(self._env_slice.start, self._env_slice.stop), indexing="ij")
+        self._objenv_pairs = (oe_o.ravel(), oe_e.ravel())
+        self._tol = {"self": s.self_tolerance_m, "env": s.env_tolerance_m, "object": s.object_robot_tolerance_m,
+                     "object-env": s.object_env_tolerance_m}
+        self._pair_cache: dict = {}
+
+    def self_pair_count(self) -> int:
+        return int(self._self_pairs[0].size)
+
+    # -- pose computation ------------------------------------------------------------------------
+
+    def _robot_world(self, Rs: list, ps: list, out: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """World rotation (n_robot, N, 3, 3) and OBB centre (n_robot, N, 3) of every robot body."""
+        N = Rs[1].shape[2]
+        n = self.n_robot
+        if out is None:
+            out = (np.empty((n, N, 3, 3)), np.empty((n, N, 3)))
+        bodies_world(_block(Rs), _block(ps), self._robot_joints, self._local_R[:n], self._local_p[:n], *out)
+        return out
+
+    def _all_world(self, Rs: list, ps: list, T_obj: np.ndarray | None, N: int) -> tuple[np.ndarray, np.ndarray]:
+        B, n = len(self.bodies), self.n_robot
+        Rw = np.empty((B, N, 3, 3))
+        pw = np.empty((B, N, 3))
+        self._robot_world(Rs, ps, out=(Rw[:n], pw[:n]))
+        if self.n_env:
+            Rw[self._env_slice] = self._local_R[self._env_slice][:, None]
+            pw[self._env_slice] = self._local_p[self._env_slice][:, None]
+        if self.n_obj:
+            # an absent object gets an identity pose: no pair involving it is tested then
+            if T_obj is None:
+                Rw[self._obj_slice] = self._local_R[self._obj_slice][:, None]
+                pw[self._obj_slice] = self._local_p[self._obj_slice][:, None]
+            else:
+                Rw[self._obj_slice] = T_obj[None, :, :3, :3] @ self._local_R[self._obj_slice][:, None]
+                pw[self._obj_slice] = (T_obj[None, :, :3, :3] @ self._local_p[self._obj_slice][:, None, :, None])[..., 0] + T_obj[None, :, :3, 3]
+        return Rw, pw
+
+    # -- pair testing ------------------------------------------------------------------------------
+
+    def _pair_hits(
+        self, Rw: np.ndarray, pw: np.ndarray, ia: np.ndarray, ib: np.ndarray, tol: np.ndarray, first_only: bool = False
+    ) -> np.ndarray:
+        """(P, N) collision matrix of body pairs over N states (box screen, SAT, then fcl).
+
+        With ``first_only`` a state known to collide is not tested further, so its row holds
+        at least one colliding pair, not necessarily all of them.
+        """
+        P, N = ia.size, Rw.shape[1]
+        hits = np.zeros((P, N), dtype=bool)
+        if P == 0:
+            return hits
+        # Box screens (each body's box over the whole batch, then per state: measured on T-RRT batches,
+        # 12 % of the pairs pass the first), then the separating-axis test where boxes meet: the
+        # candidates are the (pair, state)s whose oriented boxes penetrate deeper than the tolerance.
+        kp, ks = screen_pairs(Rw, pw, self._half[: Rw.shape[0]], ia, ib, _SCREEN_SLACK_M - tol, tol,
+                              _ENVELOPE_ROUNDING_M)
+        if kp.size == 0:
+            return hits
+        a, b = ia[kp], ib[kp]
+        exact = self._is_box[a] & self._is_box[b]  # for two boxes the test is exact
+        hits[kp[exact], ks[exact]] = True
+        done = np.zeros(N, dtype=bool)
+        done[ks[exact]] = True
+        for k in np.flatnonzero(~exact):
+            s = ks[k]
+            if first_only and done[s]:
+                continue  # this state already collides; its first pair is reported below
+            ba, bb = a[k], b[k]
+            oa, ob = self._fcl[ba], self._fcl[bb]
+            Ra, Rb = Rw[ba, s], Rw[bb, s]
+            # fcl wants the shape frame; our centres are OBB centres (offset only for meshes)
+            _set_tf(oa, Ra, pw[ba, s] - Ra @ self.bodies[ba].obb_offset)
+            _set_tf(ob, Rb, pw[bb, s] - Rb @ self.bodies[bb].obb_offset)
+            if _fcl_collide(oa, ob, float(tol[kp[k]])):
+                hits[kp[k], s] = True
+                done[s] = True
+        return hits
+
+    def _pairs_for(self, held_sides: tuple[str, ...], grasping: str | None, object_present: bool, object_held: bool):
+        key = (held_sides, grasping, object_present, object_held)
+        cached = self._pair_cache.get(key)
+        if cached is not None:
+            return cached
+        groups = []
+        if object_present and object_held and self.n_env:
+            groups.append(("object-env", *self._objenv_pairs))
+        if self.n_env:
+            groups.append(("env", *self._env_pairs))
+        if object_present:
+            excluded = set()
+            for side in (*held_sides, *((grasping,) if grasping else ())):
+                excluded |= set(self._fingers[side].tolist())
+            orr, oo = self._obj_pairs
+            keep = np.array([r not in excluded for r in orr], dtype=bool)
+            groups.append(("object", orr[keep], oo[keep]))
+        groups.append(("self", *self._self_pairs))
+        ia = np.concatenate([g[1] for g in groups]).astype(int)
+        ib = np.concatenate([g[2] for g in groups]).astype(int)
+        kinds = np.concatenate([np.full(g[1].size, i) for i, g in enumerate(groups)])
+        tol = np.concatenate([np.full(g[1].size, self._tol[g[0]]) for g in groups])
+        names = [g[0] for g in groups]
+        out = (ia, ib, kinds, tol, names)
+        self._pair_cache[key] = out
+        return out
+
+    # -- public API --------------------------------------------------------------------------------
+
+    def object_pose_held(self, Rs: list, ps: list, side: str, T_obj_tcp: np.ndarray) -> np.ndarray:
+        """World pose (N, 4, 4) of an object held by ``side`` with grasp ``T_obj_tcp``."""
+        R, p = self.kin.frame(Rs, ps, self._tcp[side])
+        T = np.zeros((R.shape[0], 4, 4))
+        T[:, :3, :3] = R
+        T[:, :3, 3] = p
+        T[:, 3, 3] = 1.0
+        return T @ inverse(np.asarray(T_obj_tcp, dtype=float))
+
+    def check_forward(
+        self,
+        Rs: list,
+        ps: list,
+        *,
+        held: Sequence[tuple[str, np.ndarray]] = (),
+        free_object_pose: np.ndarray | None = None,
+        grasping: str | None = None,
+        held_object_poses: np.ndarray | None = None,
+    ) -> BatchResult:
+        """Check the N states of a :meth:`BatchKinematics.forward` result.
+
+        ``held``: ``[(side, T_obj_tcp)]`` (one entry, or two at a handover; the object follows
+        the first). ``free_object_pose``: 4x4 (or (N, 4, 4)) pose of a resting object, when
+        nothing holds it. ``grasping``: the side whose fingers are at the resting object
+        (approach and grasp key poses); its fingers are not checked against the object.
+        ``held_object_poses`` (N, 4, 4): the held object's world poses, when each state holds it
+        with its own grasp (batched probes); ``held`` then only names the sides.
+        """
+        N = Rs[1].shape[2]
+        held = tuple(held)
+        if held and free_object_pose is not None:
+            raise ValueError("an object is either held or free, not both")
+        T_obj = None
+        if held:
+            if self.n_obj == 0:
+                raise ValueError("this collision world has no object to hold")
+            if held_object_poses is not None:
+                T_obj = np.asarray(held_object_poses, dtype=float)
+            else:
+                T_obj = self.object_pose_held(Rs, ps, held[0][0], held[0][1])
+        elif free_object_pose is not None and self.n_obj:
+            T = np.asarray(free_object_pose, dtype=float)
+            T_obj = np.broadcast_to(T, (N, 4, 4)) if T.ndim == 2 else T
+        Rw, pw = self._all_world(Rs, ps, T_obj, N)
+        sides = tuple(sorted({h[0] for h in held}))
+        ia, ib, kinds, tol, names = self._pairs_for(sides, grasping, T_obj is not None, bool(held))
+        hits = self._pair_hits(Rw, pw, ia, ib, tol, first_only=True)
+        collides = hits.any(axis=0)
+        first: list[Collision | None] = [None] * N
+        if collides.any():
+            firsts = np.argmax(hits, axis=0)
+            for s in np.flatnonzero(collides):
+                k = firsts[s]
+                first[s] = Collision(self.bodies[ia[k]].name, self.bodies[ib[k]].name, names[kinds[k]])
+        return BatchResult(collides, first)
+
+    def check_batch(self, base_pose: np.ndarray, Q: np.ndarray, **kwargs) -> BatchResult:
+        """Check N configurations ``Q`` (N, n) at the stance's ``base_pose`` (see :meth:`check_forward`)."""
+        Rs, ps = self.kin.forward(np.asarray(base_pose, float), np.atleast_2d(Q))
+        return self.check_forward(Rs, ps, **kwargs)
+
+    def check(self, base_pose: np.ndarray, q: np.ndarray, **kwargs) -> Collision | None:
+        """First collision of one configuration, or None when it is free."""
+        return self.check_batch(base_pose, np.asarray(q, float)[None, :], **kwargs).first[0]
+
+    def object_pose_clear(self, T_world_obj: np.ndarray) -> Collision | None:
+        """Whether the object at a world pose is clear of the environment (resting contact allowed)."""
+        if self.n_obj == 0:
+            raise ValueError("this collision world has no object")
+        T = np.asarray(T_world_obj, dtype=float)[None]
+        B = len(self.bodies)
+        Rw = np.broadcast_to(np.eye(3), (B, 1, 3, 3)).copy()
+        pw = np.zeros((B, 1, 3))
+        Rw[self._env_slice, 0] = self._local_R[self._env_slice]
+        pw[self._env_slice, 0] = self._local_p[self._env_slice]
+        Rw[self._obj_slice] = np.einsum("nij,bjk->bnik", T[:, :3, :3], self._local_R[self._obj_slice])
+        pw[self._obj_slice] = np.einsum("nij,bj->bni", T[:, :3, :3], self._local_p[self._obj_slice]) + T[None, :, :3, 3]
+        ia, ib = self._objenv_pairs
+        hits = self._pair_hits(Rw, pw, ia, ib, np.full(ia.size, self.settings.object_env_tolerance_m))
+        if hits.any():
+            k = int(np.argmax(hits[:, 0]))
+            return Collision(self.bodies[ia[k]].name, self.bodies[ib[k]].name, "object-env")
+        return None
