@@ -15,7 +15,8 @@ import time
 import networkx as nx
 
 from planner.regrasp.graph import SINK, SOURCE, RegraspGraph
-from planner.regrasp.planner import HandConfigPlanner, Task
+from planner.regrasp.hand_config_planner import HandConfigPlanner
+from planner.regrasp.task import Task
 from planner.scene.scenarios import load_builtin
 
 

@@ -73,7 +73,7 @@ def _mean_sd(values: list[float]) -> tuple[float | None, float | None]:
 
 
 def _survey_rows(scenario, settings: PaperSettings, states: int, seeds: tuple[int, ...], stance: str | None = None) -> dict[str, Any]:
-    from planner.jobs.plan_job import resolve_scenario
+    from planner.scene.scenarios import resolve_scenario
     from planner.survey.runner import run_survey_seeds
 
     t0 = time.perf_counter()
@@ -95,7 +95,8 @@ def _survey_rows(scenario, settings: PaperSettings, states: int, seeds: tuple[in
 
 
 def _plan(scenario: str, hands: str | None, threshold_m: float | None, iterations: int, stance: str | None = None) -> dict[str, Any]:
-    from planner.jobs.plan_job import PlanOptions, plan_scenario, resolve_scenario
+    from planner.jobs.plan_job import PlanOptions, plan_scenario
+    from planner.scene.scenarios import resolve_scenario
     from planner.scene.scenarios import with_overrides
 
     sc = resolve_scenario(scenario, stance=stance)

@@ -15,19 +15,21 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from schemas.common import HAND_CONFIGS
-from schemas.plan import PLAN_SCHEMA
-from schemas.scenario import Scenario
-
+from planner.errors import Canceled, InputError
+from planner.regrasp.hand_config_planner import HandConfigPlanner
+from planner.regrasp.plan_assembly import assemble, trajectory_points
+from planner.regrasp.results import PlannerResult
+from planner.regrasp.settings import PlannerSettings
+from planner.regrasp.task import Task
 from planner.scene.objects import ObjectModelError
 from planner.scene.placements import PlacementError
-from planner.regrasp.plan_assembly import assemble, trajectory_points
-from planner.regrasp.planner import HandConfigPlanner, PlannerResult, PlannerSettings, Task
-from planner.errors import Canceled, InputError
-from planner.errors import InputError as PlanningInputError  # the name callers import
 from planner.scene.scenarios import resolve_scenario, with_overrides
 from planner.stability.stances import StanceError
 from planner.survey.runner import quick_survey, run_survey_request
+from planner.termination import Termination
+from schemas.common import HAND_CONFIGS
+from schemas.plan import PLAN_SCHEMA
+from schemas.scenario import Scenario
 
 ProgressFn = Callable[[float, str], None]
 StopFn = Callable[[], bool]
@@ -128,6 +130,7 @@ def plan_scenario(
     """Plan one scenario; returns the plan document (CONTRACT.md section 3)."""
     options = options or PlanOptions()
     t_start = time.perf_counter()
+    started = time.monotonic()
     scenario = with_overrides(scenario, stance=options.stance, threshold_m=options.threshold_m,
                               hands=options.hands, seed=options.seed, time_limit_s=options.time_limit_s)
     progress(0.02, "setting up the task")
@@ -148,13 +151,7 @@ def plan_scenario(
     survey_doc = None
     # The time limit covers everything after the request is read: the survey of `auto`, screening
     # the start and goal, the searches and their motions all stop once it has passed.
-    deadline = t_start + scenario.limits.time_s
-
-    def late() -> bool:
-        return time.perf_counter() > deadline
-
-    def stop_or_late() -> bool:
-        return should_stop() or late()
+    termination = Termination(scenario.limits.max_iterations, scenario.limits.time_s, should_stop, started=started)
 
     def timed_out(results: list) -> dict[str, Any]:
         return _infeasible(task, scenario, "TIMEOUT", f"no valid plan within the time limit of {scenario.limits.time_s:g} s",
@@ -164,7 +161,7 @@ def plan_scenario(
         progress(0.05, "surveying hand configurations (auto)")
         t_survey = time.perf_counter()
         try:
-            order, survey_doc = _auto_order(task, stop_or_late)
+            order, survey_doc = _auto_order(task, termination.should_stop)
             task.timings["auto_survey_s"] = time.perf_counter() - t_survey
         except Canceled:
             if should_stop():
@@ -184,13 +181,11 @@ def plan_scenario(
             progress(base + span * min(i / scenario.limits.max_iterations, 1.0) * 0.5,
                      f"{hands}: search iteration {i}, failures {failures}")
 
-        if late():
+        if termination.past_deadline():
             ran_out = True
             break
         try:
-            res = planner.plan(max_iterations=scenario.limits.max_iterations,
-                               time_limit_s=max(deadline - time.perf_counter(), 0.01),
-                               should_stop=stop_or_late, on_iteration=on_iter, solutions=options.solutions)
+            res = planner.plan(termination, on_iteration=on_iter, solutions=options.solutions)
         except Canceled:
             if should_stop():
                 raise
@@ -234,7 +229,7 @@ def plan_scenario(
     progress(0.99, "writing the plan")
     alternatives = []
     for r, _ in solved:
-        for cost, pieces in ([(r.cost, None)] if r is not best else []) + list(getattr(r, "others", [])):
+        for cost, pieces in ([(r.cost, None)] if r is not best else []) + r.others:
             margin = None
             if pieces is not None:
                 alt = assemble(pieces, task.evaluator, task.settings.timing.dt_s, task.placements[task.start_id])

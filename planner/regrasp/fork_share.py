@@ -3,7 +3,7 @@
 Both take the next unclaimed job in turn (a shared counter), so a long job on one side does not
 leave the other idle behind a fixed split. The child sends its results back in one message when
 it runs out of jobs; this process keeps its own. Used for the motions of a candidate path
-(:meth:`planner.regrasp.planner.HandConfigPlanner._prefetch_hops`), which are independent once
+(:meth:`planner.regrasp.hand_config_planner.HandConfigPlanner._prefetch_hops`), which are independent once
 its key poses are valid.
 """
 

@@ -20,21 +20,22 @@ net), and polls a cancel callback.
 
 from __future__ import annotations
 
-from planner.errors import Canceled
-import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Callable, Hashable, Iterable, Literal
+from typing import Callable, Generic, Hashable, Iterable, Literal, TypeVar
 
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from planner.errors import Canceled
+from planner.termination import Termination
+
 Hand = Literal["left", "right"]
 SOURCE = ("source",)
-#: A failed edge whose failure belongs to its arriving node: remove the node, not only the edge.
-REMOVE_NODE = "remove-node"
 SINK = ("sink",)
+#: What a validation carries for its caller (the graph never looks inside).
+Payload = TypeVar("Payload")
 
 
 @dataclass(frozen=True)
@@ -87,14 +88,19 @@ Node = PlacementNode | HandoverNode
 
 
 @dataclass
-class Validation:
-    """The outcome of validating a node or an edge; ``cause`` is ik/collision/com_margin/motion."""
+class Validation(Generic[Payload]):
+    """The outcome of validating a node or an edge, MoveIt Task Constructor's solution: valid or not,
+    the cause of a failure (ik/collision/com_margin/motion) with a comment (``detail``), the margin
+    as its clearance, and what the validation produced (``payload``: key poses, a handover's
+    motions, timed pieces; the graph passes it through untouched). ``remove_node`` asks the search
+    to drop the edge's arriving node, not only the edge (its own motions cannot be planned)."""
 
     ok: bool
     cause: str | None = None
     detail: str = ""
     margin_m: float | None = None
-    payload: object = None
+    payload: Payload | None = None
+    remove_node: bool = False
 
 
 @dataclass
@@ -342,10 +348,8 @@ class RegraspGraph:
         self,
         validate_node: Callable[[Node], Validation],
         validate_edge: Callable[[Node | None, Node | None, str], Validation],
+        termination: Termination,
         *,
-        max_iterations: int,
-        time_limit_s: float,
-        should_stop: Callable[[], bool] = lambda: False,
         on_iteration: Callable[[int, Counter], None] | None = None,
         banned_paths: Iterable[tuple[Hashable, ...]] = (),
         prefetch_edges: Callable[[list[tuple[Node | None, Node | None, str]]], None] | None = None,
@@ -357,8 +361,11 @@ class RegraspGraph:
         Validations are cached, so re-searches cost only the new parts. ``prefetch_edges``, if
         given, is told a candidate path's unvalidated hops (two or more) before they are validated
         in order, to work on them at once; ``validate_edge`` must give the same verdicts either way.
+        ``termination`` caps the iterations, sets the deadline (the result is then ``TIMEOUT``) and
+        says when to stop (:class:`Canceled` is raised).
         """
-        started = time.monotonic()
+        should_stop = termination.canceled
+        max_iterations = termination.max_iterations
         failures: Counter = Counter()
         node_cache: dict[Node, Validation] = {}
         edge_cache: dict[tuple, Validation] = {}
@@ -370,8 +377,8 @@ class RegraspGraph:
             result.iterations = iteration
             if should_stop():
                 raise Canceled()
-            if time.monotonic() - started > time_limit_s:
-                result.code, result.message = "TIMEOUT", f"no valid path within the time limit of {time_limit_s:g} s"
+            if termination.past_deadline():
+                result.code, result.message = "TIMEOUT", f"no valid path within the time limit of {termination.time_limit_s:g} s"
                 break
             if on_iteration:
                 on_iteration(iteration, failures)
@@ -436,7 +443,7 @@ class RegraspGraph:
                 v = edge_cache[key]
                 if not v.ok:
                     failures[v.cause or "motion"] += 1
-                    if v.payload == REMOVE_NODE and b is not None and b in self:
+                    if v.remove_node and b is not None and b in self:
                         self.remove_node(b)
                     else:
                         self._remove_hop(a, b, kind)

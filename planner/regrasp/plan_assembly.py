@@ -13,8 +13,8 @@ from typing import Literal
 
 import numpy as np
 
-from planner.stability.evaluator import HoldSpec, StateEvaluator
 from planner.motion.timing import zmp_cart_table
+from planner.stability.evaluator import HoldSpec, StateEvaluator
 from planner.transforms import matrices_to_pose7
 
 Kind = Literal["transit", "transfer", "handover", "approach", "retreat"]

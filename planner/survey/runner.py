@@ -22,17 +22,20 @@ from typing import Any, Callable
 
 import numpy as np
 
-from schemas.common import HAND_CONFIGS
-from schemas.survey import SURVEY_SCHEMA, TIE_ORDER, SurveyRow, recommend
-from schemas.scenario import Scenario
-
-from planner.forking import pool_context, pool_may_fork, spare_cores
 from planner.errors import Canceled as GraphCanceled
 from planner.errors import Canceled as SurveyCanceled
-from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
-from planner.regrasp.planner import HANDS_OF, HandConfigPlanner, PlannerSettings, Task
-from planner.stability.evaluator import HoldSpec
+from planner.forking import pool_context, pool_may_fork, spare_cores
 from planner.motion.trrt import ExploreLeg, TrrtSettings, explore
+from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
+from planner.regrasp.hand_config_planner import HandConfigPlanner
+from planner.regrasp.path_assembly import carried
+from planner.regrasp.settings import HANDS_OF, PlannerSettings
+from planner.regrasp.task import Task
+from planner.stability.evaluator import HoldSpec
+from planner.termination import Termination
+from schemas.common import HAND_CONFIGS
+from schemas.scenario import Scenario
+from schemas.survey import SURVEY_SCHEMA, TIE_ORDER, SurveyRow, recommend
 
 #: Default states per configuration when neither the request nor the scenario says.
 DEFAULT_STATES = 10_000
@@ -64,18 +67,18 @@ def _legs(planner: HandConfigPlanner, path: list) -> list[ExploreLeg]:
     t = planner.task
     legs: list[ExploreLeg] = []
     for a, b in zip(path[:-1], path[1:]):
-        if not HandConfigPlanner._carried(a, b):
+        if not carried(a, b):
             continue
         if isinstance(a, PlacementNode) and isinstance(b, PlacementNode):
             ka, kb = planner.keyposes[a], planner.keyposes[b]
-            goal = planner._with_arm_of(kb.q_lift, ka.q_lift, a.hand)
+            goal = planner.motions.with_arm_of(kb.q_lift, ka.q_lift, a.hand)
             legs.append(ExploreLeg(ka.q_lift, goal, HoldSpec(a.hand, ka.T_obj_tcp), t.active[a.hand]))
         elif isinstance(b, HandoverNode):
             ka, hp = planner.keyposes[a], planner.handovers[b]
             legs.append(ExploreLeg(ka.q_lift, hp.q_giver_at, HoldSpec(a.hand, ka.T_obj_tcp), t.active[a.hand]))
         else:
             hp, kb = planner.handovers[a], planner.keyposes[b]
-            goal = planner._with_arm_of(kb.q_lift, hp.q_after, b.hand)
+            goal = planner.motions.with_arm_of(kb.q_lift, hp.q_after, b.hand)
             legs.append(ExploreLeg(hp.q_after, goal, HoldSpec(b.hand, hp.T_taker_obj_tcp), t.active[b.hand]))
     return legs
 
@@ -84,10 +87,10 @@ def key_path(planner: HandConfigPlanner, should_stop: Callable[[], bool]) -> tup
     """The cheapest path whose nodes are valid (motions not planned), or the reason there is none."""
     from planner.regrasp.graph import RegraspGraph
 
-    graph = RegraspGraph(planner.screen(planner.graph_spec(), should_stop, want=1), planner.task.settings.weights)
+    termination = Termination(KEY_POSE_ITERATIONS, planner.task.scenario.limits.time_s, should_stop)
+    graph = RegraspGraph(planner.screen(planner.graph_spec(), termination, want=1), planner.task.settings.weights)
     planner.prepare_search(graph)
-    res = graph.search(planner.validate_node, lambda a, b, k: Validation(True), max_iterations=KEY_POSE_ITERATIONS,
-                       time_limit_s=planner.task.scenario.limits.time_s, should_stop=should_stop)
+    res = graph.search(planner.validate_node, lambda a, b, k: Validation(True), termination)
     if res.status != "solved":
         return None, f"{res.code}: {res.message}"
     return res.path, None

@@ -94,7 +94,9 @@ def plot_plan(plan: dict, path: Path, compare: dict | None = None) -> Path:
 def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, solutions, time_limit_s, out_path,
          plot_path, compare_threshold_mm, quiet) -> None:
     """Plan a regrasp task: pick, regrasp or hand over, and place, keeping the CoM margin."""
-    from planner.jobs.plan_job import PlanningInputError, PlanOptions, plan_scenario, resolve_scenario
+    from planner.errors import InputError
+    from planner.jobs.plan_job import PlanOptions, plan_scenario
+    from planner.scene.scenarios import resolve_scenario
 
     ref = check_scenario_args(scenario_file, scenario_name)
     threshold_m = mm_to_m("--threshold-mm", threshold_mm)
@@ -114,7 +116,7 @@ def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, soluti
                                 stance=stance, time_limit_s=time_limit_s)
             compare = (plan_scenario(sc, opts2) if quiet else
                        run_with_progress("comparison", lambda p: plan_scenario(sc, opts2, progress=p)))
-    except PlanningInputError as exc:
+    except InputError as exc:
         fail(str(exc))
     Path(out_path).write_text(json.dumps(doc, allow_nan=False))
     plans = [(f"{sc.name}", doc)]

@@ -115,7 +115,8 @@ def stance_matrix(docs: list[dict]) -> Table:
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), help="Write the bar chart and CoM scatter to this directory.")
 def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, workers, as_json, states_out, all_stances, plot_dir) -> None:
     """Count stable (C) and unstable (U) explored states per hand configuration; R = C / (C + U)."""
-    from planner.jobs.plan_job import PlanningInputError, resolve_scenario
+    from planner.errors import InputError
+    from planner.scene.scenarios import resolve_scenario
     from planner.stability.stances import BUILTIN_STANCES
     from planner.survey.runner import run_survey, write_states
 
@@ -139,7 +140,7 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
             label = f"survey {sc.name} ({sc.stance if isinstance(sc.stance, str) else sc.stance.name})"
             doc, outcomes = run_with_progress(label, lambda p, sc=sc: run_survey(sc, workers=workers, progress=p))
             docs.append((doc, outcomes))
-    except PlanningInputError as exc:
+    except InputError as exc:
         fail(str(exc))
     except ValueError as exc:
         fail(str(exc))

@@ -13,6 +13,7 @@ from planner.regrasp.graph import (
     RegraspGraph,
     Validation,
 )
+from planner.termination import Termination
 
 
 def spec(hands=("right", "right"), grasps=(0, 1, 2), placements=(0, 1, 2), handovers=()):
@@ -28,7 +29,7 @@ def ok_edge(a, b, kind):
 
 def test_direct_transfer_is_the_cheapest_path():
     g = RegraspGraph(spec())
-    res = g.search(lambda n: Validation(True, margin_m=0.2), ok_edge, max_iterations=50, time_limit_s=5)
+    res = g.search(lambda n: Validation(True, margin_m=0.2), ok_edge, Termination(50, 5))
     assert res.status == "solved"
     assert [n.placement for n in res.path] == [0, 2]
     assert res.path[0].grasp == res.path[1].grasp and all(n.hand == "right" for n in res.path)
@@ -45,7 +46,7 @@ def test_failing_nodes_are_removed_and_counted_by_cause():
             return Validation(False, "collision")
         return Validation(True, margin_m=0.2)
 
-    res = RegraspGraph(spec()).search(node, ok_edge, max_iterations=100, time_limit_s=5)
+    res = RegraspGraph(spec()).search(node, ok_edge, Termination(100, 5))
     assert res.status == "solved"
     assert res.path[-1].placement == 2 and res.path[-1].grasp == 2
     assert res.failures["ik"] >= 1 and res.failures["com_margin"] >= 1
@@ -62,7 +63,7 @@ def test_motion_failure_removes_the_edge_and_replans():
             return Validation(False, "motion")
         return Validation(True)
 
-    res = RegraspGraph(spec()).search(lambda n: Validation(True, margin_m=0.2), edge, max_iterations=100, time_limit_s=5)
+    res = RegraspGraph(spec()).search(lambda n: Validation(True, margin_m=0.2), edge, Termination(100, 5))
     assert res.status == "solved" and res.failures["motion"] >= 1
     assert all(n.grasp not in failed for n in res.path)
 
@@ -70,25 +71,25 @@ def test_motion_failure_removes_the_edge_and_replans():
 def test_margin_cost_prefers_the_more_stable_node():
     margins = {0: 0.01, 1: 0.09, 2: 0.05}
     res = RegraspGraph(spec(), GraphWeights(margin=5.0)).search(
-        lambda n: Validation(True, margin_m=margins[n.grasp]), ok_edge, max_iterations=100, time_limit_s=5)
+        lambda n: Validation(True, margin_m=margins[n.grasp]), ok_edge, Termination(100, 5))
     assert res.path[0].grasp == 1
 
 
 def test_infeasible_returns_reasons_not_an_exception():
-    res = RegraspGraph(spec()).search(lambda n: Validation(False, "com_margin"), ok_edge, max_iterations=500, time_limit_s=5)
+    res = RegraspGraph(spec()).search(lambda n: Validation(False, "com_margin"), ok_edge, Termination(500, 5))
     assert res.status == "infeasible"
     assert res.code == "COM_MARGIN" and res.failures["com_margin"] > 0
 
 
 def test_iteration_cap_bounds_the_search():
-    res = RegraspGraph(spec()).search(lambda n: Validation(False, "ik"), ok_edge, max_iterations=3, time_limit_s=5)
+    res = RegraspGraph(spec()).search(lambda n: Validation(False, "ik"), ok_edge, Termination(3, 5))
     assert res.status == "infeasible" and res.iterations == 3
 
 
 def test_dual_arm_goes_through_a_handover():
     handovers = [HandoverNode(0, gr, gl, "right") for gr in (0, 1) for gl in (1, 2)]
     res = RegraspGraph(spec(hands=("right", "left"), handovers=handovers)).search(
-        lambda n: Validation(True, margin_m=0.2), ok_edge, max_iterations=50, time_limit_s=5)
+        lambda n: Validation(True, margin_m=0.2), ok_edge, Termination(50, 5))
     assert res.status == "solved"
     kinds = [n.kind for n in res.path]
     assert kinds == ["pg", "ho", "pg"]
@@ -98,14 +99,13 @@ def test_dual_arm_goes_through_a_handover():
 
 def test_single_arm_never_uses_the_other_hand():
     res = RegraspGraph(spec(hands=("left", "left"))).search(lambda n: Validation(True, margin_m=0.2), ok_edge,
-                                                          max_iterations=50, time_limit_s=5)
+                                                          Termination(50, 5))
     assert all(n.hand == "left" for n in res.path)
 
 
 def test_cancel_raises():
     with pytest.raises(Canceled):
-        RegraspGraph(spec()).search(lambda n: Validation(True), ok_edge, max_iterations=50, time_limit_s=5,
-                                    should_stop=lambda: True)
+        RegraspGraph(spec()).search(lambda n: Validation(True), ok_edge, Termination(50, 5, lambda: True))
 
 
 def test_graph_stays_linear_in_grasps():
@@ -122,7 +122,7 @@ def test_removed_nodes_and_edges_leave_the_search():
     assert victim in g
     g.remove_node(victim)
     assert victim not in g and g.size[0] == nodes - 1 and g.size[1] < edges
-    res = g.search(lambda n: Validation(True, margin_m=0.2), ok_edge, max_iterations=50, time_limit_s=5)
+    res = g.search(lambda n: Validation(True, margin_m=0.2), ok_edge, Termination(50, 5))
     assert res.status == "solved" and victim not in res.path
 
 

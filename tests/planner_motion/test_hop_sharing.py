@@ -31,7 +31,7 @@ def test_shared_hops_give_the_plan_planned_one_by_one():
     out = _run(f"""
         import json
         from planner.jobs.plan_job import PlanOptions, build_task, plan_scenario
-        from planner.regrasp.planner import PlannerSettings
+        from planner.regrasp.settings import PlannerSettings
         from planner.scene.scenarios import load_scenario
         sc = load_scenario({str(SMALL_BOX)!r})
         docs = {{}}

@@ -9,7 +9,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from planner.jobs.plan_job import PlanningInputError, PlanOptions, plan_scenario
+from planner.errors import InputError
+from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.scene.scenarios import load_scenario, with_overrides
 from schemas.plan import Plan, plan_sha256
 from plan_checker import check_plan
@@ -93,7 +94,7 @@ def test_object_too_heavy_is_infeasible_within_its_time_limit(small_box):
 
 
 def test_unknown_hands_is_a_usage_error(small_box):
-    with pytest.raises(PlanningInputError, match="hands"):
+    with pytest.raises(InputError, match="hands"):
         plan_scenario(small_box, PlanOptions(hands="both-hands"))
 
 
@@ -220,7 +221,7 @@ def test_graph_node_order_does_not_depend_on_the_hash_seed():
         "import numpy as np, hashlib\n"
         "from planner.scene.scenarios import load_scenario\n"
         "from planner.jobs.plan_job import build_task\n"
-        "from planner.regrasp.planner import HandConfigPlanner\n"
+        "from planner.regrasp.hand_config_planner import HandConfigPlanner\n"
         f"task = build_task(load_scenario({str(DATA / 'small-box.yaml')!r}))\n"
         "spec = HandConfigPlanner(task, 'right-left').graph_spec()\n"
         "print(hashlib.sha256(repr(spec.placement_nodes).encode()).hexdigest(), len(spec.placement_nodes))\n"

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from planner.regrasp.node_validation import validate_placement
+from planner.regrasp.probes import probe_givers, probe_grasps
 from planner.scene.collision import CollisionWorld
 from planner.scene.scenarios import load_scenario
 from planner.survey.runner import run_survey, run_survey_seeds, write_states
@@ -79,8 +81,8 @@ def test_an_independent_recomputation_agrees_with_the_stable_flags(surveyed):
 
 def test_a_colliding_state_is_never_counted(scenario, surveyed):
     _, outcomes, _ = surveyed
-    from planner.scene.objects import build_object
     from planner.robot.model import load_robot
+    from planner.scene.objects import build_object
     from planner.stability.stances import solve_stance
 
     robot = load_robot("hrp5p")
@@ -155,7 +157,8 @@ def test_unknown_hands_are_rejected(scenario):
 def test_key_poses_do_not_depend_on_which_configuration_ran_first(scenario):
     """Node validations are shared by a task's hand configurations and each node draws from its own
     generator, so a configuration finds the same key path whatever was validated before it."""
-    from planner.regrasp.planner import HandConfigPlanner, Task
+    from planner.regrasp.hand_config_planner import HandConfigPlanner
+    from planner.regrasp.task import Task
     from planner.survey.runner import key_path
 
     def path_of(task, hands):
@@ -205,10 +208,12 @@ def test_a_survey_for_the_recommendation_only_skips_what_cannot_win(scenario, su
         run_survey_seeds(scenario, [1, 2], states=STATES, hands=["left-left"], workers=1, recommendation_only=True)
 
 
-def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenario):
+def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenario, monkeypatch):
     """Workers validate key-pose nodes in their own copies of the task; the caller's task adopts them,
     so the plan after a `hands: auto` survey finds its key path without validating a node again."""
-    from planner.regrasp.planner import HandConfigPlanner, Task
+    import planner.regrasp.hand_config_planner as hcp
+    from planner.regrasp.hand_config_planner import HandConfigPlanner
+    from planner.regrasp.task import Task
     from planner.survey.runner import key_path
 
     task = Task(scenario)
@@ -217,11 +222,12 @@ def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenar
     before = dict(task.node_cache)
     fresh_calls = []
     planner = HandConfigPlanner(task, "left-left")
-    validate = planner._validate_placement
-    planner._validate_placement = lambda node, rng: fresh_calls.append(node) or validate(node, rng)
+    validate = hcp.validate_placement
+    monkeypatch.setattr(hcp, "validate_placement", lambda t, node, rng: fresh_calls.append(node) or validate(t, node, rng))
     path, reason = key_path(planner, lambda: False)
     assert path is not None, reason
     assert fresh_calls == [] and task.node_cache == before
+    monkeypatch.undo()
     # and they are the validations a one-process run makes (each node has its own generator)
     alone = Task(scenario)
     assert key_path(HandConfigPlanner(alone, "left-left"), lambda: False)[0] == path
@@ -261,24 +267,24 @@ def test_grasp_probes_bound_the_validated_margin_and_prefill_only_certain_failur
     never larger: its lift starts from that very state), and a node it marks as failing on the margin
     must be one its own validation rejects for that reason."""
     from planner.regrasp.graph import PlacementNode
-    from planner.regrasp.planner import HandConfigPlanner, Task
-
+    from planner.regrasp.hand_config_planner import HandConfigPlanner
+    from planner.regrasp.task import Task
     probe_task = Task(scenario)
     planner = HandConfigPlanner(probe_task, "right-right")
     nodes = [n for n in planner.graph_spec().placement_nodes if isinstance(n, PlacementNode)][:40]
-    margins = np.array([m for m in (p.margin_m for p in probe_task.probe_grasps(nodes).values()) if m is not None])
+    margins = np.array([m for m in (p.margin_m for p in probe_grasps(probe_task, nodes).values()) if m is not None])
     assert len(margins) >= 10  # many grasps of a spec are beyond the arm alone (from below, behind)
     # A threshold between the probed margins: some nodes are stable at their grasp, some are not.
     threshold = float(np.median(margins)) - probe_task.settings.planning_buffer_m
     task = Task(scenario, threshold_m=threshold)
-    probes = task.probe_grasps(nodes)
+    probes = probe_grasps(task, nodes)
     prefilled = {n: task.node_cache[n] for n in nodes if n in task.node_cache}
     assert any(v.cause == "com_margin" for v in prefilled.values()), "no node was marked as failing on the margin"
     planner = HandConfigPlanner(task, "right-right")
     validated_ok = 0
     for node in nodes[:24]:
         task.node_cache.pop(node, None)
-        v = planner._validate_placement(node, np.random.default_rng(task.node_seed(node)))
+        v = validate_placement(task, node, np.random.default_rng(task.node_seed(node)))
         if node in prefilled:
             assert not v.ok and (v.cause, v.detail) == (prefilled[node].cause, prefilled[node].detail)
         elif v.ok and probes[node].margin_m is not None:
@@ -291,18 +297,18 @@ def test_batched_giver_probes_classify_as_the_one_state_check_does(scenario):
     """The givers at the handover poses are solved and checked in batches; each entry's cause and margin
     must be what the planner's one-state check (pinocchio CoM, per-state collision) finds for it."""
     from planner.regrasp.graph import HandoverNode
-    from planner.regrasp.planner import HandConfigPlanner, Task
-
+    from planner.regrasp.hand_config_planner import HandConfigPlanner
+    from planner.regrasp.task import Task
     task = Task(scenario, threshold_m=0.05)
     planner = HandConfigPlanner(task, "right-left")
     nodes = [n for n in planner.graph_spec().handover_nodes if isinstance(n, HandoverNode)]
-    task.probe_givers(nodes)
+    probe_givers(task, nodes)
     entries = [v for v in task.giver_at.values() if v is not None]
     assert len(entries) >= 20
     causes = set()
     for q, hold, cause, margin in entries[:60]:
         assert np.linalg.norm(hold.T_obj_tcp[:3, 3]) < 0.5  # the object really is in that hand
-        want_cause, want_margin = task.classify(q, hold, None)
+        want_cause, want_margin = task.checker.classify(q, hold, None)
         assert cause == want_cause
         assert margin == pytest.approx(want_margin, abs=1e-9)
         causes.add(cause)
@@ -313,22 +319,22 @@ def test_the_jaw_closing_probe_caches_the_verdict_the_validation_reaches(scenari
     """The probes also close the jaw on the resting object from the probed posture, for all probed
     nodes at once. A node found failing there is cached with the verdict its own validation (from the
     same posture) reaches, margin included; a probed node not cached gets past that check."""
-    from planner.regrasp.planner import HandConfigPlanner, Task
-
+    from planner.regrasp.hand_config_planner import HandConfigPlanner
+    from planner.regrasp.task import Task
     task = Task(scenario)
     planner = HandConfigPlanner(task, "right-right")
     nodes = planner.graph_spec().placement_nodes
-    probes = task.probe_grasps(nodes)
+    probes = probe_grasps(task, nodes)
     closing = [n for n in nodes if n in task.node_cache and task.node_cache[n].detail == "closing the jaw"]
     passed = [n for n in nodes if probes[n].q is not None and n not in task.node_cache]
     assert len(closing) >= 10 and len(passed) >= 10
     for node in closing[:12]:
         cached = task.node_cache.pop(node)
-        v = planner._validate_placement(node, np.random.default_rng(task.node_seed(node)))
+        v = validate_placement(task, node, np.random.default_rng(task.node_seed(node)))
         assert (v.ok, v.cause, v.detail) == (False, cached.cause, "closing the jaw")
         assert v.margin_m == pytest.approx(cached.margin_m, abs=1e-9)
     for node in passed[:12]:
-        v = planner._validate_placement(node, np.random.default_rng(task.node_seed(node)))
+        v = validate_placement(task, node, np.random.default_rng(task.node_seed(node)))
         assert v.ok or v.detail != "closing the jaw", node
 
 
@@ -338,12 +344,12 @@ def test_a_search_reaching_a_node_the_arm_alone_missed_probes_all_such_nodes_wit
     found reaches the grasp within the IK tolerance and the joint limits, its margin is the one of
     holding the object there (recomputed through pinocchio), a margin failure is cached with the
     verdict the node's own validation reaches, and the validation starts from that posture."""
-    from planner.regrasp.planner import HandConfigPlanner, Task
-
+    from planner.regrasp.hand_config_planner import HandConfigPlanner
+    from planner.regrasp.task import Task
     task = Task(scenario)
     planner = HandConfigPlanner(task, "right-right")
     nodes = planner.graph_spec().placement_nodes
-    probes = task.probe_grasps(nodes)
+    probes = probe_grasps(task, nodes)
     missed = [n for n in nodes if probes[n].q is None and n not in task.node_cache]
     assert len(missed) >= 10
     planner.validate_node(missed[0])
@@ -370,11 +376,11 @@ def test_a_search_reaching_a_node_the_arm_alone_missed_probes_all_such_nodes_wit
     assert cached and fresh
     for node in cached[:8]:
         verdict = task.node_cache.pop(node)
-        v = planner._validate_placement(node, np.random.default_rng(task.node_seed(node)))
+        v = validate_placement(task, node, np.random.default_rng(task.node_seed(node)))
         assert (v.ok, v.cause, v.detail) == (False, verdict.cause, verdict.detail)
     started = 0
     for node in fresh[:8]:
-        v = planner._validate_placement(node, np.random.default_rng(task.node_seed(node)))
+        v = validate_placement(task, node, np.random.default_rng(task.node_seed(node)))
         if v.ok:  # the key poses start from the probed posture
             assert np.array_equal(v.payload.q_grasp_open[waist], task.grasp_probes[node].q[waist])
             started += 1
@@ -382,7 +388,7 @@ def test_a_search_reaching_a_node_the_arm_alone_missed_probes_all_such_nodes_wit
     # A survey worker hands this over: another copy of the task, whose arm-only probes missed the same
     # nodes, takes the waist's postures and does not probe them again.
     other = Task(scenario)
-    other.probe_grasps(nodes)
+    probe_grasps(other, nodes)
     other.adopt(task.validations())
     assert set(missed) <= other.waist_probed
     assert all(np.array_equal(other.grasp_probes[n].q, task.grasp_probes[n].q) for n in reached)
@@ -392,8 +398,8 @@ def test_nodes_known_to_fail_leave_the_graph_before_the_search_and_are_counted(s
     """What the probes (or another hand configuration) already proved invalid is removed up front, so
     the search spends no iteration on it; the removals are counted by cause like the screening's."""
     from planner.regrasp.graph import RegraspGraph
-    from planner.regrasp.planner import HandConfigPlanner, Task
-
+    from planner.regrasp.hand_config_planner import HandConfigPlanner
+    from planner.regrasp.task import Task
     task = Task(scenario)
     planner = HandConfigPlanner(task, "right-left")
     graph = RegraspGraph(planner.graph_spec(), task.settings.weights)

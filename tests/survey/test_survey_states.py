@@ -50,8 +50,7 @@ def run(tmp_path_factory):
     captured = {}
 
     def two_configurations(scenario, **kwargs):
-        from planner.regrasp.planner import Task
-
+        from planner.regrasp.task import Task
         captured["task"] = Task(scenario)  # what run_survey would build; kept for its handover poses
         doc, outcomes = real(scenario, hands=HANDS, task=captured["task"], **kwargs)
         captured["outcomes"] = outcomes

@@ -1,0 +1,358 @@
+"""The CoM-constrained regrasp planner: the paper's planner, one hand configuration at a time.
+
+Pipeline (one task = one scenario and one hand configuration):
+
+1. **Task set-up** (:class:`Task`): robot, stance, object, grasps per hand (cached on
+   disk), placements (start, goal and a few intermediate spots), handover poses,
+   the collision world, IK solvers and the stability evaluator.
+2. **Graph** (:mod:`planner.regrasp.graph`): abstract nodes after cheap checks.
+3. **Lazy validation**: a node's key poses (pre-grasp, grasp, lift; at a handover the
+   exchange) must be IK-feasible, collision-free and stable (margin >= threshold);
+   an edge's motion comes from T-RRT (:mod:`planner.motion.trrt`), is shortcut, and is timed
+   within the velocity/acceleration limits with the ZMP kept inside the polygon
+   (:mod:`planner.motion.timing`). What fails is removed and the search runs again.
+4. **Assembly** (:mod:`planner.regrasp.plan_assembly`): the timed pieces become the plan.
+
+With ``threshold_m == 0`` this is the unconstrained planner: no margin constraint and
+no margin cost (the paper's 0 mm comparison).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections import Counter
+from typing import Callable
+
+import numpy as np
+
+from planner.forking import fork_is_safe, spare_cores
+from planner.grasping.grasps import Grasp
+from planner.regrasp.fork_share import share_with_child
+from planner.regrasp.graph import (
+    Canceled,
+    GraphSpec,
+    HandoverNode,
+    PlacementNode,
+    RegraspGraph,
+    SearchResult,
+    Validation,
+)
+from planner.regrasp.motions import MotionValidator
+from planner.regrasp.node_validation import validate_handover, validate_placement
+from planner.regrasp.path_assembly import assemble_pieces
+from planner.regrasp.probes import probe_givers, probe_grasps
+from planner.regrasp.results import (
+    HandoverPoses,
+    HopResult,
+    KeyPoses,
+    PlannerResult,
+)
+from planner.regrasp.settings import HANDS_OF, Side
+from planner.regrasp.task import Task
+from planner.termination import Termination
+
+
+class HandConfigPlanner:
+    """Plans one hand configuration of a task: graph, lazy validation, motions."""
+
+    def __init__(self, task: Task, hands: str):
+        if hands not in HANDS_OF:
+            raise ValueError(f"unknown hands {hands!r}; valid: {', '.join(HANDS_OF)}")
+        self.task = task
+        self.hands = hands
+        self.start_hand, self.goal_hand = HANDS_OF[hands]
+        self.keyposes: dict[PlacementNode, KeyPoses] = {}
+        self.handovers: dict[HandoverNode, HandoverPoses] = {}
+        #: The motions of this configuration's hops (shares keyposes and handovers with this planner).
+        self.motions = MotionValidator(task, self.keyposes, self.handovers)
+        self._validated: dict = {}
+        # Why start and goal nodes failed, to tell "the start is out of reach" from "no path".
+        self.start_failures: Counter = Counter()
+        self.goal_failures: Counter = Counter()
+        self.start_ok = False
+        self.goal_ok = False
+        #: "start"/"goal" -> why no node there survived the cheap filters (set by graph_spec)
+        self.end_problems: dict[str, str] = {}
+        self.screen_failures: Counter = Counter()
+        self._edges: dict = {}
+        self.stage_s: dict[str, float] = {}
+        #: Why the forked helper of :meth:`_prefetch_hops` failed, if it did (its hops are then planned here).
+        self.helper_errors: list[str] = []
+        self.hops_by_helper = 0
+        self.dropped_known = 0  # nodes removed before the search, their failure known (_drop_known_failures)
+
+
+    # -- graph construction ---------------------------------------------------------------------
+    def _cheap_ok(self, side: Side, T_obj: np.ndarray, grasp: Grasp) -> bool:
+        """Cheap filters before IK: the hand does not come from below the table top, and is in reach."""
+        T_tcp = T_obj @ grasp.T_obj_tcp
+        approach = T_tcp[:3, 2]
+        if approach[2] > 0.3:  # approaching upwards: the palm would be under the object
+            return False
+        d = T_tcp[:3, 3] - self.task.shoulder[side]
+        dist = float(np.linalg.norm(d))
+        if dist > self.task.reach[side]:
+            return False
+        # The palm faces away from the shoulder: an approach pointing back at the robot needs a contorted wrist.
+        return float(approach @ d) > -0.3 * dist
+
+    def _unreachable_reason(self, end: str, T_obj: np.ndarray, side: Side) -> str:
+        """Why no grasp of the object at an end pose passed the cheap filters, in words."""
+        t = self.task
+        grasps = t.grasps[side]
+        if not grasps:
+            return f"the {side} hand has no grasp of the object"
+        dist = min(float(np.linalg.norm((T_obj @ g.T_obj_tcp)[:3, 3] - t.shoulder[side])) for g in grasps)
+        if dist > t.reach[side]:
+            return (f"the {end} pose is out of reach of the {side} hand: its nearest grasp is {dist:.2f} m from "
+                    f"the shoulder, the arm and waist reach {t.reach[side]:.2f} m")
+        return (f"the {end} pose cannot be grasped by the {side} hand: every grasp there approaches from below "
+                f"or points back at the robot")
+
+    def graph_spec(self) -> GraphSpec:
+        t = self.task
+        # A fixed order (a set's order of strings changes with each process's hash seed, and with it
+        # the node order, the tie-break ranks and so the reported cost).
+        sides: list[Side] = sorted({self.start_hand, self.goal_hand})
+        nodes: list[PlacementNode] = []
+        for p, T in enumerate(t.placements):
+            for side in sides:
+                for g, grasp in enumerate(t.grasps[side]):
+                    if self._cheap_ok(side, T, grasp):
+                        nodes.append(PlacementNode(p, g, side))
+        for end, pid, hand in (("start", t.start_id, self.start_hand), ("goal", t.goal_id, self.goal_hand)):
+            if not any(n.placement == pid and n.hand == hand for n in nodes):
+                self.end_problems[end] = self._unreachable_reason(end, t.placements[pid], hand)
+        handovers: list[HandoverNode] = []
+        if self.start_hand != self.goal_hand:
+            giver = self.start_hand
+            for f, hp in enumerate(t.handover_poses):
+                for r, l in hp.pairs:
+                    gi, ti = (int(r), int(l)) if giver == "right" else (int(l), int(r))
+                    handovers.append(HandoverNode(f, gi, ti, giver))
+        positions = {p: tuple(T[:3, 3]) for p, T in enumerate(t.placements)}
+        return GraphSpec(start=t.start_id, goal=t.goal_id, positions=positions, placement_nodes=nodes,
+                         handover_nodes=handovers, start_hand=self.start_hand, goal_hand=self.goal_hand)
+
+    # -- node validation ----------------------------------------------------------------------------
+    def validate_node(self, node) -> Validation:
+        """Validate a node once (cached across searches, e.g. for the K best solutions)."""
+        if node in self._validated:
+            return self._validated[node]
+        t = self.task
+        v = t.node_cache.get(node)
+        if v is None:
+            rng = np.random.default_rng(t.node_seed(node))
+            v = validate_placement(t, node, rng) if isinstance(node, PlacementNode) else validate_handover(t, node, rng)
+            t.node_cache[node] = v  # shared with the other hand configurations of this task
+        if v.ok:
+            if isinstance(node, PlacementNode):
+                self.keyposes[node] = v.payload
+            else:  # this planner plans and times the handover's motions into its own copy of the pieces
+                self.handovers[node] = dataclasses.replace(
+                    v.payload, pieces=[dataclasses.replace(p) for p in v.payload.pieces])
+        if isinstance(node, PlacementNode):
+            for pid, hand, counter, flag in ((t.start_id, self.start_hand, self.start_failures, "start_ok"),
+                                             (t.goal_id, self.goal_hand, self.goal_failures, "goal_ok")):
+                if node.placement == pid and node.hand == hand:
+                    if v.ok:
+                        setattr(self, flag, True)
+                    else:
+                        counter[v.cause or "ik"] += 1
+        self._validated[node] = v
+        return v
+
+    # -- search and assembly ----------------------------------------------------------------------------
+    def plan(self, termination: Termination, *, on_iteration: Callable[[int, dict], None] | None = None,
+             solutions: int = 1) -> PlannerResult:
+        """The best plan of this hand configuration, and up to ``solutions - 1`` next-best ones.
+
+        ``termination`` caps each search's iterations; its deadline covers the whole call (a search
+        past it ends ``TIMEOUT``); a cancel, or the deadline inside a motion, raises :class:`Canceled`.
+        """
+        t0 = time.perf_counter()
+        self.motions.should_stop = termination.should_stop
+        spec = self.graph_spec()
+        if self.end_problems:  # an end no hand pose can reach: no search can succeed
+            end = "start" if "start" in self.end_problems else "goal"
+            return PlannerResult("infeasible", self.hands, failure_code=f"{end.upper()}_INVALID", message=self.end_problems[end],
+                                 failures={"ik": len(self.end_problems)}, stats={"time_s": time.perf_counter() - t0})
+        spec = self.screen(spec, termination)
+        weights = self.task.settings.weights
+        if not self.task.constrained:  # the unconstrained planner: no margin cost either
+            weights = dataclasses.replace(weights, margin=0.0)
+        graph = RegraspGraph(spec, weights)
+        self.prepare_search(graph)
+        t_search = time.perf_counter()
+        found: list[SearchResult] = []
+        res: SearchResult | None = None
+        failures: Counter = Counter(self.screen_failures)
+        iterations = 0
+        while len(found) < solutions:
+            if found and termination.past_deadline():
+                break
+            res = graph.search(
+                self._timed_node, self._timed_edge, termination, on_iteration=(lambda i, f: on_iteration(i, dict(f))) if on_iteration else None,
+                banned_paths=[tuple(r.path) for r in found],
+                prefetch_edges=self._prefetch_hops if self._may_share_hops() else None,
+            )
+            failures.update(res.failures)
+            iterations += res.iterations
+            if res.status != "solved":
+                break
+            found.append(res)
+        stage = dict(self.stage_s)
+        stage["search_s"] = max(time.perf_counter() - t_search - sum(stage.values()), 0.0)
+        stats = {"graph_nodes": res.graph_nodes if res else 0, "graph_edges": res.graph_edges if res else 0,
+                 "search_iterations": iterations, "nodes_validated": len(self._validated) - self.dropped_known,
+                 "nodes_dropped_known": self.dropped_known, "edges_validated": len(self._edges),
+                 "hops_by_helper": self.hops_by_helper, "stage_s": stage, "time_s": time.perf_counter() - t0}
+        if self.helper_errors:
+            stats["helper_errors"] = list(self.helper_errors)
+        if not found:
+            return PlannerResult("infeasible", self.hands, failure_code=res.code if res else "NO_PATH",
+                                 message=res.message if res else "", failures=dict(failures), stats=stats)
+        t_asm = time.perf_counter()
+        best = found[0]
+        out = PlannerResult("solved", self.hands, pieces=assemble_pieces(best, self.motions), cost=best.cost,
+                            failures=dict(failures), stats=stats,
+                            others=[(r.cost, assemble_pieces(r, self.motions)) for r in found[1:]])
+        stats["stage_s"]["assembly_s"] = time.perf_counter() - t_asm
+        return out
+
+    def _timed_node(self, node) -> Validation:
+        t0 = time.perf_counter()
+        try:
+            return self.validate_node(node)
+        finally:
+            self.stage_s["nodes_s"] = self.stage_s.get("nodes_s", 0.0) + time.perf_counter() - t0
+
+    def _may_share_hops(self) -> bool:
+        return self.task.settings.parallel_motions and spare_cores() > 0 and fork_is_safe()
+
+    def _prefetch_hops(self, hops: list[tuple]) -> None:
+        """Plan a candidate path's motions in this process and a forked helper at once
+        (:func:`planner.regrasp.fork_share.share_with_child`), longest first so that neither process is left
+        with a long one at the end: a hop into a handover whose own motions are not planned yet (it
+        plans them too: two T-RRT motions, measured 1.3 s of upright left-right's 2.1 s), then the
+        transits (T-RRT around the table), then the rest. Each hop draws from its own generator, so
+        the verdicts are those the search would get one by one; a hop after a failing one is planned
+        for nothing, and kept for later paths."""
+
+        def plans_handover(hop: tuple) -> bool:
+            b = hop[1]
+            return isinstance(b, HandoverNode) and not self.handovers[b].motions_planned
+
+        todo = sorted((h for h in hops if h not in self._edges), key=lambda h: (not plans_handover(h), h[2] != "transit"))
+        if len(todo) < 2:
+            return
+        t0 = time.perf_counter()
+        results, error = share_with_child(todo, self._hop_work, self.motions.should_stop)
+        for k, res in results.items():
+            b = todo[k][1]
+            if res.handover is not None and not self.handovers[b].motions_planned:
+                self.handovers[b] = res.handover
+            self.task.counters.update(res.counts)
+            self.hops_by_helper += res.by_helper
+            self._edges[todo[k]] = res.validation
+        if error is not None:
+            self.helper_errors.append(error.strip().splitlines()[-1])
+        self.stage_s["motions_s"] = self.stage_s.get("motions_s", 0.0) + time.perf_counter() - t0
+
+    def _hop_work(self, hop: tuple, in_child: bool) -> HopResult:
+        """One hop's validation; from the helper also what it changed that the parent needs: the
+        handover's planned motions and the check counters."""
+        a, b, kind = hop
+        if not in_child:
+            return HopResult(self.motions.validate_hop(a, b, kind))
+        before = Counter(self.task.counters)
+        v = self.motions.validate_hop(a, b, kind)
+        hp = self.handovers.get(b) if isinstance(b, HandoverNode) else None
+        return HopResult(v, hp if hp is not None and hp.motions_planned else None,
+                          Counter(self.task.counters) - before, True)
+
+    def _timed_edge(self, a, b, kind: str) -> Validation:
+        """Edge validation, cached across searches (the K best solutions share their motions)."""
+        key = (a, b, kind)
+        if key not in self._edges:
+            t0 = time.perf_counter()
+            self._edges[key] = self.motions.validate_hop(a, b, kind)
+            self.stage_s["motions_s"] = self.stage_s.get("motions_s", 0.0) + time.perf_counter() - t0
+        return self._edges[key]
+
+    def screen(self, spec: GraphSpec, termination: Termination, want: int | None = None) -> GraphSpec:
+        """Validate start and goal nodes up front, in grasp order (closest to the object's CoM first),
+        until a few are valid.
+
+        Most failures happen where the object rests at the start and goal; screening them in one
+        pass spares a graph search per failed node. Nodes found invalid leave the spec.
+        """
+        t = self.task
+        bad: set = set()
+        for pid, hand in ((t.start_id, self.start_hand), (t.goal_id, self.goal_hand)):
+            cands = [n for n in spec.placement_nodes if n.placement == pid and n.hand == hand]
+            cands.sort(key=lambda n: n.grasp)  # grasps come sorted by their distance to the CoM
+            found = 0
+            for n in cands:
+                if found >= (want or t.settings.screen_valid):
+                    break
+                if termination.should_stop():
+                    raise Canceled()
+                v = self.validate_node(n)
+                if v.ok:
+                    found += 1
+                else:
+                    bad.add(n)
+                    self.screen_failures[v.cause or "ik"] += 1
+        return dataclasses.replace(spec, placement_nodes=[n for n in spec.placement_nodes if n not in bad])
+
+    def prepare_search(self, graph: RegraspGraph) -> None:
+        """Before the first search: probe and weigh the nodes, then remove those whose failure that made known."""
+        self._weigh_nodes(graph)
+        self._drop_known_failures(graph)
+
+    def _weigh_nodes(self, graph: RegraspGraph) -> None:
+        """Before any node is validated, weight placement nodes by the margin of holding the object at
+        their grasp (:func:`planner.regrasp.probes.probe_grasps`), so the search tries stable ones first. A node whose
+        probe missed gets no margin at all (the highest margin cost): it is validated only when the
+        nodes that reach their grasp have run out."""
+        t = self.task
+        handovers = [n for n in graph.nodes() if isinstance(n, HandoverNode)]
+        if handovers:
+            probe_givers(t, handovers)
+        if graph.w.margin == 0.0:
+            return
+        nodes = [n for n in graph.nodes() if isinstance(n, PlacementNode)]
+        probes = probe_grasps(t, nodes)
+        for node in nodes:
+            m = probes[node].margin_m
+            graph._apply_margin_cost(node, 0.0 if m is None else m)
+        for node in handovers:  # the giver's state there is one of the handover's states
+            giver = t.giver_at.get((node.pose, node.giver_grasp, node.giver))
+            if giver is not None:
+                graph._apply_margin_cost(node, giver[3])
+
+    def _drop_known_failures(self, graph: RegraspGraph) -> None:
+        """Remove, before the search, the nodes already known to fail: those another hand configuration
+        of the task validated, the grasps whose probe found the held object unstable, the handovers whose
+        giver the probe found unstable or colliding (:meth:`validate_node` returns their verdict without
+        new IK). The search would remove each only when it lay on the cheapest path, one search per
+        node: measured on crouched left-right, which has no valid handover, 400 searches (the iteration
+        cap) before it gave up. Counted like the screening's failures."""
+        t = self.task
+        for node in list(graph.nodes()):
+            if not isinstance(node, (PlacementNode, HandoverNode)):  # hubs, source and sink
+                continue
+            v = t.node_cache.get(node)
+            known = v is not None and not v.ok
+            if isinstance(node, HandoverNode) and not known:
+                giver = t.giver_at.get((node.pose, node.giver_grasp, node.giver))
+                known = giver is not None and giver[2] is not None
+            if known:
+                v = self.validate_node(node)  # the cached verdict, and the start/goal bookkeeping
+                if not v.ok:
+                    graph.remove_node(node)
+                    self.screen_failures[v.cause or "ik"] += 1
+                    self.dropped_known += 1
+

@@ -1,0 +1,173 @@
+"""Validation of the regrasp graph's nodes: the key poses of a placement node and of a handover.
+
+A placement node (an object placement, a grasp and a hand) is valid when its grasp, lift and
+pre-grasp poses are IK-feasible, and the moves between them (approach, closing the jaw, lift)
+are collision-free and keep the CoM margin. A handover node (a floating pose and a grasp pair)
+is valid when the giver can hold the object there, the taker can approach and close its jaw,
+and the giver can release and retreat, each move collision-free and stable. Cheapest decisive
+checks first; a failure names its cause (ik, collision, com_margin) and where it happened.
+Each node draws from its own generator, so a verdict does not depend on the search order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from planner.motion.ik import key_pose_targets
+from planner.regrasp.graph import (
+    HandoverNode,
+    PlacementNode,
+    Validation,
+)
+from planner.regrasp.plan_assembly import MotionPiece
+from planner.regrasp.probes import probe_grasps_with_waist
+from planner.regrasp.results import HandoverPoses, KeyPoses
+from planner.regrasp.settings import HANDS_INDEX
+from planner.regrasp.task import Task
+from planner.stability.evaluator import HoldSpec
+from planner.transforms import inverse
+
+
+def validate_placement(task: Task, node: PlacementNode, rng: np.random.Generator) -> Validation:
+    t, s = task, task.settings
+    side = node.hand
+    grasp = t.grasps[side][node.grasp]
+    T_obj = t.placements[node.placement]
+    T_grasp = T_obj @ grasp.T_obj_tcp
+    targets = key_pose_targets(T_grasp, approach_m=s.pregrasp_m, lift_m=s.lift_m)
+    T_pre, T_lift = targets["pregrasp"], targets["lift"]
+    # Cheapest decisive checks first: the grasp pose, then the held object there, then lift, then pre-grasp.
+    probe = t.grasp_probes.get(node)
+    if probe is not None and probe.q is None and node not in t.waist_probed:
+        probe_grasps_with_waist(t, side)
+        v = t.node_cache.get(node)
+        if v is not None:
+            return v  # the batch found what this validation would find first
+        probe = t.grasp_probes[node]
+    q_grasp = probe.q.copy() if probe is not None and probe.q is not None else t.solve_ik(side, T_grasp, t.home, rng)
+    if q_grasp is None:
+        return Validation(False, "ik", "grasp pose out of reach")
+    q_grasp[t.jaw[side]] = t.robot.upper[t.jaw[side]]
+    q_closed = q_grasp.copy()
+    q_closed[t.jaw[side]] = grasp.jaw_value
+    T_obj_tcp = inverse(T_obj) @ t.tcp(q_closed, side)
+    hold = HoldSpec(side, T_obj_tcp)
+    if t.constrained and not t.evaluator.evaluate_one(q_closed, hold).stable:
+        return Validation(False, "com_margin", "holding the object at the grasp pose")
+    cause, m2 = t.checker.classify(t.line(q_grasp, q_closed, 3), None, T_obj, grasping=side)
+    if cause:
+        return Validation(False, cause, "closing the jaw", margin_m=m2)
+    q_lift = t.solve_ik(side, T_lift, q_grasp, rng)
+    if q_lift is None:
+        return Validation(False, "ik", "lift pose out of reach")
+    q_lift[t.jaw[side]] = grasp.jaw_value
+    cause, m3 = t.checker.classify(t.line(q_closed, q_lift), hold, None)
+    if cause:
+        return Validation(False, cause, "lift", margin_m=m3)
+    q_pre = t.solve_ik(side, T_pre, q_grasp, rng)
+    if q_pre is None:
+        return Validation(False, "ik", "pre-grasp pose out of reach")
+    q_pre[t.jaw[side]] = t.robot.upper[t.jaw[side]]
+    cause, m1 = t.checker.classify(np.vstack([q_pre[None], t.line(q_pre, q_grasp)]), None, T_obj, grasping=side)
+    if cause:
+        return Validation(False, cause, "approach", margin_m=m1)
+    kp = KeyPoses(q_pre=q_pre, q_grasp_open=q_grasp, q_grasp=q_closed, q_lift=q_lift, T_obj=T_obj,
+                  T_obj_tcp=T_obj_tcp, margin=min(m1, m2, m3))
+    return Validation(True, margin_m=kp.margin, payload=kp)
+
+
+def validate_handover(task: Task, node: HandoverNode, rng: np.random.Generator) -> Validation:
+    t, s = task, task.settings
+    giver, taker = node.giver, node.taker
+    gg, tg = t.grasps[giver][node.giver_grasp], t.grasps[taker][node.taker_grasp]
+    T_obj = t.handover_poses[node.pose].T_world_obj
+    T_g = T_obj @ gg.T_obj_tcp
+    T_t = T_obj @ tg.T_obj_tcp
+    # Arms without the waist first: a turning waist swings the idle arm into the table. With the
+    # waist still the arms are independent, so the giver is solved and checked alone, once per
+    # (pose, giver grasp): most handover nodes fail there (the object or the giver's arm
+    # against the body), and the pairs of a pose share their giver grasps.
+    giver_key = (node.pose, node.giver_grasp, giver)
+    if giver_key not in t.giver_at:
+        q_g = t.solve_ik(giver, T_g, t.home, np.random.default_rng([t.seed, 2, *giver_key[:2], HANDS_INDEX[giver]]),
+                         arm_only=True)
+        checked = None
+        if q_g is not None:
+            q_g[t.jaw[giver]] = gg.jaw_value
+            hold = HoldSpec(giver, inverse(T_obj) @ t.tcp(q_g, giver))
+            checked = (q_g, hold, *t.checker.classify(q_g, hold, None))
+        t.giver_at[giver_key] = checked
+    checked = t.giver_at[giver_key]
+    q_both = None
+    if checked is not None:
+        q_g, hold_g, cause, m0 = checked
+        if cause:
+            return Validation(False, cause, "giver at the handover pose", margin_m=m0)
+        q_t = t.solve_ik(taker, T_t, q_g, rng, arm_only=True)
+        if q_t is not None:
+            q_both = q_g.copy()
+            q_both[t.arm_only[taker]] = q_t[t.arm_only[taker]]
+    if q_both is None:
+        # Both arms with the waist, which they share.
+        t.counters["ik_solves"] += 1
+        res = t.ik.solve({giver: T_g, taker: T_t}, t.home, rng, rest_q=t.home)
+        if res.q is None:
+            return Validation(False, "ik", "handover pose out of reach for both hands")
+        q_both = res.q
+        q_both[t.jaw[giver]] = gg.jaw_value
+        hold_g = HoldSpec(giver, inverse(T_obj) @ t.tcp(q_both, giver))
+        q_g = q_both.copy()
+        q_g[t.arm_only[taker]] = t.home[t.arm_only[taker]]
+        cause, m0 = t.checker.classify(q_g, hold_g, None)
+        if cause:
+            return Validation(False, cause, "giver at the handover pose", margin_m=m0)
+    q_both[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
+    # The giver at the handover pose with the taker arm still at home.
+    q_giver_at = q_g
+    G_g = hold_g.T_obj_tcp
+    T_pre_t = key_pose_targets(T_t, approach_m=s.pregrasp_m)["pregrasp"]
+    q_taker_pre = t.solve_ik(taker, T_pre_t, q_both, rng, arm_only=True)
+    if q_taker_pre is None:
+        return Validation(False, "ik", "taker pre-grasp out of reach")
+    q_taker_pre[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
+    T_pre_g = key_pose_targets(T_g, approach_m=s.pregrasp_m)["pregrasp"]
+    q_giver_pre = t.solve_ik(giver, T_pre_g, q_both, rng, arm_only=True)
+    if q_giver_pre is None:
+        return Validation(False, "ik", "giver retreat out of reach")
+    # Taker: home -> pre-grasp (T-RRT, arm only), approach, close.
+    q_taker_pre_full = q_giver_at.copy()
+    q_taker_pre_full[t.arm_only[taker]] = q_taker_pre[t.arm_only[taker]]
+    approach_end = q_both.copy()
+    cause, m1 = t.checker.classify(t.line(q_taker_pre_full, approach_end), hold_g, None, grasping=taker)
+    if cause:
+        return Validation(False, cause, "taker approach", margin_m=m1)
+    q_both_closed = approach_end.copy()
+    q_both_closed[t.jaw[taker]] = tg.jaw_value
+    G_t = inverse(T_obj) @ t.tcp(q_both_closed, taker)
+    hold_both = HoldSpec("both", G_g if giver == "left" else G_t)
+    hold_t = HoldSpec(taker, G_t)
+    q_released = q_both_closed.copy()
+    q_released[t.jaw[giver]] = t.robot.upper[t.jaw[giver]]
+    cause, m2 = t.checker.classify(t.line(q_both_closed, q_released, 3), hold_t, None, grasping=giver)
+    if cause:
+        return Validation(False, cause, "exchange", margin_m=m2)
+    # Giver: retreat along its approach axis, then home (arm only).
+    q_giver_back = q_released.copy()
+    q_giver_back[t.arm_only[giver]] = q_giver_pre[t.arm_only[giver]]
+    cause, m3 = t.checker.classify(t.line(q_released, q_giver_back), hold_t, None, grasping=giver)
+    if cause:
+        return Validation(False, cause, "giver retreat", margin_m=m3)
+    q_after = q_giver_back.copy()
+    q_after[t.arm_only[giver]] = t.home[t.arm_only[giver]]
+    q_close_open = approach_end
+    pieces = [
+        MotionPiece("transit", taker, np.array([q_giver_at, q_taker_pre_full]), giver, hold_g),
+        MotionPiece("approach", taker, t.line(q_taker_pre_full, q_close_open, 2), giver, hold_g),
+        MotionPiece("handover", "both", t.line(q_close_open, q_both_closed, 2), giver, hold_g),
+        MotionPiece("handover", "both", t.line(q_both_closed, q_released, 2), "both", hold_both),
+        MotionPiece("retreat", giver, t.line(q_released, q_giver_back, 2), taker, hold_t),
+        MotionPiece("transit", giver, np.array([q_giver_back, q_after]), taker, hold_t),
+    ]
+    hp = HandoverPoses(q_giver_at=q_giver_at, pieces=pieces, q_after=q_after, T_taker_obj_tcp=G_t,
+                       margin=min(m0, m1, m2, m3))
+    return Validation(True, margin_m=hp.margin, payload=hp)

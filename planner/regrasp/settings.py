@@ -1,0 +1,67 @@
+"""The regrasp planner's settings, and the hand configurations it plans."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from planner.grasping.grasps import GraspSettings
+from planner.grasping.handover import HandoverSettings
+from planner.motion.ik import IkSettings
+from planner.motion.smoothing import SmoothingSettings
+from planner.motion.timing import TimingSettings
+from planner.motion.trrt import TrrtSettings
+from planner.regrasp.graph import (
+    GraphWeights,
+)
+
+Side = Literal["left", "right"]
+HANDS_INDEX: dict[str, int] = {"left": 0, "right": 1}
+HANDS_OF: dict[str, tuple[Side, Side]] = {
+    "left-left": ("left", "left"),
+    "right-right": ("right", "right"),
+    "left-right": ("left", "right"),
+    "right-left": ("right", "left"),
+}
+
+
+class PlannerSettings(BaseModel):
+    """Every knob of the regrasp planner, with defaults (SI units)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    pregrasp_m: float = Field(0.06, gt=0, description="pre-grasp: back along the approach axis")
+    lift_m: float = Field(0.06, gt=0, description="lift: straight up from the placement")
+    approach_samples: int = Field(8, ge=2, description="states checked along approach and lift")
+    max_grasps: int = Field(400, ge=1, description="grasps per hand kept for the graph (closest to the CoM first)")
+    handover_pairs_per_pose: int = Field(12, ge=1, description="grasp pairs kept per handover pose (evenly spread)")
+    intermediate_placements: int = Field(6, ge=0, description="table spots x yaws besides start and goal")
+    handover: HandoverSettings = Field(default_factory=lambda: HandoverSettings(
+        positions=((0.40, 0.0, 0.30), (0.36, 0.0, 0.38), (0.42, 0.0, 0.22), (0.32, 0.0, 0.47))))
+    handover_poses: int = Field(96, ge=0, description="floating poses kept for handovers")
+    weights: GraphWeights = Field(default_factory=GraphWeights)
+    grasp: GraspSettings = Field(default_factory=GraspSettings)
+    ik: IkSettings = Field(default_factory=lambda: IkSettings(restarts=2, max_iterations=60))
+    # Larger steps and a stronger goal bias than T-RRT's exploration defaults: between key poses
+    # the trees mostly need to connect, and edges are still checked every 0.02 rad (measured:
+    # 2-5x less motion time on the built-in scenarios).
+    trrt: TrrtSettings = Field(default_factory=lambda: TrrtSettings(max_iterations=300, step_rad=0.6, goal_bias=0.25))
+    smoothing: SmoothingSettings = Field(default_factory=SmoothingSettings)
+    timing: TimingSettings = Field(default_factory=TimingSettings)
+    arm_only_restarts: int = Field(1, ge=0, description="random restarts of the arm-only IK attempt")
+    motion_attempts: int = Field(
+        2, ge=1, description="T-RRT runs per motion before it counts as failed: a run that reaches its round cap is "
+        "one random draw, not proof (measured on crouched, where 80 % of transit extensions hit the table: with one "
+        "run the return home failed on 2 of 20 seeds and took its goal node with it)")
+    parallel_motions: bool = Field(
+        True, description="plan the motions of a candidate path's hops in this process and one forked helper at once, "
+        "where forking is safe and a second core exists (results are the same either way: each hop draws from its "
+        "own generator)")
+    waist_reach_m: float = Field(0.15, ge=0, description="how much farther the waist lets a hand reach, for the cheap reach filter")
+    screen_valid: int = Field(4, ge=1, description="start/goal nodes validated up front until this many are valid")
+    ready_height_m: float = Field(0.15, gt=0, description="ready posture: the hand this far above the highest table top")
+    via_lift_m: float = Field(0.15, gt=0, description="via posture: the hand lifted this far above a motion's end")
+    planning_buffer_m: float = Field(
+        1e-3, ge=0, description="plan to threshold + this, so small IK residuals never bring a point below the threshold")
+

@@ -1,0 +1,84 @@
+"""The regrasp task's state validity checker: whether robot states are valid, with their clearance.
+
+Like OMPL's ``StateValidityChecker``, it answers validity and clearance; the clearance is the
+CoM margin (the signed distance of the system CoM's ground projection to the support polygon's
+edge). A state is valid when it is collision-free and, for the constrained planner
+(threshold > 0), its margin reaches the planning threshold. It also names the first failing
+cause over a run of states, the failure counts the planner reports.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Callable
+
+import numpy as np
+
+from planner.scene.collision import CollisionWorld
+from planner.stability.evaluator import HoldSpec, StateEvaluator
+
+
+class StateChecker:
+    """Validity and clearance of states of one task (its stance, evaluator and collision world).
+
+    Counts the states it checks in ``counters`` (the task's, so that the plan reports them).
+    """
+
+    def __init__(self, evaluator: StateEvaluator, world: CollisionWorld, base_pose: np.ndarray, constrained: bool,
+                 counters: Counter):
+        self.evaluator = evaluator
+        self.world = world
+        self.base_pose = base_pose
+        self.constrained = constrained
+        self.counters = counters
+
+    def validity(self, hold: HoldSpec | None, free_object: np.ndarray | None, grasping: str | None = None,
+                 active: np.ndarray | None = None) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+        """validity(Q) -> (valid, margin): collision-free and (if constrained) margin >= threshold."""
+        held = [(hold.tcp_side, hold.T_obj_tcp)] if hold is not None else []
+
+        def check(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            Q = np.atleast_2d(Q)
+            batch = self.evaluator.evaluate(Q, hold, active=active)
+            self.counters["com_states"] += len(Q)
+            ok = batch.stable.copy() if self.constrained else np.ones(len(Q), dtype=bool)
+            if ok.any():
+                idx = np.flatnonzero(ok)
+                res = self.world.check_batch(self.base_pose, Q[idx], held=held,
+                                             free_object_pose=None if held else free_object, grasping=grasping)
+                self.counters["collision_states"] += len(idx)
+                ok[idx] = ~res.collides
+            return ok, batch.margin
+
+        return check
+
+    def classify(self, Q: np.ndarray, hold: HoldSpec | None, free_object: np.ndarray | None,
+                 grasping: str | None = None) -> tuple[str | None, float]:
+        """The first failing cause over states Q (com_margin before collision), and the min margin."""
+        causes, margins = self.classify_groups(np.atleast_2d(Q), 1, hold, free_object, grasping)
+        return causes[0], float(margins[0])
+
+    def classify_groups(self, Q: np.ndarray, groups: int, hold: HoldSpec | None, free_object: np.ndarray | None,
+                        grasping: str | None = None) -> tuple[list[str | None], np.ndarray]:
+        """:meth:`classify` for ``groups`` equal runs of consecutive states of Q at once: each run's first
+        failing cause and min margin. ``free_object`` is one pose, or one per state (N, 4, 4); runs that
+        fail on the margin are not checked for collision."""
+        k = len(Q) // groups
+        batch = self.evaluator.evaluate(Q, hold)
+        self.counters["com_states"] += len(Q)
+        margins = batch.margin.reshape(groups, k).min(axis=1)
+        unstable = ~batch.stable.reshape(groups, k).all(axis=1) if self.constrained else np.zeros(groups, dtype=bool)
+        causes: list[str | None] = ["com_margin" if u else None for u in unstable]
+        check = np.flatnonzero(~unstable)
+        if check.size:
+            rows = (check[:, None] * k + np.arange(k)).ravel()
+            held = [(hold.tcp_side, hold.T_obj_tcp)] if hold is not None else []
+            if free_object is not None and np.ndim(free_object) == 3:
+                free_object = free_object[rows]
+            res = self.world.check_batch(self.base_pose, Q[rows], held=held,
+                                         free_object_pose=None if held else free_object, grasping=grasping)
+            self.counters["collision_states"] += len(rows)
+            for g in check[res.collides.reshape(-1, k).any(axis=1)]:
+                causes[g] = "collision"
+        return causes, margins
+
