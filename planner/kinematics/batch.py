@@ -14,15 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.compiled.tree_kernels import ROOT_SLOT, tree_from_rows, walk, weighted_sum
+from planner.kinematics.joint_table import affine, joint_table
 from planner.robot.model import RobotModel
 from planner.transforms import quat_to_matrix
-from planner.compiled.tree_kernels import ROOT_SLOT, tree_from_rows, walk, weighted_sum
-
-_AXIS_KIND = {
-    "JointModelRX": ("R", 0), "JointModelRY": ("R", 1), "JointModelRZ": ("R", 2),
-    "JointModelPX": ("P", 0), "JointModelPY": ("P", 1), "JointModelPZ": ("P", 2),
-    "JointModelRevoluteUnaligned": ("RU", -1), "JointModelPrismaticUnaligned": ("PU", -1),
-}
 
 
 @dataclass(frozen=True)
@@ -51,38 +46,30 @@ class BatchKinematics:
 
     def __init__(self, robot: RobotModel):
         self.robot = robot
-        model = robot.pin_model
-        col_of_pinq = {int(p): (int(s), float(m), float(o)) for p, s, m, o in zip(robot.pin_q_index, robot.q_source, robot.q_mult, robot.q_offset)}
+        table = joint_table(robot)
         steps: list[_JointStep] = []
-        for jid in range(2, model.njoints):
-            jm = model.joints[jid]
-            short = jm.shortname()
-            if short not in _AXIS_KIND:
-                raise ValueError(f"joint {model.names[jid]!r} of type {short} is not supported by the batch path")
-            kind, ax = _AXIS_KIND[short]
-            if kind in ("RU", "PU"):
-                axis = np.array(jm.extract().axis if hasattr(jm.extract(), "axis") else jm.axis, dtype=float)
-            else:
-                axis = np.eye(3)[ax]
-            placement = model.jointPlacements[jid]
-            rot = np.array(placement.rotation)
-            src, mult, off = col_of_pinq[int(model.idx_qs[jid])]
-            inertia = model.inertias[jid]
+        for row in table.rows[2:]:
+            if row.kind is None:
+                raise ValueError(f"joint {row.name!r} of type {row.type_name} is not supported by the batch path")
+            src, mult, off = row.source
+            if src < 0:
+                raise ValueError(f"joint {row.name!r} is driven by no configuration column")
+            rot = np.array(row.placement.rotation)
             steps.append(
                 _JointStep(
-                    jid=jid, parent=int(model.parents[jid]),
+                    jid=row.jid, parent=row.parent,
                     rot0=None if np.allclose(rot, np.eye(3), atol=1e-15) else rot,
-                    pos0=np.array(placement.translation), kind=kind[0] if kind in ("R", "P") else kind,
-                    axis_index=ax, axis=axis, q_col=src, mult=mult, offset=off,
-                    mass=float(inertia.mass), lever=np.array(inertia.lever),
+                    pos0=np.array(row.placement.translation), kind=row.kind,
+                    axis_index=row.axis_index, axis=row.axis, q_col=src, mult=mult, offset=off,
+                    mass=row.mass, lever=row.lever,
                 )
             )
         self._steps = steps
-        root_inertia = model.inertias[1]
-        self._root_mass = float(root_inertia.mass)
-        self._root_lever = np.array(root_inertia.lever)
+        root = table.rows[1]
+        self._root_mass = root.mass
+        self._root_lever = root.lever
         self.total_mass = float(sum(s.mass for s in steps) + self._root_mass)
-        self._njoints = model.njoints
+        self._njoints = table.njoints
         self._base: tuple[bytes, np.ndarray | None] = (b"", None)  # the last base pose and its rotation
         # The tree by joint id; id 1 (the floating base) is filled by forward(), id 0 (the universe) unused.
         self._tree = tree_from_rows([ROOT_SLOT, ROOT_SLOT, *(s.slot(s.parent) for s in steps)])
@@ -90,7 +77,7 @@ class BatchKinematics:
         self._mass_slots = np.array([m[0] for m in massive], dtype=np.int64)
         self._slot_mass = np.array([m[1] for m in massive])
         self._slot_lever = np.array([m[2] for m in massive]).reshape(-1, 3)
-        self._frames = {f.name: (int(f.parentJoint), np.array(f.placement.rotation), np.array(f.placement.translation)) for f in model.frames}
+        self._frames = {name: (jid, np.array(pl.rotation), np.array(pl.translation)) for name, (jid, pl) in table.frames.items()}
 
     def forward(self, base_pose: np.ndarray, Q: np.ndarray) -> tuple[list, list]:
         """World rotations ``(3, 3, N)`` and positions ``(3, N)`` of every joint frame, by pinocchio joint id.
@@ -120,7 +107,7 @@ class BatchKinematics:
         return self._com_from(Rs, ps)
 
     def _com_from(self, Rs: list, ps: list) -> np.ndarray:
-        R, p = _block(Rs), _block(ps)
+        R, p = frames_block(Rs), frames_block(ps)
         return weighted_sum(R, p, self._mass_slots, self._slot_mass, self._slot_lever, np.zeros(3), self.total_mass)
 
     def frame(self, Rs: list, ps: list, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -130,7 +117,7 @@ class BatchKinematics:
         except KeyError:
             raise ValueError(f"unknown frame {name!r}") from None
         R = _rotate(Rs[jid], R0)
-        p = _affine(ps[jid], Rs[jid], p0)
+        p = affine(ps[jid], Rs[jid], p0)
         return np.moveaxis(R, 2, 0), p.T
 
     def com_and_frames(self, base_pose: np.ndarray, Q: np.ndarray, frames: list[str]) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, np.ndarray]]]:
@@ -138,21 +125,12 @@ class BatchKinematics:
         return self._com_from(Rs, ps), {f: self.frame(Rs, ps, f) for f in frames}
 
 
-def _block(frames: list) -> np.ndarray:
+def frames_block(frames: list) -> np.ndarray:
     """The ``(njoints, ...)`` block whose views a :meth:`BatchKinematics.forward` list holds."""
     base = frames[1].base
     if base is None or base.shape[1:] != frames[1].shape:
         raise ValueError("frames must come from BatchKinematics.forward")
     return base
-
-
-def _affine(p: np.ndarray, R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """p + R v for a constant vector v."""
-    out = p.copy()
-    for j in range(3):
-        if v[j] != 0.0:
-            out += R[:, j] * v[j]
-    return out
 
 
 def _rotate(R: np.ndarray, R0: np.ndarray) -> np.ndarray:

@@ -22,7 +22,6 @@ from typing import Mapping, Sequence
 import numpy as np
 import pinocchio as pin
 from scipy.linalg.lapack import dposv as _dposv
-from pydantic import BaseModel, ConfigDict, Field
 
 from planner.kinematics.batch import BatchKinematics
 from planner.motion.ik_batch import BatchIk

@@ -30,7 +30,7 @@ import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field
 
 from planner.compiled.box_kernels import bodies_world, hypotheses_hit, screen_pairs
-from planner.kinematics.batch import BatchKinematics, _block
+from planner.kinematics.batch import BatchKinematics, frames_block
 from planner.scene.objects import ObjectModel
 from planner.robot.model import RobotModel
 from planner.robot.spec import Side
@@ -512,7 +512,7 @@ class CollisionWorld:
         n = self.n_robot
         if out is None:
             out = (np.empty((n, N, 3, 3)), np.empty((n, N, 3)))
-        bodies_world(_block(Rs), _block(ps), self._robot_joints, self._local_R[:n], self._local_p[:n], *out)
+        bodies_world(frames_block(Rs), frames_block(ps), self._robot_joints, self._local_R[:n], self._local_p[:n], *out)
         return out
 
     def _all_world(self, Rs: list, ps: list, T_obj: np.ndarray | None, N: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,16 +1,10 @@
 """Stability of robot states with a held object: system CoM, margin and object pose, in batches.
 
 The planner's T-RRT and the stability survey evaluate tens of thousands of
-configurations of one robot in one stance. With the stance fixed, the feet and
-pelvis never move, and every joint that a batch does not vary (legs, neck, the
-idle arm, the jaws) only carries its links rigidly along with the nearest moving
-joint above it. :class:`ReducedKinematics` exploits this: it folds every fixed
-part into a constant world mass or into the composite body of the moving joint
-it hangs from, so a batch walks only the moving joints (12 for waist + one arm
-instead of 39 pinocchio joints). It is exact, not an approximation: the tests
-compare it with pinocchio's ``centerOfMass`` to 1e-9.
+configurations of one robot in one stance; the robot's CoM comes from the batched
+kinematics of the joints a batch moves (:class:`planner.kinematics.reduced.ReducedKinematics`).
 
-The system CoM is the paper's equation 1 (:func:`planner.stability.support_polygon.system_com`)
+The system CoM is the paper's equation 1 (:func:`planner.stability.com.system_com`)
 and the margin is the signed distance of its ground projection to the support
 polygon edge (:meth:`planner.stability.support_polygon.SupportPolygon.margin`).
 
@@ -28,18 +22,18 @@ from typing import Literal, Sequence
 import numpy as np
 import pinocchio as pin
 
-from planner.kinematics.batch import _affine
+from planner.kinematics.reduced import ReducedKinematics
 from planner.robot.model import RobotModel
-from planner.stability.support_polygon import system_com
+from planner.stability.com import object_com_world, system_com
 from planner.stability.stances import Stance
 from planner.transforms import inverse
-from planner.compiled.tree_kernels import tree_spec, walk, weighted_sum
 
 HoldSide = Literal["left", "right", "both"]
 #: How many reduced kinematic trees one evaluator keeps (one per active joint set / fixed posture).
 REDUCED_CACHE_SIZE = 16
 #: Batches up to this size go through pinocchio state by state (no reduced-tree set-up).
 SMALL_BATCH = 16
+_I3 = np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -109,209 +103,6 @@ class StateOne:
     object_pose: np.ndarray | None
 
 
-@dataclass(frozen=True)
-class _Step:
-    jid: int
-    anchor: int  # index of the parent step, -1 for the fixed world part
-    R_rel: np.ndarray | None  # None: identity
-    p_rel: np.ndarray
-    kind: str  # "R", "P", "RU", "PU"
-    axis_index: int
-    axis: np.ndarray
-    col: int
-    mult: float
-    offset: float
-    mass: float
-    lever: np.ndarray  # composite CoM in the joint frame
-
-
-_KINDS = {
-    "JointModelRX": ("R", 0), "JointModelRY": ("R", 1), "JointModelRZ": ("R", 2),
-    "JointModelPX": ("P", 0), "JointModelPY": ("P", 1), "JointModelPZ": ("P", 2),
-    "JointModelRevoluteUnaligned": ("RU", -1), "JointModelPrismaticUnaligned": ("PU", -1),
-}
-
-
-class ReducedKinematics:
-    """Exact batched CoM and frame poses when only ``active`` wire columns vary.
-
-    Built once for a base pose, a reference configuration (giving the values of
-    every fixed joint) and the active columns; evaluating a batch then costs a
-    few vector operations per active joint.
-    """
-
-    def __init__(
-        self,
-        robot: RobotModel,
-        base_pose: np.ndarray,
-        q_ref: np.ndarray,
-        active: Sequence[int],
-        frames: Sequence[str] = (),
-        data: pin.Data | None = None,
-    ):
-        """``data``: a pinocchio scratch buffer to reuse (creating one costs more than the rest)."""
-        st = _statics(robot)
-        if data is None:
-            data = robot.pin_model.createData()
-        self.robot = robot
-        self.active = np.array(sorted(set(int(a) for a in active)), dtype=int)
-        self.q_ref = np.array(q_ref, dtype=float)
-        active_set = set(self.active.tolist())
-        pin.forwardKinematics(robot.pin_model, data, robot.to_pin_q(np.asarray(base_pose, float), self.q_ref))
-        oMi = list(data.oMi)  # one copy of the vector (each indexed access would copy it again)
-
-        # anchor[j]: step index of the nearest moving joint at or above j; -1 = fixed in the world.
-        anchor = [-1] * st.njoints
-        steps_raw: list[dict] = []
-        for jid in range(1, st.njoints):
-            parent_anchor = anchor[st.parents[jid]] if jid > 1 else -1
-            col, mult, off = st.source[jid]
-            if jid < 2 or col not in active_set:
-                anchor[jid] = parent_anchor
-                continue
-            kind, ax, axis = st.kinds[jid]
-            if kind is None:
-                raise ValueError(f"joint {st.names[jid]!r} of type {axis} is not supported")
-            parent_frame = oMi[steps_raw[parent_anchor]["jid"]] if parent_anchor >= 0 else pin.SE3.Identity()
-            rel = parent_frame.actInv(oMi[st.parents[jid]] * st.placements[jid])
-            R_rel = np.array(rel.rotation)
-            steps_raw.append(dict(
-                jid=jid, anchor=parent_anchor, R_rel=None if np.abs(R_rel - _I3).max() < 1e-14 else R_rel,
-                p_rel=np.array(rel.translation), kind=kind, axis_index=ax, axis=axis,
-                col=col, mult=mult, offset=off, mass=0.0, moment=np.zeros(3),
-            ))
-            anchor[jid] = len(steps_raw) - 1
-
-        fixed_mass, fixed_moment = 0.0, np.zeros(3)
-        for jid in range(1, st.njoints):
-            m, lever = st.masses[jid]
-            if m <= 0.0:
-                continue
-            c_world = oMi[jid].act(lever)
-            a = anchor[jid]
-            if a < 0:
-                fixed_mass += m
-                fixed_moment += m * c_world
-            else:
-                s = steps_raw[a]
-                s["mass"] += m
-                s["moment"] += m * oMi[s["jid"]].actInv(c_world)
-        self.total_mass = float(fixed_mass + sum(s["mass"] for s in steps_raw))
-        self._fixed_moment = fixed_moment
-        self._steps = [
-            _Step(
-                jid=s["jid"], anchor=s["anchor"], R_rel=s["R_rel"], p_rel=s["p_rel"], kind=s["kind"],
-                axis_index=s["axis_index"], axis=s["axis"], col=s["col"], mult=s["mult"], offset=s["offset"],
-                mass=s["mass"], lever=s["moment"] / s["mass"] if s["mass"] > 0 else np.zeros(3),
-            )
-            for s in steps_raw
-        ]
-        steps = self._steps
-        self._tree = tree_spec(parent=[s.anchor for s in steps], R0=[s.R_rel for s in steps], p0=[s.p_rel for s in steps],
-                               kind=[s.kind for s in steps], axis_index=[max(s.axis_index, 0) for s in steps],
-                               axis=[s.axis for s in steps], col=[s.col for s in steps], mult=[s.mult for s in steps],
-                               offset=[s.offset for s in steps])
-        self._mass_slots = np.array([k for k, s in enumerate(steps) if s.mass > 0.0], dtype=np.int64)
-        self._slot_mass = np.array([steps[k].mass for k in self._mass_slots], dtype=float)
-        self._slot_lever = np.array([steps[k].lever for k in self._mass_slots], dtype=float).reshape(-1, 3)
-        self._frames: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
-        for name in frames:
-            parent_joint, placement = st.frame(robot, name)
-            world = oMi[parent_joint] * placement
-            a = anchor[parent_joint]
-            rel = oMi[self._steps[a].jid].actInv(world) if a >= 0 else world
-            self._frames[name] = (a, np.array(rel.rotation), np.array(rel.translation))
-
-    @property
-    def frames(self) -> tuple[str, ...]:
-        return tuple(self._frames)
-
-    def _forward(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rotations (S, 3, 3, N) and positions (S, 3, N) of every moving joint frame."""
-        n = Q.shape[0]
-        R = np.empty((self._tree.size, 3, 3, n))
-        p = np.empty((self._tree.size, 3, n))
-        walk(self._tree, Q, R, p)
-        return R, p
-
-    def _com(self, Rs: np.ndarray, ps: np.ndarray) -> np.ndarray:
-        return weighted_sum(Rs, ps, self._mass_slots, self._slot_mass, self._slot_lever, self._fixed_moment, self.total_mass)
-
-    def _frame(self, Rs: list[np.ndarray], ps: list[np.ndarray], name: str, n: int) -> tuple[np.ndarray, np.ndarray]:
-        a, R0, p0 = self._frames[name]
-        if a < 0:
-            return np.repeat(R0[None], n, axis=0), np.repeat(p0[None], n, axis=0)
-        R = np.einsum("ijn,jk->nik", Rs[a], R0)
-        p = _affine(ps[a], Rs[a], p0).T
-        return R, p
-
-    def com(self, Q: np.ndarray) -> np.ndarray:
-        """Robot CoM in the world, (N, 3)."""
-        Q = np.atleast_2d(np.asarray(Q, dtype=float))
-        Rs, ps = self._forward(Q)
-        return self._com(Rs, ps)
-
-    def com_and_frames(self, Q: np.ndarray, frames: Sequence[str] | None = None) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, np.ndarray]]]:
-        """Robot CoM (N, 3) and world (R (N, 3, 3), p (N, 3)) of the requested frames (default: all built)."""
-        Q = np.atleast_2d(np.asarray(Q, dtype=float))
-        n = Q.shape[0]
-        Rs, ps = self._forward(Q)
-        names = self.frames if frames is None else frames
-        return self._com(Rs, ps), {f: self._frame(Rs, ps, f, n) for f in names}
-
-
-_I3 = np.eye(3)
-
-
-@dataclass(frozen=True)
-class _Statics:
-    """Per-robot model data read once: pinocchio's vector accessors copy on every index."""
-
-    robot: RobotModel
-    njoints: int
-    names: list
-    parents: list
-    source: list  # per joint id: (wire column, mult, offset); (-1, 1, 0) for the root
-    kinds: list  # per joint id: (kind, axis index, unit axis) or (None, -1, type name)
-    placements: list
-    masses: list  # per joint id: (mass, lever)
-    frames: dict
-
-    def frame(self, robot: RobotModel, name: str) -> tuple[int, pin.SE3]:
-        if name not in self.frames:
-            robot.frame_id(name)  # raises the clear error
-        return self.frames[name]
-
-
-def _statics(robot: RobotModel) -> _Statics:
-    """The model's joint tables for the reduced kinematics, derived once per robot model."""
-    return robot.derived("evaluator_statics", lambda: _build_statics(robot))
-
-
-def _build_statics(robot: RobotModel) -> _Statics:
-    model = robot.pin_model
-    src_of_pinq = {int(p): (int(s), float(m), float(o)) for p, s, m, o in zip(robot.pin_q_index, robot.q_source, robot.q_mult, robot.q_offset)}
-    idx_qs, parents, joints, inertias = list(model.idx_qs), list(model.parents), list(model.joints), list(model.inertias)
-    kinds, source = [], []
-    for jid, jm in enumerate(joints):
-        short = jm.shortname()
-        if short in _KINDS:
-            kind, ax = _KINDS[short]
-            axis = np.eye(3)[ax] if ax >= 0 else np.array(jm.extract().axis, dtype=float)
-            kinds.append((kind, ax, axis / np.linalg.norm(axis)))
-        else:
-            kinds.append((None, -1, short))
-        source.append(src_of_pinq.get(int(idx_qs[jid]), (-1, 1.0, 0.0)) if jid >= 2 else (-1, 1.0, 0.0))
-    frames = {f.name: (int(f.parentJoint), f.placement.copy()) for f in model.frames}
-    st = _Statics(
-        robot=robot, njoints=model.njoints, names=list(model.names), parents=[int(p) for p in parents], source=source, kinds=kinds,
-        placements=[p.copy() for p in model.jointPlacements],
-        masses=[(float(i.mass), np.array(i.lever)) for i in inertias], frames=frames,
-    )
-    return st
-
-
-
 class StateEvaluator:
     """System CoM (paper eq. 1), margin, stability and object pose of robot states in one stance.
 
@@ -376,8 +167,7 @@ class StateEvaluator:
         """States from the robot's CoM (N, 3) and the object's world poses (N, 4, 4), or None when nothing is held:
         the system CoM (eq. 1), its margin and whether it is stable."""
         if object_pose is not None and self.object_mass > 0.0:
-            obj_com = object_pose[:, :3, :3] @ self.com_local + object_pose[:, :3, 3]
-            com = system_com(robot_com, self.robot_mass, obj_com, self.object_mass)
+            com = system_com(robot_com, self.robot_mass, object_com_world(object_pose, self.com_local), self.object_mass)
         else:
             com = robot_com
         margin = self.polygon.margin(com[:, :2])
@@ -449,8 +239,7 @@ class StateEvaluator:
             M = pin.updateFramePlacement(model, data, self._tcp_fid[hold.tcp_side])
             object_pose = M.homogeneous @ hold.T_tcp_obj
             if self.object_mass > 0.0:
-                obj_com = object_pose[:3, :3] @ self.com_local + object_pose[:3, 3]
-                com = system_com(robot_com, self.robot_mass, obj_com, self.object_mass)
+                com = system_com(robot_com, self.robot_mass, object_com_world(object_pose, self.com_local), self.object_mass)
         margin = self.polygon.margin_one(float(com[0]), float(com[1]))
         thr = self.threshold_m if threshold_m is None else threshold_m
         return StateOne(robot_com=robot_com, com=com, margin=margin, stable=margin >= thr, object_pose=object_pose)

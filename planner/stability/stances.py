@@ -17,11 +17,10 @@ import pinocchio as pin
 import yaml
 from pydantic import ValidationError
 
-from schemas.stance import SUPPORT_CENTRE, FootPlacement, StanceDef, StanceResult
-
 from planner.errors import StanceError
 from planner.robot.model import RobotModel, UnknownNameError, center_of_mass
 from planner.stability.support_polygon import SupportPolygon, support_polygon
+from schemas.stance import SUPPORT_CENTRE, FootPlacement, StanceDef, StanceResult
 
 BUILTIN_STANCES = ("upright", "staggered", "crouched", "one-legged")
 #: IK convergence: soles within 0.05 mm and 1e-4 rad of their targets.

@@ -1,4 +1,4 @@
-"""Static stability: the support polygon, the CoM margin, and the paper's equation 1.
+"""Static stability: the support polygon and the CoM margin.
 
 A state is stable when the ground projection of the robot + held object CoM lies
 inside the support polygon (convex hull of the soles in contact) at least
@@ -8,10 +8,11 @@ outside, so a margin below the threshold reads directly as "how far from stable"
 
 from __future__ import annotations
 
-from planner.errors import DegeneratePolygonError
 import math
 
 import numpy as np
+
+from planner.errors import DegeneratePolygonError
 
 
 def convex_hull_ccw(points: np.ndarray) -> np.ndarray:
@@ -121,23 +122,3 @@ class SupportPolygon:
             if d2 < best:
                 best = d2
         return -math.sqrt(best)
-
-
-def system_com(robot_com: np.ndarray, robot_mass: float, object_com: np.ndarray | None, object_mass: float) -> np.ndarray:
-    """The paper's equation 1: (M G_robot + m G_object) / (M + m); batched over leading axes.
-
-    ``object_com`` is None, or rows may be NaN-free only where the object is held;
-    pass ``object_mass = 0`` (or None) when nothing is held.
-    """
-    if object_com is None or object_mass == 0.0:
-        return np.asarray(robot_com, dtype=float)
-    return (robot_mass * np.asarray(robot_com) + object_mass * np.asarray(object_com)) / (robot_mass + object_mass)
-
-
-def held_object_com(tcp_R: np.ndarray, tcp_p: np.ndarray, grasp_in_tcp: np.ndarray, com_local: np.ndarray) -> np.ndarray:
-    """World CoM of an object held rigidly by a hand: T_tcp * T_grasp * com_local (batched over N).
-
-    ``grasp_in_tcp`` is the 4x4 object frame expressed in the TCP frame.
-    """
-    c_tcp = grasp_in_tcp[:3, :3] @ com_local + grasp_in_tcp[:3, 3]
-    return tcp_p + np.einsum("nij,j->ni", tcp_R, c_tcp)

@@ -7,13 +7,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from planner.stability.com import object_com_world, system_com
 from planner.stability.support_polygon import (
     DegeneratePolygonError,
     SupportPolygon,
     convex_hull_ccw,
-    held_object_com,
     support_polygon,
-    system_com,
 )
 
 SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
@@ -30,13 +29,14 @@ def test_point_mass_shifts_the_com_by_m_d_over_M_plus_m(hrp5p, stances):
     assert np.linalg.norm(system_com(robot_com, M, robot_com + d, 10.0) - robot_com) == pytest.approx(0.0407, abs=5e-4)
 
 
-def test_held_object_com_follows_the_tcp():
-    R = np.repeat(np.eye(3)[None], 2, axis=0)
-    p = np.array([[1.0, 0, 0], [0, 2.0, 0]])
-    grasp = np.eye(4)
-    grasp[:3, 3] = [0, 0, 0.1]
-    com = held_object_com(R, p, grasp, np.array([0.0, 0.05, 0.0]))
-    assert com == pytest.approx(np.array([[1.0, 0.05, 0.1], [0.0, 2.05, 0.1]]))
+def test_object_com_follows_the_object_pose():
+    poses = np.repeat(np.eye(4)[None], 2, axis=0)
+    poses[0, :3, 3] = [1.0, 0.0, 0.1]
+    poses[1, :3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # 90 degrees about z
+    poses[1, :3, 3] = [0.0, 2.0, 0.1]
+    com = object_com_world(poses, np.array([0.0, 0.05, 0.0]))
+    assert com == pytest.approx(np.array([[1.0, 0.05, 0.1], [-0.05, 2.0, 0.1]]))
+    assert object_com_world(poses[1], np.array([0.0, 0.05, 0.0])) == pytest.approx(com[1])
 
 
 @pytest.mark.parametrize(

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from planner.stability.evaluator import HoldSpec, ReducedKinematics, StateEvaluator
+from planner.kinematics.reduced import ReducedKinematics
+from planner.stability.evaluator import HoldSpec, StateEvaluator
 
 from .conftest import COM_LOCAL
 
