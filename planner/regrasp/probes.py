@@ -121,7 +121,7 @@ def probe_givers(task: Task, nodes: list[HandoverNode]) -> None:
 
     Most handover nodes fail right there (the giver's arm or the object against the body); one
     by one that was 4-10 ms per pair. Where the arm alone misses (the same two attempts as the
-    one-by-one solve), the node's validation lets the waist help, as before."""
+    one-by-one solve), the node's validation lets the waist help."""
     keys = [k for k in dict.fromkeys((n.pose, n.giver_grasp, n.giver) for n in nodes) if k not in task.giver_at]
     for side in ("left", "right"):
         mine = [k for k in keys if k[2] == side]
