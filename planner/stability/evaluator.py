@@ -145,7 +145,13 @@ class StateEvaluator:
         key = (act, np.asarray(q_ref, dtype=float)[fixed].tobytes())
         rk = self._cache.get(key)
         if rk is None:
-            rk = ReducedKinematics(self.robot, self.base_pose, q_ref, act, frames=tuple(self.tcp_frames.values()), data=self._data)
+            # Built at a canonical value of the active joints (zero), so that the tree, and with it
+            # every last bit of the CoMs it computes, depends on the key alone: not on which state of
+            # a batch happened to build it first (the evaluation order differs between a serial run
+            # and one that shares its motions with a forked helper).
+            q_canon = np.array(q_ref, dtype=float)
+            q_canon[list(act)] = 0.0
+            rk = ReducedKinematics(self.robot, self.base_pose, q_canon, act, frames=tuple(self.tcp_frames.values()), data=self._data)
             self._cache[key] = rk
             if len(self._cache) > REDUCED_CACHE_SIZE:
                 self._cache.popitem(last=False)

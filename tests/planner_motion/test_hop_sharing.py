@@ -25,20 +25,22 @@ def _run(script: str, timeout_s: float = 300.0):
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
-def test_shared_hops_give_the_plan_planned_one_by_one():
+@pytest.mark.parametrize("scenario", [str(SMALL_BOX), "drill-handover"], ids=["small-box", "drill-handover"])
+def test_shared_hops_give_the_plan_planned_one_by_one(scenario):
     """Each hop draws from its own generator: the helper changes where a motion is planned, not what it
-    is. A handover plan, so the handover's own motions (planned by the helper) come back too."""
+    is, to the last bit of every point (CoM, margin and object pose included). Handover plans, so the
+    handover's own motions (planned by the helper) come back too."""
     out = _run(f"""
         import json
         from planner.jobs.plan_job import PlanOptions, build_task, plan_scenario
         from planner.regrasp.settings import PlannerSettings
         from planner.scene.scenarios import load_scenario
-        sc = load_scenario({str(SMALL_BOX)!r})
+        sc = load_scenario({scenario!r})
         docs = {{}}
         for shared in (True, False):
             task = build_task(sc, PlannerSettings(parallel_motions=shared))
             docs[shared] = plan_scenario(sc, PlanOptions(hands="right-left"), task=task)
-        print(json.dumps({{str(k): {{"status": d["status"], "q": [p["q"] for p in d["trajectory"]],
+        print(json.dumps({{str(k): {{"status": d["status"], "q": d["trajectory"],
                            "helper": d["stats"]["configurations"]["right-left"]["hops_by_helper"],
                            "counters": d["stats"]["counters"],
                            "errors": d["stats"]["configurations"]["right-left"].get("helper_errors")}}
