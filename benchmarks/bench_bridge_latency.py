@@ -45,7 +45,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from robot_bridge.dispatcher import Dispatcher, DispatchSettings, ExecutionResult, split_segments  # noqa: E402
+from robot_bridge.dispatcher import (  # noqa: E402
+    Dispatcher,
+    DispatchSettings,
+    ExecutionResult,
+    split_segments,
+)
 from robot_bridge.settings import BridgeSettings, Keys  # noqa: E402
 from robot_bridge.zenoh_session import encode, open_session  # noqa: E402
 from schemas.bridge import ExecStatus  # noqa: E402

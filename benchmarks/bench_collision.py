@@ -14,14 +14,15 @@ import time
 
 import numpy as np
 
-from planner.scene.collision import CollisionWorld, hand_geometry
 from planner.grasping.grasps import plan_grasps
 from planner.grasping.handover import handover_poses
+from planner.robot.model import load_robot
+from planner.scene.bodies import environment_boxes
+from planner.scene.collision import CollisionWorld
+from planner.scene.hand import hand_geometry
 from planner.scene.objects import build_object
 from planner.scene.placements import instantiate_placements, reference_poses
-from planner.robot.model import load_robot
 from planner.scene.scenarios import builtin_names, load_builtin
-from planner.scene.collision import environment_boxes
 from planner.stability.stances import solve_stance
 from planner.transforms import pose7_to_matrix
 

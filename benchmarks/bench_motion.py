@@ -13,13 +13,13 @@ import time
 
 import numpy as np
 
+from planner.kinematics.batch import BatchKinematics
 from planner.motion.ik import IkSolver
 from planner.motion.ik_batch import BatchIk
-from planner.kinematics.batch import BatchKinematics
-from planner.robot.model import load_robot
-from planner.stability.stances import solve_stance
-from planner.stability.evaluator import HoldSpec, StateEvaluator
 from planner.motion.trrt import ExploreLeg, TrrtSettings, explore, plan_motion
+from planner.robot.model import load_robot
+from planner.stability.evaluator import HoldSpec, StateEvaluator
+from planner.stability.stances import solve_stance
 
 COM_LOCAL = np.array([0.15, 0.08, 0.15])
 
@@ -129,7 +129,8 @@ def main() -> None:
     if args.no_collision:
         return
     try:
-        from planner.scene.collision import CollisionWorld, EnvBox
+        from planner.scene.bodies import EnvBox
+        from planner.scene.collision import CollisionWorld
         from planner.scene.objects import build_object
         from schemas.scenario import ObjectDef
     except ImportError as exc:  # the collision checker is another area's work

@@ -14,7 +14,6 @@ import os
 import threading
 import weakref
 
-
 #: Threads their owner declared lock-free (:func:`declare_fork_benign`).
 _benign: "weakref.WeakSet[threading.Thread]" = weakref.WeakSet()
 

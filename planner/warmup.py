@@ -19,11 +19,12 @@ def warm_up(robot_name: str = "hrp5p") -> float:
     """Run every kernel once on a small real problem (a stance, a table, a few configurations, one IK
     target); returns the seconds it took."""
     from planner.compiled.box_kernels import hypotheses_hit, obb_penetration
-    from planner.scene.collision import CollisionWorld, EnvBox
     from planner.motion.ik import IkSettings, IkSolver
     from planner.robot.model import load_robot
-    from planner.stability.stances import solve_stance
+    from planner.scene.bodies import EnvBox
+    from planner.scene.collision import CollisionWorld
     from planner.stability.evaluator import HoldSpec, StateEvaluator
+    from planner.stability.stances import solve_stance
 
     t0 = time.perf_counter()
     robot = load_robot(robot_name)

@@ -33,10 +33,11 @@ import numpy as np
 import trimesh
 from pydantic import BaseModel, ConfigDict, Field
 
-from planner.scene.collision import HandGeometry, hand_bodies, hand_geometry, object_bodies, shapes_collide
-from planner.scene.objects import ObjectModel
 from planner.robot.model import RobotModel
 from planner.robot.spec import Side
+from planner.scene.bodies import object_bodies, shapes_collide
+from planner.scene.hand import HandGeometry, hand_bodies, hand_geometry
+from planner.scene.objects import ObjectModel
 from planner.transforms import inverse
 
 CACHE_ENV = "REGRASP_CACHE_DIR"

@@ -19,8 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from planner.scene.collision import CollisionWorld, HandGeometry, hand_bodies, shapes_collide
 from planner.grasping.grasps import GraspSet
+from planner.scene.bodies import shapes_collide
+from planner.scene.collision import CollisionWorld
+from planner.scene.hand import HandGeometry, hand_bodies
 from planner.scene.objects import ObjectModel
 from planner.transforms import rot_z
 

@@ -25,11 +25,17 @@ from scipy.linalg.lapack import dposv as _dposv
 
 from planner.kinematics.batch import BatchKinematics
 from planner.motion.ik_batch import BatchIk
-from planner.motion.ik_rules import LIMIT_EPS, LIMIT_PASSES, STALL_IMPROVEMENT, STALL_ITERATIONS, IkSettings, Side, active_columns
+from planner.motion.ik_rules import (
+    LIMIT_EPS,
+    LIMIT_PASSES,
+    STALL_IMPROVEMENT,
+    STALL_ITERATIONS,
+    IkSettings,
+    Side,
+    active_columns,
+)
 from planner.robot.model import RobotModel
 from planner.stability.stances import Stance
-
-
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.compiled.ik_kernels import descend
+from planner.compiled.tree_kernels import ROOT_SLOT, TreeSpec, tree_from_rows
+from planner.kinematics.batch import BatchKinematics
 from planner.motion.ik_rules import (
     LIMIT_EPS,
     LIMIT_PASSES,
@@ -27,10 +30,7 @@ from planner.motion.ik_rules import (
     IkSettings,
     active_columns,
 )
-from planner.compiled.ik_kernels import descend
-from planner.kinematics.batch import BatchKinematics
 from planner.robot.model import RobotModel
-from planner.compiled.tree_kernels import ROOT_SLOT, TreeSpec, tree_from_rows
 
 
 @dataclass(frozen=True)

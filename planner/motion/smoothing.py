@@ -16,8 +16,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from planner.motion.trrt import ShouldStop, Validity, all_valid, all_valid_coarse_to_fine, coarse_mask, edge_states
-
+from planner.motion.trrt import (
+    ShouldStop,
+    Validity,
+    all_valid,
+    all_valid_coarse_to_fine,
+    coarse_mask,
+    edge_states,
+)
 
 #: Straight-line skips tried per waypoint in the final pass (farthest first).
 MAX_SKIP_TRIES = 8

@@ -27,7 +27,9 @@ from planner.regrasp.results import GraspProbe
 from planner.regrasp.settings import HANDS_INDEX, PlannerSettings, Side
 from planner.regrasp.state_checker import StateChecker
 from planner.robot.model import RobotModel, load_robot
-from planner.scene.collision import CollisionWorld, environment_boxes, hand_geometry
+from planner.scene.bodies import environment_boxes
+from planner.scene.collision import CollisionWorld
+from planner.scene.hand import hand_geometry
 from planner.scene.objects import ObjectModel, build_object
 from planner.scene.placements import PlacementError, instantiate_placements
 from planner.stability.evaluator import StateEvaluator

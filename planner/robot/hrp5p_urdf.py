@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from xml.sax.saxutils import quoteattr
+
 import robot_data
 
 DATA_DIR = robot_data.data_dir()

@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
+import robot_data
 from planner.errors import DerivationError
 from planner.transforms import rpy_to_matrix
-import robot_data
 
 DATA_DIR = robot_data.data_dir()
 URDF_PATH = DATA_DIR / "jvrc1.urdf"

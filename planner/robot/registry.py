@@ -12,9 +12,9 @@ from pathlib import Path
 
 import yaml
 
+import robot_data
 from planner.errors import UnknownRobotError
 from planner.robot.spec import RobotSpec
-import robot_data
 
 DATA_DIR = robot_data.data_dir()
 DEFAULT_ROBOT = "hrp5p"

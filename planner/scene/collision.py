@@ -21,7 +21,7 @@ narrow phase, with transforms set from the precomputed arrays.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 import fcl
@@ -29,13 +29,24 @@ import numpy as np
 import pinocchio as pin
 from pydantic import BaseModel, ConfigDict, Field
 
-from planner.compiled.box_kernels import bodies_world, hypotheses_hit, screen_pairs
+from planner.compiled.box_kernels import bodies_world, screen_pairs
 from planner.kinematics.batch import BatchKinematics, frames_block
-from planner.scene.objects import ObjectModel
 from planner.robot.model import RobotModel
-from planner.robot.spec import Side
 from planner.robot.urdf_geometry import collision_primitives
-from planner.transforms import inverse, pose7_to_matrix
+from planner.scene.bodies import (
+    Body,
+    EnvBox,
+    environment_boxes,
+    fcl_collide,
+    fcl_geometry,
+    half_extents,
+    make_fcl_object,
+    object_bodies,
+    set_fcl_transform,
+)
+from planner.scene.hand import hand_links
+from planner.scene.objects import ObjectModel
+from planner.transforms import inverse
 
 #: Margin on the bounding-box screen; the SAT and fcl decide exactly afterwards.
 _SCREEN_SLACK_M = 1e-6
@@ -74,257 +85,42 @@ class Collision:
         return f"{self.body_a} vs {self.body_b} ({self.kind})"
 
 
-@dataclass(frozen=True)
-class EnvBox:
-    """A static box of the environment (table or obstacle)."""
-
-    name: str
-    pose: np.ndarray  # 4x4 of the box centre in the world
-    size: tuple[float, float, float]
 
 
-@dataclass
-class _Body:
-    name: str
-    group: str  # robot | env | object
-    kind: str  # box | cylinder | sphere | capsule | mesh
-    dims: tuple[float, ...]
-    local: np.ndarray  # 4x4: parent (joint, world or object frame) -> shape centre
-    half: np.ndarray  # half sizes of the oriented bounding box (shape frame)
-    obb_offset: np.ndarray  # OBB centre in the shape frame (non-zero only for meshes)
-    joint: int = -1  # pinocchio joint id for robot bodies
-    link: str = ""
-    geometry: object = field(default=None, repr=False)
 
 
-def _fcl_geometry(kind: str, dims: tuple[float, ...], mesh=None):
-    if kind == "box":
-        return fcl.Box(*dims)
-    if kind == "cylinder":
-        return fcl.Cylinder(dims[0], dims[1])
-    if kind == "capsule":
-        return fcl.Capsule(dims[0], dims[1])
-    if kind == "sphere":
-        return fcl.Sphere(dims[0])
-    if kind == "mesh":
-        bvh = fcl.BVHModel()
-        bvh.beginModel(len(mesh.vertices), len(mesh.faces))
-        bvh.addSubModel(np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int32))
-        bvh.endModel()
-        return bvh
-    raise ValueError(f"unsupported collision shape {kind!r}")
 
 
-def _half_extents(kind: str, dims: tuple[float, ...]) -> np.ndarray:
-    if kind == "box":
-        return np.asarray(dims, dtype=float) / 2.0
-    if kind == "cylinder":
-        return np.array([dims[0], dims[0], dims[1] / 2.0])
-    if kind == "capsule":
-        return np.array([dims[0], dims[0], dims[1] / 2.0 + dims[0]])
-    if kind == "sphere":
-        return np.full(3, dims[0])
-    raise ValueError(f"unsupported collision shape {kind!r}")
 
 
-# ---------------------------------------------------------------------------------------------
-# Hand geometry in the TCP frame (used by grasps and handovers)
 
 
-@dataclass(frozen=True)
-class HandShape:
-    link: str
-    kind: str
-    dims: tuple[float, ...]
-    T_tcp_shape0: np.ndarray  # pose in the TCP frame with the jaw at 0
-    is_finger: bool
 
 
-@dataclass(frozen=True)
-class HandGeometry:
-    """The hand's collision primitives in its TCP frame, fingers as a function of the jaw value.
-
-    Read from the URDF (link primitives) and pinocchio (link placements), so nothing here
-    is specific to one robot: the hand is every link rigidly attached to the TCP's parent
-    joint plus the links moved by the gripper joint and its mimic joints (sliding or
-    rotating: the placements come from forward kinematics at the requested jaw value).
-    """
-
-    side: str
-    shapes: tuple[HandShape, ...]
-    max_opening_m: float
-    opening_per_unit: float
-    robot: RobotModel = field(repr=False, compare=False)
-    _cache: dict = field(default_factory=dict, repr=False, compare=False)
-
-    def at_opening(self, opening_m: float) -> list[tuple[str, str, tuple[float, ...], np.ndarray]]:
-        """(link, kind, dims, T_tcp_shape) of every shape with the jaw opened to ``opening_m``."""
-        value = round(float(opening_m) / self.opening_per_unit, 12)
-        poses = self._cache.get(value)
-        if poses is None:
-            poses = _hand_shape_poses(self.robot, self.side, value)[1]
-            self._cache[value] = poses
-        return [(s.link, s.kind, s.dims, T.copy()) for s, T in zip(self.shapes, poses)]
-
-    def signature(self) -> bytes:
-        """Bytes that identify the geometry (cache keys): shapes at the jaw closed and fully open."""
-        parts = [f"{self.max_opening_m:.9f}/{self.opening_per_unit:.9f}".encode()]
-        full = [T for *_rest, T in self.at_opening(self.max_opening_m)]
-        for s, T_open in zip(self.shapes, full):
-            # "+ 0.0" turns -0.0 into 0.0, so mirrored hands with equal geometry share a signature
-            parts.append(f"{s.kind}{(np.round(s.dims, 9) + 0.0).tolist()}{s.is_finger}".encode())
-            parts.append((np.round(s.T_tcp_shape0, 9) + 0.0).tobytes())
-            parts.append((np.round(T_open, 9) + 0.0).tobytes())
-        return b"|".join(parts)
 
 
-def _hand_links(robot: RobotModel, side: Side) -> tuple[set[int], set[int]]:
-    """(pinocchio joint ids that carry the hand, those that carry fingers)."""
-    model = robot.pin_model
-    arm = robot.spec.arms[side]
-    tcp_joint = int(model.frames[robot.frame_id(arm.tcp)].parentJoint)
-    finger_joints = {int(model.getJointId(arm.gripper.joint))}
-    for mimic, (master, _k, _b) in robot.mimic.items():
-        if master == arm.gripper.joint:
-            finger_joints.add(int(model.getJointId(mimic)))
-    return {tcp_joint}, finger_joints
 
 
-def hand_geometry(robot: RobotModel, side: Side) -> HandGeometry:
-    """The hand of ``side`` in its TCP frame (see :class:`HandGeometry`), derived once per robot model."""
-
-    def build() -> HandGeometry:
-        shapes, _poses = _hand_shape_poses(robot, side, 0.0)
-        if not shapes:
-            raise ValueError(f"robot {robot.name!r}: the {side} hand has no collision primitives")
-        arm = robot.spec.arms[side]
-        return HandGeometry(side, tuple(shapes), arm.gripper.max_opening_m, arm.gripper.opening_per_unit, robot)
-
-    return robot.derived(("hand_geometry", side), build)
 
 
-def _hand_setup(robot: RobotModel, side: Side) -> tuple:
-    """What FK of one hand needs, derived once per robot model: frame ids, the hand's primitives, a posture."""
-
-    def build() -> tuple:
-        model = robot.pin_model
-        arm = robot.spec.arms[side]
-        palm_joints, finger_joints = _hand_links(robot, side)
-        link_joint = {f.name: int(f.parentJoint) for f in model.frames if f.type == pin.FrameType.BODY}
-        prims = []
-        for prim in collision_primitives(robot.urdf_path):
-            jid = link_joint.get(prim.link)
-            if jid is not None and jid in palm_joints | finger_joints:
-                prims.append((prim, int(model.getFrameId(prim.link)), jid in finger_joints))
-        return robot.frame_id(arm.tcp), robot.joint_index(arm.gripper.joint), tuple(prims), robot.default_q()
-
-    return robot.derived(("hand_setup", side), build)
 
 
-def _hand_shape_poses(robot: RobotModel, side: Side, jaw_value: float) -> tuple[list[HandShape], list[np.ndarray]]:
-    """The hand's shapes and their poses in the TCP frame at one jaw value (pinocchio FK)."""
-    model = robot.pin_model
-    tcp_fid, jaw, prims, q0 = _hand_setup(robot, side)
-    data = robot.create_data()
-    q = q0.copy()
-    q[jaw] = jaw_value
-    pin.forwardKinematics(model, data, robot.to_pin_q(np.array([0, 0, 0, 0, 0, 0, 1.0]), q))
-    T_tcp_w = inverse(pin.updateFramePlacement(model, data, tcp_fid).homogeneous)
-    shapes, poses = [], []
-    for prim, fid, is_finger in prims:
-        T = T_tcp_w @ pin.updateFramePlacement(model, data, fid).homogeneous @ prim.origin
-        shapes.append(HandShape(prim.link, prim.kind, tuple(prim.dims), T, is_finger))
-        poses.append(T)
-    return shapes, poses
 
 
-# ---------------------------------------------------------------------------------------------
-# Shape sets: small helper for "these shapes at these poses vs those shapes at those poses"
 
 
-def object_bodies(obj: ObjectModel) -> list[_Body]:
-    """Collision bodies of an object in its frame: its primitives, or one BVH for a mesh."""
-    out = []
-    if obj.primitives:
-        for k, p in enumerate(obj.primitives):
-            out.append(_Body(f"object#{k}" if len(obj.primitives) > 1 else "object", "object", p.kind, p.dims, p.origin,
-                             _half_extents(p.kind, p.dims), np.zeros(3), geometry=_fcl_geometry(p.kind, p.dims)))
-    else:
-        # the mesh in its own frame; the OBB is the axis-aligned box of the vertices
-        lo, hi = obj.mesh.bounds
-        out.append(_Body("object", "object", "mesh", (), np.eye(4), (hi - lo) / 2.0, (hi + lo) / 2.0,
-                         geometry=_fcl_geometry("mesh", (), obj.mesh)))
-    return out
 
 
-def _make_fcl_object(body: _Body) -> fcl.CollisionObject:
-    return fcl.CollisionObject(body.geometry, fcl.Transform())
 
 
-def _fcl_collide(oa: fcl.CollisionObject, ob: fcl.CollisionObject, tolerance: float) -> bool:
-    if tolerance <= 0.0:
-        return fcl.collide(oa, ob, fcl.CollisionRequest(), fcl.CollisionResult()) > 0
-    req = fcl.CollisionRequest(num_max_contacts=4, enable_contact=True)
-    res = fcl.CollisionResult()
-    if fcl.collide(oa, ob, req, res) == 0:
-        return False
-    return max(c.penetration_depth for c in res.contacts) > tolerance
 
 
-def _set_tf(o: fcl.CollisionObject, R: np.ndarray, p: np.ndarray) -> None:
-    o.setTransform(fcl.Transform(R, p))
-
-
-def shapes_collide(
-    bodies_a: Sequence[_Body], poses_a: np.ndarray, bodies_b: Sequence[_Body], poses_b: np.ndarray, tolerance: float = 0.0
-) -> np.ndarray:
-    """Whether any body of set a collides with any body of set b, for K pose hypotheses.
-
-    ``poses_a`` (K, len(a), 4, 4) and ``poses_b`` (K, len(b), 4, 4) or (len(b), 4, 4) are the
-    poses of the bodies' shape frames (their ``local`` transforms already applied). Used by
-    the grasp and handover filters, which test many hand poses against one object.
-    """
-    K = poses_a.shape[0]
-    poses_b = np.broadcast_to(poses_b, (K, len(bodies_b), 4, 4))
-
-    def boxes(bodies: Sequence[_Body], poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        R = poses[..., :3, :3]
-        centres = poses[..., :3, 3] + (R @ np.array([b.obb_offset for b in bodies])[None, :, :, None])[..., 0]
-        return R, centres, np.array([b.half for b in bodies])
-
-    is_box = np.array([b.kind == "box" for b in bodies_a]), np.array([b.kind == "box" for b in bodies_b])
-    # Every box pair screened at once (compiled): two boxes are decided there (the SAT is exact for
-    # boxes); the other shapes' candidates go to fcl, pair by pair, until one hypothesis collides.
-    hit, cand = hypotheses_hit(*boxes(bodies_a, poses_a), *boxes(bodies_b, poses_b), *is_box, tolerance)
-    objs_a = [_make_fcl_object(b) for b in bodies_a]
-    objs_b = [_make_fcl_object(b) for b in bodies_b]
-    for k, ia, ib in cand:
-        if hit[k]:
-            continue
-        _set_tf(objs_a[ia], poses_a[k, ia, :3, :3], poses_a[k, ia, :3, 3])
-        _set_tf(objs_b[ib], poses_b[k, ib, :3, :3], poses_b[k, ib, :3, 3])
-        hit[k] = _fcl_collide(objs_a[ia], objs_b[ib], tolerance)
-    return hit
-
-
-def hand_bodies(hand: HandGeometry, opening_m: float, include_fingers: bool = True) -> list[_Body]:
-    """The hand's shapes as bodies whose parent frame is the TCP."""
-    out = []
-    for (link, kind, dims, T), s in zip(hand.at_opening(opening_m), hand.shapes):
-        if s.is_finger and not include_fingers:
-            continue
-        out.append(_Body(link, "robot", kind, dims, T, _half_extents(kind, dims), np.zeros(3), link=link,
-                         geometry=_fcl_geometry(kind, dims)))
-    return out
 
 
 # ---------------------------------------------------------------------------------------------
 # The world
 
 
-def environment_boxes(scenario) -> list[EnvBox]:
-    """Tables and obstacles of a scenario as :class:`EnvBox` (tables first)."""
-    return [EnvBox(b.name, pose7_to_matrix(b.pose), tuple(b.size)) for b in [*scenario.tables, *scenario.obstacles]]
 
 
 @dataclass
@@ -369,7 +165,7 @@ class CollisionWorld:
         model = robot.pin_model
         link_joint = {f.name: int(f.parentJoint) for f in model.frames if f.type == pin.FrameType.BODY}
         link_frame = {f.name: f for f in model.frames if f.type == pin.FrameType.BODY}
-        bodies: list[_Body] = []
+        bodies: list[Body] = []
         prims = collision_primitives(robot.urdf_path)
         per_link: dict[str, int] = {}
         for p in prims:
@@ -382,19 +178,19 @@ class CollisionWorld:
             seen[p.link] = k + 1
             name = p.link if per_link[p.link] == 1 else f"{p.link}#{k}"
             local = link_frame[p.link].placement.homogeneous @ p.origin
-            bodies.append(_Body(name, "robot", p.kind, tuple(p.dims), local, _half_extents(p.kind, p.dims), np.zeros(3),
-                                joint=link_joint[p.link], link=p.link, geometry=_fcl_geometry(p.kind, tuple(p.dims))))
+            bodies.append(Body(name, "robot", p.kind, tuple(p.dims), local, half_extents(p.kind, p.dims), np.zeros(3),
+                                joint=link_joint[p.link], link=p.link, geometry=fcl_geometry(p.kind, tuple(p.dims))))
         self.n_robot = len(bodies)
         self.env = tuple(environment)
         for e in self.env:
-            bodies.append(_Body(f"env:{e.name}", "env", "box", tuple(e.size), np.asarray(e.pose, float),
+            bodies.append(Body(f"env:{e.name}", "env", "box", tuple(e.size), np.asarray(e.pose, float),
                                 np.asarray(e.size, float) / 2.0, np.zeros(3), geometry=fcl.Box(*e.size)))
         self.n_env = len(self.env)
         obj_bodies = object_bodies(obj) if obj is not None else []
         bodies.extend(obj_bodies)
         self.n_obj = len(obj_bodies)
         self.bodies = bodies
-        self._fcl = [_make_fcl_object(b) for b in bodies]
+        self._fcl = [make_fcl_object(b) for b in bodies]
         B = len(bodies)
         self._half = np.array([b.half for b in bodies])
         self._radius = np.linalg.norm(self._half, axis=1)
@@ -409,7 +205,7 @@ class CollisionWorld:
         self._fingers: dict[str, np.ndarray] = {}
         self._tcp: dict[str, str] = {}
         for side, arm in robot.spec.arms.items():
-            _, fj = _hand_links(robot, side)
+            _, fj = hand_links(robot, side)
             self._fingers[side] = np.array([i for i in range(self.n_robot) if bodies[i].joint in fj], dtype=int)
             self._tcp[side] = arm.tcp
         self.disabled = self._disabled_self_pairs()
@@ -567,9 +363,9 @@ class CollisionWorld:
             oa, ob = self._fcl[ba], self._fcl[bb]
             Ra, Rb = Rw[ba, s], Rw[bb, s]
             # fcl wants the shape frame; our centres are OBB centres (offset only for meshes)
-            _set_tf(oa, Ra, pw[ba, s] - Ra @ self.bodies[ba].obb_offset)
-            _set_tf(ob, Rb, pw[bb, s] - Rb @ self.bodies[bb].obb_offset)
-            if _fcl_collide(oa, ob, float(tol[kp[k]])):
+            set_fcl_transform(oa, Ra, pw[ba, s] - Ra @ self.bodies[ba].obb_offset)
+            set_fcl_transform(ob, Rb, pw[bb, s] - Rb @ self.bodies[bb].obb_offset)
+            if fcl_collide(oa, ob, float(tol[kp[k]])):
                 hits[kp[k], s] = True
                 done[s] = True
         return hits

@@ -22,7 +22,6 @@ total mass and the CoM); without it the CoM is the geometric centroid of the sol
 
 from __future__ import annotations
 
-from planner.errors import ObjectModelError
 import hashlib
 import itertools
 from dataclasses import dataclass, field
@@ -31,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from planner.errors import ObjectModelError
 from schemas.scenario import ObjectDef
 
 #: Default drill bounding box (YCB power drill, 184 x 57 x 187 mm).

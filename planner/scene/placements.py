@@ -21,9 +21,14 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from planner.errors import PlacementError
-from planner.scene.collision import CollisionWorld, EnvBox
+from planner.scene.bodies import EnvBox
+from planner.scene.collision import CollisionWorld
 from planner.scene.objects import ObjectModel
-from planner.stability.support_polygon import DegeneratePolygonError, SupportPolygon, convex_hull_ccw
+from planner.stability.support_polygon import (
+    DegeneratePolygonError,
+    SupportPolygon,
+    convex_hull_ccw,
+)
 from planner.transforms import matrix_to_pose7, pose7_to_matrix, rot_z, rotation_angle
 
 #: Facet normals closer than this are one facet (the hull of a mesh has split coplanar faces).

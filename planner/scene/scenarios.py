@@ -8,7 +8,6 @@ threshold fits in the support polygon.
 
 from __future__ import annotations
 
-from planner.errors import ScenarioError
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +16,7 @@ from typing import Any
 import yaml
 from pydantic import ValidationError
 
+from planner.errors import ScenarioError
 from schemas.scenario import Scenario
 from schemas.stance import StanceDef
 
@@ -149,7 +149,9 @@ def check_scenario(scenario: Scenario) -> CheckReport:
             f"threshold {scenario.threshold_m * 1000:.1f} mm is larger than the support polygon's inradius "
             f"{inradius * 1000:.1f} mm in stance {stance.name!r}: no state can be stable"
         )
-    from planner.scene.objects import build_object  # here: objects and placements build on this module's models
+    from planner.scene.objects import (
+        build_object,  # here: objects and placements build on this module's models
+    )
     from planner.scene.placements import check_resting_pose
 
     try:

@@ -43,7 +43,7 @@ def drill_grasps(hrp5p, drill_obj, grasp_cache):
 
 @pytest.fixture(scope="session")
 def table_box():
-    from planner.scene.collision import EnvBox
+    from planner.scene.bodies import EnvBox
     from planner.transforms import make_transform
 
     return EnvBox("table", make_transform(p=[0.60, 0.0, 0.73]), (0.50, 1.40, 0.04))

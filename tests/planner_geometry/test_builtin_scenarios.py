@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.scene.collision import CollisionWorld, environment_boxes
+from planner.scene.bodies import environment_boxes
+from planner.scene.collision import CollisionWorld
 from planner.scene.objects import build_object
 from planner.scene.placements import check_resting
 from planner.scene.scenarios import builtin_names, load_builtin

@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from planner.compiled.box_kernels import obb_penetration
-from planner.scene.collision import CollisionWorld, EnvBox
+from planner.scene.bodies import EnvBox
+from planner.scene.collision import CollisionWorld
 from planner.transforms import axis_angle_to_matrix, make_transform
 
 
@@ -163,9 +164,9 @@ def test_compiled_screen_finds_exactly_the_boxes_the_sat_finds(seed, n_states):
 def test_handover_needs_both_holders(hrp5p, stances, drill_obj, drill_grasps):
     """At a handover both hands close on the object: list both holders, or the second hand's
     fingers count as colliding with the object."""
-    from planner.scene.collision import hand_geometry
     from planner.grasping.handover import handover_poses
     from planner.motion.ik import IkSolver
+    from planner.scene.hand import hand_geometry
 
     st = stances["upright"]
     right, left = drill_grasps["right"], drill_grasps["left"]

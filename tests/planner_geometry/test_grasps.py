@@ -5,8 +5,8 @@ from __future__ import annotations
 import fcl
 import numpy as np
 
-from planner.scene.collision import hand_bodies, hand_geometry
 from planner.grasping.grasps import GraspSettings, first_hits, plan_grasps
+from planner.scene.hand import hand_bodies, hand_geometry
 
 
 def test_box_grasps_are_antipodal_and_fit_the_jaw(hrp5p, box_obj, box_grasps):

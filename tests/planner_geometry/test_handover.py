@@ -5,8 +5,13 @@ from __future__ import annotations
 import fcl
 import numpy as np
 
-from planner.scene.collision import hand_bodies, hand_geometry
-from planner.grasping.handover import HandoverSettings, compatible_pairs, floating_poses, handover_poses
+from planner.grasping.handover import (
+    HandoverSettings,
+    compatible_pairs,
+    floating_poses,
+    handover_poses,
+)
+from planner.scene.hand import hand_bodies, hand_geometry
 
 
 def _fcl_hands_collide(hrp5p, gr, gl) -> bool:
@@ -53,7 +58,8 @@ def test_handover_poses_filter_approach(hrp5p, drill_obj, drill_grasps):
 
 
 def test_world_drops_poses_inside_tables(hrp5p, drill_obj, drill_grasps):
-    from planner.scene.collision import CollisionWorld, EnvBox
+    from planner.scene.bodies import EnvBox
+    from planner.scene.collision import CollisionWorld
     from planner.transforms import make_transform
 
     hr, hl = hand_geometry(hrp5p, "right"), hand_geometry(hrp5p, "left")

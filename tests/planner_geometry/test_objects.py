@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from planner.scene.objects import ObjectModelError, box_union_mesh, build_object, carrier_boxes, rectilinear_boxes
+from planner.scene.objects import (
+    ObjectModelError,
+    box_union_mesh,
+    build_object,
+    carrier_boxes,
+    rectilinear_boxes,
+)
 from planner.scene.scenarios import DATA_DIR
 from schemas.scenario import ObjectDef
 

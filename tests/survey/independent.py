@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
+from plan_checker import _box_sizes, _mimics, _pin_q, _signed_margin, _sole_hull
 from shapely.geometry import Polygon
 
-from plan_checker import _box_sizes, _mimics, _pin_q, _signed_margin, _sole_hull
 from planner.robot.registry import urdf_path
 
 #: A sole whose frame is this close to z = 0 stands on the ground.
