@@ -9,7 +9,7 @@ from hypothesis import given, settings, strategies as st
 from planner.kinematics.reduced import ReducedKinematics
 from planner.stability.evaluator import HoldSpec, StateEvaluator
 
-from .conftest import COM_LOCAL
+from tests.planning.conftest import COM_LOCAL
 
 
 def _random_states(robot, base_q, active, n, seed):

@@ -17,7 +17,7 @@ from plan_checker import check_plan
 
 from .summary import summary_cells
 
-DATA = Path(__file__).parent.parent / "data"
+DATA = Path(__file__).resolve().parents[2] / "data"
 
 
 @pytest.fixture(scope="module")
