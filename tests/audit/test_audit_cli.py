@@ -55,7 +55,7 @@ def test_show_prints_a_timeline(tmp_path, hrp5p_urdf):
     assert "state -> queued" in out.output and "actor: alice" in out.output
     assert "state queued -> planning" in out.output
     assert "robot description" in out.output
-    assert "/joint_states/plan" in out.output and "INTACT" in out.output
+    assert "/plan/joint_states" in out.output and "INTACT" in out.output
 
 
 def test_console_script_runs(tmp_path):

@@ -225,12 +225,12 @@ def test_robot_state_echoes_follow_the_plan(audited: AuditedJob) -> None:
         assert echo["data"]["joint_names"] == names
         assert np.max(np.abs(np.array(echo["data"]["q"]) - planned_q)) < ECHO_TOLERANCE_RAD
     # Each echo is also an executed joint state for Foxglove, beside the plan's own playback.
-    executed = [m["body"] for m in audited.messages if m["topic"] == "/joint_states/executed"]
+    executed = [m["body"] for m in audited.messages if m["topic"] == "/robot/joint_states"]
     assert len(executed) == len(echoes)
     assert [j["name"] for j in executed[0]["joints"]] == names
     topics = {m["topic"]: m["schema"] for m in audited.messages}
-    assert topics["/joint_states/plan"] == topics["/joint_states/executed"] == "foxglove.JointStates"
-    assert topics["/robot_description"] and topics["/markers/support"] == "foxglove.SceneUpdate"
+    assert topics["/plan/joint_states"] == topics["/robot/joint_states"] == "foxglove.JointStates"
+    assert topics["/robot_description"] and topics["/plan/markers/support"] == "foxglove.SceneUpdate"
 
 
 def test_a_survey_job_records_its_request_and_survey_document(audited: AuditedJob) -> None:
