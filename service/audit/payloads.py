@@ -6,7 +6,7 @@ import logging
 from typing import Any, Mapping
 
 from .encoding import RawJson
-from .json_fast import loads
+from schemas.fast_json import loads
 
 _log = logging.getLogger("regrasp.audit")
 

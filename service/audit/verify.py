@@ -29,7 +29,7 @@ from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Schem
 from mcap.stream_reader import get_chunk_data_stream
 
 from .chain import GENESIS, is_sha256_hex, record_digest
-from .json_fast import loads
+from schemas.fast_json import loads
 from .topics import KIND_CLOSE, KIND_OPEN, TOPIC_EVENTS
 
 MAGIC = b"\x89MCAP0\r\n"

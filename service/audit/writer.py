@@ -148,7 +148,7 @@ class AuditWriter:
 
     def _carry(self, carried: Sequence[Any]) -> None:
         """Write the records of a cut file unchanged (same seq, times and bytes), then go on from its head."""
-        from .json_fast import loads
+        from schemas.fast_json import loads
 
         for rec in carried:
             if rec.index != self._seq:

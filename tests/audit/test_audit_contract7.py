@@ -16,7 +16,6 @@ from typing import Any
 
 import pytest
 from mcap.reader import make_reader
-from mcap.records import Chunk
 
 from schemas.plan import canonical_json
 from service.audit import AuditSettings, AuditWriter, ExitCode, verify
