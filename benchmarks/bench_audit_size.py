@@ -7,7 +7,7 @@ and written by ``AuditWriter`` at the events' times: request, planning, the plan
 canonical text), approval, the gate's verdict, dispatch, every 0.25 s segment sent and
 acknowledged, the robot state echoed every 0.1 s, the end. Prints the file size, MB per
 minute of plan, the bytes per topic before compression, and the write time.
-Target (CONTRACT section 7): a 60 s plan with its execution under 20 MB.
+Target (docs/audit.md): a 60 s plan with its execution under 20 MB.
 Run: ``python benchmarks/bench_audit_size.py [--seconds 60] [--compression zstd|none]``.
 """
 

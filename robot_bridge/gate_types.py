@@ -18,7 +18,7 @@ _HOLDING = ("none", "left", "right", "both")
 
 
 class GateSettings(BaseModel):
-    """Tolerances and sampling of the gate; defaults follow CONTRACT.md section 3."""
+    """Tolerances and sampling of the gate; defaults follow the plan format (schemas.plan)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 

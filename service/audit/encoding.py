@@ -1,6 +1,6 @@
 """How audit messages become bytes: compact JSON, with stored documents spliced in verbatim.
 
-A plan document is stored once as its canonical JSON text (CONTRACT section 3); its
+A plan document is stored once as its canonical JSON text (``schemas.plan.canonical_json``); its
 hash covers those bytes. :class:`RawJson` carries such a text into a message
 unchanged, so a 9 MB plan is neither re-serialised nor given a second spelling in
 the audit file.

@@ -22,7 +22,7 @@ def _as_doc(candidate: Any) -> Any:
 
 
 def find_plan(payload: Mapping[str, Any]) -> Mapping[str, Any] | None:
-    """A plan document (CONTRACT section 3) as the payload or its ``document``/``plan``/``result``."""
+    """A plan document (``regrasp.plan/1``) as the payload or its ``document``/``plan``/``result``."""
     for candidate in (payload, payload.get("document"), payload.get("plan"), payload.get("result")):
         if isinstance(candidate, RawJson) and '"regrasp.plan/' not in candidate.text:
             continue  # a survey's text is not parsed for nothing

@@ -46,7 +46,7 @@ def _segment_at(segments: Any, i: int) -> Mapping[str, Any] | None:
 
 
 def plan_messages(plan: Mapping[str, Any], t0: int, settings: AuditSettings, tree: UrdfTree | None) -> Iterator[Message]:
-    """The playback messages of ``plan`` (CONTRACT section 3) starting at log time ``t0`` (ns)."""
+    """The playback messages of ``plan`` (``regrasp.plan/1``) starting at log time ``t0`` (ns)."""
     trajectory = plan.get("trajectory") or []
     if not trajectory:
         return

@@ -5,7 +5,7 @@ through a high-level reader so that it can say *where* a file is damaged (byte
 offset, record index, log time, channel) and tell a file cut short by a crash
 (no footer, possibly a partial last record) from one that was edited.
 
-Exit codes (CONTRACT section 7): 0 intact, 1 broken or edited, 2 intact but
+Exit codes (docs/audit.md): 0 intact, 1 broken or edited, 2 intact but
 unfinished. With ``head``, a chain that does not end at that SHA-256 is broken.
 
 A file is complete when it ends with a footer record and the closing magic; a

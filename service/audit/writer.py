@@ -119,7 +119,7 @@ class AuditWriter:
         self._head = GENESIS
         self._closed = False
         self._last_executed_tf_ns: int | None = None
-        #: The plan's stance base pose: the floating base stays there (CONTRACT section 3),
+        #: The plan's stance base pose: the floating base stays there (the plan format),
         #: so executed states without one are placed with it.
         self._base_pose: list[float] | None = None
         layout = layout_bytes() if self.settings.attach_layout else None
@@ -269,7 +269,7 @@ class AuditWriter:
     def _visualize(self, payload: Mapping[str, Any], ns: int) -> None:
         """Foxglove views derived from an event, so callers that only use ``record`` get them too.
 
-        - a plan document (CONTRACT section 3, as the payload or its ``document``/``plan``)
+        - a plan document (``regrasp.plan/1``, as the payload or its ``document``/``plan``)
           -> the robot description (looked up by the plan's robot name if none was
           given) and the plan's playback;
         - ``joint_names`` with ``q`` (or ``positions``) in the payload or its ``data``

@@ -1,4 +1,4 @@
-"""The gate reads plan bytes with orjson (schemas.fast_json); hashes stay those of json.dumps (CONTRACT 3)."""
+"""The gate reads plan bytes with orjson (schemas.fast_json); hashes stay those of json.dumps (schemas.plan.canonical_json)."""
 
 from __future__ import annotations
 
