@@ -19,7 +19,6 @@ from mcap.reader import make_reader
 
 from schemas.plan import canonical_json
 from service.audit import AuditSettings, AuditWriter, ExitCode, verify
-from service.audit.layout import LAYOUT_ATTACHMENT, layout_bytes
 from service.job_audit import JobAuditor
 from service.store import JobStore, make_engine, migrate
 
@@ -315,6 +314,8 @@ def test_a_file_cut_short_is_still_unfinished(tmp_path: Path, hrp5p_urdf: str) -
 
 
 def test_the_layout_is_attached_and_named_by_the_chain(tmp_path: Path) -> None:
+    from service.audit.layout import LAYOUT_ATTACHMENT, layout_bytes
+
     path = tmp_path / "a.mcap"
     AuditWriter(path, "j").close()
     with open(path, "rb") as f:

@@ -10,8 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robot_bridge.gate import SafetyGate, loads_plan
-from schemas.fast_json import loads
+from robot_bridge.gate import SafetyGate
 from schemas.plan import canonical_json, plan_sha256
 
 from .plans import build_plan
@@ -27,12 +26,16 @@ json_values = st.recursive(
 @settings(max_examples=300, deadline=None)
 @given(doc=st.dictionaries(st.text(max_size=6), json_values, max_size=6))
 def test_a_document_parsed_fast_and_hashed_again_has_the_stored_hash(doc):
+    from schemas.fast_json import loads
+
     stored = canonical_json(doc)
     assert canonical_json(loads(stored)) == stored
     assert plan_sha256(loads(stored)) == hashlib.sha256(stored).hexdigest()
 
 
 def test_a_real_plan_parsed_fast_keeps_its_hash():
+    from robot_bridge.gate import loads_plan
+
     plan = build_plan({"RSP": -0.5, "WY": 0.2}, duration_s=0.5, holding="right", mass_kg=3.0)
     stored = canonical_json(plan)
     sha = hashlib.sha256(stored).hexdigest()
@@ -43,11 +46,15 @@ def test_a_real_plan_parsed_fast_keeps_its_hash():
 
 @pytest.mark.parametrize("text", ['{"a": NaN}', '{"a": Infinity}', '{"a": -Infinity}'])
 def test_non_finite_literals_are_refused_as_before(text):
+    from robot_bridge.gate import loads_plan
+
     with pytest.raises(ValueError, match="is not a number the plan may hold"):
         loads_plan(text.encode())
 
 
 def test_what_orjson_refuses_reads_as_json_loads_reads_it():
+    from schemas.fast_json import loads
+
     big = '{"n": 123456789012345678901234567890, "s": "\\ud800"}'
     assert loads(big) == json.loads(big)
     with pytest.raises(ValueError):
