@@ -3,10 +3,9 @@
 Every state change, request, plan, approval, gate verdict and dispatched segment
 is first an event row in the job store (the system of record). A single pump
 per service tails those rows and hands each to ``service.audit.AuditWriter``
-(another module of this project, used only through ``AuditWriter(path, job_id)``,
-``.record(kind, payload) -> chain head`` and ``.close()``), then stores the chain
-head, the file path and the last recorded event in the job row. If
-``service.audit`` is not installed the pump does nothing and jobs have no audit file.
+(through ``AuditWriter(path, job_id, carried=...)``, ``.record(kind, payload,
+log_time_ns) -> chain head`` and ``.close()``), then stores the chain head, the
+file path and the last recorded event in the job row.
 
 Each record is logged at the time of its event (the event row's time; an
 approval at the moment it was given), not when the pump writes it. A plan or

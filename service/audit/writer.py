@@ -25,7 +25,7 @@ the time of the event it records when the caller gives it. After each call the o
 chunk is closed and the stream flushed, so a writer killed with SIGKILL leaves a file
 that :func:`service.audit.verify.verify` reads up to its last complete call (exit
 code 2, "unfinished"). A writer can start by carrying over the records of such a file
-(:meth:`AuditWriter.continue_from`), so that one file holds the job's whole chain.
+(``AuditWriter(..., carried=...)``), so that one file holds the job's whole chain.
 """
 
 from __future__ import annotations
