@@ -3,19 +3,27 @@
 Every state change, request, plan, approval, gate verdict and dispatched segment
 is first an event row in the job store (the system of record). A single pump
 per service tails those rows and hands each to ``service.audit.AuditWriter``
-(another module of this project, used only through ``AuditWriter(path, job_id)``,
-``.record(kind, payload) -> chain head`` and ``.close()``), then stores the chain
-head, the file path and the last recorded event in the job row. If
-``service.audit`` is not installed the pump does nothing and jobs have no audit file.
+(through ``AuditWriter(path, job_id, carried=...)``, ``.record(kind, payload,
+log_time_ns) -> chain head`` and ``.close()``), then stores the chain head, the
+file path and the last recorded event in the job row.
+
+Each record is logged at the time of its event (the event row's time; an
+approval at the moment it was given), not when the pump writes it. A plan or
+survey document goes in once, as the stored canonical text (never re-serialised),
+with the state change that ended planning; an expired approval sends the job back
+to planned without a second copy.
 
 After a crash the interrupted file is left as it is (it reads up to its last
-record); the job continues in a new file ``<job>.<n>.mcap`` whose first record
-names the previous file and its chain head.
+record). The job continues in a new file ``<job>.<n>.mcap`` that first carries the
+interrupted file's records up to the stored chain head, unchanged, then a
+``continued`` record naming that file: the newest file holds the job's whole chain,
+and ``GET /v1/jobs/{id}/audit`` serves it as the one download.
 """
 
 from __future__ import annotations
 
 import logging
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -23,43 +31,77 @@ import sqlalchemy as sa
 
 from schemas.jobs import TERMINAL_STATES
 
-from .audit import AuditWriter
+from .audit import AuditWriter, verify
+from .audit.encoding import RawJson
+from .audit.topics import KIND_CONTINUED
 from .store.repo import JobStore
-from .store.tables import jobs
+from .store.tables import job_events, jobs
 
 log = logging.getLogger("regrasp.audit")
 
 PUMP_PERIOD_S = 0.2
 
 
-def records_for_event(event: dict[str, Any], job: dict[str, Any], store: JobStore) -> list[tuple[str, dict[str, Any]]]:
-    """The audit records one job event becomes."""
+#: States with which planning ends and the result document is stored (a survey's only end is succeeded).
+_RESULT_STATES = ("planned", "failed", "succeeded")
+#: A record: (kind, payload, log time in Unix ns).
+Record = tuple[str, dict[str, Any], int]
+
+
+def _ns(at: datetime) -> int:
+    """Unix nanoseconds of an aware datetime, exactly (no float rounding)."""
+    delta = at - datetime(1970, 1, 1, tzinfo=at.tzinfo)
+    return (delta.days * 86_400 + delta.seconds) * 1_000_000_000 + delta.microseconds * 1_000
+
+
+def _iso_ns(text: Any, default: int) -> int:
+    try:
+        return _ns(datetime.fromisoformat(str(text)))
+    except (TypeError, ValueError):
+        return default
+
+
+def _result_recorded_before(store: JobStore, job_id: str, event_id: int) -> bool:
+    """An earlier state event of the job already ended planning (this one is an expiry's return to planned)."""
+    with store.engine.connect() as conn:
+        first = conn.execute(
+            sa.select(job_events.c.id).where(job_events.c.job_id == job_id, job_events.c.kind == "state",
+                                              job_events.c.state.in_(_RESULT_STATES), job_events.c.id < event_id)
+            .limit(1)).scalar()
+    return first is not None
+
+
+def records_for_event(event: dict[str, Any], job: dict[str, Any], store: JobStore) -> list[Record]:
+    """The audit records one job event becomes, each with the time of what it records."""
     data = dict(event.get("data") or {})
+    at = _ns(event["at"])
     base = {"event_id": event["id"], "at": event["at"].isoformat(), "job_id": event["job_id"],
             "message": event.get("message")}
     kind = event["kind"]
-    out: list[tuple[str, dict[str, Any]]] = []
+    out: list[Record] = []
     if kind == "state":
         state = event.get("state")
         if state == "queued" and "request" in data:
             out.append(("request", {**base, "kind": job["kind"], "request": data["request"],
-                                    "submitter": data.get("submitter")}))
-        out.append(("state", {**base, "state": state, "data": data}))
-        if state in ("planned", "failed") or (state == "succeeded" and job["kind"] == "survey"):
-            result = store.result(event["job_id"])
-            if result is not None:
-                out.append(("plan" if job["kind"] == "plan" else "survey",
-                            {**base, "plan_sha256": job.get("plan_sha256"), "document": result}))
+                                    "submitter": data.get("submitter")}, at))
+        out.append(("state", {**base, "state": state, "data": data}, at))
+        ends_planning = state in ("planned", "failed") or (state == "succeeded" and job["kind"] == "survey")
+        if ends_planning and not _result_recorded_before(store, event["job_id"], event["id"]):
+            text = store.result_text(event["job_id"])
+            if text is not None:
+                out.append(("plan" if job["kind"] != "survey" else "survey",
+                            {**base, "plan_sha256": job.get("plan_sha256"), "document": RawJson(text)}, at))
         if "approval" in data:
-            out.append(("approval", {**base, **data["approval"]}))
+            approval = data["approval"]
+            out.append(("approval", {**base, **approval}, _iso_ns(approval.get("approved_at"), at)))
         if "verdict" in data and data["verdict"] is not None:
-            out.append(("gate_verdict", {**base, "verdict": data["verdict"]}))
+            out.append(("gate_verdict", {**base, "verdict": data["verdict"]}, at))
     elif kind == "bridge":
-        out.append((str(data.get("event") or "bridge"), {**base, "data": data.get("payload", data)}))
+        out.append((str(data.get("event") or "bridge"), {**base, "data": data.get("payload", data)}, at))
     elif kind == "progress":
-        out.append(("progress", {**base, "progress": event.get("progress")}))
+        out.append(("progress", {**base, "progress": event.get("progress")}, at))
     else:
-        out.append(("log", {**base, "kind": kind, "data": data}))
+        out.append(("log", {**base, "kind": kind, "data": data}, at))
     return out
 
 
@@ -124,8 +166,8 @@ class JobAuditor:
                 continue
             writer, path = self._writer(job)
             head = None
-            for kind, payload in records_for_event(event, job, self.store):
-                head = writer.record(kind, payload)
+            for kind, payload, at_ns in records_for_event(event, job, self.store):
+                head = writer.record(kind, payload, at_ns)
             self._done_upto[job_id] = event["id"]
             fields: dict[str, Any] = {"audit_event_id": event["id"], "audit_path": str(path)}
             if isinstance(head, str):
@@ -147,13 +189,40 @@ class JobAuditor:
         while path.exists():
             path = self.audit_dir / f"{job_id}.{n}.mcap"
             n += 1
-        writer = AuditWriter(path, job_id, robot_name=job.get("robot"))
+        carried = _carried_records(previous, job.get("audit_head")) if previous else []
+        writer = AuditWriter(path, job_id, robot_name=job.get("robot"), carried=carried)
         if previous:
-            writer.record("continued", {"job_id": job_id, "previous_file": previous,
-                                        "previous_head": job.get("audit_head"),
-                                        "reason": "the service restarted; the previous file ends where it stopped"})
+            writer.record(KIND_CONTINUED, {
+                "job_id": job_id, "previous_file": Path(previous).name, "previous_head": job.get("audit_head"),
+                "carried_records": len(carried),
+                "reason": "the service restarted; the previous file ends where it stopped"
+                          + ("" if carried else " (its records could not be carried over: see the previous file)")})
+            # The new file holds the chain from now on: point the job at it at once.
+            self.store.update_fields(job_id, audit_path=str(path), audit_head=writer.head)
         self._writers[job_id] = (writer, path)
         return writer, path
+
+
+def _carried_records(previous: str, head: str | None) -> list[Any]:
+    """The verified records of ``previous`` up to the stored ``head`` (empty when they cannot be trusted).
+
+    Records after the head were written by a pump that died before it stored them: their events
+    are recorded again in the new file, so they are not carried.
+    """
+    path = Path(previous)
+    if not head or not path.is_file():
+        return []
+    try:
+        result = verify(path, keep_raw=True)
+    except (OSError, ValueError) as exc:
+        log.warning("audit: cannot read %s to continue it (%s)", path, exc)
+        return []
+    for k, entry in enumerate(result.entries):
+        if entry.digest == head:
+            return result.entries[: k + 1]
+    log.warning("audit: the stored head %s is not in the verified chain of %s (%s); starting a new chain",
+                head, path, result.detail)
+    return []
 
 
 def _audit_process_main(database_url: str, audit_dir: str, parent_pid: int, stop: Any) -> None:

@@ -2,11 +2,12 @@
 
 - :class:`AuditWriter` writes the file as the job runs and returns the chain head
   after every call (store it with the job).
-- :func:`verify` checks framing, CRCs and the chain (CONTRACT section 7 codes).
+- :func:`verify` checks framing, CRCs and the chain (exit codes of docs/audit.md).
 - :func:`timeline` renders a readable timeline (``regrasp audit show``).
 """
 
 from .chain import GENESIS, record_digest
+from .encoding import RawJson
 from .timeline import timeline
 from .verify import AuditRecord, ExitCode, VerifyResult, Where, verify
 from .writer import AuditError, AuditSettings, AuditWriter, shrink_polygon
@@ -18,6 +19,7 @@ __all__ = [
     "AuditWriter",
     "ExitCode",
     "GENESIS",
+    "RawJson",
     "VerifyResult",
     "Where",
     "record_digest",

@@ -28,6 +28,8 @@ JOINT_STATES = "foxglove.JointStates"
 ROBOT_DESCRIPTION = "std_msgs/String"
 #: The project's own event record (state changes, requests, plans, verdicts...).
 AUDIT_EVENT = "regrasp.audit.Event"
+#: One playback sample of a plan's stability figures (Foxglove's Plot panel reads its fields).
+PLAN_SAMPLE = "regrasp.plan.Sample"
 
 
 def _obj(properties: JSON, title: str | None = None, description: str | None = None) -> JSON:
@@ -195,6 +197,22 @@ SCHEMAS: dict[str, JSON] = {
         },
         title=AUDIT_EVENT,
         description="One audited event of a job",
+    ),
+    PLAN_SAMPLE: _obj(
+        {
+            "timestamp": TIME,
+            "index": {"type": "integer", "minimum": 0, "description": "index of the plan point"},
+            "t": _num("time from the plan's start (s)"),
+            "margin_m": _num("CoM margin to the support polygon's edge, inside positive (m)"),
+            "threshold_m": _num("the plan's margin threshold (m)"),
+            "zmp_margin_m": _num("ZMP distance to the support polygon's edge, inside positive (m)"),
+            "effort_ratio": _num("max over joints of |static torque| / effort limit"),
+            "holding": {"type": "string", "description": "none | left | right | both"},
+            "segment": {"type": "string", "description": "kind/hand of the segment the point is in"},
+            "audit": AUDIT_FIELD,
+        },
+        title=PLAN_SAMPLE,
+        description="A plan's stability figures at one playback sample",
     ),
 }
 

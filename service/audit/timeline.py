@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from .verify import VerifyResult, verify
-from .writer import TOPIC_EVENTS, TOPIC_LOG, TOPIC_ROBOT_DESCRIPTION
+from .topics import TOPIC_EVENTS, TOPIC_LOG, TOPIC_ROBOT_DESCRIPTION
 
 NS_PER_S = 1_000_000_000
 

@@ -5,13 +5,16 @@ through a high-level reader so that it can say *where* a file is damaged (byte
 offset, record index, log time, channel) and tell a file cut short by a crash
 (no footer, possibly a partial last record) from one that was edited.
 
-Exit codes (CONTRACT section 7): 0 intact, 1 broken or edited, 2 intact but
+Exit codes (docs/audit.md): 0 intact, 1 broken or edited, 2 intact but
 unfinished. With ``head``, a chain that does not end at that SHA-256 is broken.
+
+A file is complete when it ends with a footer record and the closing magic; a
+record whose length runs past the end of a complete file was damaged (broken), it
+was not cut short by a crash (unfinished): a crash never writes the footer.
 """
 
 from __future__ import annotations
 
-import json
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -26,7 +29,8 @@ from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Schem
 from mcap.stream_reader import get_chunk_data_stream
 
 from .chain import GENESIS, is_sha256_hex, record_digest
-from .writer import KIND_CLOSE, KIND_OPEN, TOPIC_EVENTS
+from schemas.fast_json import loads
+from .topics import KIND_CLOSE, KIND_OPEN, TOPIC_EVENTS
 
 MAGIC = b"\x89MCAP0\r\n"
 _RECORD_PREFIX = 9  # opcode (1) + length (8)
@@ -71,7 +75,10 @@ class AuditRecord:
     schema: str
     log_time_ns: int
     digest: str
-    message: dict[str, Any]
+    message: dict[str, Any] | None
+    publish_time_ns: int = 0
+    #: The message bytes as written (kept with ``keep_raw``).
+    data: bytes = b""
 
 
 @dataclass
@@ -117,7 +124,7 @@ class _Broken(Exception):
 class _Chain:
     """Running state of the chain check."""
 
-    def __init__(self, keep: bool) -> None:
+    def __init__(self, keep: bool, keep_raw: bool = False) -> None:
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
         self.seq = 0
@@ -125,6 +132,7 @@ class _Chain:
         self.job_id: str | None = None
         self.closed = False
         self.keep = keep
+        self.keep_raw = keep_raw
         self.entries: list[AuditRecord] = []
         self.digests: list[str] = []
         self.last: Where | None = None
@@ -141,7 +149,7 @@ class _Chain:
         if self.closed:
             raise _Broken("record after the closing record (appended after the job ended)", where, from_chain=True)
         try:
-            body = json.loads(msg.data)
+            body = loads(msg.data)
             link = body["audit"]
             seq, prev = int(link["seq"]), str(link["prev"])
         except (ValueError, KeyError, TypeError) as exc:
@@ -170,8 +178,10 @@ class _Chain:
             self.closed = True
         self.digests.append(digest)
         self.last = where
-        if self.keep:
-            self.entries.append(AuditRecord(self.seq, channel.topic, schema_name, msg.log_time, digest, body))
+        if self.keep or self.keep_raw:
+            self.entries.append(AuditRecord(self.seq, channel.topic, schema_name, msg.log_time, digest,
+                                            body if self.keep else None, msg.publish_time,
+                                            bytes(msg.data) if self.keep_raw else b""))
         self.head = digest
         self.seq += 1
 
@@ -270,15 +280,26 @@ def _ends_at(chain: _Chain, head: str) -> bool:
     return chain.closed and len(chain.digests) >= 2 and chain.digests[-2] == head
 
 
-def verify(path: str | Path, head: str | None = None, *, keep_records: bool = False) -> VerifyResult:
+def _complete(data: bytes) -> bool:
+    """The file ends with the closing magic, which the writer writes last, after the footer, on finishing.
+
+    A file cut short by a crash never ends with it (the leading magic alone is not counted).
+    """
+    return len(data) > len(MAGIC) + _RECORD_PREFIX and data[-len(MAGIC):] == MAGIC
+
+
+def verify(path: str | Path, head: str | None = None, *, keep_records: bool = False,
+           keep_raw: bool = False) -> VerifyResult:
     """Check an audit file; see the module docstring for the verdicts.
 
-    ``keep_records`` also returns the decoded records (for ``regrasp audit show``).
+    ``keep_records`` also returns the decoded records (for ``regrasp audit show``);
+    ``keep_raw`` their bytes and times as written (to carry them into a new file).
     """
     if head is not None and not is_sha256_hex(head):
         raise ValueError(f"--head must be a SHA-256 in hex (64 hex digits), got {head!r}")
     data = Path(path).read_bytes()
-    chain = _Chain(keep_records)
+    chain = _Chain(keep_records, keep_raw)
+    complete = _complete(data)
     finished = False
     unfinished_note = ""
 
@@ -305,9 +326,15 @@ def verify(path: str | Path, head: str | None = None, *, keep_records: bool = Fa
     data_end_seen = False
     try:
         while True:
+            if pos == len(data) and complete:
+                raise _Broken("the records do not lead to the footer of a complete file: a length field was changed",
+                              Where(pos, chain.seq))
             if pos == len(data):
                 unfinished_note = "the file ends after a complete record, without the MCAP footer"
                 break
+            if len(data) - pos < _RECORD_PREFIX and complete:
+                raise _Broken("the records do not lead to the footer of a complete file: a length field was changed",
+                              Where(pos, chain.seq))
             if len(data) - pos < _RECORD_PREFIX:
                 unfinished_note = f"the file ends inside a record header ({len(data) - pos} bytes at offset {pos})"
                 break
@@ -315,6 +342,9 @@ def verify(path: str | Path, head: str | None = None, *, keep_records: bool = Fa
             if opcode not in _KNOWN_OPCODES:
                 raise _Broken(f"unknown MCAP record opcode {opcode:#04x}: framing destroyed", Where(pos, chain.seq))
             end = pos + _RECORD_PREFIX + length
+            if end > len(data) and complete:
+                raise _Broken(f"record (opcode {opcode:#04x}) at offset {pos} claims {length} bytes, past the end of "
+                              "a complete file: its length field was changed", Where(pos, chain.seq))
             if end > len(data):
                 unfinished_note = (
                     f"the last record (opcode {opcode:#04x} at offset {pos}) is incomplete: "
@@ -361,7 +391,7 @@ def verify(path: str | Path, head: str | None = None, *, keep_records: bool = Fa
                                       Where(crc_start, chain.seq))
                 tail = data[end:]
                 if tail != MAGIC:
-                    if MAGIC.startswith(tail):
+                    if MAGIC.startswith(tail) and not complete:
                         unfinished_note = "the file ends inside the closing magic bytes"
                         break
                     raise _Broken("bytes after the MCAP footer (appended or edited)", Where(end, chain.seq))

@@ -1,4 +1,4 @@
-"""``regrasp audit verify|show``: check and read MCAP audit files (CONTRACT section 7)."""
+"""``regrasp audit verify|show|layout``: check and read MCAP audit files (docs/audit.md), print their Foxglove layout."""
 
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ from .common import fail, print_json
 
 @click.group("audit")
 def audit() -> None:
-    """Verify or show an MCAP audit file."""
+    """Verify or show an MCAP audit file, or print its Foxglove layout."""
 
 
 #: Exit code when a file could not be verified at all (missing, unreadable, bad --head): 0, 1 and 2
-#: are the verdicts of CONTRACT section 7, and a script must never read "not checked" as one of them.
+#: are the verdicts of docs/audit.md, and a script must never read "not checked" as one of them.
 EXIT_NOT_VERIFIED = 3
 
 
@@ -84,3 +84,23 @@ def show_cmd(file: str, show_all: bool, head: str | None) -> None:
     where = f" ({result.where.describe()})" if result.where is not None else ""
     click.echo(f"{result.status.upper()}: {result.detail}{where}")
     sys.exit(result.exit_code)
+
+
+@audit.command("layout")
+@click.option("--out", "out", metavar="FILE", default=None, help="Write the layout to FILE instead of printing it.")
+def layout_cmd(out: str | None) -> None:
+    """Print the Foxglove layout for audit files (every file also carries it as an attachment).
+
+    Import it in Foxglove with Layouts -> Import from file.
+    """
+    from service.audit.layout import layout_bytes
+
+    data = layout_bytes()
+    if out is None:
+        click.echo(data.decode("utf-8"), nl=False)
+        return
+    try:
+        Path(out).write_bytes(data)
+    except OSError as exc:
+        fail(f"cannot write {out}: {exc.strerror or exc}")
+    click.echo(f"wrote {out}")

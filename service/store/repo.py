@@ -11,7 +11,6 @@ enough because SQLite has a single writer.
 from __future__ import annotations
 
 import contextlib
-import json
 import socket
 import threading
 from datetime import datetime, timedelta, timezone
@@ -20,6 +19,7 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 import sqlalchemy as sa
 from sqlalchemy.exc import IntegrityError
 
+from schemas import fast_json
 from schemas.jobs import TERMINAL_STATES
 
 from .tables import job_events, job_results, jobs
@@ -109,7 +109,7 @@ class JobStore:
     def result(self, job_id: str) -> dict[str, Any] | None:
         with self.engine.connect() as conn:
             text = conn.execute(_GET_RESULT, {"job_id": job_id}).scalar()
-        return None if text is None else json.loads(text)
+        return None if text is None else fast_json.loads(text)  # a plan can be 10 MB: orjson, json's results
 
     def result_text(self, job_id: str) -> str | None:
         """The stored result document as its JSON text (served verbatim, never re-parsed)."""

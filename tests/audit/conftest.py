@@ -30,12 +30,16 @@ def tiny_plan(n: int = 12) -> dict:
     }
 
 
-def write_sample(path: Path, urdf: str | None, *, close: bool = True) -> list[str]:
-    """Write a job's audit file; returns the head after every call."""
-    from service.audit import AuditWriter
+def write_sample(path: Path, urdf: str | None, *, close: bool = True, compression: str = "none") -> list[str]:
+    """Write a job's audit file; returns the head after every call.
+
+    Uncompressed by default, so that tests can find and edit a record's bytes in the file.
+    """
+    from service.audit import AuditSettings, AuditWriter
 
     heads = []
-    w = AuditWriter(path, "job-42", robot_name="hrp5p", urdf_text=urdf, clock_ns=_Clock())
+    w = AuditWriter(path, "job-42", robot_name="hrp5p", urdf_text=urdf, clock_ns=_Clock(),
+                    settings=AuditSettings(compression=compression))
     heads.append(w.head)
     heads.append(w.state_change(None, "queued", actor="alice"))
     heads.append(w.record("request", {"scenario": "upright", "threshold_m": 0.06}))

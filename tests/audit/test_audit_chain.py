@@ -59,8 +59,8 @@ def test_file_reads_with_the_standard_mcap_reader(sample):
             json.loads(msg.data)
     assert {"foxglove.Log", "foxglove.SceneUpdate", "foxglove.FrameTransforms", "foxglove.JointStates",
             "std_msgs/String"} <= schemas
-    assert {"/robot_description", "/tf", "/joint_states/plan", "/joint_states/executed", "/markers/com",
-            "/markers/support", "/log", "/audit/events"} <= topics
+    assert {"/robot_description", "/plan/tf", "/robot/tf", "/plan/joint_states", "/robot/joint_states",
+            "/plan/markers/com", "/plan/markers/support", "/log", "/audit/events"} <= topics
     assert encodings == {"json"}
 
 

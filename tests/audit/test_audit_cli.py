@@ -55,7 +55,7 @@ def test_show_prints_a_timeline(tmp_path, hrp5p_urdf):
     assert "state -> queued" in out.output and "actor: alice" in out.output
     assert "state queued -> planning" in out.output
     assert "robot description" in out.output
-    assert "/joint_states/plan" in out.output and "INTACT" in out.output
+    assert "/plan/joint_states" in out.output and "INTACT" in out.output
 
 
 def test_console_script_runs(tmp_path):
@@ -66,3 +66,31 @@ def test_console_script_runs(tmp_path):
         capture_output=True, text=True, timeout=60,
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_verify_calls_a_complete_file_with_a_damaged_length_field_broken(tmp_path, hrp5p_urdf):
+    """A flipped bit in the first chunk's length field: exit 1 (broken), never 2 (unfinished)."""
+    import struct
+
+    path = tmp_path / "job.mcap"
+    write_sample(path, hrp5p_urdf, compression="zstd")
+    raw = bytearray(path.read_bytes())
+    pos = 8
+    while raw[pos] != 0x06:  # the first chunk record
+        pos += 9 + struct.unpack_from("<Q", raw, pos + 1)[0]
+    raw[pos + 1 + 4] ^= 0x01  # bit 32 of its length: it now runs past the end of the file
+    path.write_bytes(bytes(raw))
+    out = _run("verify", str(path))
+    assert out.exit_code == 1 and "BROKEN" in out.output and "length" in out.output, out.output
+
+
+def test_layout_prints_the_shipped_foxglove_layout(tmp_path):
+    import json
+
+    out = _run("layout")
+    assert out.exit_code == 0
+    layout = json.loads(out.output)
+    assert "3D!robot" in layout["configById"] and layout["layout"]["first"] == "3D!robot"
+    target = tmp_path / "layout.json"
+    written = _run("layout", "--out", str(target))
+    assert written.exit_code == 0 and json.loads(target.read_text()) == layout

@@ -39,7 +39,7 @@ def test_tf_places_links_where_pinocchio_does(tmp_path, hrp5p_urdf):
     w.joint_state(list(robot.joint_names), q, source="plan", base_pose=base)
     w.close()
     with open(path, "rb") as f:
-        tf = [json.loads(m.data) for _s, _c, m in make_reader(f).iter_messages(topics=["/tf"])][0]["transforms"]
+        tf = [json.loads(m.data) for _s, _c, m in make_reader(f).iter_messages(topics=["/plan/tf"])][0]["transforms"]
     data = robot.create_data()
     # Links that carry a frame of the same name in pinocchio (URDF links become body frames).
     tree = parse_urdf(hrp5p_urdf)
@@ -58,13 +58,13 @@ def test_plan_playback_is_downsampled_and_keeps_the_last_point(tmp_path):
     w.plan_playback(plan, start_ns=10**18)
     w.close()
     with open(path, "rb") as f:
-        msgs = list(make_reader(f).iter_messages(topics=["/joint_states/plan", "/markers/com", "/markers/support"]))
-    plan_states = [m for _s, c, m in msgs if c.topic == "/joint_states/plan"]
+        msgs = list(make_reader(f).iter_messages(topics=["/plan/joint_states", "/plan/markers/com", "/plan/markers/support"]))
+    plan_states = [m for _s, c, m in msgs if c.topic == "/plan/joint_states"]
     assert len(plan_states) == 26  # 50 Hz over 0.5 s, both ends included
     last = json.loads(plan_states[-1].data)
     assert last["joints"][0]["position"] == plan["trajectory"][-1]["q"][0]
     assert plan_states[-1].log_time == 10**18 + 500_000_000
-    support = [json.loads(m.data) for _s, c, m in msgs if c.topic == "/markers/support"][0]
+    support = [json.loads(m.data) for _s, c, m in msgs if c.topic == "/plan/markers/support"][0]
     lines = support["entities"][0]["lines"]
     assert len(lines) == 2 and lines[0]["type"] == 1  # polygon and shrunk polygon, closed loops
     inner = [(p["x"], p["y"]) for p in lines[1]["points"]]
@@ -95,8 +95,8 @@ def test_record_of_a_plan_document_adds_the_model_and_its_playback(tmp_path):
     with open(path, "rb") as f:
         topics = [c.topic for _s, c, _m in make_reader(f).iter_messages()]
     assert topics.count("/robot_description") == 1
-    assert topics.count("/joint_states/plan") == 6  # 0.1 s at 50 Hz, both ends included
-    assert topics.count("/joint_states/executed") == 1
+    assert topics.count("/plan/joint_states") == 6  # 0.1 s at 50 Hz, both ends included
+    assert topics.count("/robot/joint_states") == 1
     assert verify(path, head).exit_code == 0
 
 
@@ -109,8 +109,8 @@ def test_executed_states_are_all_recorded_and_tf_is_rate_limited(tmp_path, hrp5p
     w.close()
     with open(path, "rb") as f:
         topics = [c.topic for _s, c, _m in make_reader(f).iter_messages()]
-    assert topics.count("/joint_states/executed") == 50
-    assert topics.count("/tf") == 13  # 50 Hz over 0.25 s: t = 0, 20, ..., 240 ms
+    assert topics.count("/robot/joint_states") == 50
+    assert topics.count("/robot/tf") == 13  # 50 Hz over 0.25 s: t = 0, 20, ..., 240 ms
 
 
 def test_executed_states_are_placed_at_the_plan_stance(tmp_path, hrp5p_urdf):
@@ -121,7 +121,7 @@ def test_executed_states_are_placed_at_the_plan_stance(tmp_path, hrp5p_urdf):
     w.record("robot_state", {"data": {"joint_names": ["LCY"], "q": [0.1]}})
     w.close()
     with open(path, "rb") as f:
-        tfs = [json.loads(m.data) for _s, _c, m in make_reader(f).iter_messages(topics=["/tf"], log_time_order=False)]
+        tfs = [json.loads(m.data) for _s, _c, m in make_reader(f).iter_messages(topics=["/robot/tf"], log_time_order=False)]
     base = tfs[-1]["transforms"][0]
     assert (base["parent_frame_id"], base["child_frame_id"]) == ("world", "executed/PELVIS")
     assert base["translation"]["z"] == 0.9

@@ -14,6 +14,7 @@ the documented formula (docs/audit.md) and ending at the head stored with the jo
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import subprocess
 import sys
@@ -91,6 +92,25 @@ def _download_closed(client: httpx.Client, job_id: str, path: Path) -> Path:
         time.sleep(0.2)
 
 
+def _byte_in_chunk_holding(path: Path, needle: bytes) -> int:
+    """Offset of a byte in the middle of the compressed records of the chunk whose records hold ``needle``."""
+    import zstandard
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Chunk
+
+    raw = path.read_bytes()
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    for index in summary.chunk_indexes:
+        end = index.chunk_start_offset + index.chunk_length
+        chunk = Chunk.read(ReadDataStream(io.BytesIO(raw[index.chunk_start_offset + 9:end])))
+        assert chunk.compression == "zstd"
+        if needle in zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size):
+            return end - len(chunk.data) + len(chunk.data) // 2
+    raise AssertionError(f"no chunk holds {needle!r}")
+
+
 @pytest.fixture(scope="module")
 def audited(tmp_path_factory: pytest.TempPathFactory) -> Iterator[AuditedJob]:
     port = free_port()
@@ -143,11 +163,11 @@ def test_regrasp_audit_verify_says_intact_and_catches_one_changed_byte(audited: 
 
     ok = verify(audited.path, audited.job["audit_head"])
     assert ok.returncode == 0 and "INTACT" in ok.stdout, ok.stdout + ok.stderr
-    # One byte changed (where the approver is named): the chain no longer holds.
+    # One byte changed in the compressed chunk that names the approver: the file no longer holds.
     raw = audited.path.read_bytes()
-    at = raw.index(b'"approved_by":"bob"') + len(b'"approved_by":"')
+    at = _byte_in_chunk_holding(audited.path, b'"approved_by":"bob"')
     edited = tmp_path / "edited.mcap"
-    edited.write_bytes(raw[:at] + b"m" + raw[at + 1:])
+    edited.write_bytes(raw[:at] + bytes([raw[at] ^ 0x20]) + raw[at + 1:])
     bad = verify(edited, audited.job["audit_head"])
     assert bad.returncode == 1 and "BROKEN" in bad.stdout, bad.stdout + bad.stderr
 
@@ -225,12 +245,12 @@ def test_robot_state_echoes_follow_the_plan(audited: AuditedJob) -> None:
         assert echo["data"]["joint_names"] == names
         assert np.max(np.abs(np.array(echo["data"]["q"]) - planned_q)) < ECHO_TOLERANCE_RAD
     # Each echo is also an executed joint state for Foxglove, beside the plan's own playback.
-    executed = [m["body"] for m in audited.messages if m["topic"] == "/joint_states/executed"]
+    executed = [m["body"] for m in audited.messages if m["topic"] == "/robot/joint_states"]
     assert len(executed) == len(echoes)
     assert [j["name"] for j in executed[0]["joints"]] == names
     topics = {m["topic"]: m["schema"] for m in audited.messages}
-    assert topics["/joint_states/plan"] == topics["/joint_states/executed"] == "foxglove.JointStates"
-    assert topics["/robot_description"] and topics["/markers/support"] == "foxglove.SceneUpdate"
+    assert topics["/plan/joint_states"] == topics["/robot/joint_states"] == "foxglove.JointStates"
+    assert topics["/robot_description"] and topics["/plan/markers/support"] == "foxglove.SceneUpdate"
 
 
 def test_a_survey_job_records_its_request_and_survey_document(audited: AuditedJob) -> None:
