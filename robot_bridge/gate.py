@@ -109,13 +109,14 @@ class SafetyGate:
         threshold_m: float | None = None,
         now: datetime | None = None,
         offline: bool = False,
+        recovery: bool = False,
     ) -> GateVerdict:
         """The verdict on ``plan``. Online (the default) an approval and a measured state are required.
 
         ``offline`` skips the approval, hash and start-state checks when they are not
         given (``regrasp gate check``); every other check runs the same way.
         """
-        return self._check(plan, None, approval, measured, threshold_m, now, offline)
+        return self._check(plan, None, approval, measured, threshold_m, now, offline, recovery=recovery)
 
     def check_json(self, plan_json: bytes | str, **kwargs: Any) -> tuple[GateVerdict, dict[str, Any] | None]:
         """Check a plan given as its canonical JSON bytes; returns the verdict and the parsed plan.
@@ -136,13 +137,15 @@ class SafetyGate:
             return ctx.verdict(False, "structure", f"the plan is not valid JSON: {exc}", None, time.perf_counter() - t0), None
         verdict = self._check(plan, (digest, t1 - t0), kwargs.pop("approval", None), kwargs.pop("measured", None),
                               kwargs.pop("threshold_m", None), kwargs.pop("now", None), kwargs.pop("offline", False),
-                              json_s=time.perf_counter() - t1, **kwargs)
+                              json_s=time.perf_counter() - t1, recovery=kwargs.pop("recovery", False), **kwargs)
         return verdict, plan
 
     def _check(self, plan: Any, digest: tuple[str, float] | None, approval: Approval | None, measured: MeasuredState | None,
-               threshold_m: float | None, now: datetime | None, offline: bool, json_s: float | None = None) -> GateVerdict:
+               threshold_m: float | None, now: datetime | None, offline: bool, json_s: float | None = None,
+               recovery: bool = False) -> GateVerdict:
         started = time.perf_counter()
         ctx = _Context(settings=self.settings)
+        ctx.recovery = recovery
         ctx.digest = digest
         if json_s is not None:  # check_json: reading the bytes into a plan, before the checks (not in elapsed_s)
             ctx.note("timing", json_s=json_s)
@@ -387,6 +390,9 @@ class _Context:
     dt: float = 0.0
     samples: int = 0
     threshold: float | None = None
+    #: A recover job's plan (from a measured state back to the stance): the margin floor is the threshold or,
+    #: where the start is below it, the start's own margin (never lowered).
+    recovery: bool = False
     plan_sha256: str | None = None
     digest: tuple[str, float] | None = None  # (sha256 of the given bytes, seconds it took)
 
@@ -635,6 +641,9 @@ def _check_stability(ctx: _Context, p: _Parsed, fk: BatchFK, polygon: Polygon, s
 
     com = system(held, robot_com, obj_com)
     margin = polygon.margin(com[:, :2])
+    if ctx.recovery and margin[0] < ctx.threshold:
+        need = float(margin[0]) - s.margin_tolerance_m
+        ctx.note("com_margin", recovery_floor_m=float(margin[0]))
     k = int(np.argmin(margin))
     ctx.note("com_margin", min_margin_m=float(margin[k]), at_sample=k, threshold_m=ctx.threshold,
              polygon=polygon.vertices.tolist())
