@@ -29,6 +29,12 @@ def run_plan(request: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
     return plan_job(request, ctx)
 
 
+def run_recover(request: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
+    from .recovery import recover_job
+
+    return recover_job(request, ctx)
+
+
 def run_survey(request: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
     from .jobs import survey_job
 

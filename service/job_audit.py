@@ -30,6 +30,9 @@ from .store.tables import jobs
 log = logging.getLogger("regrasp.audit")
 
 PUMP_PERIOD_S = 0.2
+#: Bridge events that can come after a job ended and are still recorded (in a continuation file): the stop
+#: sent again to a controller that was lost during the job and came back.
+AFTER_END_EVENTS = frozenset({"stop_resent"})
 
 
 def records_for_event(event: dict[str, Any], job: dict[str, Any], store: JobStore) -> list[tuple[str, dict[str, Any]]]:
@@ -48,7 +51,7 @@ def records_for_event(event: dict[str, Any], job: dict[str, Any], store: JobStor
         if state in ("planned", "failed") or (state == "succeeded" and job["kind"] == "survey"):
             result = store.result(event["job_id"])
             if result is not None:
-                out.append(("plan" if job["kind"] == "plan" else "survey",
+                out.append(("plan" if job["kind"] in ("plan", "recover") else "survey",
                             {**base, "plan_sha256": job.get("plan_sha256"), "document": result}))
         if "approval" in data:
             out.append(("approval", {**base, **data["approval"]}))
@@ -120,9 +123,11 @@ class JobAuditor:
             if done is None:
                 done = job.get("audit_event_id") or 0
                 self._done_upto[job_id] = done
-            if event["id"] <= done or job.get("audit_closed"):
+            after_end = (job.get("audit_closed") and event["kind"] == "bridge"
+                         and (event.get("data") or {}).get("event") in AFTER_END_EVENTS)
+            if event["id"] <= done or (job.get("audit_closed") and not after_end):
                 continue
-            writer, path = self._writer(job)
+            writer, path = self._writer(job, "recorded after the job ended" if after_end else None)
             head = None
             for kind, payload in records_for_event(event, job, self.store):
                 head = writer.record(kind, payload)
@@ -130,14 +135,14 @@ class JobAuditor:
             fields: dict[str, Any] = {"audit_event_id": event["id"], "audit_path": str(path)}
             if isinstance(head, str):
                 fields["audit_head"] = head
-            if event["kind"] == "state" and event.get("state") in TERMINAL_STATES:
+            if (event["kind"] == "state" and event.get("state") in TERMINAL_STATES) or after_end:
                 writer.close()
                 self._writers.pop(job_id, None)
                 fields["audit_closed"] = True
             self.store.update_fields(job_id, **fields)
         return len(events)
 
-    def _writer(self, job: dict[str, Any]) -> tuple[Any, Path]:
+    def _writer(self, job: dict[str, Any], continued_because: str | None = None) -> tuple[Any, Path]:
         job_id = job["id"]
         if job_id in self._writers:
             return self._writers[job_id]
@@ -151,7 +156,8 @@ class JobAuditor:
         if previous:
             writer.record("continued", {"job_id": job_id, "previous_file": previous,
                                         "previous_head": job.get("audit_head"),
-                                        "reason": "the service restarted; the previous file ends where it stopped"})
+                                        "reason": continued_because
+                                        or "the service restarted; the previous file ends where it stopped"})
         self._writers[job_id] = (writer, path)
         return writer, path
 

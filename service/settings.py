@@ -23,6 +23,7 @@ from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, Settings
 DEFAULT_HANDLERS: dict[str, str] = {
     "plan": "planner.entry:run_plan",
     "survey": "planner.entry:run_survey",
+    "recover": "planner.entry:run_recover",
 }
 
 

@@ -86,7 +86,7 @@ def robot_loads() -> dict[str, Any]:
     return {"pid": os.getpid(), "robot_loads": info.misses, "robot_cache_hits": info.hits}
 
 
-HANDLERS = {"plan": "svc_test_handlers:run", "survey": "svc_test_handlers:run"}
+HANDLERS = {"plan": "svc_test_handlers:run", "survey": "svc_test_handlers:run", "recover": "planner.entry:run_recover"}
 
 
 #: Length of the standing-still plan made by :func:`stand`, s.
