@@ -53,7 +53,7 @@ from schemas.bridge import CommandHeartbeat, ExecStatus, Heartbeat, JointState, 
 
 from .process_tuning import freeze_startup_objects, raise_thread_priority
 from .settings import BridgeSettings, Keys
-from .signing import Verifier
+from .signing import Verifier, open_signed
 from .zenoh_session import control_publisher, encode, open_session, telemetry_publisher
 
 #: Exit code of an injected crash.
@@ -247,22 +247,22 @@ class ControllerSim:
     # ------------------------------------------------------------------ authentication
     def _open(self, payload: bytes, kind: str, received: float) -> dict | None:
         """The message as a dict if it is signed by the trusted key and not expired; else refused (None)."""
-        try:
-            msg = json.loads(payload)
-        except (ValueError, UnicodeDecodeError):
-            msg = None
-        if not isinstance(msg, dict):
-            self._status(None, None, "refused", f"malformed {kind}: not a JSON object", received, kind=kind)
-            return None
-        job_id = msg.get("job_id") if isinstance(msg.get("job_id"), str) else None
-        seq = msg.get("seq") if isinstance(msg.get("seq"), int) and not isinstance(msg.get("seq"), bool) else None
         if self._verifier is None:
+            try:
+                msg = json.loads(payload)
+            except (ValueError, UnicodeDecodeError):
+                msg = None
             problem = "no trusted key is configured: only cmd/stop is obeyed"
         else:
-            problem = self._verifier.problem(msg)
+            msg, problem = open_signed(payload, self._verifier)
+        if not isinstance(msg, dict):
+            self._status(None, None, "refused", f"malformed {kind}: not a JSON object", received, kind=kind, fatal=False)
+            return None
         if problem is None:
             problem = self._expiry_problem(msg)
         if problem is not None:
+            job_id = msg.get("job_id") if isinstance(msg.get("job_id"), str) else None
+            seq = msg.get("seq") if isinstance(msg.get("seq"), int) and not isinstance(msg.get("seq"), bool) else None
             # Not fatal: nothing changed for a running job (a forged or late copy is not the dispatcher's word).
             self._status(job_id, seq, "refused", f"{kind} refused: {problem}", received, kind=kind, fatal=False)
             return None
