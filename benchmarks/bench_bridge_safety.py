@@ -15,9 +15,12 @@
    GIL-heavy work as the service's API and event threads do (JSON round trips of a
    plan-sized document). The controller is healthy throughout, so every abort is a
    false one. Printed as false aborts per 100 executions with the Wilson 95 %
-   interval and the count, per configuration: ``--modes`` ``default`` (the
-   product's settings) and ``no-priority`` (the bridge threads left at a normal
-   process's priority, ``thread_nice`` 0), to show what the priority does.
+   interval and the count, per configuration (``--modes``): ``process``, the
+   service's arrangement (the dispatcher in a process of its own,
+   ``robot_bridge.dispatcher_process``, the GIL-heavy thread in the parent);
+   ``in-process``, the dispatcher in the process of the GIL-heavy thread (raised
+   thread priority, 0.5 ms switch interval); ``in-process-plain``, the same at a
+   normal priority and Python's 5 ms switch interval.
 
 The host is shared (other processes run beside this one); the load average and
 the CPU time the hypervisor took (steal) are printed with each figure. Keep the
@@ -43,6 +46,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from robot_bridge.dispatcher import Dispatcher, DispatchSettings, SignedSegment, split_segments  # noqa: E402
+from robot_bridge.dispatcher_process import DispatcherProcess  # noqa: E402
+from robot_bridge.process_tuning import shorten_switch_interval  # noqa: E402
 from robot_bridge.settings import BridgeSettings  # noqa: E402
 from robot_bridge.signing import Signer, Verifier, generate_keys, open_signed  # noqa: E402
 from schemas.bridge import CommandHeartbeat, TrajectorySegment  # noqa: E402
@@ -146,11 +151,19 @@ def start_controller(qfile: Path, public: Path, nice: str | None) -> tuple[subpr
 
 
 def false_aborts(mode: str, runs: int, burners: int, service_load: bool, qfile: Path, keys: tuple[Path, Path]) -> None:
-    nice = None if mode == "default" else "0"  # 0: a normal process's own priority, i.e. not raised
+    plain = mode == "in-process-plain"
+    nice = "0" if plain else None  # 0: a normal process's own priority, i.e. not raised
     proc, endpoint = start_controller(qfile, keys[1], nice)
     settings = BridgeSettings(robot_id=ROBOT_ID, connect=[endpoint], signing_key=keys[0],
-                              **({} if mode == "default" else {"thread_nice": 0}))
-    disp = Dispatcher(settings)
+                              **({"thread_nice": 0} if plain else {}))
+    sys.setswitchinterval(0.005)
+    if mode == "in-process":
+        shorten_switch_interval()
+
+    def make(s: BridgeSettings):
+        return DispatcherProcess(s) if mode == "process" else Dispatcher(s)
+
+    disp = make(settings)
     forward = build_plan(MOVES, duration_s=MOVE_S)
     back = json.loads(json.dumps(forward))
     back["trajectory"] = [dict(p, q=q["q"]) for p, q in zip(forward["trajectory"], reversed(forward["trajectory"]))]
@@ -183,7 +196,7 @@ def false_aborts(mode: str, runs: int, burners: int, service_load: bool, qfile: 
             proc.wait(10)
             disp.close()
             proc, endpoint = start_controller(qfile, keys[1], nice)
-            disp = Dispatcher(settings.model_copy(update={"connect": [endpoint]}))
+            disp = make(settings.model_copy(update={"connect": [endpoint]}))
             assert disp.wait_for_controller(20.0), disp.controller_problem()
             k = 0
         elapsed, stolen = time.monotonic() - t0, steal_s() - steal0
@@ -209,7 +222,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=20, help="executions per mode (keep it modest on a shared host)")
     ap.add_argument("--burners", type=int, default=4, help="busy processes beside the bridge (2 cores: both busy)")
     ap.add_argument("--no-service-load", action="store_true", help="no GIL-heavy thread in the dispatcher's process")
-    ap.add_argument("--modes", default="default,no-priority")
+    ap.add_argument("--modes", default="process,in-process")
     ap.add_argument("--crypto-iterations", type=int, default=2000)
     args = ap.parse_args()
     print(f"machine: {os.cpu_count()} cores, shared with other work; load average {os.getloadavg()[0]:.1f}; "

@@ -76,6 +76,12 @@ class DispatchSettings(BaseSettings):
                     "drop-on-congestion then lost segments)",
     )
     poll_period_s: float = Field(0.005, gt=0, le=0.1, description="how often the execution loop looks at its inputs")
+    self_stall_s: float = Field(
+        0.05, gt=0, le=1.0,
+        description="an execution loop that did not run for this long was itself held up (its process starved of the "
+                    "CPU or the interpreter): the heartbeat watchdog then counts from when it runs again, since the "
+                    "controller's heartbeats that came meanwhile were waiting for the same interpreter. The robot is "
+                    "still covered meanwhile: the controller's own dead-man stops it if this process goes quiet")
     progress_timeout_s: float = Field(3.0, gt=0, description="no progress report for this long = fault")
     resend_after_s: float = Field(0.1, gt=0, description="re-send a segment the controller has not acknowledged by then")
     gap_holdoff_s: float = Field(
@@ -275,15 +281,19 @@ class Dispatcher:
         """This peer's zenoh id (for diagnostics and tests)."""
         return str(self._session.info.zid()) if self._session is not None else ""
 
-    def controller_problem(self) -> str | None:
-        """Why the controller is not usable now, or None when it is alive (token and fresh heartbeat)."""
+    def controller_problem(self, since: float | None = None) -> str | None:
+        """Why the controller is not usable now, or None when it is alive (token and fresh heartbeat).
+
+        ``since``: judge the heartbeat's age from no earlier than this (``time.monotonic()``): the moment this
+        process could run again after it was itself held up, when the heartbeats that came meanwhile were
+        still waiting for its interpreter."""
         with self._lock:
             token, beat = self._token_alive, self._last_heartbeat
         if not token:
             return f"no controller: liveliness token {self.keys.alive} is absent"
         if beat is None:
             return "no controller heartbeat received yet"
-        age = time.monotonic() - beat
+        age = time.monotonic() - (beat if since is None else max(beat, since))
         if age > self.settings.watchdog_timeout_s:
             return f"controller heartbeat lost: none for {age * 1000:.0f} ms (watchdog {self.settings.watchdog_timeout_s * 1000:.0f} ms)"
         return None
@@ -556,6 +566,9 @@ class Dispatcher:
             return (now - min(sent_at for sent_at, _ in run.pending.values()) > d.in_flight_wait_s
                     and now - run.last_new_at > d.in_flight_wait_s)
 
+        # The watchdog judges only time this loop could run: after the gate (a long check holds the interpreter)
+        # or any stall of this process, the heartbeats already here get their callbacks before one is missed.
+        resumed_at = last_iteration = time.monotonic()
         while run.sent < min(len(run.segments), ahead) and window_open(time.monotonic()):
             self._send_segment(run, emit)
         last_progress = time.monotonic()
@@ -567,7 +580,11 @@ class Dispatcher:
                 stop_requested = run.job_id in self._stop_requests or None in self._stop_requests
             if stop_event.is_set() or stop_requested:
                 return self._abort(run, emit, "stopped by operator", verdict, started, wait_ack=True)
-            problem = self.controller_problem()
+            tick = time.monotonic()
+            if tick - last_iteration > d.self_stall_s:
+                resumed_at = tick
+            last_iteration = tick
+            problem = self.controller_problem(since=resumed_at)
             if problem is not None:
                 return self._abort(run, emit, f"controller lost: {problem}", verdict, started, lost=True)
             try:

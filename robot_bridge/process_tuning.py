@@ -13,6 +13,19 @@ def freeze_startup_objects() -> None:
     gc.freeze()
 
 
+#: Python's thread switch interval in a process that carries bridge traffic beside other Python work (the
+#: service): a zenoh callback or the heartbeat thread waits about this long for the interpreter (default 5 ms).
+BRIDGE_SWITCH_INTERVAL_S = 0.0005
+
+
+def shorten_switch_interval(interval_s: float = BRIDGE_SWITCH_INTERVAL_S) -> None:
+    """Let the bridge's threads in at most every ``interval_s`` when other threads run Python."""
+    import sys
+
+    if sys.getswitchinterval() > interval_s:
+        sys.setswitchinterval(interval_s)
+
+
 def raise_thread_priority(nice: int | None) -> bool:
     """Give the calling thread (and the threads it starts from now on, which inherit it) niceness ``nice``.
 

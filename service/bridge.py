@@ -117,21 +117,24 @@ class DispatcherBridge:
 def make_bridge() -> Bridge:
     """The zenoh dispatcher of robot_bridge, or :class:`NoBridge` when it cannot start (dispatch then answers 409).
 
-    A signing key that cannot be read does not stop the service: it plans, and dispatch answers 409 saying why."""
-    from robot_bridge.dispatcher import Dispatcher
+    The dispatcher runs in a process of its own (``robot_bridge.dispatcher_process``): its heartbeat and
+    watchdog then never wait for the interpreter behind the API's threads. A signing key that cannot be
+    read does not stop the service: it plans, and dispatch answers 409 saying why."""
+    from robot_bridge.dispatcher_process import DispatcherProcess
     from robot_bridge.settings import BridgeSettings
     from robot_bridge.signing import KeyFileError, Signer
 
     try:
         settings = BridgeSettings()
-        signer, problem = None, None
+        problem = None
         if settings.signing_key is not None:
             try:
-                signer = Signer.from_file(settings.signing_key)
+                Signer.from_file(settings.signing_key)
             except KeyFileError as exc:
                 problem = f"the signing key cannot be used: {exc}"
                 log.warning("robot bridge: %s; dispatch will answer 409", problem)
-        return DispatcherBridge(Dispatcher(settings.model_copy(update={"signing_key": None}), signer=signer), problem)
+                settings = settings.model_copy(update={"signing_key": None})
+        return DispatcherBridge(DispatcherProcess(settings), problem)
     except Exception as exc:  # noqa: BLE001 - the service must still plan without a bridge
         log.warning("robot bridge unavailable (%s); dispatch will answer 409", exc)
         bridge = NoBridge()
