@@ -10,7 +10,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, StringConstraints, model_validator
+from pydantic import Field, StringConstraints, ValidationInfo, field_validator, model_validator
 
 from .common import Finite, HandsChoice, OpenModel, StrictModel
 
@@ -67,6 +67,14 @@ class JobSubmit(StrictModel):
 
     kind: JobKind
     request: JobRequest | RecoverRequest
+
+    @field_validator("request", mode="before")
+    @classmethod
+    def _request_of_kind(cls, value: Any, info: ValidationInfo) -> Any:
+        """Validate the request as the kind's own model, so an error names its field (``request.scenario``)."""
+        if isinstance(value, (JobRequest, RecoverRequest)):
+            return value
+        return (RecoverRequest if info.data.get("kind") == "recover" else JobRequest).model_validate(value)
 
     @model_validator(mode="after")
     def _request_fits_kind(self) -> "JobSubmit":

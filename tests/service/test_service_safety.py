@@ -148,7 +148,7 @@ def test_recovery_after_an_abort_then_a_normal_plan_succeeds(rig: tuple[Server, 
     assert "stop_sent" in kinds and ("finished", "aborted") in [(k, p["data"].get("status")) for k, p in aborted
                                                                   if k == "finished"]
     assert [p["state"] for k, p in aborted if k == "state"][-1] == "aborted"
-    veto = _audit_events(srv, stand)
+    veto = _audit_events(srv, stand, want="gate_verdict")
     assert [p["state"] for k, p in veto if k == "state"][-1] == "rejected"
     assert any(k == "gate_verdict" and p["verdict"]["check"] == "start_state" for k, p in veto)
     rec = _audit_events(srv, recover)
