@@ -4,7 +4,7 @@ Runs a real ``regrasp controller-sim`` process and a real dispatcher peer.
 Both clocks are ``time.monotonic()`` (CLOCK_MONOTONIC, shared by the processes of
 one machine), so one-way times are measured directly:
 
-- segment latency: dispatcher just before ``put`` (the segment's encoding included)
+- segment latency: dispatcher just before ``put`` (the segment's expiry and signature included)
   -> controller's zenoh callback (``received_at`` in its ``accepted`` status), over
   several executed plans, for small segments (``--segment-s``) and for the
   production size (the dispatcher's default segment duration, read from
@@ -16,7 +16,8 @@ one machine), so one-way times are measured directly:
   ``stopped`` replies are read by an observer peer, not through the dispatcher.
 
 Both peers run with the product's defaults (``BridgeSettings``, ``DispatchSettings``,
-``ControllerSimSettings``), except the dispatcher's watchdog: 2 s (``BENCH_WATCHDOG_S``), since a
+``ControllerSimSettings``; a key pair made for the run signs every command), except the watchdogs, the
+dispatcher's and the controller's dead-man: 2 s (``BENCH_WATCHDOG_S``), since a
 host that pauses this VM for 300 ms aborts an execution at the production 0.25 s, and the watchdog
 plays no part in the latencies. Each figure is printed with the machine's load average and the
 CPU time the hypervisor took from this machine while it was measured (``steal`` in
@@ -52,6 +53,7 @@ from robot_bridge.dispatcher import (  # noqa: E402
     split_segments,
 )
 from robot_bridge.settings import BridgeSettings, Keys  # noqa: E402
+from robot_bridge.signing import generate_keys  # noqa: E402
 from robot_bridge.zenoh_session import encode, open_session  # noqa: E402
 from schemas.bridge import ExecStatus  # noqa: E402
 from schemas.plan import plan_sha256  # noqa: E402
@@ -69,8 +71,10 @@ MOVES = {"RSP": -0.4, "REP": -0.3}
 MOVE_S = 2.0
 
 
-#: The dispatcher's watchdog here (see the module's docstring).
+#: The dispatcher's watchdog and the controller's dead-man here (see the module's docstring).
 BENCH_WATCHDOG_S = 2.0
+#: The key pair of this run (``private``, ``public`` PEM paths), made in its temporary directory.
+KEYS: dict[str, str] = {}
 
 
 def free_port() -> int:
@@ -179,7 +183,8 @@ def pause_summary(probe: HostStallProbe, spans: list[tuple[float, float]]) -> st
 def segment_latency(endpoint: str, segment_s: float, plans: list[dict], min_jobs: int, min_segments: int,
                     probe: HostStallProbe) -> None:
     """Execute the plans (forward, back, ...) until both minimums are met; print the one-way segment latencies."""
-    disp = Dispatcher(BridgeSettings(robot_id=ROBOT_ID, connect=[endpoint], watchdog_timeout_s=BENCH_WATCHDOG_S),
+    disp = Dispatcher(BridgeSettings(robot_id=ROBOT_ID, connect=[endpoint], watchdog_timeout_s=BENCH_WATCHDOG_S,
+                                     signing_key=KEYS["private"]),
                       DispatchSettings(segment_duration_s=segment_s))
     try:
         assert disp.wait_for_controller(20.0), disp.controller_problem()
@@ -290,10 +295,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         qfile = Path(tmp) / "q.json"
         qfile.write_text(json.dumps({"joint_names": names, "q": q}))
+        private, public = generate_keys(Path(tmp) / "keys")
+        KEYS.update(private=str(private), public=str(public))
         endpoint = f"tcp/127.0.0.1:{free_port()}"
         proc = subprocess.Popen(
             [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", ROBOT_ID, "--initial-q", str(qfile),
-             "--listen", endpoint, "--speed", str(args.speed)],
+             "--listen", endpoint, "--speed", str(args.speed), "--trusted-key", str(public),
+             "--watchdog-ms", str(BENCH_WATCHDOG_S * 1000)],
             cwd=REPO, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
         try:
@@ -304,7 +312,8 @@ def main() -> None:
                 segment_latency(endpoint, segment_s, plans, args.jobs, args.min_segments, probe)
 
             watch = ExecObserver(endpoint)
-            disp = Dispatcher(BridgeSettings(robot_id=ROBOT_ID, connect=[endpoint], watchdog_timeout_s=BENCH_WATCHDOG_S))
+            disp = Dispatcher(BridgeSettings(robot_id=ROBOT_ID, connect=[endpoint], watchdog_timeout_s=BENCH_WATCHDOG_S,
+                                             signing_key=KEYS["private"]))
             try:
                 assert disp.wait_for_controller(20.0), disp.controller_problem()
                 conditions = Conditions()

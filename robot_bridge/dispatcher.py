@@ -9,6 +9,15 @@ its liveliness token (gone when its session dies) and an application heartbeat
 (a frozen controller keeps its token until the lease ends). Losing either aborts
 the job and sends a stop within the watchdog timeout.
 
+Every command is signed with the dispatcher's Ed25519 key and carries
+``expires_at`` (``robot_bridge.signing``); without a key nothing is dispatched.
+While an execution runs, a dedicated thread publishes the dispatcher's own
+heartbeat on ``cmd/heartbeat`` (every ``heartbeat_period_s``, its own ``seq``):
+the controller's dead-man, so a dispatcher that dies or a link that breaks
+stops the robot on the controller's side too. When an execution was aborted
+because the controller was lost, the stop is sent again as soon as that
+controller is heard from again, and reported through ``on_controller_return``.
+
 The service calls :meth:`Dispatcher.execute` from a worker thread and gets every
 step through ``on_event(kind, data)``: ``gate``, ``dispatching``, ``segment``,
 ``executing``, ``robot_state``, ``controller``, ``stop_sent``, ``finished``.
@@ -28,11 +37,21 @@ import zenoh
 from pydantic import Field, ValidationError
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from schemas.bridge import MAX_SEGMENT_DURATION_S, ExecStatus, GateVerdict, Heartbeat, JointState, Stop, TrajectorySegment
+from schemas.bridge import (
+    MAX_SEGMENT_DURATION_S,
+    ExecStatus,
+    GateVerdict,
+    Heartbeat,
+    JointState,
+    Stop,
+    TrajectorySegment,
+)
 
 from .gate import Approval, MeasuredState, SafetyGate
+from .process_tuning import raise_thread_priority
 from .settings import BridgeSettings, Keys
-from .zenoh_session import control_publisher, encode, open_session
+from .signing import Signer, canonical_bytes
+from .zenoh_session import control_publisher, open_session
 
 EventCallback = Callable[[str, dict[str, Any]], None]
 
@@ -65,6 +84,12 @@ class DispatchSettings(BaseSettings):
                     "drop-on-congestion then lost segments)",
     )
     poll_period_s: float = Field(0.005, gt=0, le=0.1, description="how often the execution loop looks at its inputs")
+    self_stall_s: float = Field(
+        0.05, gt=0, le=1.0,
+        description="an execution loop that did not run for this long was itself held up (its process starved of the "
+                    "CPU or the interpreter): the heartbeat watchdog then counts from when it runs again, since the "
+                    "controller's heartbeats that came meanwhile were waiting for the same interpreter. The robot is "
+                    "still covered meanwhile: the controller's own dead-man stops it if this process goes quiet")
     progress_timeout_s: float = Field(3.0, gt=0, description="no progress report for this long = fault")
     resend_after_s: float = Field(0.1, gt=0, description="re-send a segment the controller has not acknowledged by then")
     gap_holdoff_s: float = Field(
@@ -95,6 +120,31 @@ class ControllerUnavailableError(RuntimeError):
 
 class BusyError(RuntimeError):
     """Another execution is running on this dispatcher."""
+
+
+class NoSigningKeyError(RuntimeError):
+    """The dispatcher has no signing key: the controller would refuse every command, so nothing is sent (HTTP 409)."""
+
+
+class SignedSegment:
+    """One segment's canonical JSON, split around its ``expires_at`` so that a send only adds the expiry and signs.
+
+    Keys sort ``dt_s``, ``expires_at``, ...: the canonical bytes are ``prefix + repr(expires_at) + suffix``."""
+
+    __slots__ = ("seq", "prefix", "suffix")
+
+    def __init__(self, seg: TrajectorySegment):
+        doc = seg.model_dump(mode="json", exclude={"sig"})
+        doc["expires_at"] = 0.0
+        body = canonical_bytes(doc)
+        marker = b'"expires_at":0.0,'
+        i = body.index(marker) + len(b'"expires_at":')
+        self.seq = seg.seq
+        self.prefix, self.suffix = body[:i], body[i + len(b"0.0"):]
+
+    def wire(self, signer: Signer, expires_at: float) -> bytes:
+        body = self.prefix + repr(float(expires_at)).encode() + self.suffix
+        return body[:-1] + b',"sig":"' + signer.signature(body).encode("ascii") + b'"}'
 
 
 @dataclass
@@ -137,9 +187,16 @@ class Dispatcher:
     """One zenoh peer of the bridge for one robot; thread-safe, one execution at a time."""
 
     def __init__(self, settings: BridgeSettings | None = None, dispatch: DispatchSettings | None = None,
-                 gate: SafetyGate | None = None):
+                 gate: SafetyGate | None = None, signer: Signer | None = None,
+                 on_controller_return: Callable[[str, dict[str, Any]], None] | None = None):
         self.settings = settings or BridgeSettings()
         self.dispatch = dispatch or DispatchSettings()
+        if signer is None and self.settings.signing_key is not None:
+            signer = Signer.from_file(self.settings.signing_key)
+        self.signer = signer
+        #: Called (job_id, data) from a zenoh thread when a controller lost during that job is heard from again
+        #: and the stop was sent again.
+        self.on_controller_return = on_controller_return
         self.gate = gate or SafetyGate()  # the start tolerance comes with each measured state (see _execute)
         self.keys = Keys(self.settings.robot_id)
         self._lock = threading.Lock()
@@ -152,11 +209,26 @@ class Dispatcher:
         self._stop_requests: set[str | None] = set()
         # seq must grow across jobs and restarts of this process: start from the clock (ms)
         self._seq = int(time.time() * 1000)
-        self._payloads: dict[int, bytes] = {}  # seq -> encoded segment, of the running execution only
-        self._session = open_session(self.settings)
+        self._payloads: dict[int, SignedSegment] = {}  # seq -> segment ready to sign, of the running execution only
+        self._lost: dict[str, dict[str, Any]] = {}  # job id -> why it was aborted, while its controller is away
+        self._heartbeat_job: str | None = None  # the execution whose heartbeat runs
+        self._heartbeat_wake = threading.Event()
+        self._closing = threading.Event()
+        # zenoh's runtime threads start with the session and inherit this thread's priority for their lives;
+        # the calling thread gets its own back afterwards.
+        before = _thread_nice()
+        raised = raise_thread_priority(self.settings.thread_nice)
+        try:
+            self._session = open_session(self.settings)
+        finally:
+            if raised and before is not None:
+                raise_thread_priority(before)
         s = self._session
         self._pub_traj = control_publisher(s, self.keys.trajectory)
         self._pub_stop = control_publisher(s, self.keys.stop)
+        self._pub_heartbeat = control_publisher(s, self.keys.command_heartbeat)
+        self._heartbeat_thread = threading.Thread(target=self._heartbeat_loop, name="bridge-heartbeat", daemon=True)
+        self._heartbeat_thread.start()
         self._subs = [
             s.liveliness().declare_subscriber(self.keys.alive, self._on_alive, history=True),
             s.declare_subscriber(self.keys.heartbeat, self._on_heartbeat),
@@ -168,6 +240,8 @@ class Dispatcher:
     def _on_alive(self, sample: zenoh.Sample) -> None:
         with self._lock:
             self._token_alive = sample.kind == zenoh.SampleKind.PUT
+        if sample.kind == zenoh.SampleKind.PUT:
+            self._controller_back("liveliness token")
 
     def _on_heartbeat(self, sample: zenoh.Sample) -> None:
         try:
@@ -176,6 +250,25 @@ class Dispatcher:
             return
         with self._lock:
             self._last_heartbeat = time.monotonic()
+            lost = bool(self._lost)
+        if lost:
+            self._controller_back("heartbeat")
+
+    def _controller_back(self, how: str) -> None:
+        """A controller is heard from while jobs aborted for its loss are unconfirmed: send their stops again."""
+        with self._lock:
+            lost, self._lost = self._lost, {}
+        for job_id, info in lost.items():
+            reason = f"stop re-sent: the controller lost during job {job_id} is back ({how})"
+            sent_at = self._send_stop(job_id, reason)
+            data = {"job_id": job_id, "reason": reason, "sent_at": sent_at, "aborted_for": info.get("reason"),
+                    "lost_for_s": time.monotonic() - info["at"]}
+            callback = self.on_controller_return
+            if callback is not None:
+                try:
+                    callback(job_id, data)
+                except Exception:  # noqa: BLE001 - a failing recorder must not stop the re-send of others
+                    pass
 
     def _on_joints(self, sample: zenoh.Sample) -> None:
         try:
@@ -196,15 +289,19 @@ class Dispatcher:
         """This peer's zenoh id (for diagnostics and tests)."""
         return str(self._session.info.zid()) if self._session is not None else ""
 
-    def controller_problem(self) -> str | None:
-        """Why the controller is not usable now, or None when it is alive (token and fresh heartbeat)."""
+    def controller_problem(self, since: float | None = None) -> str | None:
+        """Why the controller is not usable now, or None when it is alive (token and fresh heartbeat).
+
+        ``since``: judge the heartbeat's age from no earlier than this (``time.monotonic()``): the moment this
+        process could run again after it was itself held up, when the heartbeats that came meanwhile were
+        still waiting for its interpreter."""
         with self._lock:
             token, beat = self._token_alive, self._last_heartbeat
         if not token:
             return f"no controller: liveliness token {self.keys.alive} is absent"
         if beat is None:
             return "no controller heartbeat received yet"
-        age = time.monotonic() - beat
+        age = time.monotonic() - (beat if since is None else max(beat, since))
         if age > self.settings.watchdog_timeout_s:
             return f"controller heartbeat lost: none for {age * 1000:.0f} ms (watchdog {self.settings.watchdog_timeout_s * 1000:.0f} ms)"
         return None
@@ -243,16 +340,25 @@ class Dispatcher:
             self._stop_requests.add(job_id)
         return self._send_stop(job_id, reason)
 
+    def _stop_bytes(self, job_id: str | None, reason: str) -> bytes:
+        """A stop, signed when a key is there (a controller obeys it unsigned too)."""
+        now = time.monotonic()
+        msg = Stop(job_id=job_id, reason=reason, stamp=now, expires_at=time.time() + self.settings.segment_expiry_s)
+        doc = msg.model_dump(mode="json", exclude={"sig"})
+        if self.signer is None:
+            return canonical_bytes(doc)
+        return self.signer.encode(doc)
+
     def _send_stop(self, job_id: str | None, reason: str, repeats: int | None = None) -> float:
         n = repeats if repeats is not None else self.settings.stop_repeats
         sent_at = time.monotonic()
-        self._pub_stop.put(encode(Stop(job_id=job_id, reason=reason, stamp=sent_at)))
+        self._pub_stop.put(self._stop_bytes(job_id, reason))
         if n > 1:
             def again() -> None:
                 for _ in range(n - 1):
                     time.sleep(self.settings.stop_repeat_period_s)
                     try:
-                        self._pub_stop.put(encode(Stop(job_id=job_id, reason=reason, stamp=time.monotonic())))
+                        self._pub_stop.put(self._stop_bytes(job_id, reason))
                     except Exception:
                         return
             threading.Thread(target=again, name="stop-repeat", daemon=True).start()
@@ -267,7 +373,7 @@ class Dispatcher:
     # ------------------------------------------------------------------ execution
     def execute(self, plan: dict[str, Any] | str | bytes, *, job_id: str, approved_sha256: str, approval_expires_at: datetime,
                 threshold_m: float | None = None, on_event: EventCallback | None = None,
-                stop_event: threading.Event | None = None) -> ExecutionResult:
+                stop_event: threading.Event | None = None, recovery: bool = False) -> ExecutionResult:
         """Gate the plan, send it, follow it to the end.
 
         ``plan`` is the plan dict, or its canonical JSON text or bytes (``schemas.plan.canonical_json``):
@@ -277,16 +383,21 @@ class Dispatcher:
         controller is alive or its state is unknown (the job stays approved), and
         :class:`BusyError` when another execution runs.
         """
+        if self.signer is None:
+            raise NoSigningKeyError("the bridge has no signing key (REGRASP_BRIDGE_SIGNING_KEY): a controller refuses "
+                                    "unsigned commands, so nothing is dispatched; make a pair with "
+                                    "'regrasp keys generate DIR'")
         if not self._run_lock.acquire(blocking=False):
             raise BusyError("another execution is running on this dispatcher")
         try:
             return self._execute(plan, job_id, approved_sha256, approval_expires_at, threshold_m, on_event or (lambda k, d: None),
-                                 stop_event or threading.Event())
+                                 stop_event or threading.Event(), recovery)
         finally:
             self._run_lock.release()
 
     def _execute(self, plan: dict[str, Any] | str | bytes, job_id: str, approved_sha256: str, expires_at: datetime,
-                 threshold_m: float | None, emit: EventCallback, stop_event: threading.Event) -> ExecutionResult:
+                 threshold_m: float | None, emit: EventCallback, stop_event: threading.Event,
+                 recovery: bool = False) -> ExecutionResult:
         started = time.monotonic()
         with self._lock:
             token = self._token_alive
@@ -304,10 +415,12 @@ class Dispatcher:
         approval = Approval(approved_sha256, expires_at)
         measured = MeasuredState(state.joint_names, state.q, self.dispatch.start_tolerance_rad)
         if isinstance(plan, (bytes, bytearray, str)):
-            verdict, parsed = self.gate.check_json(plan, approval=approval, measured=measured, threshold_m=threshold_m)
+            verdict, parsed = self.gate.check_json(plan, approval=approval, measured=measured, threshold_m=threshold_m,
+                                                   recovery=recovery)
             plan = parsed if parsed is not None else {}
         else:
-            verdict = self.gate.check(plan, approval=approval, measured=measured, threshold_m=threshold_m)
+            verdict = self.gate.check(plan, approval=approval, measured=measured, threshold_m=threshold_m,
+                                      recovery=recovery)
         emit("gate", verdict.model_dump(mode="json"))
         if not verdict.passed:
             return ExecutionResult("rejected", verdict.summary(), verdict, duration_s=time.monotonic() - started)
@@ -320,18 +433,21 @@ class Dispatcher:
         emit("dispatching", {"job_id": job_id, "segments": len(segments), "points": n_points, "dt_s": plan["dt_s"],
                              "plan_sha256": verdict.plan_sha256, "first_seq": segments[0].seq})
         self._drain_exec()
-        # Encoded once, now: a send (and a re-send) is then only the put (encoding a 0.25 s segment takes
-        # ~0.1 ms, which a send at the controller's pace need not spend).
-        self._payloads = {seg.seq: encode(seg) for seg in segments}
-        run = _Run(job_id=job_id, segments=segments)
+        # Serialised once, now: a send (and a re-send) then only splices in its expires_at and signs.
+        self._payloads = {seg.seq: SignedSegment(seg) for seg in segments}
+        run = _Run(job_id=job_id, segments=segments, seqs=frozenset(seg.seq for seg in segments))
+        with self._lock:
+            self._lost.pop(job_id, None)
         try:
             return self._follow(run, emit, stop_event, verdict, started)
         except Exception as exc:  # fail safe: whatever broke, the robot is told to stop
+            self._end_heartbeat()
             self._send_stop(job_id, f"bridge error: {exc}")
             emit("stop_sent", {"job_id": job_id, "reason": f"bridge error: {exc}"})
             return ExecutionResult("aborted", f"bridge error: {type(exc).__name__}: {exc}", verdict, run.index, run.sent,
                                    time.monotonic() - started)
         finally:
+            self._end_heartbeat()
             self._payloads = {}  # a finished execution's bytes are not kept until the next one
 
     def _drain_exec(self) -> None:
@@ -345,6 +461,8 @@ class Dispatcher:
         seg = run.segments[run.sent]
         sent_at = time.monotonic()
         self._publish_segment(seg)
+        if run.sent == 0:
+            self._begin_heartbeat(run.job_id)  # the controller arms its dead-man at this segment
         run.pending[seg.seq] = (sent_at, 0)
         run.last_new_at = sent_at
         run.sent += 1
@@ -369,12 +487,62 @@ class Dispatcher:
                                  "cause": cause})
 
     def _publish_segment(self, seg: TrajectorySegment) -> None:
-        """Put one segment of the running execution on ``cmd/trajectory`` (the only place that does), as encoded
-        when the gate passed the plan."""
-        self._pub_traj.put(self._payloads[seg.seq])
+        """Put one segment of the running execution on ``cmd/trajectory`` (the only place that does), as serialised
+        when the gate passed the plan, with its receipt deadline and signature of now."""
+        assert self.signer is not None
+        self._pub_traj.put(self._payloads[seg.seq].wire(self.signer, time.time() + self.settings.segment_expiry_s))
+
+    # ------------------------------------------------------------------ the dispatcher's heartbeat (dead-man)
+    def _begin_heartbeat(self, job_id: str) -> None:
+        with self._lock:
+            self._heartbeat_job = job_id
+        self._heartbeat_wake.set()
+
+    def _end_heartbeat(self) -> None:
+        with self._lock:
+            self._heartbeat_job = None
+
+    def _heartbeat_loop(self) -> None:
+        """Publish ``cmd/heartbeat`` every period while an execution runs: a small signed message and nothing
+        else on this thread (no events, no locks held across a send), at the bridge's thread priority."""
+        raise_thread_priority(self.settings.thread_nice)
+        period = self.settings.heartbeat_period_s
+        job, seq = None, 0
+        next_at = time.monotonic()
+        while not self._closing.is_set():
+            with self._lock:
+                current = self._heartbeat_job
+            if current is None:
+                job = None
+                self._heartbeat_wake.wait(0.5)
+                self._heartbeat_wake.clear()
+                next_at = time.monotonic()
+                continue
+            if current != job:
+                job, seq = current, 0
+            now_unix = time.time()
+            msg = {"job_id": job, "seq": seq, "t": now_unix, "expires_at": now_unix + self.settings.heartbeat_expiry_s}
+            try:
+                self._pub_heartbeat.put(self.signer.encode(msg) if self.signer is not None else canonical_bytes(msg))
+            except Exception:  # noqa: BLE001 - a closed session ends the loop below
+                if self._closing.is_set():
+                    return
+            seq += 1
+            next_at += period
+            delay = next_at - time.monotonic()
+            if delay <= 0:
+                next_at = time.monotonic()  # late: the next one goes now, no burst to catch up
+                continue
+            self._heartbeat_wake.wait(delay)
+            self._heartbeat_wake.clear()
 
     def _abort(self, run: "_Run", emit: EventCallback, reason: str, verdict: GateVerdict, started: float,
-               wait_ack: bool = False) -> ExecutionResult:
+               wait_ack: bool = False, lost: bool = False) -> ExecutionResult:
+        # The heartbeat ends first: should the stop not arrive, the controller's dead-man stops the robot.
+        self._end_heartbeat()
+        if lost:
+            with self._lock:
+                self._lost[run.job_id] = {"reason": reason, "at": time.monotonic()}
         self._send_stop(run.job_id, reason)
         emit("stop_sent", {"job_id": run.job_id, "reason": reason})
         acked = False
@@ -406,6 +574,9 @@ class Dispatcher:
             return (now - min(sent_at for sent_at, _ in run.pending.values()) > d.in_flight_wait_s
                     and now - run.last_new_at > d.in_flight_wait_s)
 
+        # The watchdog judges only time this loop could run: after the gate (a long check holds the interpreter)
+        # or any stall of this process, the heartbeats already here get their callbacks before one is missed.
+        resumed_at = last_iteration = time.monotonic()
         while run.sent < min(len(run.segments), ahead) and window_open(time.monotonic()):
             self._send_segment(run, emit)
         last_progress = time.monotonic()
@@ -417,9 +588,13 @@ class Dispatcher:
                 stop_requested = run.job_id in self._stop_requests or None in self._stop_requests
             if stop_event.is_set() or stop_requested:
                 return self._abort(run, emit, "stopped by operator", verdict, started, wait_ack=True)
-            problem = self.controller_problem()
+            tick = time.monotonic()
+            if tick - last_iteration > d.self_stall_s:
+                resumed_at = tick
+            last_iteration = tick
+            problem = self.controller_problem(since=resumed_at)
             if problem is not None:
-                return self._abort(run, emit, f"controller lost: {problem}", verdict, started)
+                return self._abort(run, emit, f"controller lost: {problem}", verdict, started, lost=True)
             try:
                 at, st = self._exec.get(timeout=d.poll_period_s)
             except queue.Empty:
@@ -428,9 +603,9 @@ class Dispatcher:
             if st is not None and st.job_id == run.job_id:
                 if st.index is not None:
                     run.index = st.index
-                if st.status in ("accepted", "ignored") and st.seq is not None:
+                if st.status in ("accepted", "duplicate") and st.seq is not None:
                     run.pending.pop(st.seq, None)
-                if st.status in ("accepted", "executing", "ignored"):
+                if st.status in ("accepted", "executing", "duplicate"):
                     last_progress = now
                     if not executing_announced and st.status in ("accepted", "executing"):
                         executing_announced = True
@@ -439,23 +614,32 @@ class Dispatcher:
                         emit("executing", {"job_id": run.job_id, "index": run.index, "status": "executing"})
                     if st.status == "accepted":
                         emit("segment", {"job_id": run.job_id, "seq": st.seq, "acknowledged": True, "received_at": st.received_at})
-                    if st.status == "ignored":
+                    if st.status == "duplicate":
                         emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason})
                 elif st.status == "succeeded":
                     result = ExecutionResult("succeeded", st.reason or "trajectory executed", verdict, st.index, run.sent,
                                              now - started)
                     emit("finished", result.to_dict())
                     return result
-                elif st.status == "rejected" and not st.fatal:
+                elif st.status in ("rejected", "refused") and not st.fatal:
                     emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason,
-                                        "fatal": False})
-                    # Refused for a gap before it: the gap and what follows go again now, in order.
-                    if st.seq in run.pending and now - run.gap_resent_at > d.gap_holdoff_s:
+                                        "fatal": False, "kind": st.kind})
+                    # Refused for a gap before it (or it came too late): the gap and what follows go again now,
+                    # in order. A refused copy that is not ours (a forged one) changes nothing on the controller.
+                    if st.kind != "heartbeat" and st.seq in run.pending and now - run.gap_resent_at > d.gap_holdoff_s:
                         run.gap_resent_at = now
                         self._resend(run, emit, now, due=lambda sent_at: True, cause="gap")
-                elif st.status in ("rejected", "starved", "fault", "stopped"):
+                elif st.status == "refused" and (st.kind == "heartbeat" or st.seq not in run.seqs):
+                    # Fatal for a message that is not one of this execution's segments: a heartbeat racing the end
+                    # of the job, or someone else's command. Recorded; the controller's own end comes as 'stopped'.
+                    emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason,
+                                        "kind": st.kind})
+                elif st.status in ("rejected", "refused", "starved", "fault", "stopped"):
                     emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason})
                     return self._abort(run, emit, f"controller {st.status}: {st.reason}", verdict, started)
+            elif st is not None and st.status == "refused" and st.job_id is None:
+                # An unreadable command refused: not this execution's (its segments name their job).
+                emit("controller", {"job_id": run.job_id, "status": st.status, "reason": st.reason, "kind": st.kind})
             elif st is not None and st.status == "rejected" and st.job_id is None:
                 emit("controller", {"job_id": run.job_id, "status": st.status, "reason": st.reason})
                 return self._abort(run, emit, f"controller rejected a command: {st.reason}", verdict, started)
@@ -477,6 +661,9 @@ class Dispatcher:
         """Undeclare everything and close the session (idempotent)."""
         if self._session is None:
             return
+        self._closing.set()
+        self._heartbeat_wake.set()
+        self._heartbeat_thread.join(timeout=1.0)
         for sub in self._subs:
             try:
                 sub.undeclare()
@@ -492,10 +679,21 @@ class Dispatcher:
         self.close()
 
 
+def _thread_nice() -> int | None:
+    """The calling thread's niceness (Linux: per thread), or None where it cannot be read."""
+    import os
+
+    try:
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    except (AttributeError, OSError):
+        return None
+
+
 @dataclass
 class _Run:
     job_id: str
     segments: list[TrajectorySegment]
+    seqs: frozenset[int] = frozenset()
     sent: int = 0
     index: int | None = None
     pending: dict[int, tuple[float, int]] = field(default_factory=dict)  # seq -> (last sent, re-sends)

@@ -25,9 +25,24 @@ from typing import Any
 from schemas.bridge import GateVerdict
 from schemas.plan import plan_sha256
 
-from .gate_checks import _check_finite, _check_position, _check_rates, _check_start, _check_time, _limits
+from .gate_checks import (
+    _check_finite,
+    _check_position,
+    _check_rates,
+    _check_start,
+    _check_time,
+    _limits,
+)
 from .gate_context import _Context, _first, _jsonable, _timed
-from .gate_parse import _find_bad_point, _floats, _get, _parse, _Parsed, _reject_constant, loads_plan
+from .gate_parse import (
+    _find_bad_point,
+    _floats,
+    _get,
+    _parse,
+    _Parsed,
+    _reject_constant,
+    loads_plan,
+)
 from .gate_stability import _check_stability, _Grid, _interpolate, _rotate
 from .gate_types import _HOLDING, Approval, GateSettings, MeasuredState, Veto, _Robot
 from .robot_files import robot_files
@@ -59,13 +74,14 @@ class SafetyGate:
         threshold_m: float | None = None,
         now: datetime | None = None,
         offline: bool = False,
+        recovery: bool = False,
     ) -> GateVerdict:
         """The verdict on ``plan``. Online (the default) an approval and a measured state are required.
 
         ``offline`` skips the approval, hash and start-state checks when they are not
         given (``regrasp gate check``); every other check runs the same way.
         """
-        return self._check(plan, None, approval, measured, threshold_m, now, offline)
+        return self._check(plan, None, approval, measured, threshold_m, now, offline, recovery=recovery)
 
     def check_json(self, plan_json: bytes | str, **kwargs: Any) -> tuple[GateVerdict, dict[str, Any] | None]:
         """Check a plan given as its canonical JSON bytes; returns the verdict and the parsed plan.
@@ -87,13 +103,15 @@ class SafetyGate:
             return ctx.verdict(False, "structure", f"the plan is not valid JSON: {exc}", None, time.perf_counter() - t0), None
         verdict = self._check(plan, (digest, t1 - t0), kwargs.pop("approval", None), kwargs.pop("measured", None),
                               kwargs.pop("threshold_m", None), kwargs.pop("now", None), kwargs.pop("offline", False),
-                              json_s=time.perf_counter() - t1, **kwargs)
+                              json_s=time.perf_counter() - t1, recovery=kwargs.pop("recovery", False), **kwargs)
         return verdict, plan
 
     def _check(self, plan: Any, digest: tuple[str, float] | None, approval: Approval | None, measured: MeasuredState | None,
-               threshold_m: float | None, now: datetime | None, offline: bool, json_s: float | None = None) -> GateVerdict:
+               threshold_m: float | None, now: datetime | None, offline: bool, json_s: float | None = None,
+               recovery: bool = False) -> GateVerdict:
         started = time.perf_counter()
         ctx = _Context(settings=self.settings)
+        ctx.recovery = recovery
         ctx.digest = digest
         if json_s is not None:  # check_json: reading the bytes into a plan, before the checks (not in elapsed_s)
             ctx.note("timing", json_s=json_s)

@@ -24,6 +24,9 @@ class _Context:
     dt: float = 0.0
     samples: int = 0
     threshold: float | None = None
+    #: A recover job's plan (from a measured state back to the stance): the margin floor is the threshold or,
+    #: where the start is below it, the start's own margin (never lowered).
+    recovery: bool = False
     plan_sha256: str | None = None
     digest: tuple[str, float] | None = None  # (sha256 of the given bytes, seconds it took)
 

@@ -102,6 +102,9 @@ def _check_stability(ctx: _Context, p: _Parsed, fk: BatchFK, polygon: Polygon, s
 
     com = system(held, robot_com, obj_com)
     margin = polygon.margin(com[:, :2])
+    if ctx.recovery and margin[0] < ctx.threshold:
+        need = float(margin[0]) - s.margin_tolerance_m
+        ctx.note("com_margin", recovery_floor_m=float(margin[0]))
     k = int(np.argmin(margin))
     ctx.note("com_margin", min_margin_m=float(margin[k]), at_sample=k, threshold_m=ctx.threshold,
              polygon=polygon.vertices.tolist())

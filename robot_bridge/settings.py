@@ -6,6 +6,8 @@ network set the endpoints, e.g. ``REGRASP_BRIDGE_CONNECT='["tcp/10.0.0.2:7447"]'
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
@@ -44,6 +46,30 @@ class BridgeSettings(BaseSettings):
     stop_repeats: int = Field(3, ge=1, le=20, description="a stop is re-sent this many times until acknowledged")
     stop_repeat_period_s: float = Field(0.02, gt=0, le=1.0)
 
+    # ---- authenticated commands (CONTRACT section 6)
+    signing_key: Path | None = Field(
+        None, description="dispatcher: PEM (PKCS#8) Ed25519 private key every cmd/* message is signed with "
+                          "(REGRASP_BRIDGE_SIGNING_KEY); without one the service refuses to dispatch")
+    trusted_key: Path | None = Field(
+        None, description="controller: PEM public key of the dispatcher; without one it obeys only cmd/stop")
+    clock_skew_s: float = Field(0.5, ge=0, le=5.0,
+                                description="how far the peers' clocks may disagree; the controller allows it on expires_at")
+    segment_expiry_s: float = Field(
+        1.0, gt=0, le=10.0,
+        description="a segment's expires_at is its send time plus this: a segment that waited longer (a frozen "
+                    "controller, a replay) is refused, not played")
+    heartbeat_expiry_s: float = Field(0.25, gt=0, le=10.0, description="a dispatcher heartbeat's expires_at is its "
+                                                                        "send time plus this")
+    thread_nice: int | None = Field(
+        -10, ge=-20, le=19,
+        description="niceness of the threads that carry bridge traffic (zenoh's, the heartbeat, the execution loop, "
+                    "the controller's); below 0 needs CAP_SYS_NICE and is skipped without it. None: leave it")
+
+    # ---- zenoh transport security
+    tls_root_ca: Path | None = Field(None, description="zenoh TLS: CA certificate (PEM) both peers trust")
+    tls_cert: Path | None = Field(None, description="zenoh TLS: this peer's certificate (PEM), for mutual TLS")
+    tls_key: Path | None = Field(None, description="zenoh TLS: this peer's private key (PEM)")
+
     @field_validator("listen", "connect")
     @classmethod
     def _endpoints(cls, values: list[str]) -> list[str]:
@@ -56,6 +82,9 @@ class BridgeSettings(BaseSettings):
     def _check(self) -> "BridgeSettings":
         if self.watchdog_timeout_s <= 2 * self.heartbeat_period_s:
             raise ValueError("watchdog_timeout_s must exceed two heartbeat periods, or one late heartbeat aborts a job")
+        tls = [self.tls_root_ca, self.tls_cert, self.tls_key]
+        if any(v is not None for v in tls) and any(v is None for v in tls):
+            raise ValueError("mutual TLS needs tls_root_ca, tls_cert and tls_key together")
         return self
 
 
@@ -66,6 +95,7 @@ class Keys:
         base = f"regrasp/{robot_id}"
         self.trajectory = f"{base}/cmd/trajectory"
         self.stop = f"{base}/cmd/stop"
+        self.command_heartbeat = f"{base}/cmd/heartbeat"
         self.joints = f"{base}/state/joints"
         self.exec = f"{base}/state/exec"
         self.heartbeat = f"{base}/state/heartbeat"

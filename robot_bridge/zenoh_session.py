@@ -9,6 +9,12 @@ controller is on another host, so loopback then measures the TCP path the robot
 uses (zenoh's lazily set-up shared memory delayed the first large messages of
 each link by up to 13 ms).
 
+zenoh's own mutual TLS is switched on by the settings' ``tls_root_ca``,
+``tls_cert`` and ``tls_key`` (both peers; endpoints ``tls/HOST:PORT``): each peer
+then proves itself with a certificate of the shared CA, listening and connecting,
+and a peer without one is not let in. It complements the signed commands, which
+hold even where the transport is not encrypted.
+
 Control traffic is published with real-time priority, express (no batching) and
 drop on congestion: a stale command is worthless, and blocking would stall the
 sender (a 5 s block closes the transport).
@@ -38,6 +44,13 @@ def make_config(settings: BridgeSettings) -> zenoh.Config:
     config.insert_json5("transport/link/tx/keep_alive", json.dumps(KEEP_ALIVE_PER_LEASE))
     config.insert_json5("transport/link/tx/queue/size/real_time", json.dumps(settings.tx_queue_batches))
     config.insert_json5("transport/shared_memory/enabled", json.dumps(settings.shared_memory))
+    if settings.tls_root_ca is not None:
+        cert, key = str(settings.tls_cert), str(settings.tls_key)
+        config.insert_json5("transport/link/tls", json.dumps({
+            "root_ca_certificate": str(settings.tls_root_ca), "enable_mtls": True,
+            "listen_certificate": cert, "listen_private_key": key,
+            "connect_certificate": cert, "connect_private_key": key,
+        }))
     return config
 
 

@@ -9,10 +9,15 @@ Key expressions, ``ROBOT`` being the robot id (default ``hrp5p``):
 
 - ``regrasp/ROBOT/cmd/trajectory``: :class:`TrajectorySegment`
 - ``regrasp/ROBOT/cmd/stop``: :class:`Stop`
+- ``regrasp/ROBOT/cmd/heartbeat``: :class:`CommandHeartbeat` (the dispatcher's, during an execution)
 - ``regrasp/ROBOT/state/joints``: :class:`JointState`
 - ``regrasp/ROBOT/state/exec``: :class:`ExecStatus`
 - ``regrasp/ROBOT/state/heartbeat``: :class:`Heartbeat`
 - liveliness token ``regrasp/ROBOT/alive/controller`` while a controller is up.
+
+Every command carries ``expires_at`` (Unix time, s: the latest receipt the
+controller accepts) and ``sig``, an Ed25519 signature over the message without
+``sig`` in canonical JSON (``robot_bridge.signing``).
 """
 
 from __future__ import annotations
@@ -29,8 +34,9 @@ MAX_SEGMENT_DURATION_S = 1.0
 
 ExecStatusValue = Literal[
     "accepted",  # a segment was buffered
-    "ignored",  # a stale or duplicated segment (seq already seen): dropped, harmless
-    "rejected",  # a segment was refused (out of order, limits, start mismatch, busy, malformed)
+    "duplicate",  # a re-sent copy of a segment already held: dropped, harmless
+    "refused",  # a command that does not fit: signature, expiry, job or sequence (the controller did not move for it)
+    "rejected",  # a segment was refused by the controller's own checks (limits, start mismatch, joint names)
     "executing",  # progress while playing
     "succeeded",  # the last point of the last segment was reached
     "stopped",  # a stop was honoured; the controller holds its posture
@@ -53,6 +59,8 @@ class TrajectorySegment(StrictModel):
     points: list[list[float]] = Field(min_length=1)
     holding: list[Holding] = Field(min_length=1)
     first_index: int | None = Field(None, ge=0, description="index of the first point in the plan's trajectory")
+    expires_at: float | None = Field(None, description="Unix time (s): the latest receipt the controller accepts")
+    sig: str | None = Field(None, description="Ed25519 signature (base64) over the canonical JSON without sig")
 
     @model_validator(mode="after")
     def _check(self) -> "TrajectorySegment":
@@ -83,6 +91,20 @@ class Stop(StrictModel):
     job_id: str | None = None
     reason: str = ""
     stamp: float | None = Field(None, description="sender's monotonic clock (s), for latency measurements")
+    expires_at: float | None = Field(None, description="Unix time (s); a stop is obeyed whatever it says")
+    sig: str | None = Field(None, description="signature; a stop is obeyed unsigned too, and logged as such")
+
+
+class CommandHeartbeat(StrictModel):
+    """The dispatcher's heartbeat on ``cmd/heartbeat`` while it runs an execution: the controller's dead-man.
+
+    ``seq`` is its own counter (strictly increasing per job), apart from the segments' ``seq``."""
+
+    job_id: str = Field(min_length=1, max_length=200)
+    seq: int = Field(ge=0)
+    t: float = Field(description="sender's Unix time (s)")
+    expires_at: float = Field(description="Unix time (s): the latest receipt the controller accepts")
+    sig: str | None = None
 
 
 class JointState(OpenModel):
@@ -93,6 +115,8 @@ class JointState(OpenModel):
     q: list[float]
     job_id: str | None = None
     index: int | None = Field(None, description="trajectory index being played, if executing")
+    stance: str | None = Field(None, description="the stance the robot stands in (its feet), for a recover job")
+    holding: Holding | None = Field(None, description="what the hands hold now")
 
     @field_validator("q")
     @classmethod
@@ -112,8 +136,9 @@ class ExecStatus(OpenModel):
     status: ExecStatusValue
     reason: str = ""
     received_at: float | None = Field(None, description="controller's monotonic clock when the command arrived (s)")
-    fatal: bool = Field(True, description="for 'rejected': False when the job goes on (a segment ahead of a gap, "
-                                          "not buffered; the bridge sends the missing one again)")
+    fatal: bool = Field(True, description="for 'rejected' and 'refused': False when the job goes on (a segment ahead "
+                                          "of a gap, not buffered; the bridge sends the missing one again)")
+    kind: str | None = Field(None, description="the command the status answers: trajectory, stop or heartbeat")
 
 
 class Heartbeat(OpenModel):

@@ -10,11 +10,17 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, StringConstraints
+from pydantic import (
+    Field,
+    StringConstraints,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from .common import Finite, HandsChoice, OpenModel, StrictModel
 
-JobKind = Literal["plan", "survey"]
+JobKind = Literal["plan", "survey", "recover"]
 
 JobState = Literal[
     "queued", "planning", "planned", "approved", "dispatching", "executing",
@@ -53,11 +59,35 @@ class JobRequest(StrictModel):
 
 
 
+class RecoverRequest(StrictModel):
+    """A recover job: plan from the controller's measured joint state back to its stance posture."""
+
+    robot: Annotated[str, StringConstraints(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_\-]+$")] = Field(
+        description="the robot id whose controller reports the state (the bridge's ROBOT)")
+    threshold_m: Finite | None = Field(None, ge=0, le=0.5, description="CoM margin kept where it can be, m")
+    seed: int | None = Field(None, ge=0, le=2**63 - 1, description="seed of the path search")
+
+
 class JobSubmit(StrictModel):
     """Body of ``POST /v1/jobs``."""
 
     kind: JobKind
-    request: JobRequest
+    request: JobRequest | RecoverRequest
+
+    @field_validator("request", mode="before")
+    @classmethod
+    def _request_of_kind(cls, value: Any, info: ValidationInfo) -> Any:
+        """Validate the request as the kind's own model, so an error names its field (``request.scenario``)."""
+        if isinstance(value, (JobRequest, RecoverRequest)):
+            return value
+        return (RecoverRequest if info.data.get("kind") == "recover" else JobRequest).model_validate(value)
+
+    @model_validator(mode="after")
+    def _request_fits_kind(self) -> "JobSubmit":
+        if (self.kind == "recover") != isinstance(self.request, RecoverRequest):
+            want = "{robot}" if self.kind == "recover" else "{scenario, ...}"
+            raise ValueError(f"a {self.kind} job takes a request of the form {want}")
+        return self
 
 
 class JobErrorInfo(OpenModel):

@@ -26,6 +26,9 @@ class Outcome:
 
 
 class Bridge(Protocol):
+    #: Why commands cannot be signed (no or unreadable signing key), or None when they can.
+    signing_problem: str | None
+
     def controller_alive(self) -> bool: ...
 
     def execute(self, plan: dict[str, Any] | str | bytes, *, job_id: str, approved_sha256: str, approval_expires_at: Any,
@@ -41,9 +44,14 @@ class NoBridge:
     """Stands in when the robot bridge cannot start: no controller is alive."""
 
     reason = "the robot bridge is not running"
+    signing_problem: str | None = None
+    robot_id: str | None = None
 
     def controller_alive(self) -> bool:
         return False
+
+    def measured_state(self) -> dict[str, Any] | None:
+        return None
 
     def execute(self, plan: dict[str, Any] | str | bytes, **kwargs: Any) -> Outcome:
         return Outcome("aborted", "no controller is alive")
@@ -58,8 +66,28 @@ class NoBridge:
 class DispatcherBridge:
     """Adapter over ``robot_bridge.dispatcher.Dispatcher``: its result as an :class:`Outcome`."""
 
-    def __init__(self, dispatcher: Any) -> None:
+    def __init__(self, dispatcher: Any, signing_problem: str | None = None) -> None:
         self._d = dispatcher
+        self.signing_problem = signing_problem if signing_problem is not None else (
+            None if getattr(dispatcher, "signer", None) is not None
+            else "no signing key is configured (REGRASP_BRIDGE_SIGNING_KEY; make one with 'regrasp keys generate DIR')")
+
+    @property
+    def robot_id(self) -> str:
+        return self._d.settings.robot_id
+
+    @property
+    def on_controller_return(self) -> Any:
+        return self._d.on_controller_return
+
+    @on_controller_return.setter
+    def on_controller_return(self, callback: Any) -> None:
+        self._d.on_controller_return = callback
+
+    def measured_state(self) -> dict[str, Any] | None:
+        """The controller's latest joint state (``state/joints``) as a dict, or None when it is unknown or stale."""
+        js = self._d.measured_state()
+        return None if js is None else js.model_dump(mode="json")
 
     @property
     def reason(self) -> str | None:
@@ -87,11 +115,26 @@ class DispatcherBridge:
 
 
 def make_bridge() -> Bridge:
-    """The zenoh dispatcher of robot_bridge, or :class:`NoBridge` when it cannot start (dispatch then answers 409)."""
-    from robot_bridge.dispatcher import Dispatcher
+    """The zenoh dispatcher of robot_bridge, or :class:`NoBridge` when it cannot start (dispatch then answers 409).
+
+    The dispatcher runs in a process of its own (``robot_bridge.dispatcher_process``): its heartbeat and
+    watchdog then never wait for the interpreter behind the API's threads. A signing key that cannot be
+    read does not stop the service: it plans, and dispatch answers 409 saying why."""
+    from robot_bridge.dispatcher_process import DispatcherProcess
+    from robot_bridge.settings import BridgeSettings
+    from robot_bridge.signing import KeyFileError, Signer
 
     try:
-        return DispatcherBridge(Dispatcher())
+        settings = BridgeSettings()
+        problem = None
+        if settings.signing_key is not None:
+            try:
+                Signer.from_file(settings.signing_key)
+            except KeyFileError as exc:
+                problem = f"the signing key cannot be used: {exc}"
+                log.warning("robot bridge: %s; dispatch will answer 409", problem)
+                settings = settings.model_copy(update={"signing_key": None})
+        return DispatcherBridge(DispatcherProcess(settings), problem)
     except Exception as exc:  # noqa: BLE001 - the service must still plan without a bridge
         log.warning("robot bridge unavailable (%s); dispatch will answer 409", exc)
         bridge = NoBridge()

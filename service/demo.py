@@ -103,7 +103,12 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
     tok = {v["user"]: k for k, v in tokens.items()}
     http_port, zenoh_port = free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{zenoh_port}"
+    # A key pair for this run: the service signs every command with it, the controller trusts its public half.
+    from robot_bridge.signing import generate_keys
+
+    signing_key, trusted_key = generate_keys(data_dir / "keys")
     env = dict(os.environ, REGRASP_TOKENS=json.dumps(tokens), REGRASP_BRIDGE_CONNECT=json.dumps([endpoint]),
+               REGRASP_BRIDGE_SIGNING_KEY=str(signing_key), REGRASP_BRIDGE_TRUSTED_KEY=str(trusted_key),
                REGRASP_DISPATCH_LOOKAHEAD_SEGMENTS=str(_lookahead_segments(settings.controller_speed)),
                # The simulated controller shares the machine's cores with planning workers; on a loaded
                # host a 0.25 s heartbeat gap is the scheduler, not a dead controller. A robot keeps 0.25 s.

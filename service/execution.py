@@ -31,7 +31,15 @@ EVENT_DRAIN_TIMEOUT_S = 30.0
 #: Bridge events that mean the robot is being driven (robot_bridge.dispatcher names them so).
 EXECUTING_EVENTS = frozenset({"executing", "segment", "robot_state"})
 #: Exceptions of the bridge raised before anything was sent: the job goes back to approved.
-NOT_STARTED_ERRORS = frozenset({"ControllerUnavailableError", "BusyError"})
+NOT_STARTED_ERRORS = frozenset({"ControllerUnavailableError", "BusyError", "NoSigningKeyError"})
+
+
+class RobotBusy(Exception):
+    """Another job of the robot is dispatching or executing (one dispatch at a time): HTTP 409 naming it."""
+
+    def __init__(self, running_job_id: str) -> None:
+        super().__init__(f"job {running_job_id} is executing on the robot; one execution at a time")
+        self.running_job_id = running_job_id
 
 
 class Executions:
@@ -49,16 +57,32 @@ class Executions:
         self._closing = threading.Event()
         self._renewer = threading.Thread(target=self._renew_loop, name="regrasp-exec-lease", daemon=True)
         self._renewer.start()
+        # A controller lost during a job and heard from again gets the stop again; the job's record says so.
+        if hasattr(bridge, "on_controller_return"):
+            bridge.on_controller_return = self._record_stop_resent
+
+    def _record_stop_resent(self, job_id: str, data: dict[str, Any]) -> None:
+        """Store the re-sent stop as a bridge event of the job (its audit file records it)."""
+        try:
+            self.store.add_event(job_id, "bridge", message="stop_resent",
+                                 data={"event": "stop_resent", "payload": _jsonable(data)})
+        except Exception:  # noqa: BLE001 - called from a zenoh thread: never raise into it
+            log.exception("storing the re-sent stop of job %s failed", job_id)
 
     def begin(self, job: dict[str, Any], plan: str | bytes, by: str) -> bool:
         """Move the job to dispatching and start executing it; False if it was no longer approved.
 
+        The move is decided in the job store, atomically with every other dispatch of the robot: raises
+        :class:`RobotBusy` naming the running job when another one is dispatching or executing.
         ``plan`` is the stored plan's canonical JSON text, whose SHA-256 is the approved hash."""
         job_id = job["id"]
         lease = datetime.now(job["approval_expires_at"].tzinfo) + timedelta(seconds=self.settings.lease_s)
-        if not self.store.transition(job_id, ["approved"], "dispatching", message=f"dispatched by {by}",
-                                     data={"by": by, "plan_sha256": job["approved_sha256"]},
-                                     owner=self.owner, lease_expires_at=lease):
+        ok, running = self.store.begin_dispatch(job_id, message=f"dispatched by {by}",
+                                                data={"by": by, "plan_sha256": job["approved_sha256"]},
+                                                owner=self.owner, lease_expires_at=lease)
+        if running is not None:
+            raise RobotBusy(running)
+        if not ok:
             return False
         stop = threading.Event()
         thread = threading.Thread(target=self._run, args=(job, plan, stop), name=f"exec-{job_id[:8]}", daemon=True)
@@ -87,6 +111,7 @@ class Executions:
                 # None: the gate uses the plan's own threshold_m
                 threshold_m=self.settings.dispatch_threshold_m,
                 on_event=on_event, stop_event=stop,
+                **({"recovery": True} if job.get("kind") == "recover" else {}),
             )
             status, reason, verdict = outcome.status, outcome.reason, outcome.verdict
             details = outcome.details

@@ -40,6 +40,9 @@ from .store.tables import job_events, jobs
 log = logging.getLogger("regrasp.audit")
 
 PUMP_PERIOD_S = 0.2
+#: Bridge events that can come after a job ended and are still recorded (in a continuation file): the stop
+#: sent again to a controller that was lost during the job and came back.
+AFTER_END_EVENTS = frozenset({"stop_resent"})
 
 
 #: States with which planning ends and the result document is stored (a survey's only end is succeeded).
@@ -89,7 +92,7 @@ def records_for_event(event: dict[str, Any], job: dict[str, Any], store: JobStor
         if ends_planning and not _result_recorded_before(store, event["job_id"], event["id"]):
             text = store.result_text(event["job_id"])
             if text is not None:
-                out.append(("plan" if job["kind"] != "survey" else "survey",
+                out.append(("plan" if job["kind"] in ("plan", "recover") else "survey",
                             {**base, "plan_sha256": job.get("plan_sha256"), "document": RawJson(text)}, at))
         if "approval" in data:
             approval = data["approval"]
@@ -162,9 +165,11 @@ class JobAuditor:
             if done is None:
                 done = job.get("audit_event_id") or 0
                 self._done_upto[job_id] = done
-            if event["id"] <= done or job.get("audit_closed"):
+            after_end = (job.get("audit_closed") and event["kind"] == "bridge"
+                         and (event.get("data") or {}).get("event") in AFTER_END_EVENTS)
+            if event["id"] <= done or (job.get("audit_closed") and not after_end):
                 continue
-            writer, path = self._writer(job)
+            writer, path = self._writer(job, "recorded after the job ended" if after_end else None)
             head = None
             for kind, payload, at_ns in records_for_event(event, job, self.store):
                 head = writer.record(kind, payload, at_ns)
@@ -172,14 +177,14 @@ class JobAuditor:
             fields: dict[str, Any] = {"audit_event_id": event["id"], "audit_path": str(path)}
             if isinstance(head, str):
                 fields["audit_head"] = head
-            if event["kind"] == "state" and event.get("state") in TERMINAL_STATES:
+            if (event["kind"] == "state" and event.get("state") in TERMINAL_STATES) or after_end:
                 writer.close()
                 self._writers.pop(job_id, None)
                 fields["audit_closed"] = True
             self.store.update_fields(job_id, **fields)
         return len(events)
 
-    def _writer(self, job: dict[str, Any]) -> tuple[Any, Path]:
+    def _writer(self, job: dict[str, Any], continued_because: str | None = None) -> tuple[Any, Path]:
         job_id = job["id"]
         if job_id in self._writers:
             return self._writers[job_id]
@@ -195,7 +200,7 @@ class JobAuditor:
             writer.record(KIND_CONTINUED, {
                 "job_id": job_id, "previous_file": Path(previous).name, "previous_head": job.get("audit_head"),
                 "carried_records": len(carried),
-                "reason": "the service restarted; the previous file ends where it stopped"
+                "reason": (continued_because or "the service restarted; the previous file ends where it stopped")
                           + ("" if carried else " (its records could not be carried over: see the previous file)")})
             # The new file holds the chain from now on: point the job at it at once.
             self.store.update_fields(job_id, audit_path=str(path), audit_head=writer.head)

@@ -203,7 +203,7 @@ class Runner:
             extra["robot"] = summary["robot"]
             extra["robot_sha256"] = summary.get("robot_sha256") or robot_sha256(summary["robot"])
         text = packaged["text"]
-        if run.kind == "plan":
+        if run.kind in ("plan", "recover"):  # a recover job's result is a plan, approved and dispatched as one
             if summary.get("status") == "infeasible":
                 err = summary.get("failure") or {"code": "INFEASIBLE", "message": ""}
                 err = {"code": err["code"], "message": err["message"] or "no plan meets the constraints"}

@@ -17,12 +17,17 @@ from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, Field, field_validator
-from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+)
 
 #: Job kind -> "module:function" run by the workers (planner/jobs/entry.py).
 DEFAULT_HANDLERS: dict[str, str] = {
     "plan": "planner.jobs.entry:run_plan",
     "survey": "planner.jobs.entry:run_survey",
+    "recover": "planner.jobs.entry:run_recover",
 }
 
 

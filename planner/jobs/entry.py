@@ -1,6 +1,6 @@
 """Entry points the service's workers call: one function per job kind.
 
-A worker process calls ``run_plan(request, ctx)`` or ``run_survey(request, ctx)`` with the job's
+A worker process calls ``run_plan``, ``run_survey`` or ``run_recover`` with the job's
 request (the HTTP API's job request, docs/contract.md) and a context that reports progress and
 tells whether the job was cancelled. They return the plan or survey document as a JSON-ready
 dict, and raise :class:`planner.errors.Canceled` when the context asked them to stop.
@@ -12,8 +12,9 @@ from typing import Any, Protocol
 
 from planner.errors import Canceled
 from planner.jobs.plan_job import plan_job, survey_job
+from planner.jobs.recovery import recover_job
 
-__all__ = ["Canceled", "JobContext", "run_plan", "run_survey"]
+__all__ = ["Canceled", "JobContext", "run_plan", "run_recover", "run_survey"]
 
 
 class JobContext(Protocol):
@@ -26,6 +27,10 @@ class JobContext(Protocol):
 
 def run_plan(request: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
     return plan_job(request, ctx)
+
+
+def run_recover(request: dict[str, Any], ctx: JobContext) -> dict[str, Any]:
+    return recover_job(request, ctx)
 
 
 def run_survey(request: dict[str, Any], ctx: JobContext) -> dict[str, Any]:

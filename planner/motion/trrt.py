@@ -41,6 +41,7 @@ from typing import Callable, Literal, Sequence
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from planner.motion.interpolation import edge_states
 from planner.stability.evaluator import HoldSpec, StateEvaluator
 from planner.transforms import matrices_to_pose7
 
@@ -60,13 +61,6 @@ def coarse_mask(n: int) -> np.ndarray:
     m[COARSE_STRIDE - 1 :: COARSE_STRIDE] = True
     m[-1] = True
     return m
-
-
-def edge_states(a: np.ndarray, b: np.ndarray, resolution: float) -> np.ndarray:
-    """States strictly after ``a`` up to ``b`` inclusive, at most ``resolution`` apart per joint."""
-    n = max(1, int(math.ceil(float(np.abs(b - a).max()) / resolution - 1e-9)))
-    f = np.arange(1, n + 1)[:, None] / n
-    return a + f * (b - a)
 
 
 def _split_all(valid: np.ndarray, lengths: Sequence[int]) -> list[bool]:

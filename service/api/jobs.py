@@ -19,12 +19,21 @@ from fastapi.responses import StreamingResponse
 
 from planner.scene.scenarios import builtin_names
 from schemas.jobs import (
-    CANCELABLE_STATES, EXECUTION_STATES, TERMINAL_STATES, ApproveBody, Job, JobKind, JobList, JobState,
-    JobSubmit, ReasonBody,
+    CANCELABLE_STATES,
+    EXECUTION_STATES,
+    TERMINAL_STATES,
+    ApproveBody,
+    Job,
+    JobKind,
+    JobList,
+    JobState,
+    JobSubmit,
+    ReasonBody,
 )
 
 from ..auth import Principal
 from ..context import Service
+from ..execution import RobotBusy
 from ..problems import ProblemError
 from ..provenance import provenance
 from ..store.repo import Conflict, IdempotencyMismatch, QueueFull
@@ -108,9 +117,14 @@ def submit(
     p: Principal = Depends(principal),
     svc: Service = Depends(service),
 ) -> Response:
-    require("planner", p, "submitting a job")
-    robot, seed = _check_request(svc, body)
-    request = body.request.model_dump(mode="json", exclude_none=True)
+    if body.kind == "recover":
+        require("operator", p, "submitting a recover job")
+        robot, seed = svc.settings.robot, body.request.seed
+        request = _recover_request(svc, body)
+    else:
+        require("planner", p, "submitting a job")
+        robot, seed = _check_request(svc, body)
+        request = body.request.model_dump(mode="json", exclude_none=True)
     request_sha = hashlib.sha256(json.dumps({"kind": body.kind, "request": request}, sort_keys=True).encode()).hexdigest()
     try:
         row, created = svc.store.create(
@@ -127,6 +141,23 @@ def submit(
     if not created:
         headers["Idempotent-Replayed"] = "true"
     return _job_response(svc, row, 202, headers)
+
+
+def _recover_request(svc: Service, body: JobSubmit) -> dict[str, Any]:
+    """A recover job's stored request: what was asked, and the controller's measured state it plans from."""
+    req = body.request
+    robot_id = getattr(svc.bridge, "robot_id", None)
+    if robot_id is not None and req.robot != robot_id:
+        raise ProblemError(422, f"unknown robot {req.robot!r}: this service's bridge drives robot {robot_id!r}")
+    state = svc.bridge.measured_state() if hasattr(svc.bridge, "measured_state") else None
+    if state is None:
+        why = getattr(svc.bridge, "reason", None)
+        raise ProblemError(409, "the controller's joint state is unknown, so no recovery can be planned from it"
+                                + (f": {why}" if why else ""))
+    request = req.model_dump(mode="json", exclude_none=True)
+    request["model"] = svc.settings.robot
+    request["measured"] = state
+    return request
 
 
 # ------------------------------------------------------------------- reads
@@ -237,8 +268,8 @@ def approve(job_id: str, body: ApproveBody | None = Body(None), p: Principal = D
     if row["submitter"] == p.user:
         raise ProblemError(403, f"two-person rule: {p.user} submitted job {job_id} and cannot approve it; "
                                 "another approver must")
-    if row["kind"] != "plan":
-        raise ProblemError(409, f"job {job_id} is a {row['kind']} job; only plan jobs are approved")
+    if row["kind"] not in ("plan", "recover"):
+        raise ProblemError(409, f"job {job_id} is a {row['kind']} job; only plan and recover jobs are approved")
     if row["state"] != "planned":
         raise ProblemError(409, f"job {job_id} is {row['state']}; only a planned job can be approved")
     sha = row["plan_sha256"]
@@ -284,7 +315,7 @@ def reject(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Dep
 def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> Response:
     require("operator", p, "dispatching a plan")
     row = _load(svc, job_id)
-    if row["state"] == "planned" and row["kind"] == "plan":
+    if row["state"] == "planned" and row["kind"] in ("plan", "recover"):
         raise ProblemError(409, f"job {job_id} is planned but not approved (or its approval expired); "
                                 "an approver must approve it first")
     if row["state"] != "approved":
@@ -294,15 +325,22 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
     if text is None or hashlib.sha256(text.encode("utf-8")).hexdigest() != row["approved_sha256"]:
         raise ProblemError(409, f"the stored plan of job {job_id} no longer matches the approved hash "
                                 f"{row['approved_sha256']}; it cannot be dispatched")
-    busy = svc.executions.busy_with()
-    if busy is not None:
-        raise ProblemError(409, f"job {busy} is executing on the robot; one execution at a time")
+    signing = getattr(svc.bridge, "signing_problem", None)
+    if signing is not None:
+        raise ProblemError(409, f"the robot bridge cannot sign commands: {signing}; the controller refuses unsigned "
+                                "commands, so nothing is dispatched")
     if not svc.bridge.controller_alive():
         why = getattr(svc.bridge, "reason", None)
         raise ProblemError(409, "no controller is alive" + (f": {why}" if why else "")
                            + "; start the controller and retry")
-    # The canonical text goes down as it is: the gate hashes these bytes instead of re-serialising a dict.
-    if not svc.executions.begin(row, text, p.user):
+    # One dispatch at a time per robot, decided in the job store. The canonical text goes down as it is:
+    # the gate hashes these bytes instead of re-serialising a dict.
+    try:
+        began = svc.executions.begin(row, text, p.user)
+    except RobotBusy as exc:
+        raise ProblemError(409, f"job {exc.running_job_id} is executing on the robot; one execution at a time "
+                                "(stop it or wait for it to end)") from None
+    if not began:
         raise ProblemError(409, f"job {job_id} changed state before dispatch (approval expired or acted on); reload it")
     return _job_response(svc, svc.store.get(job_id) or row, 202)
 

@@ -64,14 +64,24 @@ def _initial_q_file(path: str) -> tuple[list[str], list[float]]:
               help="Fault: stop the heartbeat T s after the first accepted segment, staying alive otherwise.")
 @click.option("--heartbeat-period-s", type=click.FloatRange(min=0.001), default=None, help="Heartbeat period (default 0.05 s).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the drop decisions.")
+@click.option("--trusted-key", type=click.Path(dir_okay=False), default=None,
+              help="PEM public key of the dispatcher (dispatcher.pub); without one only cmd/stop is obeyed "
+                   "(default: REGRASP_BRIDGE_TRUSTED_KEY).")
+@click.option("--watchdog-ms", type=click.FloatRange(min=1.0, max=5000.0), default=None,
+              help="Dead-man: stop when no dispatcher heartbeat came for this long (default 250 ms).")
 def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str | None, speed: float,
                    start_buffer_ms: float | None, listen: tuple[str, ...],
                    connect: tuple[str, ...], drop_rate: float, delay_ms: float, crash_after: int | None,
-                   freeze_heartbeat_after_s: float | None, heartbeat_period_s: float | None, seed: int) -> None:
+                   freeze_heartbeat_after_s: float | None, heartbeat_period_s: float | None, seed: int,
+                   trusted_key: str | None, watchdog_ms: float | None) -> None:
     """Run a simulated controller that speaks the bridge protocol until interrupted."""
     from pydantic import ValidationError
 
-    from robot_bridge.controller_sim import ControllerSimSettings, limits_from_urdf, run_controller
+    from robot_bridge.controller_sim import (
+        ControllerSimSettings,
+        limits_from_urdf,
+        run_controller,
+    )
     from robot_bridge.robot_files import RobotFilesError, robot_files
     from robot_bridge.settings import BridgeSettings
 
@@ -84,11 +94,23 @@ def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str
     if heartbeat_period_s is not None:
         overrides["heartbeat_period_s"] = heartbeat_period_s
         overrides["watchdog_timeout_s"] = max(0.25, 5 * heartbeat_period_s)
+    if watchdog_ms is not None:
+        overrides["watchdog_timeout_s"] = watchdog_ms / 1000.0
+    if trusted_key is not None:
+        overrides["trusted_key"] = trusted_key
     try:
         bridge = BridgeSettings(**overrides)
+        if bridge.trusted_key is not None:
+            from robot_bridge.signing import KeyFileError, load_public_key
+
+            try:
+                load_public_key(bridge.trusted_key)
+            except KeyFileError as exc:
+                fail(f"--trusted-key: {exc}")
         buffer = {} if start_buffer_ms is None else {"start_buffer_s": start_buffer_ms / 1000.0}
         sim = ControllerSimSettings(speed=speed, **buffer, drop_rate=drop_rate, delay_ms=delay_ms, crash_after=crash_after,
-                                    freeze_heartbeat_after_s=freeze_heartbeat_after_s, seed=seed)
+                                    freeze_heartbeat_after_s=freeze_heartbeat_after_s, seed=seed,
+                                    stance=stance)
         limits = limits_from_urdf(str(files.urdf), names)
     except (ValidationError, ValueError) as exc:
         fail(str(exc))
@@ -101,7 +123,8 @@ def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str
 
     def ready(ctl) -> None:
         click.echo(json.dumps({"ready": True, "robot_id": bridge.robot_id, "listen": bridge.listen, "connect": bridge.connect,
-                               "speed": speed, "joints": len(names)}))
+                               "speed": speed, "joints": len(names), "trusted_key": bool(bridge.trusted_key),
+                               "watchdog_s": bridge.watchdog_timeout_s}))
         sys.stdout.flush()
 
     try:

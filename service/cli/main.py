@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "gate": ("gate", "gate", "Run the safety gate offline on a plan file."),
     "controller-sim": ("controller_sim", "controller_sim", "Run the simulated HRP-5P controller peer."),
     "audit": ("audit", "audit", "Verify or show an MCAP audit file."),
+    "keys": ("keys", "keys", "Make the key pair that signs the robot bridge's commands."),
     "paper": ("paper", "paper", "Reproduce the paper's experiments and write the report."),
 }
 

@@ -238,6 +238,34 @@ class JobStore:
                         message=message, data=data, at=now)
         return True
 
+    def begin_dispatch(self, job_id: str, *, message: str, data: dict[str, Any], owner: str,
+                       lease_expires_at: datetime) -> tuple[bool, str | None]:
+        """Move an approved job to dispatching unless another job of its robot is dispatching or executing.
+
+        One transaction decides it (on PostgreSQL under a transaction-scoped advisory lock per robot, so two
+        replicas cannot both see the robot free): of concurrent dispatches exactly one wins. Returns
+        ``(True, None)`` for the winner, ``(False, running_job_id)`` when the robot is busy, ``(False, None)``
+        when the job was no longer approved."""
+        now = utcnow()
+        with self._begin() as conn:
+            robot = conn.execute(sa.select(jobs.c.robot).where(jobs.c.id == job_id)).scalar()
+            if self.is_postgres:
+                conn.execute(sa.text("SELECT pg_advisory_xact_lock(hashtext(:k))"), {"k": f"dispatch:{robot}"})
+            running = conn.execute(
+                sa.select(jobs.c.id).where(jobs.c.state.in_(["dispatching", "executing"]),
+                                           jobs.c.robot.is_(None) if robot is None else jobs.c.robot == robot,
+                                           jobs.c.id != job_id).limit(1)
+            ).scalar()
+            if running is not None:
+                return False, running
+            n = conn.execute(jobs.update().where(jobs.c.id == job_id, jobs.c.state == "approved")
+                             .values(state="dispatching", updated_at=now, message=message, owner=owner,
+                                     lease_expires_at=lease_expires_at)).rowcount
+            if n != 1:
+                return False, None
+            self._event(conn, job_id, "state", state="dispatching", message=message, data=data, at=now)
+        return True, None
+
     def update_fields(self, job_id: str, **fields: Any) -> None:
         with self._begin() as conn:
             conn.execute(jobs.update().where(jobs.c.id == job_id).values(**fields))

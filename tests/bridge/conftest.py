@@ -54,6 +54,21 @@ class ControllerProcess:
                 self.proc.wait(timeout=5)
 
 
+@dataclass(frozen=True)
+class KeyPair:
+    private: str
+    public: str
+
+
+@pytest.fixture(scope="session")
+def key_pair(tmp_path_factory) -> KeyPair:
+    """The dispatcher's signing key and the controller's trusted key, made for this test session."""
+    from robot_bridge.signing import generate_keys
+
+    private, public = generate_keys(tmp_path_factory.mktemp("keys"))
+    return KeyPair(str(private), str(public))
+
+
 @pytest.fixture(scope="session")
 def initial_q_file(tmp_path_factory) -> str:
     names, q, _ = stance_state()
@@ -62,13 +77,21 @@ def initial_q_file(tmp_path_factory) -> str:
     return str(path)
 
 
-def start_controller(initial_q_file: str, *flags: str, speed: float = 4.0) -> ControllerProcess:
-    """Start ``regrasp controller-sim`` on a free loopback port and wait (bounded) for its ready line."""
+def start_controller(initial_q_file: str, *flags: str, speed: float = 4.0, trusted_key: str | None = None,
+                     watchdog_s: float | None = None) -> ControllerProcess:
+    """Start ``regrasp controller-sim`` on a free loopback port and wait (bounded) for its ready line.
+
+    ``trusted_key``: the dispatcher's public key (without one the controller obeys only stop);
+    ``watchdog_s``: its dead-man (default the production 0.25 s)."""
     port = free_port()
     robot_id = f"t{uuid.uuid4().hex[:10]}"
     endpoint = f"tcp/127.0.0.1:{port}"
     cmd = [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", robot_id, "--initial-q", initial_q_file,
            "--listen", endpoint, "--speed", str(speed), *flags]
+    if trusted_key is not None:
+        cmd += ["--trusted-key", trusted_key]
+    if watchdog_s is not None:
+        cmd += ["--watchdog-ms", str(watchdog_s * 1000.0)]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
     ctl = ControllerProcess(proc, endpoint, robot_id)
@@ -101,10 +124,12 @@ def closing_factory(make: Callable[..., T], close: Callable[[T], object]) -> Ite
 
 
 @pytest.fixture
-def spawn_controller(initial_q_file):
-    """Start controller-sim processes; all are ended after the test."""
-    yield from closing_factory(lambda *flags, speed=4.0: start_controller(initial_q_file, *flags, speed=speed),
-                               ControllerProcess.terminate)
+def spawn_controller(initial_q_file, key_pair):
+    """Start controller-sim processes trusting the session's key; all are ended after the test."""
+    def make(*flags, speed=4.0, trusted_key=key_pair.public, watchdog_s=None):
+        return start_controller(initial_q_file, *flags, speed=speed, trusted_key=trusted_key, watchdog_s=watchdog_s)
+
+    yield from closing_factory(make, ControllerProcess.terminate)
 
 
 @dataclass
@@ -159,14 +184,15 @@ RELAXED_WATCHDOG_S = 5.0
 
 
 def connect_dispatcher(ctl: ControllerProcess, spy: Spy, dispatch=None, dispatcher_cls=None,
-                       watchdog_timeout_s: float = RELAXED_WATCHDOG_S):
-    """A dispatcher connected to the controller and to the spy; waits (bounded) for both."""
+                       watchdog_timeout_s: float = RELAXED_WATCHDOG_S, signing_key: str | None = None, **kwargs):
+    """A dispatcher connected to the controller and to the spy, signing with ``signing_key``; waits (bounded)
+    for both."""
     from robot_bridge.dispatcher import Dispatcher
     from robot_bridge.settings import BridgeSettings
 
     cls = dispatcher_cls or Dispatcher
     disp = cls(BridgeSettings(robot_id=ctl.robot_id, connect=[ctl.endpoint, spy.endpoint],
-                              watchdog_timeout_s=watchdog_timeout_s), dispatch)
+                              watchdog_timeout_s=watchdog_timeout_s, signing_key=signing_key), dispatch, **kwargs)
     assert disp.wait_for_controller(10.0), disp.controller_problem()
     deadline = time.monotonic() + 5.0
     while disp.zid() not in spy.peers() and time.monotonic() < deadline:
@@ -181,14 +207,17 @@ def spy_factory():
 
 
 @pytest.fixture
-def bridge(spawn_controller, spy_factory):
-    """(controller, dispatcher, spy) wired on loopback; the dispatcher connects to both peers."""
+def bridge(spawn_controller, spy_factory, key_pair):
+    """(controller, dispatcher, spy) wired on loopback; the dispatcher connects to both peers and signs with the
+    session's key, which the controller trusts. Both watchdogs are relaxed unless a test names one: ``watchdog_timeout_s``
+    is the dispatcher's, ``controller_watchdog_s`` the controller's dead-man (default: the same)."""
     made = []
 
-    def make(*flags: str, speed: float = 4.0, dispatch=None, dispatcher_cls=None, watchdog_timeout_s=RELAXED_WATCHDOG_S):
-        ctl = spawn_controller(*flags, speed=speed)
+    def make(*flags: str, speed: float = 4.0, dispatch=None, dispatcher_cls=None, watchdog_timeout_s=RELAXED_WATCHDOG_S,
+             controller_watchdog_s=None, **kwargs):
+        ctl = spawn_controller(*flags, speed=speed, watchdog_s=controller_watchdog_s or watchdog_timeout_s)
         spy = spy_factory(ctl.robot_id)
-        disp = connect_dispatcher(ctl, spy, dispatch, dispatcher_cls, watchdog_timeout_s)
+        disp = connect_dispatcher(ctl, spy, dispatch, dispatcher_cls, watchdog_timeout_s, key_pair.private, **kwargs)
         made.append(disp)
         return ctl, disp, spy
 
@@ -198,11 +227,11 @@ def bridge(spawn_controller, spy_factory):
 
 
 @pytest.fixture(scope="module")
-def shared_bridge(initial_q_file):
+def shared_bridge(initial_q_file, key_pair):
     """One controller, spy and dispatcher for tests that never move the robot (the vetoes)."""
-    ctl = start_controller(initial_q_file)
+    ctl = start_controller(initial_q_file, trusted_key=key_pair.public, watchdog_s=RELAXED_WATCHDOG_S)
     spy = make_spy(ctl.robot_id)
-    disp = connect_dispatcher(ctl, spy)
+    disp = connect_dispatcher(ctl, spy, signing_key=key_pair.private)
     yield ctl, disp, spy
     disp.close()
     spy.session.close()

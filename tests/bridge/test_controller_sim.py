@@ -28,7 +28,12 @@ from robot_bridge.settings import BridgeSettings, Keys
 from robot_bridge.zenoh_session import control_publisher, encode, open_session
 from schemas.bridge import ExecStatus, Heartbeat, JointState, Stop, TrajectorySegment
 
-from .conftest import ControllerProcess, closing_factory, start_controller
+from .conftest import (
+    RELAXED_WATCHDOG_S,
+    ControllerProcess,
+    closing_factory,
+    start_controller,
+)
 from .plans import cosine_profile
 
 #: Rates, deadlines and watchdogs in wall-clock time: a failure while the VM's host paused the guest
@@ -42,13 +47,22 @@ REPLY_TIMEOUT_S = 5.0
 
 
 class Peer:
-    """A zenoh peer connected to one controller: sends commands, records its telemetry with arrival times."""
+    """A zenoh peer connected to one controller: sends signed commands (and, once it has sent a segment, the
+    dispatcher's heartbeat for that job, as the dispatcher does), records its telemetry with arrival times."""
 
-    def __init__(self, ctl: ControllerProcess):
+    def __init__(self, ctl: ControllerProcess, signing_key: str | None = None):
+        from robot_bridge.signing import Signer
+
         self.keys = Keys(ctl.robot_id)
+        self.signer = Signer.from_file(signing_key) if signing_key else None
         self.session = open_session(BridgeSettings(robot_id=ctl.robot_id, connect=[ctl.endpoint]))
         self._traj = control_publisher(self.session, self.keys.trajectory)
         self._stop = control_publisher(self.session, self.keys.stop)
+        self._beat = control_publisher(self.session, self.keys.command_heartbeat)
+        self._beat_job: str | None = None
+        self._closing = threading.Event()
+        self._beater = threading.Thread(target=self._heartbeats, daemon=True)
+        self._beater.start()
         self._lock = threading.Lock()
         self.exec: list[tuple[float, ExecStatus]] = []
         self.joints: list[tuple[float, JointState]] = []
@@ -69,7 +83,19 @@ class Peer:
         self.wait_for(lambda: self.latest() is not None, "no joint state from the controller")
 
     def close(self) -> None:
+        self._closing.set()
+        self._beater.join(2.0)
         self.session.close()
+
+    def _heartbeats(self) -> None:
+        seq = 0
+        while not self._closing.wait(0.05):
+            job = self._beat_job
+            if job is None or self.signer is None:
+                continue
+            now = time.time()
+            self._beat.put(self.signer.encode({"job_id": job, "seq": seq, "t": now, "expires_at": now + 1.0}))
+            seq += 1
 
     def wait_for(self, cond: Callable[[], object], what: str, timeout_s: float = REPLY_TIMEOUT_S):
         deadline = time.monotonic() + timeout_s
@@ -99,7 +125,9 @@ class Peer:
 
     def send(self, seg: TrajectorySegment) -> float:
         sent = time.monotonic()
-        self._traj.put(encode(seg))
+        doc = seg.model_dump(mode="json", exclude={"sig"}) | {"expires_at": time.time() + 5.0}
+        self._traj.put(self.signer.encode(doc) if self.signer is not None else encode(seg))
+        self._beat_job = seg.job_id
         return sent
 
     def stop(self) -> float:
@@ -128,19 +156,20 @@ def new_job() -> str:
 
 
 @pytest.fixture(scope="module")
-def sim(initial_q_file):
-    """One controller at real-time speed and its test peer."""
-    ctl = start_controller(initial_q_file, speed=1.0)
-    peer = Peer(ctl)
+def sim(initial_q_file, key_pair):
+    """One controller at real-time speed (trusting the session's key, its dead-man relaxed) and its test peer."""
+    ctl = start_controller(initial_q_file, speed=1.0, trusted_key=key_pair.public, watchdog_s=RELAXED_WATCHDOG_S)
+    peer = Peer(ctl, key_pair.private)
     yield ctl, peer
     peer.close()
     ctl.terminate()
 
 
 @pytest.fixture
-def open_peer():
-    """Test peers of controllers a test starts; closed after the test (before its controllers end)."""
-    yield from closing_factory(Peer, Peer.close)
+def open_peer(key_pair):
+    """Test peers of controllers a test starts, signing with the session's key; closed after the test (before
+    its controllers end)."""
+    yield from closing_factory(lambda ctl: Peer(ctl, key_pair.private), Peer.close)
 
 
 @pytest.fixture(scope="module")
@@ -253,8 +282,8 @@ def test_controller_holds_its_last_command_when_starved(sim):
     assert peer.wait_for(lambda: peer.beats and peer.beats[-1][1].state == "holding", "heartbeat says holding")
     # what arrives late is not played: the job is over, the robot stays where it is
     late = peer.send(segs[1])
-    at, st = peer.reply(late, "rejected", segs[1].job_id)
-    assert "already ended" in st.reason
+    at, st = peer.reply(late, "refused", segs[1].job_id)
+    assert "was ended by this controller (starved)" in st.reason
     _assert_still(peer, first_last)
 
 
@@ -423,7 +452,7 @@ def test_speed_scales_playback_time(sim, spawn_controller, open_peer, host_stall
     names, q0 = _idle(peer)
     dt, duration = 0.01, 2.0
     t1, run1, lead1, tick1 = _play_time(peer, names, q0, dt, duration, 1.0, host_stalls)
-    fast_peer = open_peer(spawn_controller(speed=4.0))
+    fast_peer = open_peer(spawn_controller(speed=4.0, watchdog_s=RELAXED_WATCHDOG_S))
     names4, q4 = _idle(fast_peer)
     t4, run4, lead4, tick4 = _play_time(fast_peer, names4, q4, dt, duration, 4.0, host_stalls)
     print(f"{duration} s of plan: {t1:.3f} s at --speed 1, {t4:.3f} s at --speed 4 (ratio {t1 / t4:.2f}; "
@@ -465,7 +494,7 @@ def test_delay_ms_adds_latency_to_every_command(sim, spawn_controller, open_peer
 
     base = statistics.median(running(_round_trips(peer)))
     delay_s = 0.15
-    slow_peer = open_peer(spawn_controller("--delay-ms", str(int(delay_s * 1000)), speed=1.0))
+    slow_peer = open_peer(spawn_controller("--delay-ms", str(int(delay_s * 1000)), speed=1.0, watchdog_s=RELAXED_WATCHDOG_S))
     delayed = _round_trips(slow_peer)
     names, q0 = _idle(slow_peer)
     seg = segments(new_job(), names, np.repeat(q0[None], 3, axis=0), 0.01)[0]

@@ -16,7 +16,11 @@ import numpy as np
 import pytest
 import zenoh
 
-from robot_bridge.dispatcher import ControllerUnavailableError, Dispatcher, DispatchSettings
+from robot_bridge.dispatcher import (
+    ControllerUnavailableError,
+    Dispatcher,
+    DispatchSettings,
+)
 
 from .conftest import approval_for
 from .plans import build_plan, edited, true_min_margin
@@ -170,8 +174,8 @@ def test_duplicated_segments_are_ignored_and_the_job_succeeds(bridge, long_plan)
     ctl, disp, spy = bridge(speed=3.0, dispatcher_cls=Duplicating)
     res, rec = run(disp, long_plan)
     assert res.status == "succeeded", res.reason
-    ignored = [d for _, k, d in rec.events if k == "controller" and d["status"] == "ignored"]
-    assert ignored and "stale or duplicated" in ignored[0]["reason"]
+    duplicates = [d for _, k, d in rec.events if k == "controller" and d["status"] == "duplicate"]
+    assert duplicates and "already held" in duplicates[0]["reason"]
 
 
 def test_reordered_segments_are_refused_and_recovered(bridge, long_plan):
@@ -193,8 +197,8 @@ def test_reordered_segments_are_refused_and_recovered(bridge, long_plan):
     ctl, disp, spy = bridge(speed=2.0, dispatcher_cls=Reordering)
     res, rec = run(disp, long_plan)
     # the controller never plays out of order: it refuses segment 2, takes 1, then 2 again
-    refused = [d for _, k, d in rec.events if k == "controller" and d["status"] == "rejected"]
-    assert refused and "out of order" in refused[0]["reason"] and refused[0]["fatal"] is False
+    refused = [d for _, k, d in rec.events if k == "controller" and d["status"] == "refused"]
+    assert refused and "out of sequence" in refused[0]["reason"] and refused[0]["fatal"] is False
     assert res.status == "succeeded", res.reason
     js = disp.measured_state()
     assert np.allclose(js.q, long_plan["trajectory"][-1]["q"], atol=1e-12)
@@ -252,7 +256,7 @@ def test_segments_refused_behind_a_gap_keep_their_resend_budget(bridge, long_pla
     res, rec = run(disp, long_plan)
     assert res.status == "succeeded", res.reason
     assert disp.publishes[8] == 9  # sent once, then eight times more: more than its budget, behind gaps
-    refused = [d for _, k, d in rec.events if k == "controller" and d["status"] == "rejected"]
+    refused = [d for _, k, d in rec.events if k == "controller" and d["status"] == "refused"]
     assert refused and all(d["fatal"] is False for d in refused)
     head_resends = [d["resent"] for _, k, d in rec.events if k == "segment" and "resent" in d and not d["behind_gap"]]
     assert max(head_resends) <= dispatch.max_resends

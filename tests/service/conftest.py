@@ -52,14 +52,32 @@ BRIDGE_WATCHDOG_S = 2.0
 BRIDGE_LEASE_S = 3.0
 
 
+_KEYS: dict[str, str] = {}
+
+
+def bridge_keys() -> dict[str, str]:
+    """The dispatcher's key pair of this test session (``private``, ``public`` PEM paths), made on first use."""
+    if not _KEYS:
+        import tempfile
+
+        from robot_bridge.signing import generate_keys
+
+        private, public = generate_keys(tempfile.mkdtemp(prefix="regrasp-keys-"))
+        _KEYS.update(private=str(private), public=str(public))
+    return _KEYS
+
+
 def start_controller_sim(data_dir: Path, port: int, speed: float, **settings: Any) -> subprocess.Popen[bytes]:
-    """`regrasp controller-sim` of the test servers' robot id, listening on ``port``; its log in ``data_dir``.
+    """`regrasp controller-sim` of the test servers' robot id, listening on ``port``, trusting the session's key,
+    its dead-man as relaxed as the servers' watchdog; its log in ``data_dir``.
 
     ``settings`` become its ``REGRASP_*`` environment (e.g. ``bridge_lease_s="6"``).
     """
     log = open(data_dir / "controller-sim.log", "ab")
     env = dict(os.environ)
     env["REGRASP_BRIDGE_LEASE_S"] = str(BRIDGE_LEASE_S)
+    env["REGRASP_BRIDGE_WATCHDOG_TIMEOUT_S"] = str(BRIDGE_WATCHDOG_S)
+    env["REGRASP_BRIDGE_TRUSTED_KEY"] = bridge_keys()["public"]
     env.update({f"REGRASP_{key.upper()}": str(value) for key, value in settings.items()})
     return subprocess.Popen(
         [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", BRIDGE_ROBOT_ID,
@@ -94,6 +112,7 @@ def service_env(bridge_port: int | None = None, **settings: Any) -> dict[str, st
     # shared machine, a late heartbeat of the simulated controller must not abort the service's test.
     env["REGRASP_BRIDGE_WATCHDOG_TIMEOUT_S"] = str(BRIDGE_WATCHDOG_S)
     env["REGRASP_BRIDGE_LEASE_S"] = str(BRIDGE_LEASE_S)
+    env["REGRASP_BRIDGE_SIGNING_KEY"] = bridge_keys()["private"]
     env["PYTHONPATH"] = os.pathsep.join([str(HERE), str(ROOT), env.get("PYTHONPATH", "")])
     env["REGRASP_TOKENS"] = json.dumps(TOKENS)
     env["REGRASP_HANDLERS"] = json.dumps(HANDLERS)

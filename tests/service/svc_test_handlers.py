@@ -4,7 +4,8 @@ The scenario name selects the behaviour (the service's name check is off in
 these tests): ``busy-S`` computes hashes for S seconds, reporting progress and
 polling ``ctx.cancelled()`` every few milliseconds; ``hang-S`` computes without
 ever polling (only a kill stops it); ``crash`` kills its own process (SIGKILL), ``exit-N`` ends it with
-``os._exit(N)``; ``robot`` reports the worker's pid and robot loads; ``error``
+``os._exit(N)``; ``robot`` reports the worker's pid and robot loads; ``move-S`` a real plan that swings the
+right shoulder 0.5 rad forward over S seconds from the upright posture and stays there; ``error``
 raises; ``infeasible`` returns an infeasible plan; ``quick`` returns at once.
 """
 
@@ -61,6 +62,15 @@ def run(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
         return _plan_doc(request, **robot_loads())
     if mode == "stand":
         return stand(request, ctx, float(arg or STAND_DURATION_S))
+    if mode == "move":
+        import sys
+        from pathlib import Path
+
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+        from bridge.plans import build_plan
+
+        ctx.progress(0.5, "moving plan")
+        return build_plan({"RSP": -0.5}, duration_s=float(arg or 4.0), rest_s=0.05)
     if mode == "standbad":
         return stand(request, ctx, float(arg or STAND_DURATION_S), bad_joint=True)
     if mode == "error":
@@ -86,7 +96,7 @@ def robot_loads() -> dict[str, Any]:
     return {"pid": os.getpid(), "robot_loads": info.misses, "robot_cache_hits": info.hits}
 
 
-HANDLERS = {"plan": "svc_test_handlers:run", "survey": "svc_test_handlers:run"}
+HANDLERS = {"plan": "svc_test_handlers:run", "survey": "svc_test_handlers:run", "recover": "planner.jobs.entry:run_recover"}
 
 
 #: Length of the standing-still plan made by :func:`stand`, s.
