@@ -192,7 +192,7 @@ class RayExecutor:
                     tag, value = self.ray.get(slot.run_ref)
                 except Exception as exc:  # noqa: BLE001 - actor died (crash, OOM, node loss)
                     events.append(crashed_event(job_id, f"Ray worker (actor pid {slot.pid}) died while running the "
-                                                        f"job: {type(exc).__name__}: {_first_line(exc)}"))
+                                                        f"job: {_first_line(exc)}"))
                     self._replace(slot)
                     continue
                 slot.job_id, slot.run_ref, slot.kill_at = None, None, None
