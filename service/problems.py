@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import re
 import uuid
 from http import HTTPStatus
 from typing import Any
@@ -50,6 +51,14 @@ def problem_response(status: int, detail: str, *, title: str | None = None, type
         body["instance"] = instance
     body.update(extensions)
     return JSONResponse(body, status_code=status, media_type=PROBLEM_MEDIA_TYPE, headers=headers)
+
+
+_CLASS_MENTION = re.compile(r"(?: or)? (?:an )?instance of [A-Za-z_][A-Za-z0-9_.]*")
+
+
+def clean_message(message: str) -> str:
+    """A validation message without the names of Python classes (pydantic writes "... or instance of BoxDef")."""
+    return _CLASS_MENTION.sub("", message)
 
 
 def _format_loc(loc: tuple[Any, ...] | list[Any]) -> str:
@@ -95,7 +104,7 @@ def install_problem_handlers(app: FastAPI) -> None:
         found = exc.errors()
         for err in found[:MAX_REPORTED_ERRORS]:
             where = _format_loc(err.get("loc", ()))
-            msg = str(err.get("msg", "invalid"))
+            msg = clean_message(str(err.get("msg", "invalid")))
             errors.append({"location": where, "message": msg, "type": str(err.get("type", ""))})
             lines.append(f"{where}: {msg}")
         detail = "the request is invalid: " + "; ".join(lines[:10]) + (f" (and {len(found) - 10} more)" if len(found) > 10 else "")

@@ -57,7 +57,7 @@ class ServiceSettings(BaseSettings):
     user_queue_limit: int = Field(100, ge=1, description="jobs one user may have queued or planning; beyond: 429")
     user_stream_limit: int = Field(8, ge=1, description="event streams one user may hold open (per API process); beyond: 429")
     max_states_per_configuration: int = Field(
-        100_000, ge=1, description="largest survey a request may ask for: states per hand configuration (or per seed)")
+        500_000, ge=1, description="largest survey a request may ask for: states per hand configuration (or per seed)")
     retry_after_s: int = Field(5, ge=1, description="Retry-After of a 429")
     job_timeout_s: float = Field(900.0, gt=0, description="hard limit of one job's planning time")
     timeout_margin_s: float = Field(10.0, ge=0, description="a job with time_limit_s times out at time_limit_s + this (capped by job_timeout_s)")

@@ -61,7 +61,9 @@ def failure_of(exc: BaseException) -> dict[str, Any]:
     name or a traceback (which can quote code and data); those are logged.
     """
     if isinstance(exc, ValidationError):
-        lines = [f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {e['msg']}" for e in exc.errors()[:10]]
+        from .problems import clean_message
+
+        lines = [f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {clean_message(e['msg'])}" for e in exc.errors()[:10]]
         return {"code": "INVALID_REQUEST", "message": "the request is invalid: " + "; ".join(lines)}
     if isinstance(exc, (ValueError, LookupError)):
         message = str(exc).strip() or "the request cannot be run as given"

@@ -25,7 +25,7 @@ from schemas.jobs import (
 
 from ..auth import Principal
 from ..context import Service
-from ..problems import PROBLEM_TYPE_BASE, ProblemError
+from ..problems import PROBLEM_TYPE_BASE, ProblemError, clean_message
 from ..provenance import provenance
 from ..store.repo import Conflict, IdempotencyMismatch, QueueFull, UserQueueFull
 from .deps import principal, problems, require, service
@@ -91,7 +91,8 @@ def _check_request(svc: Service, body: JobSubmit) -> tuple[str, int | None]:
         try:
             scenario = Scenario.model_validate(req.scenario)
         except ValidationError as exc:
-            lines = [f"request.scenario.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()[:10]]
+            lines = [f"request.scenario.{'.'.join(str(p) for p in e['loc'])}: {clean_message(e['msg'])}"
+                     for e in exc.errors()[:10]]
             more = exc.error_count() - len(lines)
             raise ProblemError(422, "the inline scenario is invalid: " + "; ".join(lines)
                                + (f" (and {more} more)" if more > 0 else "")) from None
