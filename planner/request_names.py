@@ -90,10 +90,11 @@ def check_name(field: str, what: str, value: Any, valid: tuple[str, ...] | list[
     if not isinstance(value, str):
         raise RequestNameError(field, f"{field}: a {what} is given by its name (a string), not {type(value).__name__}",
                                list(valid))
-    listing = f"; valid {what}s: {', '.join(valid) or 'none'}"
+    plural = what + ("es" if what.endswith("sh") else "s")
+    listing = f"; valid {plural}: {', '.join(valid) or 'none'}"
     if looks_like_path(value):
         raise RequestNameError(field, f"{field}: {_quote(value)} is not a {what} name: a request names registered "
-                                      f"{what}s, never a file or a path{listing}", list(valid))
+                                      f"{plural}, never a file or a path{listing}", list(valid))
     if require_registered and value not in valid:
         raise RequestNameError(field, f"{field}: unknown {what} {_quote(value)}{listing}", list(valid))
 

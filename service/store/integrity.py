@@ -96,7 +96,8 @@ def sqlite_problem(path: Path) -> str | None:
     except sqlite3.DatabaseError as exc:
         return f"is damaged ({str(exc)[:200]})"
     if rows != ["ok"]:
-        return f"is damaged (SQLite's integrity check: {'; '.join(str(r) for r in rows)[:300]})"
+        found = "; ".join(" ".join(str(r).split()) for r in rows if "in database" not in str(r))
+        return f"is damaged (SQLite's integrity check: {found[:300]})"
     if tables and not STORE_TABLES <= tables:
         return f"is an SQLite database but not a job store (tables: {', '.join(sorted(tables))[:200]})"
     return None
