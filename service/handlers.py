@@ -1,6 +1,6 @@
 """The job handler table: job kind -> ``"module:function"`` run by the workers.
 
-The default table points at ``planner.entry`` (CONTRACT.md section 5 job kinds);
+The default table points at ``planner.entry`` (docs/contract.md section 5 job kinds);
 tests and deployments can point a kind somewhere else through settings.
 """
 

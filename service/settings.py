@@ -45,6 +45,8 @@ class ServiceSettings(BaseSettings):
     workers: int = Field(2, ge=0, le=256, description="planning worker processes (0: API only, for split deployments)")
     executor: Literal["local", "ray"] = "local"
     ray_address: str | None = Field(None, description="Ray cluster address; default starts a local Ray instance")
+    ray_num_cpus: float | None = Field(
+        None, gt=0, description="CPUs a local Ray instance offers (default: one per worker); the workers' actors share them")
     ray_object_store_bytes: int | None = Field(
         None, ge=80 * 1024**2, description="object store of a local Ray instance, bytes (default: Ray's, ~30% of RAM)")
     robot: str = Field("hrp5p", description="robot model the workers load once at start")

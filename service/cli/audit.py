@@ -1,4 +1,4 @@
-"""``regrasp audit verify|show``: check and read MCAP audit files (CONTRACT section 7)."""
+"""``regrasp audit verify|show``: check and read MCAP audit files (docs/contract.md section 7)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ def audit() -> None:
 
 
 #: Exit code when a file could not be verified at all (missing, unreadable, bad --head): 0, 1 and 2
-#: are the verdicts of CONTRACT section 7, and a script must never read "not checked" as one of them.
+#: are the verdicts of docs/contract.md section 7, and a script must never read "not checked" as one of them.
 EXIT_NOT_VERIFIED = 3
 
 

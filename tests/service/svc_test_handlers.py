@@ -4,7 +4,8 @@ The scenario name selects the behaviour (the service's name check is off in
 these tests): ``busy-S`` computes hashes for S seconds, reporting progress and
 polling ``ctx.cancelled()`` every few milliseconds; ``hang-S`` computes without
 ever polling (only a kill stops it); ``crash`` kills its own process (SIGKILL), ``exit-N`` ends it with
-``os._exit(N)``; ``robot`` reports the worker's pid and robot loads; ``error``
+``os._exit(N)``; ``robot`` reports the worker's pid and robot loads; ``planner-NAME`` runs the real planner on the
+built-in scenario NAME; ``error``
 raises; ``infeasible`` returns an infeasible plan; ``quick`` returns at once.
 """
 
@@ -63,6 +64,10 @@ def run(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
         return stand(request, ctx, float(arg or STAND_DURATION_S))
     if mode == "standbad":
         return stand(request, ctx, float(arg or STAND_DURATION_S), bad_joint=True)
+    if mode == "planner":  # the real planner on the built-in scenario named after the dash
+        from planner.entry import run_plan
+
+        return run_plan({**request, "scenario": arg}, ctx)
     if mode == "error":
         raise RuntimeError("the test handler failed on purpose")
     if mode == "infeasible":
