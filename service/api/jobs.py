@@ -107,7 +107,7 @@ def _check_caps(svc: Service, body: JobSubmit, scenario: Scenario | None) -> Non
     req, cfg = body.request, svc.settings
     states = req.states_per_configuration
     per_seed = getattr(req, "states_per_seed", None)
-    if states is None and scenario is not None and body.kind == "survey":
+    if states is None and scenario is not None:
         states = getattr(scenario.survey, "states_per_configuration", None)
     for label, value in (("states_per_configuration", states), ("states_per_seed", per_seed)):
         if value is not None and value > cfg.max_states_per_configuration:
@@ -243,7 +243,7 @@ def _sse(event: dict[str, Any]) -> str:
 async def job_events(
     job_id: str, request: Request,
     after: int = Query(0, ge=0, le=2**62, description="only events with a larger id (also Last-Event-ID)"),
-    last_event_id: str | None = Header(None, alias="Last-Event-ID", max_length=256),
+    last_event_id: str | None = Header(None, alias="Last-Event-ID", max_length=1024),
     follow: bool = Query(True, description="keep the stream open for new events (false: send the history and end)"),
     p: Principal = Depends(principal), svc: Service = Depends(service),
 ) -> StreamingResponse:
