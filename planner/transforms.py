@@ -1,6 +1,6 @@
 """Small SE(3) helpers shared by the planner: poses as 7-vectors and as 4x4 matrices.
 
-The wire format is ``[x, y, z, qx, qy, qz, qw]`` (CONTRACT.md); geometry code works
+The wire format is ``[x, y, z, qx, qy, qz, qw]`` (docs/contract.md); geometry code works
 with homogeneous 4x4 matrices because products and inverses are then one line.
 Everything here is plain numpy so that objects, grasps, placements and collision
 share one convention and one implementation.

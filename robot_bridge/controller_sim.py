@@ -1,4 +1,4 @@
-"""A simulated HRP-5P controller peer that speaks the bridge protocol (CONTRACT.md section 6).
+"""A simulated HRP-5P controller peer that speaks the bridge protocol (docs/contract.md section 6).
 
 It stands in its initial posture (given as data: the CLI computes the stance), and
 at its control rate (200 Hz) it publishes joint states, a heartbeat and, while a

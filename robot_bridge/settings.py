@@ -89,7 +89,7 @@ class BridgeSettings(BaseSettings):
 
 
 class Keys:
-    """The key expressions of CONTRACT.md section 6 for one robot id."""
+    """The key expressions of docs/contract.md section 6 for one robot id."""
 
     def __init__(self, robot_id: str = DEFAULT_ROBOT_ID):
         base = f"regrasp/{robot_id}"

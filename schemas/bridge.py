@@ -1,4 +1,4 @@
-"""Messages of the robot bridge (CONTRACT.md section 6) and the safety gate's verdict.
+"""Messages of the robot bridge (docs/contract.md section 6) and the safety gate's verdict.
 
 Commands (bridge -> controller) are strict: a controller must refuse a segment
 with a field it does not understand rather than guess. Telemetry (controller ->

@@ -1,7 +1,7 @@
 """Shared field types of the wire contract: poses, finite vectors, names.
 
 Every pose on the wire is ``[x, y, z, qx, qy, qz, qw]`` in metres with a unit
-quaternion (CONTRACT.md). Validation happens here once, so NaN, Inf and
+quaternion (docs/contract.md). Validation happens here once, so NaN, Inf and
 non-unit quaternions are rejected with a message naming the field before any
 planning starts.
 """

@@ -1,4 +1,4 @@
-"""Wire models of the planning service's jobs (CONTRACT.md section 5).
+"""Wire models of the planning service's jobs (docs/contract.md section 5).
 
 These pydantic models are the single source of the HTTP API's wire format: the
 FastAPI routes take and return them, so the OpenAPI document and the checks on
@@ -11,6 +11,8 @@ from datetime import datetime
 from typing import Annotated, Any, Literal
 
 from pydantic import (
+    BeforeValidator,
+    ConfigDict,
     Field,
     StringConstraints,
     ValidationInfo,
@@ -41,16 +43,69 @@ ROLES: tuple[str, ...] = ("planner", "approver", "operator", "admin")
 
 #: Longest name accepted for a built-in scenario (names are short file stems).
 MAX_NAME_LEN = 128
-ScenarioName = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN)]
+#: A registered name: no path separators, no leading dot (the service checks the name is registered).
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
+ScenarioName = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN, pattern=NAME_PATTERN)]
+#: Bounds of an inline scenario document: values in all (every list item and mapping entry counted) and nesting.
+MAX_DOCUMENT_VALUES = 5_000
+MAX_DOCUMENT_DEPTH = 12
+
+
+def _bounded_document(doc: Any) -> Any:
+    """Refuse a document with more than MAX_DOCUMENT_VALUES values or nested deeper than MAX_DOCUMENT_DEPTH.
+
+    Runs before any other validation, so an oversized list is refused after counting at most
+    MAX_DOCUMENT_VALUES values (not after validating every item of it).
+    """
+    if not isinstance(doc, dict):
+        return doc
+    stack: list[tuple[Any, int]] = [(doc, 1)]
+    seen = 0
+    while stack:
+        value, depth = stack.pop()
+        if depth > MAX_DOCUMENT_DEPTH:
+            raise ValueError(f"the document is nested deeper than {MAX_DOCUMENT_DEPTH} levels")
+        children = value.values() if isinstance(value, dict) else value if isinstance(value, list) else ()
+        for child in children:
+            seen += 1
+            if seen > MAX_DOCUMENT_VALUES:
+                raise ValueError(f"the document holds more than {MAX_DOCUMENT_VALUES} values; a scenario is far smaller")
+            if isinstance(child, (dict, list)):
+                stack.append((child, depth + 1))
+    return doc
+
+
+def _scenario_value(value: Any) -> Any:
+    """A scenario is a name or a document; anything else is refused with one clear message."""
+    if isinstance(value, str):
+        if not 1 <= len(value) <= MAX_NAME_LEN:
+            raise ValueError(f"a scenario name has 1 to {MAX_NAME_LEN} characters")
+        return value
+    if isinstance(value, dict):
+        return _bounded_document(value)
+    raise ValueError("a scenario is a registered scenario name or an inline scenario document (a JSON object)")
+
+
+ScenarioRef = Annotated[str | dict[str, Any], BeforeValidator(_scenario_value)]
+#: A registered name of a stance or robot (the service checks it is registered, and says which are).
+RegisteredName = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN)]
 
 
 class JobRequest(StrictModel):
-    """What to plan: a scenario plus the overrides of the ``regrasp plan`` command line."""
+    """What to plan: a scenario plus the overrides of the ``regrasp plan`` command line.
 
-    scenario: ScenarioName | dict[str, Any] = Field(
-        description="a built-in scenario name, or an inline scenario document (CONTRACT.md section 2)",
+    Types are strict (``"seed": "1"`` or ``true`` is an error, not a coercion): a client that
+    sends the wrong type has a bug worth hearing about.
+    """
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, strict=True)
+
+    scenario: ScenarioRef = Field(
+        description="a registered scenario name, or an inline scenario document (docs/contract.md section 2) "
+                    "whose robot, stance and mesh are registered names",
     )
-    stance: ScenarioName | None = Field(None, description="built-in stance name overriding the scenario's")
+    stance: RegisteredName | None = Field(None, description="registered stance name overriding the scenario's")
+    robot: RegisteredName | None = Field(None, description="registered robot name overriding the scenario's")
     threshold_m: Finite | None = Field(None, ge=0, le=0.5, description="CoM margin threshold, m; 0 = unconstrained planner")
     hands: HandsChoice | None = Field(None, description="hand configuration overriding the scenario's")
     seed: int | None = Field(None, ge=0, le=2**63 - 1, description="random seed; the same seed gives the same plan")

@@ -1,4 +1,4 @@
-"""The plan file (``schema: regrasp.plan/1``, CONTRACT.md section 3)."""
+"""The plan file (``schema: regrasp.plan/1``, docs/contract.md section 3)."""
 
 from __future__ import annotations
 
@@ -81,7 +81,7 @@ class Plan(OpenModel):
 
 
 def canonical_json(doc: Any) -> bytes:
-    """The canonical bytes a plan's hash is taken over (CONTRACT.md section 3)."""
+    """The canonical bytes a plan's hash is taken over (docs/contract.md section 3)."""
     return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8")
 
 

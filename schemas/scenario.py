@@ -1,4 +1,4 @@
-"""The scenario file (``schema: regrasp.scenario/1``, CONTRACT.md section 2)."""
+"""The scenario file (``schema: regrasp.scenario/1``, docs/contract.md section 2)."""
 
 from __future__ import annotations
 
@@ -13,16 +13,36 @@ SCENARIO_SCHEMA = "regrasp.scenario/1"
 ObjectShape = Literal["box", "cylinder", "bar", "drill", "mesh"]
 
 
+#: Longest list a scenario holds (tables, obstacles); a real scene has a handful.
+MAX_BOXES = 64
+#: Longest number list of a size field.
+MAX_SIZE_NUMBERS = 8
+
+
 class MeshSource(StrictModel):
-    path: str = Field(description="STL or OBJ file; relative paths resolve against the scenario file")
+    """A mesh by registered name, or (in scenario files, not in service requests) by file.
+
+    With a name, the planner sets ``path`` to the registered file when it loads the scenario
+    (the name wins over any path given with it).
+    """
+
+    name: str | None = Field(None, max_length=128, description="a registered mesh (e.g. carrier_px)")
+    path: str | None = Field(None, max_length=4096,
+                             description="STL or OBJ file; relative paths resolve against the scenario file")
     scale: Finite = Field(1.0, gt=0)
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "MeshSource":
+        if self.name is None and self.path is None:
+            raise ValueError("a mesh needs name: REGISTERED or path: FILE")
+        return self
 
 
 class ObjectDef(StrictModel):
     name: str = "object"
     shape: ObjectShape
     size: FiniteVector | None = Field(
-        None,
+        None, max_length=MAX_SIZE_NUMBERS,
         description="box/bar: [x, y, z] m; cylinder: [radius, height] m; drill: [x, y, z] bounding box (optional)",
     )
     mesh: MeshSource | None = None
@@ -33,7 +53,7 @@ class ObjectDef(StrictModel):
     def _check(self) -> "ObjectDef":
         if self.shape == "mesh":
             if self.mesh is None:
-                raise ValueError("shape 'mesh' needs mesh: {path: FILE, scale: 1.0}")
+                raise ValueError("shape 'mesh' needs mesh: {name: REGISTERED} or {path: FILE, scale: 1.0}")
         elif self.mesh is not None:
             raise ValueError(f"'mesh' is only for shape 'mesh', not {self.shape!r}")
         expected = {"box": 3, "bar": 3, "cylinder": 2, "drill": 3}.get(self.shape)
@@ -79,8 +99,8 @@ class Scenario(StrictModel):
     object: ObjectDef
     start_pose: Pose7
     goal_pose: Pose7
-    tables: list[BoxDef] = Field(default_factory=list)
-    obstacles: list[BoxDef] = Field(default_factory=list)
+    tables: list[BoxDef] = Field(default_factory=list, max_length=MAX_BOXES)
+    obstacles: list[BoxDef] = Field(default_factory=list, max_length=MAX_BOXES)
     threshold_m: Finite = Field(0.0, ge=0, le=0.5, description="minimum CoM margin to the support polygon edge, m")
     hands: HandsChoice = "auto"
     limits: Limits = Field(default_factory=Limits)

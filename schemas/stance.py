@@ -1,4 +1,4 @@
-"""Stances: where the feet are and how the pelvis stands (CONTRACT.md section 2).
+"""Stances: where the feet are and how the pelvis stands (docs/contract.md section 2).
 
 A stance is data. The four built-ins are computed from the robot spec; a user can
 write more in YAML with the same fields.
@@ -9,7 +9,6 @@ from __future__ import annotations
 from pydantic import Field, model_validator
 
 from .common import Finite, Pose7, StrictModel, Vec2
-
 
 SUPPORT_CENTRE = "support-centre"
 
@@ -22,7 +21,7 @@ class FootPlacement(StrictModel):
 
 class StanceDef(StrictModel):
     name: str
-    feet: list[FootPlacement] = Field(min_length=1)
+    feet: list[FootPlacement] = Field(min_length=1, max_length=8)
     pelvis_height_m: Finite | None = Field(None, gt=0.2, lt=2.0, description="pelvis origin above the ground; default: the robot's upright height")
     pelvis_offset: Vec2 = Field(default_factory=lambda: [0.0, 0.0], description="pelvis origin x, y in the world")
     com_over: str | None = Field(

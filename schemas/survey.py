@@ -1,4 +1,4 @@
-"""The stability survey (``schema: regrasp.survey/1``, CONTRACT.md section 4)."""
+"""The stability survey (``schema: regrasp.survey/1``, docs/contract.md section 4)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The FastAPI application of the planning service (CONTRACT.md section 5)."""
+"""The FastAPI application of the planning service (docs/contract.md section 5)."""
 
 from __future__ import annotations
 
@@ -9,13 +9,14 @@ from typing import Any, AsyncIterator
 
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
+from starlette.middleware.gzip import GZipMiddleware
 
 from .api import jobs as jobs_api
 from .api import system as system_api
 from .auth import TokenStore
 from .bridge import Bridge
 from .context import Service
-from .problems import BodySizeLimit, install_problem_handlers
+from .problems import RequestBodyGuard, install_problem_handlers
 from .provenance import code_version
 from .settings import ServiceSettings
 
@@ -54,9 +55,27 @@ def create_app(settings: ServiceSettings, *, tokens: TokenStore | None = None, r
         app.mount("/console", StaticFiles(directory=system_api.CONSOLE_DIR, html=True), name="console")
 
     app.add_middleware(RequestMetrics)
-    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(SelectiveGZip, minimum_size=settings.gzip_min_bytes)
+    app.add_middleware(RequestBodyGuard, max_bytes=settings.max_body_bytes, read_timeout_s=settings.body_read_timeout_s)
     _problem_openapi(app)
     return app
+
+
+class SelectiveGZip:
+    """gzip for large responses, except streams whose bytes must go out as they come (SSE, audit files)."""
+
+    #: Path endings whose responses are streamed as they are produced, never buffered for compression.
+    STREAMED = ("/events", "/audit")
+
+    def __init__(self, app: Any, minimum_size: int) -> None:
+        self.app = app
+        self.gzip = GZipMiddleware(app, minimum_size=minimum_size)
+
+    async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
+        if scope["type"] != "http" or scope.get("path", "").endswith(self.STREAMED):
+            await self.app(scope, receive, send)
+            return
+        await self.gzip(scope, receive, send)
 
 
 class RequestMetrics:

@@ -52,12 +52,23 @@ class Service:
         return svc
 
     def start(self) -> None:
+        if self.settings.metrics_port is not None:
+            from prometheus_client import start_http_server
+
+            server, _ = start_http_server(self.settings.metrics_port, addr=self.settings.metrics_host,
+                                          registry=self.metrics.registry)
+            self.extra["metrics_server"] = server
+            log.info("metrics on http://%s:%d/metrics (no token)", self.settings.metrics_host, self.settings.metrics_port)
         if self.runner is not None:
             self.runner.start()
         if self.auditor is not None:
             self.auditor.start()
 
     def close(self) -> None:
+        metrics_server = self.extra.pop("metrics_server", None)
+        if metrics_server is not None:
+            metrics_server.shutdown()
+            metrics_server.server_close()
         if self.runner is not None:
             self.runner.stop()
         if self.executor is not None:

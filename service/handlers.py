@@ -1,6 +1,6 @@
 """The job handler table: job kind -> ``"module:function"`` run by the workers.
 
-The default table points at ``planner.jobs.entry`` (one function per job kind);
+The default table points at ``planner.jobs.entry`` (one function per job kind of docs/contract.md section 5);
 tests and deployments can point a kind somewhere else through settings.
 """
 

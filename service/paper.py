@@ -96,8 +96,7 @@ def _survey_rows(scenario, settings: PaperSettings, states: int, seeds: tuple[in
 
 def _plan(scenario: str, hands: str | None, threshold_m: float | None, iterations: int, stance: str | None = None) -> dict[str, Any]:
     from planner.jobs.plan_job import PlanOptions, plan_scenario
-    from planner.scene.scenarios import resolve_scenario
-    from planner.scene.scenarios import with_overrides
+    from planner.scene.scenarios import resolve_scenario, with_overrides
 
     sc = resolve_scenario(scenario, stance=stance)
     data_limits = {"max_iterations": iterations}

@@ -1,7 +1,7 @@
 """Packaging a job's result where it was computed (worker process or Ray actor), not in the API process.
 
 A plan can be 10 MB of JSON. The worker validates it against the contract's
-model, serialises it once in canonical form (CONTRACT.md section 3), hashes it,
+model, serialises it once in canonical form (docs/contract.md section 3), hashes it,
 and sends the text with a small summary; the runner stores the text as is and
 the API serves it verbatim. So the API process never parses, re-serialises or
 hashes a large plan, and the stored bytes are exactly the ones the hash covers.

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, Field, field_validator
+from pydantic import BaseModel, Field, field_validator, model_validator
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -50,6 +50,8 @@ class ServiceSettings(BaseSettings):
     workers: int = Field(2, ge=0, le=256, description="planning worker processes (0: API only, for split deployments)")
     executor: Literal["local", "ray"] = "local"
     ray_address: str | None = Field(None, description="Ray cluster address; default starts a local Ray instance")
+    ray_num_cpus: float | None = Field(
+        None, gt=0, description="CPUs a local Ray instance offers (default: one per worker); the workers' actors share them")
     ray_object_store_bytes: int | None = Field(
         None, ge=80 * 1024**2, description="object store of a local Ray instance, bytes (default: Ray's, ~30% of RAM)")
     robot: str = Field("hrp5p", description="robot model the workers load once at start")
@@ -59,6 +61,10 @@ class ServiceSettings(BaseSettings):
     check_scenario_names: bool = Field(True, description="refuse unknown built-in scenario names at submit time")
 
     queue_limit: int = Field(1000, ge=1, description="queued jobs beyond which submissions get 429")
+    user_queue_limit: int = Field(100, ge=1, description="jobs one user may have queued or planning; beyond: 429")
+    user_stream_limit: int = Field(8, ge=1, description="event streams one user may hold open (per API process); beyond: 429")
+    max_states_per_configuration: int = Field(
+        500_000, ge=1, description="largest survey a request may ask for: states per hand configuration (or per seed)")
     retry_after_s: int = Field(5, ge=1, description="Retry-After of a 429")
     job_timeout_s: float = Field(900.0, gt=0, description="hard limit of one job's planning time")
     timeout_margin_s: float = Field(10.0, ge=0, description="a job with time_limit_s times out at time_limit_s + this (capped by job_timeout_s)")
@@ -69,18 +75,42 @@ class ServiceSettings(BaseSettings):
     progress_min_interval_s: float = Field(0.2, gt=0, description="progress events stored at most this often per job")
 
     approval_ttl_s: float = Field(900.0, gt=0, description="an approval expires after this long")
-    max_body_bytes: int = Field(1_000_000, ge=1024, description="larger request bodies get 413")
+    max_body_bytes: int = Field(1_000_000, ge=1024, description="larger request bodies get 413, declared or chunked")
+    body_read_timeout_s: float = Field(
+        10.0, gt=0, description="a request body not received in full within this long gets 408 and is closed")
     list_limit_max: int = Field(500, ge=1)
+    list_results_max: int = Field(
+        10, ge=1, description="largest page of GET /v1/jobs?include_result=true (results are large); page with offset")
+    gzip_min_bytes: int = Field(4096, ge=0, description="responses at least this large are gzipped for clients that accept it")
     sse_poll_s: float = Field(0.2, gt=0, description="how often an SSE stream looks for new events")
     sse_keepalive_s: float = Field(15.0, gt=0)
 
     tokens: dict[str, TokenEntry] = Field(default_factory=dict, description="bearer token -> user and roles (hashed on load)")
     tokens_file: Path | None = Field(None, description="JSON or YAML file of the same shape as tokens")
+    tokens_reload_s: float = Field(2.0, gt=0, description="how often the tokens file is checked for changes (reloaded without a restart)")
     dev: bool = Field(False, description="make demo tokens (loopback only) and print them")
+    metrics_token: str | None = Field(
+        None, min_length=16, description="bearer token Prometheus sends for /metrics (user tokens are accepted too)")
+    metrics_host: str = Field("127.0.0.1", description="bind address of the separate metrics listener")
+    metrics_port: int | None = Field(
+        None, ge=1, le=65535, description="serve /metrics without a token on this separate port (e.g. loopback only)")
+
+    tls_cert_file: Path | None = Field(None, description="PEM certificate (chain) of the API's TLS; with tls_key_file")
+    tls_key_file: Path | None = Field(None, description="PEM private key of the API's TLS certificate")
+    init_store: bool = Field(False, description="initialise a store file that is empty or damaged (moved aside first)")
 
     audit: bool = Field(True, description="write one MCAP audit file per job when service.audit is installed")
     dispatch_threshold_m: float | None = Field(None, ge=0, description="gate threshold at dispatch; default the plan's threshold_m")
     config_file: Path | None = Field(None, alias="REGRASP_CONFIG", description="the file these settings came from")
+
+    @model_validator(mode="after")
+    def _tls_pair(self) -> "ServiceSettings":
+        if (self.tls_cert_file is None) != (self.tls_key_file is None):
+            raise ValueError("TLS needs both tls_cert_file and tls_key_file (or neither)")
+        for label, path in (("tls_cert_file", self.tls_cert_file), ("tls_key_file", self.tls_key_file)):
+            if path is not None and not path.is_file():
+                raise ValueError(f"{label} {path} does not exist")
+        return self
 
     @field_validator("handlers")
     @classmethod

@@ -25,8 +25,10 @@ from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Event
 from typing import Any
 
-from planner.jobs.entry import JobContext
+from pydantic import ValidationError
+
 from planner.forking import declare_fork_benign
+from planner.jobs.entry import JobContext
 
 from .handlers import CANCELED_TYPES, HandlerError, JobCanceled, resolve
 from .results import InvalidResult, package
@@ -46,6 +48,29 @@ def lower_priority(nice: int) -> None:
             os.nice(nice)
         except OSError:
             pass
+
+
+#: The message of an unexpected failure; its details (type, traceback) go to the worker's log only.
+INTERNAL_ERROR_MESSAGE = "the planner failed with an internal error; the service log has the details"
+
+
+def failure_of(exc: BaseException) -> dict[str, Any]:
+    """A job's error from an exception: a usage error keeps its own message, anything else a generic one.
+
+    The message is what every user of the job reads, so it never carries an exception's class
+    name or a traceback (which can quote code and data); those are logged.
+    """
+    if isinstance(exc, ValidationError):
+        from .problems import clean_message
+
+        lines = [f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {clean_message(e['msg'])}" for e in exc.errors()[:10]]
+        return {"code": "INVALID_REQUEST", "message": "the request is invalid: " + "; ".join(lines)}
+    if isinstance(exc, (ValueError, LookupError)):
+        message = str(exc).strip() or "the request cannot be run as given"
+        return {"code": "INVALID_REQUEST", "message": message[:2000]}
+    logging.getLogger("regrasp.worker").error("job failed: %s: %s\n%s", type(exc).__name__, exc,
+                                              traceback.format_exc(limit=8))
+    return {"code": "ERROR", "message": INTERNAL_ERROR_MESSAGE}
 
 
 class JobHandlers:
@@ -87,9 +112,7 @@ class JobHandlers:
         except InvalidResult as exc:
             return "error", {"code": "INVALID_RESULT", "message": str(exc)}
         except Exception as exc:  # noqa: BLE001 - every failure becomes the job's error
-            code = "INVALID_REQUEST" if isinstance(exc, (ValueError, LookupError)) else "ERROR"
-            return "error", {"code": code, "message": f"{type(exc).__name__}: {exc}",
-                             "traceback": traceback.format_exc(limit=8)}
+            return "error", failure_of(exc)
 
 
 class WorkerContext:

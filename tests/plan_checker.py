@@ -1,4 +1,4 @@
-"""An independent checker of plan files (CONTRACT.md section 3).
+"""An independent checker of plan files (docs/contract.md section 3).
 
 It trusts none of the planner's numbers: it reloads the URDF into pinocchio,
 recomputes every CoM (the paper's equation 1), margins with shapely, the ZMP, the

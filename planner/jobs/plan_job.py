@@ -127,7 +127,7 @@ def plan_scenario(
     should_stop: StopFn = lambda: False,
     task: Task | None = None,
 ) -> dict[str, Any]:
-    """Plan one scenario; returns the plan document (CONTRACT.md section 3)."""
+    """Plan one scenario; returns the plan document (docs/contract.md section 3)."""
     options = options or PlanOptions()
     t_start = time.perf_counter()
     started = time.monotonic()
@@ -267,7 +267,7 @@ def _auto_order(task: Task, should_stop: StopFn) -> tuple[list[str], dict | None
 
 
 def plan_job(request: dict[str, Any], ctx) -> dict[str, Any]:
-    """The service's plan job: CONTRACT.md section 5 request -> plan document."""
+    """The service's plan job: docs/contract.md section 5 request -> plan document."""
     scenario = resolve_scenario(request["scenario"])
     options = PlanOptions(hands=request.get("hands"), threshold_m=request.get("threshold_m"), seed=request.get("seed"),
                           stance=request.get("stance"), time_limit_s=request.get("time_limit_s"))

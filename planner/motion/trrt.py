@@ -24,7 +24,7 @@ Two modes share the machinery:
 * :func:`plan_motion` returns a path between two configurations; every state on
   it (nodes and the edge states at ``edge_resolution_rad``) passed the caller's
   validity callback (collision + margin >= threshold).
-* :func:`explore` is the survey's exploration (CONTRACT.md section 4): it grows
+* :func:`explore` is the survey's exploration (docs/contract.md section 4): it grows
   the trees of each leg of a task (pick -> place, or pick -> handover -> place)
   and records *every* state it evaluates for stability, with its stable flag,
   until ``n_states`` states have been evaluated. States rejected before the
@@ -568,7 +568,7 @@ def explore(
     should_stop: ShouldStop | None = None,
     max_iterations: int | None = None,
 ) -> Exploration:
-    """The survey's goal-biased energy-based exploration of a task (CONTRACT.md section 4).
+    """The survey's goal-biased energy-based exploration of a task (docs/contract.md section 4).
 
     Each leg grows two T-RRT trees (from its start and from its goal, each biased
     to the other's root); the legs take turns round by round. An extension is

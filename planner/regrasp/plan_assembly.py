@@ -1,4 +1,4 @@
-"""Assemble timed motion pieces into the plan file's trajectory (CONTRACT.md section 3).
+"""Assemble timed motion pieces into the plan file's trajectory (docs/contract.md section 3).
 
 The regrasp search returns a sequence of motion pieces (joint-space paths with
 what is held during each). This module times every piece from rest to rest,

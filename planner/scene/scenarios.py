@@ -45,7 +45,14 @@ def parse_scenario(data: Any, source: str = "scenario", base_dir: Path | None = 
         scenario = Scenario.model_validate(data)
     except ValidationError as exc:
         raise ScenarioError(_format_validation(exc, source)) from None
-    if scenario.object.mesh is not None and base_dir is not None:
+    if scenario.object.mesh is not None and scenario.object.mesh.name is not None:
+        from .request_names import RequestNameError, registered_mesh_path
+
+        try:  # a registered mesh: the file is the planner's own, found by name
+            scenario.object.mesh.path = str(registered_mesh_path(scenario.object.mesh.name))
+        except RequestNameError as exc:
+            raise ScenarioError(f"{source}: {exc}") from None
+    elif scenario.object.mesh is not None and base_dir is not None:
         mesh_path = Path(scenario.object.mesh.path)
         if not mesh_path.is_absolute():
             scenario.object.mesh.path = str((base_dir / mesh_path).resolve())

@@ -255,7 +255,7 @@ def run_survey(
     task: Task | None = None,
     recommendation_only: bool = False,
 ) -> tuple[dict[str, Any], list[ConfigOutcome]]:
-    """The survey document (CONTRACT.md section 4) and the per-configuration outcomes (with states).
+    """The survey document (docs/contract.md section 4) and the per-configuration outcomes (with states).
 
     With ``recommendation_only``, a configuration that cannot be recommended over one already
     surveyed (:func:`_outranked`) is not surveyed: its row has no ratio and says why."""
@@ -380,7 +380,7 @@ def run_survey_seeds(
 
 
 def write_states(path: str, doc: dict, outcomes: list[ConfigOutcome], task_info: dict) -> int:
-    """Every evaluated state as an .npz (no pickled objects): CONTRACT.md section 4."""
+    """Every evaluated state as an .npz (no pickled objects): docs/contract.md section 4."""
     parts = [o for o in outcomes if o.q is not None and len(o.q)]
     nq = len(task_info["joint_names"])
     if parts:
@@ -412,7 +412,7 @@ def quick_survey(task: Task, should_stop: Callable[[], bool] = lambda: False, st
 
 
 def run_survey_request(request: dict[str, Any], ctx) -> dict[str, Any]:
-    """The service's survey job (CONTRACT.md section 5)."""
+    """The service's survey job (docs/contract.md section 5)."""
     from planner.scene.scenarios import resolve_scenario
 
     scenario = resolve_scenario(request["scenario"], stance=request.get("stance"), threshold_m=request.get("threshold_m"),

@@ -1,9 +1,8 @@
-"""``/v1/jobs``: submit, read, list, stream, cancel, approve, reject, dispatch, stop, audit (CONTRACT.md section 5)."""
+"""``/v1/jobs``: submit, read, list, stream, cancel, approve, reject, dispatch, stop, audit (docs/contract.md section 5)."""
 
 from __future__ import annotations
 
 import asyncio
-import functools
 import hashlib
 import json
 import os
@@ -17,7 +16,7 @@ from fastapi import APIRouter, Body, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
-from planner.scene.scenarios import builtin_names
+from planner.jobs.request_names import RequestNameError, check_request
 from schemas.jobs import (
     CANCELABLE_STATES,
     EXECUTION_STATES,
@@ -30,13 +29,14 @@ from schemas.jobs import (
     JobSubmit,
     ReasonBody,
 )
+from schemas.scenario import Scenario
 
 from ..auth import Principal
 from ..context import Service
 from ..execution import RobotBusy
-from ..problems import ProblemError
+from ..problems import PROBLEM_TYPE_BASE, ProblemError, clean_message
 from ..provenance import provenance
-from ..store.repo import Conflict, IdempotencyMismatch, QueueFull
+from ..store.repo import Conflict, IdempotencyMismatch, QueueFull, UserQueueFull
 from .deps import principal, problems, require, service
 from .views import job_view
 
@@ -63,44 +63,70 @@ def _full(svc: Service, row: dict[str, Any]) -> Job:
     return job_view(row, result)
 
 
-def _job_response(svc: Service, row: dict[str, Any], status_code: int = 200,
-                  headers: dict[str, str] | None = None) -> Response:
+def _job_json(svc: Service, row: dict[str, Any]) -> str:
     """The job as JSON with its stored result spliced in verbatim: a plan of several MB is never re-parsed."""
     text = svc.store.result_text(row["id"]) if row["state"] not in ("queued", "planning") else None
     body = job_view(row).model_dump_json(exclude={"result"})
-    body = body[:-1] + ',"result":' + (text if text is not None else "null") + "}"
-    return Response(body, status_code=status_code, media_type="application/json", headers=headers)
+    return body[:-1] + ',"result":' + (text if text is not None else "null") + "}"
+
+
+def _job_response(svc: Service, row: dict[str, Any], status_code: int = 200,
+                  headers: dict[str, str] | None = None) -> Response:
+    return Response(_job_json(svc, row), status_code=status_code, media_type="application/json", headers=headers)
 
 
 # ------------------------------------------------------------------ submit
-@functools.lru_cache(maxsize=1)
-def _builtin_scenarios() -> tuple[str, ...]:
-    """The built-in scenario names: files shipped with the planner, listed once (not per submission)."""
-    return tuple(builtin_names())
+def _name_problem(exc: RequestNameError) -> ProblemError:
+    return ProblemError(422, str(exc), type_=PROBLEM_TYPE_BASE + "unknown-name", field=exc.field, valid=exc.valid)
 
 
 def _check_request(svc: Service, body: JobSubmit) -> tuple[str, int | None]:
-    """Validate what pydantic cannot (scenario names, inline scenarios); returns (robot, seed)."""
+    """Validate what pydantic cannot (registered names, inline scenarios, the service's caps); returns (robot, seed).
+
+    A request names things and never a file: every name is checked against the registered
+    ones here (422 listing the valid names), and again by the worker before it loads anything.
+    """
     req = body.request
-    robot, seed = "hrp5p", req.seed
+    robot, seed = req.robot or "hrp5p", req.seed
+    try:
+        check_request(req.model_dump(mode="json", exclude_none=True),
+                      require_registered_scenario=svc.settings.check_scenario_names)
+    except RequestNameError as exc:
+        raise _name_problem(exc) from None
+    scenario: Scenario | None = None
     if isinstance(req.scenario, dict):
         from pydantic import ValidationError
-
-        from schemas.scenario import Scenario
 
         try:
             scenario = Scenario.model_validate(req.scenario)
         except ValidationError as exc:
-            lines = [f"request.scenario.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()[:10]]
-            raise ProblemError(422, "the inline scenario is invalid: " + "; ".join(lines)) from None
-        robot = scenario.robot
+            lines = [f"request.scenario.{'.'.join(str(p) for p in e['loc'])}: {clean_message(e['msg'])}"
+                     for e in exc.errors()[:10]]
+            more = exc.error_count() - len(lines)
+            raise ProblemError(422, "the inline scenario is invalid: " + "; ".join(lines)
+                               + (f" (and {more} more)" if more > 0 else "")) from None
+        robot = req.robot or scenario.robot
         seed = seed if seed is not None else scenario.seed
-    elif svc.settings.check_scenario_names:
-        names = _builtin_scenarios()
-        if req.scenario not in names:
-            raise ProblemError(422, f"unknown scenario {req.scenario!r}; built-in scenarios: {', '.join(names) or 'none'}"
-                                    " (or send an inline scenario document)")
+    _check_caps(svc, body, scenario)
     return robot, seed
+
+
+def _check_caps(svc: Service, body: JobSubmit, scenario: Scenario | None) -> None:
+    """The service's bounds on one job's work: states per hand configuration and planning time."""
+    req, cfg = body.request, svc.settings
+    states = req.states_per_configuration
+    per_seed = getattr(req, "states_per_seed", None)
+    if states is None and scenario is not None:
+        states = getattr(scenario.survey, "states_per_configuration", None)
+    for label, value in (("states_per_configuration", states), ("states_per_seed", per_seed)):
+        if value is not None and value > cfg.max_states_per_configuration:
+            raise ProblemError(422, f"request.{label} is {value}: this service runs at most "
+                                    f"{cfg.max_states_per_configuration} states per hand configuration per job; "
+                                    "ask for fewer states", type_=PROBLEM_TYPE_BASE + "over-limit")
+    time_s = req.time_limit_s if req.time_limit_s is not None else (scenario.limits.time_s if scenario else None)
+    if time_s is not None and time_s > cfg.job_timeout_s:
+        raise ProblemError(422, f"a time limit of {time_s:g} s is over this service's limit of {cfg.job_timeout_s:g} s "
+                                "per job", type_=PROBLEM_TYPE_BASE + "over-limit")
 
 
 @router.post(
@@ -130,12 +156,17 @@ def submit(
         row, created = svc.store.create(
             job_id=str(uuid.uuid4()), kind=body.kind, submitter=p.user, request=request, request_sha256=request_sha,
             idempotency_key=idempotency_key, provenance=provenance(robot, seed), queue_limit=svc.settings.queue_limit,
+            user_limit=svc.settings.user_queue_limit,
         )
     except IdempotencyMismatch as exc:
         raise ProblemError(409, str(exc)) from None
     except QueueFull as exc:
         raise ProblemError(429, f"the queue holds {exc.depth} jobs, at its limit of {svc.settings.queue_limit}; "
                                 f"retry in {svc.settings.retry_after_s} s",
+                           headers={"Retry-After": str(svc.settings.retry_after_s)}) from None
+    except UserQueueFull as exc:
+        raise ProblemError(429, f"user {p.user!r} has {exc.count} jobs queued or planning, at the limit of "
+                                f"{svc.settings.user_queue_limit} per user; retry when some have finished",
                            headers={"Retry-After": str(svc.settings.retry_after_s)}) from None
     headers = {"Location": f"/v1/jobs/{row['id']}"}
     if not created:
@@ -166,12 +197,18 @@ def list_jobs(
     state: JobState | None = Query(None), kind: JobKind | None = Query(None),
     submitter: str | None = Query(None, max_length=128),
     limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0, le=10_000_000),
-    include_result: bool = Query(False, description="include each job's result document (can be large)"),
+    include_result: bool = Query(False, description="include each job's result document (can be large); a page "
+                                                    "then holds at most the service's list_results_max jobs"),
     p: Principal = Depends(principal), svc: Service = Depends(service),
-) -> JobList:
+) -> Response:
+    if include_result:
+        limit = min(limit, svc.settings.list_results_max)
     rows, total = svc.store.list(state=state, kind=kind, submitter=submitter, limit=limit, offset=offset)
-    jobs = [_full(svc, r) if include_result else job_view(r) for r in rows]
-    return JobList(jobs=jobs, total=total, limit=limit, offset=offset)
+    page = JobList(jobs=[], total=total, limit=limit, offset=offset).model_dump_json()
+    # Each job's stored result is spliced in as its stored text, never parsed and re-serialised.
+    items = ",".join(_job_json(svc, r) if include_result else job_view(r).model_dump_json() for r in rows)
+    body = page.replace('"jobs":[]', '"jobs":[' + items + "]", 1)
+    return Response(body, media_type="application/json")
 
 
 @router.get("/{job_id}", response_model=Job, summary="One job with its result", responses=problems(401, 404, 422))
@@ -182,6 +219,41 @@ def get_job(job_id: str,
     if not include_result:
         return Response(job_view(row).model_dump_json(), media_type="application/json")
     return _job_response(svc, row)
+
+
+#: Largest event id a client may name (the store's ids are 63-bit integers).
+MAX_EVENT_ID = 2**62
+
+
+def _last_event_id(header: str | None) -> int:
+    """The ``Last-Event-ID`` header as an event id; 400 for anything but a decimal id in range."""
+    if header is None or header == "":
+        return 0
+    value = header.strip()
+    if not value.isascii() or not value.isdigit() or len(value) > 19 or int(value) > MAX_EVENT_ID:
+        raise ProblemError(400, f"Last-Event-ID must be an event id from this stream (a decimal integer up to "
+                                f"{MAX_EVENT_ID}); got {value[:32]!r}")
+    return int(value)
+
+
+class StreamSlots:
+    """Open event streams per user in this API process, bounded per user."""
+
+    def __init__(self) -> None:
+        self._open: dict[str, int] = {}
+
+    def acquire(self, user: str, limit: int) -> bool:
+        if self._open.get(user, 0) >= limit:
+            return False
+        self._open[user] = self._open.get(user, 0) + 1
+        return True
+
+    def release(self, user: str) -> None:
+        left = self._open.get(user, 0) - 1
+        if left > 0:
+            self._open[user] = left
+        else:
+            self._open.pop(user, None)
 
 
 def _sse(event: dict[str, Any]) -> str:
@@ -202,17 +274,26 @@ def _sse(event: dict[str, Any]) -> str:
 async def job_events(
     job_id: str, request: Request,
     after: int = Query(0, ge=0, le=2**62, description="only events with a larger id (also Last-Event-ID)"),
-    last_event_id: str | None = Header(None, alias="Last-Event-ID", max_length=32),
+    last_event_id: str | None = Header(None, alias="Last-Event-ID", max_length=1024),
     follow: bool = Query(True, description="keep the stream open for new events (false: send the history and end)"),
     p: Principal = Depends(principal), svc: Service = Depends(service),
 ) -> StreamingResponse:
     await run_in_threadpool(_load, svc, job_id)
-    cursor = after
-    if last_event_id and last_event_id.isdigit():
-        cursor = max(cursor, int(last_event_id))
+    cursor = max(after, _last_event_id(last_event_id))
+    streams: StreamSlots = svc.extra.setdefault("streams", StreamSlots())
+    if not streams.acquire(p.user, svc.settings.user_stream_limit):
+        raise ProblemError(429, f"user {p.user!r} holds {svc.settings.user_stream_limit} open event streams, the limit "
+                                "per user; close one (or read with follow=false) and retry",
+                           headers={"Retry-After": str(svc.settings.retry_after_s)})
 
     async def stream() -> AsyncIterator[str]:
-        nonlocal cursor
+        try:
+            async for chunk in _events(cursor):
+                yield chunk
+        finally:
+            streams.release(p.user)
+
+    async def _events(cursor: int) -> AsyncIterator[str]:
         yield "retry: 1000\n\n"
         last_sent = time.monotonic()
         while True:

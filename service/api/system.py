@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import logging
+import secrets
 from pathlib import Path
 from typing import Literal
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, HTMLResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
@@ -17,9 +19,10 @@ from ..auth import Principal
 from ..context import Service
 from ..problems import ProblemError
 from ..provenance import code_version
-from .deps import principal, problems, service
+from .deps import client_address, principal, problems, service
 
 router = APIRouter(tags=["system"])
+log = logging.getLogger("regrasp.api")
 CONSOLE_DIR = Path(__file__).resolve().parent.parent / "console"
 
 PLACEHOLDER = """<!doctype html><html><head><meta charset="utf-8"><title>regrasp service</title></head>
@@ -32,7 +35,9 @@ def healthz(svc: Service = Depends(service)) -> Health:
     try:
         depth = svc.store.queue_depth()
     except Exception as exc:  # noqa: BLE001
-        raise ProblemError(503, f"the job store is unreachable: {type(exc).__name__}: {exc}") from None
+        log.error("health check: the job store is unreachable: %s", str(exc).splitlines()[0][:300] if str(exc) else exc)
+        raise ProblemError(503, "the job store is unreachable or damaged; the service log has the details",
+                           headers={"Retry-After": str(svc.settings.retry_after_s)}) from None
     workers = svc.executor.total_slots() if svc.executor is not None else 0
     runner_ok = svc.runner is None or (svc.runner._thread is not None and svc.runner._thread.is_alive())  # noqa: SLF001
     return Health(status="ok" if runner_ok else "degraded", database=svc.store.engine.dialect.name,
@@ -54,10 +59,26 @@ def me(p: Principal = Depends(principal)) -> Identity:
     return Identity(user=p.user, roles=sorted(p.roles))
 
 
-@router.get("/metrics", summary="Prometheus metrics", response_class=Response,
-            responses={200: {"content": {CONTENT_TYPE_LATEST.split(";")[0]: {"schema": {"type": "string"}}},
+@router.get("/metrics", summary="Prometheus metrics (bearer token)", response_class=Response,
+            responses={**problems(401), 200: {"content": {CONTENT_TYPE_LATEST.split(";")[0]: {"schema": {"type": "string"}}},
                              "description": "Prometheus text format"}})
-async def metrics(svc: Service = Depends(service)) -> Response:
+async def metrics(request: Request, svc: Service = Depends(service)) -> Response:
+    """Behind a bearer token: the settings' ``metrics_token`` (for Prometheus) or any user's token.
+
+    A deployment that wants a scraper without tokens serves the same registry on a separate
+    bind instead (``metrics_port``, loopback by default).
+    """
+    header = request.headers.get("authorization", "")
+    scheme, _, token = header.partition(" ")
+    token = token.strip()
+    allowed = scheme.lower() == "bearer" and token != "" and (
+        (svc.settings.metrics_token is not None and secrets.compare_digest(token, svc.settings.metrics_token))
+        or svc.tokens.lookup(token) is not None)
+    if not allowed:
+        log.warning("metrics: authentication failed from %s (%s)", client_address(request),
+                    "no bearer token" if not token else "unknown token")
+        raise ProblemError(401, "/metrics needs a bearer token (the service's metrics token or a user's token)",
+                           headers={"WWW-Authenticate": 'Bearer realm="regrasp"'})
     body = await run_in_threadpool(generate_latest, svc.metrics.registry)
     return Response(body, media_type=CONTENT_TYPE_LATEST)
 

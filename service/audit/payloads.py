@@ -5,8 +5,9 @@ from __future__ import annotations
 import logging
 from typing import Any, Mapping
 
-from .encoding import RawJson
 from schemas.fast_json import loads
+
+from .encoding import RawJson
 
 _log = logging.getLogger("regrasp.audit")
 

@@ -18,8 +18,17 @@ from . import markers as mk
 from .encoding import stamp
 from .joints import joint_states_body, tf_body
 from .settings import AuditSettings
-from .topics import (NS_PER_S, TOPIC_PLAN_COM, TOPIC_PLAN_JOINTS, TOPIC_PLAN_OBJECT, TOPIC_PLAN_SCENE,
-                     TOPIC_PLAN_STABILITY, TOPIC_PLAN_SUPPORT, TOPIC_PLAN_TF, TOPIC_PLAN_ZMP)
+from .topics import (
+    NS_PER_S,
+    TOPIC_PLAN_COM,
+    TOPIC_PLAN_JOINTS,
+    TOPIC_PLAN_OBJECT,
+    TOPIC_PLAN_SCENE,
+    TOPIC_PLAN_STABILITY,
+    TOPIC_PLAN_SUPPORT,
+    TOPIC_PLAN_TF,
+    TOPIC_PLAN_ZMP,
+)
 from .urdf_frames import UrdfTree
 
 Message = tuple[str, str, dict[str, Any], int]

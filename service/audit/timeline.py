@@ -12,8 +12,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from .verify import VerifyResult, verify
 from .topics import TOPIC_EVENTS, TOPIC_LOG, TOPIC_ROBOT_DESCRIPTION
+from .verify import VerifyResult, verify
 
 NS_PER_S = 1_000_000_000
 

@@ -28,8 +28,9 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Schema
 from mcap.stream_reader import get_chunk_data_stream
 
-from .chain import GENESIS, is_sha256_hex, record_digest
 from schemas.fast_json import loads
+
+from .chain import GENESIS, is_sha256_hex, record_digest
 from .topics import KIND_CLOSE, KIND_OPEN, TOPIC_EVENTS
 
 MAGIC = b"\x89MCAP0\r\n"

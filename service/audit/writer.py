@@ -47,17 +47,31 @@ from .chain import CHAIN_FORMAT, GENESIS, record_digest
 from .encoding import RawJson, dumps, stamp
 from .joints import joint_states_body, tf_body
 from .layout import LAYOUT_ATTACHMENT, LAYOUT_MEDIA_TYPE, layout_bytes
+
+# Re-exported: importers of service.audit.writer use these names.
+from .markers import shrink_polygon  # noqa: F401
 from .payloads import find_joint_state, find_plan, urdf_for
 from .playback import plan_messages
 from .settings import AuditError, AuditSettings
 from .severity import level_of, summarise
-from .topics import (EXECUTED_PREFIX, KIND_CLOSE, KIND_OPEN, LOG_LEVELS, NS_PER_S, TOPIC_COM, TOPIC_EVENTS,
-                     TOPIC_JOINTS_EXECUTED, TOPIC_JOINTS_PLAN, TOPIC_LOG, TOPIC_PLAN_TF, TOPIC_ROBOT_DESCRIPTION,
-                     TOPIC_ROBOT_TF, TOPIC_SUPPORT, TOPIC_TF)
+from .topics import (
+    EXECUTED_PREFIX,
+    KIND_CLOSE,
+    KIND_OPEN,
+    LOG_LEVELS,
+    NS_PER_S,
+    TOPIC_COM,
+    TOPIC_EVENTS,
+    TOPIC_JOINTS_EXECUTED,
+    TOPIC_JOINTS_PLAN,
+    TOPIC_LOG,
+    TOPIC_PLAN_TF,
+    TOPIC_ROBOT_DESCRIPTION,
+    TOPIC_ROBOT_TF,
+    TOPIC_SUPPORT,
+    TOPIC_TF,
+)
 from .urdf_frames import UrdfTree, parse_urdf
-
-# Re-exported: importers of service.audit.writer use these names.
-from .markers import shrink_polygon  # noqa: F401
 
 _log = logging.getLogger("regrasp.audit")
 

@@ -1,4 +1,4 @@
-"""``regrasp audit verify|show|layout``: check and read MCAP audit files (docs/audit.md), print their Foxglove layout."""
+"""``regrasp audit verify|show|layout``: check and read MCAP audit files (docs/audit.md, docs/contract.md section 7), print their Foxglove layout."""
 
 from __future__ import annotations
 

@@ -12,8 +12,20 @@ from rich.console import Console
 console = Console(stderr=False)
 err_console = Console(stderr=True)
 
-#: Exit code for usage errors (bad input that prevented work from starting).
+#: Exit code for usage errors (bad input that prevented work from starting), unknown names included.
 EXIT_USAGE = 2
+#: Exit code of ``serve``/``worker`` when the job store is damaged or cannot be opened.
+EXIT_STORE = 3
+
+
+def open_store_or_exit(url: str, init: bool) -> None:
+    """Check the job store before anything opens it: a damaged store ends the command with one line, code 3."""
+    from service.store.integrity import StoreIntegrityError, check_store
+
+    try:
+        check_store(url, init=init)
+    except StoreIntegrityError as exc:
+        fail(str(exc), code=EXIT_STORE)
 
 
 def fail(message: str, code: int = EXIT_USAGE) -> NoReturn:

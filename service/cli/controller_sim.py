@@ -1,4 +1,4 @@
-"""``regrasp controller-sim``: run the simulated controller peer (CONTRACT.md section 6).
+"""``regrasp controller-sim``: run the simulated controller peer (docs/contract.md section 6).
 
 The stance posture is computed here, in the CLI layer, with the planner's stance
 solver (or read from ``--initial-q FILE.json``); ``robot_bridge`` itself never

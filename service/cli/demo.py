@@ -21,7 +21,12 @@ from .common import console, fail
 def stance_step(out: Path, robot_name: str) -> list[dict]:
     """Solve the built-in stances and draw them; returns one summary row per stance."""
     from planner.robot.model import load_robot
-    from planner.stability.stances import BUILTIN_STANCES, StanceError, sole_size, solve_stance
+    from planner.stability.stances import (
+        BUILTIN_STANCES,
+        StanceError,
+        sole_size,
+        solve_stance,
+    )
     from service.plots import plot_stance
 
     robot = load_robot(robot_name)

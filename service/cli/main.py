@@ -59,11 +59,40 @@ def cli() -> None:
     """Regrasp planning for the HRP-5P humanoid under bipedal stability constraints."""
 
 
+#: Exceptions that mean "this name is not known" (module, class): every command ends on them with exit 2.
+UNKNOWN_NAME_ERRORS: tuple[tuple[str, str], ...] = (
+    ("planner.robot.model", "UnknownNameError"),
+    ("planner.robot.registry", "UnknownRobotError"),
+    ("planner.jobs.request_names", "RequestNameError"),
+    ("planner.scene.scenarios", "ScenarioError"),
+    ("planner.jobs.plan_job", "InputError"),
+    ("planner.stability.stances", "StanceError"),
+)
+#: Exit code of a usage error (service.cli.common.EXIT_USAGE, kept here so --help imports nothing).
+EXIT_USAGE = 2
+
+
+def _is_unknown_name(exc: BaseException) -> bool:
+    """True for the planner's errors about unknown names and unusable input (only modules already loaded can raise them)."""
+    for module, name in UNKNOWN_NAME_ERRORS:
+        cls = getattr(sys.modules.get(module), name, None)
+        if isinstance(cls, type) and isinstance(exc, cls):
+            return True
+    return False
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; an unknown name anywhere ends it with a one-line error and exit code 2 (no traceback)."""
     try:
         cli.main(args=argv, prog_name="regrasp", standalone_mode=True)
     except SystemExit as exc:
         return int(exc.code or 0)
+    except Exception as exc:  # noqa: BLE001 - re-raised unless it is a usage error
+        if not _is_unknown_name(exc):
+            raise
+        message = " ".join(str(exc).split()) or "invalid input"
+        click.echo(f"error: {message}", err=True)
+        return EXIT_USAGE
     return 0
 
 

@@ -1,4 +1,4 @@
-"""``regrasp plan``: plan a regrasp task and write the plan file (CONTRACT.md section 3)."""
+"""``regrasp plan``: plan a regrasp task and write the plan file (docs/contract.md section 3)."""
 
 from __future__ import annotations
 

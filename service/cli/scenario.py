@@ -40,16 +40,36 @@ def show(name: str) -> None:
     click.echo(yaml.safe_dump(sc.model_dump(by_alias=True, exclude_none=True), sort_keys=False))
 
 
+def unknown_names(sc) -> list[str]:  # type: ignore[no-untyped-def]
+    """The scenario's robot and stance names that are not registered (a stance file that exists counts as known)."""
+    from pathlib import Path
+
+    from planner.jobs.request_names import registered_robots, registered_stances
+
+    out = []
+    if sc.robot not in registered_robots():
+        out.append(f"unknown robot {sc.robot!r}; valid robots: {', '.join(registered_robots())}")
+    if isinstance(sc.stance, str) and sc.stance not in registered_stances() and not Path(sc.stance).is_file():
+        out.append(f"unknown stance {sc.stance!r}; built-in stances: {', '.join(registered_stances())} (or a stance file)")
+    return out
+
+
 @scenario.command("check")
 @click.argument("file")
 def check(file: str) -> None:
-    """Validate a scenario file (or built-in name): schema, robot, stance, threshold, object, start/goal."""
+    """Validate a scenario file (or built-in name): schema, robot, stance, threshold, object, start/goal.
+
+    Exit codes: 0 valid, 1 it cannot be planned as written, 2 unreadable or an unknown name.
+    """
     from planner.scene.scenarios import ScenarioError, check_scenario, load_scenario
 
     try:
         sc = load_scenario(file)
     except ScenarioError as exc:
         fail(str(exc))
+    unknown = unknown_names(sc)
+    if unknown:
+        fail("; ".join(unknown))
     report = check_scenario(sc)
     for note in report.notes:
         console.print(f"[dim]{note}[/]")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from .common import console, fail
+from .common import console, fail, open_store_or_exit
 
 
 def _settings_from_flags(config: Path | None, **flags: object):  # type: ignore[no-untyped-def]
@@ -34,22 +34,32 @@ def _settings_from_flags(config: Path | None, **flags: object):  # type: ignore[
 @click.option("--ray-address", default=None, help="Ray cluster address (default: a local Ray instance).")
 @click.option("--config", "config", type=click.Path(path_type=Path, dir_okay=False), default=None,
               help="Settings file (YAML, JSON or TOML); the environment (REGRASP_*) and flags override it.")
+@click.option("--tls-cert", "tls_cert", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="PEM certificate: serve HTTPS (with --tls-key).")
+@click.option("--tls-key", "tls_key", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="PEM private key of the TLS certificate.")
+@click.option("--init-store", is_flag=True, default=False,
+              help="Start a new store when the existing file is empty or damaged (it is moved aside, not deleted).")
 @click.option("--log-level", default="info", type=click.Choice(["debug", "info", "warning", "error"]))
 def serve(host: str | None, port: int | None, data_dir: Path | None, database_url: str | None, workers: int | None,
-          dev: bool, executor: str | None, ray_address: str | None, config: Path | None, log_level: str) -> None:
-    """Run the HTTP planning service (CONTRACT.md section 5) with its workers."""
+          dev: bool, executor: str | None, ray_address: str | None, config: Path | None, tls_cert: Path | None,
+          tls_key: Path | None, init_store: bool, log_level: str) -> None:
+    """Run the HTTP planning service (docs/contract.md section 5) with its workers.
+
+    Every setting also comes from a config file or the environment (REGRASP_*): see docs/service.md.
+    Exit codes: 0 stopped, 2 invalid settings, 3 the job store is damaged or unreachable.
+    """
     import logging
 
     import uvicorn
 
     from robot_bridge.process_tuning import freeze_startup_objects
-
     from service.app import create_app
     from service.auth import TokenStore, is_loopback, make_dev_tokens
 
     settings = _settings_from_flags(config, host=host, port=port, data_dir=data_dir, database_url=database_url,
                                     workers=workers, executor=executor, ray_address=ray_address,
-                                    dev=dev or None)
+                                    dev=dev or None, tls_cert_file=tls_cert, tls_key_file=tls_key)
     if settings.executor == "ray":
         try:
             import ray  # noqa: F401
@@ -76,10 +86,16 @@ def serve(host: str | None, port: int | None, data_dir: Path | None, database_ur
         console.print("[yellow]warning:[/] no tokens configured: every API call gets 401 "
                       "(set REGRASP_TOKENS, tokens_file, or use --dev)")
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    # The store is checked before the app opens it: a damaged file ends here with one line, not a traceback.
+    open_store_or_exit(settings.resolved_database_url, init_store or settings.init_store)
     app = create_app(settings, tokens=tokens)
     freeze_startup_objects()
-    console.print(f"serving on http://{settings.host}:{settings.port} (console at /, API docs at /docs), "
+    scheme = "https" if settings.tls_cert_file else "http"
+    console.print(f"serving on {scheme}://{settings.host}:{settings.port} (console at /, API docs at /docs), "
                   f"{settings.workers} {settings.executor} worker(s), store {settings.resolved_database_url.split('://')[0]}",
                   highlight=False)
     sys.stdout.flush()
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=log_level, access_log=log_level == "debug")
+    tls = ({"ssl_certfile": str(settings.tls_cert_file), "ssl_keyfile": str(settings.tls_key_file)}
+           if settings.tls_cert_file else {})
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level=log_level, access_log=log_level == "debug",
+                timeout_keep_alive=5, h11_max_incomplete_event_size=64 * 1024, **tls)

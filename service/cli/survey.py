@@ -1,4 +1,4 @@
-"""``regrasp survey``: the task stability survey (CONTRACT.md section 4)."""
+"""``regrasp survey``: the task stability survey (docs/contract.md section 4)."""
 
 from __future__ import annotations
 

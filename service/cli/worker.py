@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from .common import console, fail
+from .common import console, fail, open_store_or_exit
 from .serve import _settings_from_flags
 
 
@@ -19,9 +19,11 @@ from .serve import _settings_from_flags
 @click.option("--executor", type=click.Choice(["local", "ray"]), default=None)
 @click.option("--ray-address", default=None)
 @click.option("--config", "config", type=click.Path(path_type=Path, dir_okay=False), default=None)
+@click.option("--init-store", is_flag=True, default=False,
+              help="Start a new store when the existing file is empty or damaged (it is moved aside, not deleted).")
 @click.option("--log-level", default="info", type=click.Choice(["debug", "info", "warning", "error"]))
 def worker(data_dir: Path | None, database_url: str | None, workers: int | None, executor: str | None,
-           ray_address: str | None, config: Path | None, log_level: str) -> None:
+           ray_address: str | None, config: Path | None, init_store: bool, log_level: str) -> None:
     """Claim and run queued jobs from the job store until stopped (SIGINT/SIGTERM)."""
     import logging
 
@@ -34,6 +36,7 @@ def worker(data_dir: Path | None, database_url: str | None, workers: int | None,
     if settings.workers < 1:
         fail("regrasp worker needs --workers 1 or more")
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    open_store_or_exit(settings.resolved_database_url, init_store or settings.init_store)
     engine = make_engine(settings.resolved_database_url)
     migrate(engine)
     store = JobStore(engine)

@@ -1,5 +1,5 @@
 /*
- * Regrasp operator console: plain JavaScript against the HTTP API of CONTRACT.md section 5.
+ * Regrasp operator console: plain JavaScript against the HTTP API of docs/contract.md section 5.
  * No build step, no external libraries: charts are inline SVG drawn here.
  *
  * Live progress: the job's Server-Sent Events stream (GET /v1/jobs/{id}/events) is read with
@@ -21,7 +21,7 @@
   const TERMINAL = new Set(["succeeded", "failed", "canceled", "rejected", "aborted"]);
   const CANCELABLE = new Set(["queued", "planning", "planned", "approved"]);
   const EXECUTING = new Set(["dispatching", "executing"]);
-  /* The role each action needs (CONTRACT section 5); cancel needs the job's submitter or an admin. */
+  /* The role each action needs (docs/contract.md section 5); cancel needs the job's submitter or an admin. */
   const ROLE_OF = { approve: "approver", reject: "approver", dispatch: "operator", stop: "operator" };
   const HIDE = "hide";
   const SVG_NS = "http://www.w3.org/2000/svg";

@@ -10,6 +10,7 @@ that has not stopped ``cancel_grace_s`` after a cancel is killed
 from __future__ import annotations
 
 import logging
+import math
 import os
 import threading
 import time
@@ -104,13 +105,20 @@ class RayExecutor:
 
         self.ray = ray
         self.settings = settings
+        slots = max(settings.workers, 1)
+        actor_cpus = 1.0
         if not ray.is_initialized():
             if settings.ray_address:
                 ray.init(address=settings.ray_address, ignore_reinit_error=True, log_to_driver=False)
             else:
+                # A local instance offers ray_num_cpus (default one per worker), shared by the actors, and
+                # no dashboard: its footprint is the workers' own.
+                cpus = settings.ray_num_cpus or float(slots)
+                actor_cpus = min(1.0, cpus / slots)
                 ray.init(ignore_reinit_error=True, include_dashboard=False, log_to_driver=False,
-                         num_cpus=max(settings.workers, 1), object_store_memory=settings.ray_object_store_bytes)
-        self._actor_cls = ray.remote(num_cpus=1, max_concurrency=3, max_restarts=0)(_JobActorImpl)
+                         num_cpus=math.ceil(cpus), object_store_memory=settings.ray_object_store_bytes)
+        # max_restarts=0: an actor that dies fails its job (WORKER_CRASHED), as a local worker process does.
+        self._actor_cls = ray.remote(num_cpus=actor_cpus, max_concurrency=3, max_restarts=0)(_JobActorImpl)
         self._slots = [_Slot() for _ in range(settings.workers)]
         for slot in self._slots:
             self._spawn(slot)
@@ -192,7 +200,7 @@ class RayExecutor:
                     tag, value = self.ray.get(slot.run_ref)
                 except Exception as exc:  # noqa: BLE001 - actor died (crash, OOM, node loss)
                     events.append(crashed_event(job_id, f"Ray worker (actor pid {slot.pid}) died while running the "
-                                                        f"job: {type(exc).__name__}: {_first_line(exc)}"))
+                                                        f"job: {_first_line(exc)}"))
                     self._replace(slot)
                     continue
                 slot.job_id, slot.run_ref, slot.kill_at = None, None, None

@@ -45,10 +45,20 @@ class QueueFull(Exception):
         self.depth = depth
 
 
+class UserQueueFull(Exception):
+    """The submitter has ``count`` jobs queued or planning, at or past their own limit (HTTP 429)."""
+
+    def __init__(self, count: int) -> None:
+        super().__init__(f"the submitter has {count} jobs queued or planning")
+        self.count = count
+
+
 #: Hot-path statements, built once: SQLAlchemy then reuses their compiled form (the API's latency budget).
 _GET_JOB = sa.select(jobs).where(jobs.c.id == sa.bindparam("job_id"))
 _GET_RESULT = sa.select(job_results.c.result).where(job_results.c.job_id == sa.bindparam("job_id"))
 _QUEUE_DEPTH = sa.select(sa.func.count()).select_from(jobs).where(jobs.c.state == "queued")
+_USER_PENDING = sa.select(sa.func.count()).select_from(jobs).where(
+    jobs.c.submitter == sa.bindparam("submitter"), jobs.c.state.in_(("queued", "planning")))
 _BY_KEY = sa.select(jobs).where(jobs.c.submitter == sa.bindparam("submitter"),
                                 jobs.c.idempotency_key == sa.bindparam("key"))
 _INSERT_JOB = jobs.insert()
@@ -164,11 +174,13 @@ class JobStore:
     # --------------------------------------------------------------- creation
     def create(self, *, job_id: str, kind: str, submitter: str, request: dict[str, Any],
                request_sha256: str, idempotency_key: str | None,
-               provenance: dict[str, Any], queue_limit: int | None = None) -> tuple[dict[str, Any], bool]:
+               provenance: dict[str, Any], queue_limit: int | None = None,
+               user_limit: int | None = None) -> tuple[dict[str, Any], bool]:
         """Insert a queued job; with an idempotency key already used by this submitter, return that job instead.
 
-        The replay lookup, the queue-limit check (:class:`QueueFull`) and the insert share one
-        transaction: a submission costs one connection and one write, and on SQLite the limit is exact.
+        The replay lookup, the queue-limit check (:class:`QueueFull`), the submitter's own limit on
+        jobs queued or planning (:class:`UserQueueFull`) and the insert share one transaction: a
+        submission costs one connection and one write, and on SQLite the limits are exact.
         """
         now = utcnow()
         values = {c.name: None for c in jobs.columns if c.name != "seq"}
@@ -188,6 +200,10 @@ class JobStore:
                     depth = int(conn.execute(_QUEUE_DEPTH).scalar_one())
                     if depth >= queue_limit:
                         raise QueueFull(depth)
+                if user_limit is not None:
+                    pending = int(conn.execute(_USER_PENDING, {"submitter": submitter}).scalar_one())
+                    if pending >= user_limit:
+                        raise UserQueueFull(pending)
                 conn.execute(_INSERT_JOB, values)
                 self._event(conn, job_id, "state", state="queued", progress=0.0, message=f"{kind} job submitted by {submitter}",
                             data={"request": request, "submitter": submitter, "idempotency_key": idempotency_key}, at=now)

@@ -1,4 +1,4 @@
-"""A small in-memory fake of the job API (CONTRACT.md section 5) for the console's browser tests.
+"""A small in-memory fake of the job API (docs/contract.md section 5) for the console's browser tests.
 
 It follows the contract's routes, roles, states and problem+json errors closely
 enough to drive the page before (and independently of) the real service:

@@ -127,10 +127,13 @@ class Server:
     """A `regrasp serve` subprocess; ``kill()`` is a real SIGKILL of the server process only."""
 
     def __init__(self, data_dir: Path, workers: int = 2, port: int | None = None, extra_args: list[str] | None = None,
-                 bridge_port: int | None = None, startup_timeout_s: float = STARTUP_TIMEOUT_S, **settings: Any) -> None:
+                 bridge_port: int | None = None, startup_timeout_s: float = STARTUP_TIMEOUT_S,
+                 tls_ca: Path | None = None, **settings: Any) -> None:
         self.data_dir = data_dir
         self.port = port or free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
+        #: With ``tls_ca`` (the CA file that signed the server's certificate) the server is reached over HTTPS.
+        self.verify: Any = str(tls_ca) if tls_ca is not None else True
+        self.url = f"{'https' if tls_ca is not None else 'http'}://127.0.0.1:{self.port}"
         self.args = [sys.executable, "-m", "service.cli.main", "serve", "--port", str(self.port),
                      "--data-dir", str(data_dir), "--workers", str(workers), "--log-level", "warning",
                      *(extra_args or [])]
@@ -149,7 +152,7 @@ class Server:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"server exited with {self.proc.returncode}: {self.log_path.read_text()[-3000:]}")
             try:
-                if httpx.get(self.url + "/healthz", timeout=1.0).status_code == 200:
+                if httpx.get(self.url + "/healthz", timeout=1.0, verify=self.verify).status_code == 200:
                     return self
             except httpx.HTTPError:
                 pass
@@ -183,7 +186,8 @@ class Server:
         self._log.close()
 
     def client(self, user: str) -> httpx.Client:
-        return httpx.Client(base_url=self.url, headers={"Authorization": f"Bearer {TOKEN[user]}"}, timeout=30.0)
+        return httpx.Client(base_url=self.url, headers={"Authorization": f"Bearer {TOKEN[user]}"}, timeout=30.0,
+                            verify=self.verify)
 
 
 def wait_state(client: httpx.Client, job_id: str, states: set[str], timeout: float = 30.0) -> dict[str, Any]:

@@ -5,7 +5,8 @@ these tests): ``busy-S`` computes hashes for S seconds, reporting progress and
 polling ``ctx.cancelled()`` every few milliseconds; ``hang-S`` computes without
 ever polling (only a kill stops it); ``crash`` kills its own process (SIGKILL), ``exit-N`` ends it with
 ``os._exit(N)``; ``robot`` reports the worker's pid and robot loads; ``move-S`` a real plan that swings the
-right shoulder 0.5 rad forward over S seconds from the upright posture and stays there; ``error``
+right shoulder 0.5 rad forward over S seconds from the upright posture and stays there; ``planner-NAME`` runs the
+real planner on the built-in scenario NAME; ``error``
 raises; ``infeasible`` returns an infeasible plan; ``quick`` returns at once.
 """
 
@@ -73,6 +74,10 @@ def run(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
         return build_plan({"RSP": -0.5}, duration_s=float(arg or 4.0), rest_s=0.05)
     if mode == "standbad":
         return stand(request, ctx, float(arg or STAND_DURATION_S), bad_joint=True)
+    if mode == "planner":  # the real planner on the built-in scenario named after the dash
+        from planner.jobs.entry import run_plan
+
+        return run_plan({**request, "scenario": arg}, ctx)
     if mode == "error":
         raise RuntimeError("the test handler failed on purpose")
     if mode == "infeasible":

@@ -7,13 +7,18 @@ for it or not, and an actor that dies under its job fails the job with the reaso
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 from typing import Iterator
 
 import pytest
 from conftest import Server, cancel_latency_s, job_events, wait_state
 
+from plan_checker import check_plan
+
 from schemas.jobs import TERMINAL_STATES
+from schemas.plan import plan_sha256
 
 try:
     import ray  # noqa: F401
@@ -28,9 +33,10 @@ CANCEL_BOUND_S = 1.0
 
 @pytest.fixture(scope="module")
 def ray_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    # Small on a shared machine: one CPU for Ray (the two actors share it), no dashboard, a 100 MB object store.
     srv = Server(tmp_path_factory.mktemp("ray"), workers=2, extra_args=["--executor", "ray"],
                  startup_timeout_s=RAY_STARTUP_S, preload_robot="true", audit="false",
-                 ray_object_store_bytes=str(100 * 1024**2))
+                 ray_object_store_bytes=str(100 * 1024**2), ray_num_cpus="1")
     srv.env["RAY_USAGE_STATS_ENABLED"] = "0"  # no network: Ray must not try to report usage
     srv.start()
     try:
@@ -98,3 +104,48 @@ def test_ray_actor_crash_fails_the_job_with_the_reason(ray_server: Server) -> No
         assert "\n" not in message and len(message) < 500
         again = c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "quick"}}).json()
         assert wait_state(c, again["id"], {"planned", "failed"}, timeout=60)["state"] == "planned"
+
+
+def _actor_pid(c, job_id: str) -> int:  # type: ignore[no-untyped-def]
+    running = next(e["message"] for e in job_events(c, job_id) if "running on ray actor pid" in (e["message"] or ""))
+    return int(running.rsplit(" ", 1)[1])
+
+
+def test_ray_worker_killed_mid_job_fails_it_as_a_local_worker_crash_does(ray_server: Server) -> None:
+    """SIGKILL of the actor process from outside, mid-job: the job fails WORKER_CRASHED with the reason (as for a
+    local worker process, no retry: the job may have had effects), the actor is replaced and the next job runs."""
+    with ray_server.client("alice") as c:
+        job = c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "busy-60"}}).json()
+        wait_state(c, job["id"], {"planning"}, timeout=60)
+        deadline = time.monotonic() + 30
+        while not any(e["kind"] == "progress" for e in job_events(c, job["id"])):  # inside its loop
+            assert time.monotonic() < deadline, "the job never reported progress"
+            time.sleep(0.1)
+        pid = _actor_pid(c, job["id"])
+        os.kill(pid, signal.SIGKILL)
+        done = wait_state(c, job["id"], TERMINAL_STATES | {"planned"}, timeout=60)
+        assert done["state"] == "failed" and done["error"]["code"] == "WORKER_CRASHED", done
+        assert f"Ray worker (actor pid {pid}) died while running the job" in done["error"]["message"]
+        assert done["attempts"] == 1
+        again = c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "robot"}}).json()
+        after = wait_state(c, again["id"], {"planned", "failed"}, timeout=RAY_STARTUP_S)
+        assert after["state"] == "planned" and after["result"]["pid"] != pid
+
+
+#: The real planner in a Ray actor on a loaded 2-core machine (the actor compiled its kernels at start).
+REAL_PLAN_TIMEOUT_S = 400
+
+
+def test_ray_runs_the_real_planner_end_to_end(ray_server: Server) -> None:
+    """A plan job through `regrasp serve --executor ray` to the real planner: a plan that an independent check passes."""
+    with ray_server.client("alice") as c:
+        request = {"scenario": "planner-upright", "seed": 1, "hands": "right-right", "time_limit_s": 300}
+        job = c.post("/v1/jobs", json={"kind": "plan", "request": request}).json()
+        done = wait_state(c, job["id"], {"planned", "failed"}, timeout=REAL_PLAN_TIMEOUT_S)
+        assert done["state"] == "planned", done["error"]
+        plan = done["result"]
+        assert plan["schema"] == "regrasp.plan/1" and plan["status"] == "solved" and plan["hands"] == "right-right"
+        assert done["plan_sha256"] and len(plan["trajectory"]) > 10
+        assert done["plan_sha256"] == plan_sha256(plan)
+        report = check_plan(plan, sample_every=5)  # re-verified independently of the planner's own numbers
+        assert report.errors == [] and report.min_margin >= plan["threshold_m"] - 1e-4

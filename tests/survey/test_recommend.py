@@ -1,4 +1,4 @@
-"""Which configuration the survey recommends (CONTRACT.md section 4), and the order --hands auto tries.
+"""Which configuration the survey recommends (docs/contract.md section 4), and the order --hands auto tries.
 
 The rule: the highest ratio R; ties go to the larger C, then to the order left-left, right-right,
 left-right, right-left; rows without a ratio (no plan, threshold beyond the polygon) never win.

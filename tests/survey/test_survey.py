@@ -245,7 +245,7 @@ def test_the_cli_progress_bar_leaves_the_process_single_threaded():
 
 
 def test_the_state_count_defaults_to_the_scenario_then_10000_and_zero_is_refused(scenario):
-    """CONTRACT 4: N from the scenario, 10,000 by default. (A threshold beyond the polygon skips the
+    """docs/contract.md section 4: N from the scenario, 10,000 by default. (A threshold beyond the polygon skips the
     exploration itself, so the count is read without running 10,000 states.)"""
     from planner.jobs.plan_job import build_task
 

@@ -52,7 +52,7 @@ def test_contract_frames_and_sole_boxes(hrp5p, stances):
 
 
 def test_jaw_opens_0_to_82_mm_and_closes_along_the_tcp_y_axis(hrp5p, stances):
-    """CONTRACT section 1: the TCP sits midway between the jaws and its y axis is the closing direction."""
+    """docs/contract.md section 1: the TCP sits midway between the jaws and its y axis is the closing direction."""
     import pinocchio as pin
 
     st = stances["upright"]

@@ -1,0 +1,154 @@
+"""The job store is checked when it opens; store errors while serving answer 503 problems.
+
+`regrasp serve` and `regrasp worker` run as real processes on damaged SQLite files (zero
+bytes, 64 KiB of random bytes inside a real store, a truncated store): each refuses with one
+line and exit code 3, without a traceback, unless `--init-store` is given, which moves the
+file aside (never deletes it) and starts a new store. A missing store is created and the log
+says so.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Callable
+
+import httpx
+import pytest
+from conftest import ROOT, Server, free_port, service_env
+
+from service.store import JobStore, make_engine, migrate
+
+#: Exit code of a damaged or unreachable store (service.cli.common.EXIT_STORE).
+EXIT_STORE = 3
+#: A refusal comes before the server binds; imports alone take seconds on a loaded machine.
+REFUSE_TIMEOUT_S = 120
+
+
+def _real_store(path: Path, jobs: int = 300) -> None:
+    """A job store with enough rows to span many pages."""
+    engine = make_engine(f"sqlite:///{path}")
+    migrate(engine)
+    store = JobStore(engine)
+    for i in range(jobs):
+        store.create(job_id=f"job-{i:04d}", kind="plan", submitter="alice", request={"scenario": "upright", "pad": "x" * 400},
+                     request_sha256=f"{i:064d}", idempotency_key=None, provenance={})
+    engine.dispose()
+    for suffix in ("-wal", "-shm"):
+        assert not Path(str(path) + suffix).exists() or suffix == "-shm" or Path(str(path) + suffix).stat().st_size == 0
+
+
+def _zero_length(path: Path) -> None:
+    path.write_bytes(b"")
+
+
+def _random_inside(path: Path) -> None:
+    _real_store(path)
+    with open(path, "r+b") as f:
+        f.seek(8192)
+        f.write(os.urandom(64 * 1024))
+
+
+def _truncated(path: Path) -> None:
+    _real_store(path)
+    size = path.stat().st_size
+    with open(path, "r+b") as f:
+        f.truncate(size // 2)
+
+
+def _run(command: str, data_dir: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    argv = [sys.executable, "-m", "service.cli.main", command, "--data-dir", str(data_dir), *args]
+    if command == "serve":
+        argv += ["--workers", "0", "--port", str(free_port())]
+    else:
+        argv += ["--workers", "1"]
+    return subprocess.run(argv, cwd=ROOT, env=service_env(), capture_output=True, text=True, timeout=REFUSE_TIMEOUT_S)
+
+
+@pytest.mark.parametrize("damage, said", [(_zero_length, "empty file"), (_random_inside, "damaged"),
+                                          (_truncated, "truncated")], ids=["zero-length", "random-bytes", "truncated"])
+def test_serve_refuses_a_damaged_store_with_one_line_and_exit_3(tmp_path: Path, damage: Callable[[Path], None],
+                                                               said: str) -> None:
+    store = tmp_path / "jobs.sqlite"
+    damage(store)
+    before = store.read_bytes()
+    done = _run("serve", tmp_path)
+    out = done.stdout + done.stderr
+    assert done.returncode == EXIT_STORE, out[-2000:]
+    assert "Traceback" not in out
+    errors = [line for line in out.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and said in errors[0] and "--init-store" in errors[0], out[-2000:]
+    assert store.read_bytes() == before  # refused, untouched
+
+
+def test_worker_refuses_a_damaged_store_too(tmp_path: Path) -> None:
+    _zero_length(tmp_path / "jobs.sqlite")
+    done = _run("worker", tmp_path)
+    assert done.returncode == EXIT_STORE and "Traceback" not in done.stderr + done.stdout
+    assert "empty file" in done.stderr + done.stdout
+
+
+def test_init_store_moves_the_damaged_file_aside_and_starts_a_new_store(tmp_path: Path) -> None:
+    _random_inside(tmp_path / "jobs.sqlite")
+    damaged = (tmp_path / "jobs.sqlite").read_bytes()
+    srv = Server(tmp_path, workers=0, extra_args=["--init-store", "--log-level", "info"]).start()
+    try:
+        with srv.client("alice") as c:
+            assert c.get("/v1/jobs").json()["total"] == 0
+            assert c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "quick"}}).status_code == 202
+    finally:
+        srv.stop()
+    aside = list(tmp_path.glob("jobs.sqlite.damaged-*"))
+    assert len(aside) == 1 and aside[0].read_bytes() == damaged
+    assert "moved aside" in srv.log_path.read_text()
+
+
+def test_a_missing_store_is_created_and_the_log_says_so(tmp_path: Path) -> None:
+    data_dir = tmp_path / "new"
+    srv = Server(data_dir, workers=0).start()
+    try:
+        assert httpx.get(srv.url + "/healthz").json()["database"] == "sqlite"
+    finally:
+        srv.stop()
+    assert (data_dir / "jobs.sqlite").is_file()
+    assert "does not exist: creating a new, empty store" in srv.log_path.read_text()
+
+
+def test_a_sound_store_passes_and_keeps_its_jobs(tmp_path: Path) -> None:
+    _real_store(tmp_path / "jobs.sqlite", jobs=3)
+    srv = Server(tmp_path, workers=0).start()
+    try:
+        with srv.client("alice") as c:
+            assert c.get("/v1/jobs").json()["total"] == 3
+    finally:
+        srv.stop()
+
+
+def test_store_errors_while_serving_answer_503_problems(tmp_path: Path) -> None:
+    """The store's file goes away under a running app: every route that reads it answers 503, not 500."""
+    import sqlalchemy as sa
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from service.auth import TokenStore
+    from service.bridge import NoBridge
+    from service.settings import ServiceSettings
+
+    settings = ServiceSettings(data_dir=tmp_path, workers=0, audit=False)
+    tokens = TokenStore.from_plain({"tok-alice-planner": {"user": "alice", "roles": ["planner"]}})
+    app = create_app(settings, tokens=tokens, run_workers=False, bridge=NoBridge())
+    headers = {"Authorization": "Bearer tok-alice-planner"}
+    with TestClient(app, raise_server_exceptions=False) as c:
+        assert c.get("/v1/jobs", headers=headers).status_code == 200
+        svc = app.state.service
+        svc.store.engine = sa.create_engine(f"sqlite:///{tmp_path / 'gone' / 'jobs.sqlite'}")  # cannot be opened
+        answers = [c.get("/v1/jobs", headers=headers), c.get("/v1/jobs/some-id", headers=headers),
+                   c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "upright"}}, headers=headers),
+                   c.get("/healthz")]
+    for r in answers:
+        assert r.status_code == 503, (r.status_code, r.text)
+        assert r.headers["content-type"].startswith("application/problem+json")
+        assert "job store" in r.json()["detail"] and "Error" not in r.json()["detail"]
+        assert int(r.headers["retry-after"]) >= 1
