@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, PrivateAttr, model_validator
 
 from .common import Finite, FiniteVector, HandsChoice, Pose7, StrictModel, Vec3
 from .stance import StanceDef
@@ -14,8 +14,21 @@ ObjectShape = Literal["box", "cylinder", "bar", "drill", "mesh"]
 
 
 class MeshSource(StrictModel):
-    path: str = Field(description="STL or OBJ file; relative paths resolve against the scenario file")
+    """An object mesh: a registered name (portable), or a file (relative paths: against the scenario file)."""
+
+    name: str | None = Field(None, min_length=1, max_length=128,
+                             description="a registered mesh (planner.meshes: carrier_nx, carrier_px, ...)")
+    path: str | None = Field(None, description="STL or OBJ file; relative paths resolve against the scenario file")
     scale: Finite = Field(1.0, gt=0)
+    #: The path as the scenario file wrote it, when ``path`` was resolved against the file's folder
+    #: (never serialised: a dump shows what was written, see planner.meshes.portable_mesh).
+    _written: str | None = PrivateAttr(None)
+
+    @model_validator(mode="after")
+    def _name_or_path(self) -> "MeshSource":
+        if self.name is None and self.path is None:
+            raise ValueError("a mesh needs name: REGISTERED or path: FILE")
+        return self
 
 
 class ObjectDef(StrictModel):
@@ -33,7 +46,7 @@ class ObjectDef(StrictModel):
     def _check(self) -> "ObjectDef":
         if self.shape == "mesh":
             if self.mesh is None:
-                raise ValueError("shape 'mesh' needs mesh: {path: FILE, scale: 1.0}")
+                raise ValueError("shape 'mesh' needs mesh: {name: REGISTERED} or {path: FILE, scale: 1.0}")
         elif self.mesh is not None:
             raise ValueError(f"'mesh' is only for shape 'mesh', not {self.shape!r}")
         expected = {"box": 3, "bar": 3, "cylinder": 2, "drill": 3}.get(self.shape)

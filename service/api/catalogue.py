@@ -5,7 +5,8 @@ seed, which a request leaves alone unless it overrides them), the stances, the h
 configurations and the robots, so the console's submit form offers only names the service
 takes. ``GET /v1/robots/{name}/urdf`` serves a registered robot's URDF with every mesh reference
 rewritten to ``/v1/robots/{name}/meshes/{index}``, and that route serves the mesh: by robot name
-and index into the URDF's own mesh list, never a path taken from a request.
+and index into the URDF's own mesh list, never a path taken from a request. ``GET /v1/meshes/{name}``
+serves a registered object mesh by name.
 """
 
 from __future__ import annotations
@@ -54,10 +55,12 @@ class Catalogue(StrictModel):
     stances: list[str]
     hands: list[str]
     robots: list[str]
+    meshes: list[str]
 
 
 @functools.lru_cache(maxsize=1)
 def _catalogue() -> Catalogue:
+    from planner.meshes import registered_meshes
     from planner.robots.registry import robot_names
     from planner.scenarios import builtin_names, load_builtin
     from planner.stances import BUILTIN_STANCES
@@ -71,7 +74,7 @@ def _catalogue() -> Catalogue:
             time_limit_s=getattr(sc.limits, "time_s", None), object_shape=sc.object.shape,
             object_mass_kg=sc.object.mass_kg))
     return Catalogue(kinds=["plan", "survey"], scenarios=entries, stances=list(BUILTIN_STANCES), hands=list(HANDS),
-                     robots=robot_names())
+                     robots=robot_names(), meshes=list(registered_meshes()))
 
 
 @router.get("/v1/catalogue", response_model=Catalogue, summary="Scenarios, stances, hands and robots a request may name",
@@ -145,3 +148,19 @@ def robot_mesh(name: str = RobotName,
     path = files.meshes[index]
     return Response(path.read_bytes(), media_type=MESH_TYPES[path.suffix.lower()],
                     headers={"Cache-Control": "private, max-age=3600"})
+
+
+@router.get("/v1/meshes/{name}", summary="A registered object mesh (the 3D view draws the object with it)",
+            response_class=Response,
+            responses={200: {"content": {"model/obj": {"schema": {"type": "string"}}, "model/stl": {"schema": {"type": "string"}}},
+                             "description": "mesh file"}, **problems(401, 404, 422)})
+def object_mesh(name: str = PathParam(..., min_length=1, max_length=128, pattern=r"^[A-Za-z0-9_.-]+$"),
+                p: Principal = Depends(principal)) -> Response:
+    from planner.meshes import UnknownMeshError, mesh_file
+
+    try:
+        path = mesh_file(name)
+    except UnknownMeshError as exc:
+        raise ProblemError(404, str(exc)) from None
+    media = "model/obj" if path.suffix.lower() == ".obj" else "model/stl"
+    return Response(path.read_bytes(), media_type=media, headers={"Cache-Control": "private, max-age=3600"})

@@ -34,6 +34,7 @@ OPERATION_IDS: dict[str, str] = {
     "catalogue": "getCatalogue",
     "robot_urdf": "getRobotUrdf",
     "robot_mesh": "getRobotMesh",
+    "object_mesh": "getObjectMesh",
     "healthz": "checkHealth",
     "me": "getIdentity",
     "metrics": "getMetrics",

@@ -45,7 +45,10 @@ def show(name: str) -> None:
         sc = load_scenario(name)
     except ScenarioError as exc:
         fail(str(exc))
-    click.echo(yaml.safe_dump(sc.model_dump(by_alias=True, exclude_none=True), sort_keys=False))
+    from planner.meshes import portable_dump
+
+    # Meshes by registered name or as the file wrote them: the printed scenario works saved anywhere.
+    click.echo(yaml.safe_dump(portable_dump(sc, by_alias=True, exclude_none=True), sort_keys=False))
 
 
 @scenario.command("check")
