@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import subprocess
 import sys
@@ -26,10 +27,20 @@ def test_demo_runs_end_to_end(tmp_path):
     assert plan["status"] == "solved" and plan["hands"] == survey["recommended"]
     assert check_plan(plan, sample_every=5).errors == []
     assert {r["hands"] for r in survey["rows"]} == {"left-left", "right-right", "left-right", "right-left"}
-    audits = list(out.glob("job-*.mcap"))
-    assert len(audits) == 1
+    # The audit file is where the service wrote it, once: no copy beside it.
+    audits = list(out.rglob("*.mcap"))
+    assert [a.parent for a in audits] == [out / "service-data" / "audit"]
     result = verify(audits[0])
     assert result.exit_code == 0 and result.finished
+    big = {}
+    for f in out.rglob("*"):
+        if f.is_file() and f.stat().st_size > 100_000:
+            digest = hashlib.sha256(f.read_bytes()).hexdigest()
+            assert digest not in big, f"{f} duplicates {big[digest]}"
+            big[digest] = f
     assert "succeeded" in proc.stdout  # the summary table shows the execution result
+    # The personas of `regrasp serve --dev`, and each step printed as it runs (the execution's progress too).
+    assert "carol approves" in proc.stdout and "bob dispatches" in proc.stdout
+    assert "safety gate: passed" in proc.stdout and "executing: 50 %" in proc.stdout and "executing: 100 %" in proc.stdout
     for png in ("plan-com-trace.png", "plan-margin.png", "survey-bars.png"):
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
