@@ -199,6 +199,8 @@ class ProgressReporter:
     def __init__(self, say: Callable[[str], None], what: str, *, points: int | None = None,
                  min_interval_s: float = 2.0) -> None:
         self.say, self.what, self.points, self.min_interval_s = say, what, points, min_interval_s
+        #: An execution's reporter skips the planning history the event stream replays first.
+        self.planning = points is None
         self.last_message: str | None = None
         self.last_at = -math.inf
         self.next_tenth = 1
@@ -207,7 +209,7 @@ class ProgressReporter:
         kind, data = event.get("kind"), event.get("data") or {}
         if kind == "bridge":
             self._bridge(str(data.get("event")), data.get("payload") or {})
-        elif kind == "progress" and event.get("message"):
+        elif kind == "progress" and event.get("message") and self.planning:
             now = time.monotonic()
             if event["message"] != self.last_message and now - self.last_at >= self.min_interval_s:
                 self.last_message, self.last_at = event["message"], now
@@ -224,6 +226,8 @@ class ProgressReporter:
             while self.next_tenth <= 10 and d["index"] >= self.next_tenth * (self.points - 1) / 10:
                 self.say(f"  executing: {10 * self.next_tenth} % (point {d['index']} of {self.points - 1})")
                 self.next_tenth += 1
+        elif name == "finished":
+            self.say(f"  execution finished: {d.get('status')}" + (f" ({d['reason']})" if d.get("reason") else ""))
         elif name in ("controller", "stop_sent"):
             self.say(f"  controller: {d.get('status') or 'stop sent'}" + (f" ({d['reason']})" if d.get("reason") else ""))
 
@@ -274,17 +278,17 @@ def _plots(out: Path, plan: dict, survey: dict, result: DemoResult, fmt: str = "
     poly = np.array(plan["support_polygon"])
     xy = np.array([p["com"][:2] for p in plan["trajectory"]])
     head = describe(scenario, stance, plan["threshold_m"], hands=plan["hands"])
-    result.artefacts["com_trace"] = str(plot_com_trace(out / f"plan-com-trace.{fmt}", title=f"CoM ground trace: {head}",
+    result.artefacts["com_trace"] = str(plot_com_trace(out / f"plan-com-trace.{fmt}", title=f"CoM ground trace\n{head}",
                                                        polygon=poly, threshold_m=plan["threshold_m"],
                                                        traces=[(f"CoM, {plan['threshold_m'] * 1000:g} mm plan", xy, "tab:blue")]))
     t = np.array([p["t"] for p in plan["trajectory"]])
     m = np.array([p["margin_m"] for p in plan["trajectory"]])
-    result.artefacts["margin"] = str(plot_margin_over_time(out / f"plan-margin.{fmt}", title=f"CoM margin over time: {head}",
+    result.artefacts["margin"] = str(plot_margin_over_time(out / f"plan-margin.{fmt}", title=f"CoM margin over time\n{head}",
                                                            threshold_m=plan["threshold_m"], traces=[("planned margin", t, m, "tab:blue")],
                                                            events=holding_events(plan["trajectory"])))
     stats = survey.get("stats") or {}
     states = stats.get("states_per_configuration")
-    title = "stable ratio R per hand configuration: " + describe(scenario, survey["stance"]["name"], survey["threshold_m"],
+    title = "stable ratio R per hand configuration\n" + describe(scenario, survey["stance"]["name"], survey["threshold_m"],
                                                                  states=states) + (" per configuration" if states else "")
     result.artefacts["survey_chart"] = str(plot_survey_bars(out / f"survey-bars.{fmt}", title=title, rows=survey["rows"],
                                                             recommended=survey.get("recommended"),

@@ -209,7 +209,7 @@ def plot_survey_bars(path: Path, *, title: str, rows: list[dict], recommended: s
                 fontweight="bold" if r["hands"] == recommended else "normal")
     ax.set_ylim(0, 1.3)
     ax.set_xlabel("hand configuration (start hand - end hand)")
-    ax.set_ylabel("stable ratio R = C / (C + U) (1)")
+    ax.set_ylabel("stable ratio R = C / (C + U), no unit")
     return _save(fig, ax, path, title, legend=False, grid=False)
 
 

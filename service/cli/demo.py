@@ -103,7 +103,7 @@ def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, surve
     table.add_row("demo time", f"{time.perf_counter() - t0:.1f} s")
     console.print(table)
     for name, path in res.artefacts.items():
-        console.print(f"  {name}: {path}")
+        console.print(f"  {name}: {path}", highlight=False, soft_wrap=True)  # whole paths, to copy
     console.print("Open the MCAP file in Foxglove (File > Open) to replay the plan and the executed motion.")
     console.print("Operator console: run [bold]regrasp serve --dev[/] and open http://127.0.0.1:8000/ with a printed token.")
     if not res.ok:

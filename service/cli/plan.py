@@ -80,10 +80,10 @@ def plot_plan(plan: dict, path: Path, compare: dict | None = None) -> list[Path]
                             np.array([p["margin_m"] for p in doc["trajectory"]]), colour))
     head = describe(plan["scenario"]["name"], plan["stance"]["name"], plan["threshold_m"], hands=plan.get("hands"))
     path = Path(path)
-    out = [plot_com_trace(path, title=f"CoM ground trace: {head}", polygon=np.array(plan["support_polygon"]),
+    out = [plot_com_trace(path, title=f"CoM ground trace\n{head}", polygon=np.array(plan["support_polygon"]),
                           threshold_m=plan["threshold_m"], traces=traces)]
     if margins:
-        out.append(plot_margin_over_time(path.with_name(path.stem + "-margin" + path.suffix), title=f"CoM margin over time: {head}",
+        out.append(plot_margin_over_time(path.with_name(path.stem + "-margin" + path.suffix), title=f"CoM margin over time\n{head}",
                                          threshold_m=plan["threshold_m"], traces=margins,
                                          events=holding_events(plan["trajectory"])))
     return out
