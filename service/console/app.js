@@ -1006,8 +1006,9 @@
     let measured = null;
     if (d && Array.isArray(d.q) && Array.isArray(d.joint_names) && window.regrasp3d && $("view3d").dataset.status === "drawn") {
       measured = window.regrasp3d.setMeasured(d.joint_names, d.q, i);
-    } else if (window.regrasp3d && $("view3d").dataset.status === "drawn") {
-      window.regrasp3d.setIndex(i);
+      ex.measured = true;
+    } else if (!ex.measured && window.regrasp3d && $("view3d").dataset.status === "drawn") {
+      window.regrasp3d.setIndex(i);  // no measured joints yet: the planned pose at the reported index
     }
     if (measured && isFinite(measured.margin_m)) {
       ex.trace.push([i, measured.margin_m]);
@@ -1122,7 +1123,19 @@
         " mm" + (free.unconstrained_breaks_threshold ? ", below the threshold" : ", within the threshold") +
         (free.plans_differ ? "; the constrained motion differs" : "; the same motion"));
     } else {
-      add("Against 0 mm", "no 0 mm plan of this task in the store (submit it with threshold 0 to compare)");
+      const dd = add("Against 0 mm", "no 0 mm plan of this task in the store");
+      const job = state.job;
+      if (job && job.id === risk.job_id && (state.me === null || hasRole("planner")) && job.request) {
+        const b = el("button", { type: "button", class: "secondary small", "data-role": "plan-unconstrained" }, "plan it at 0 mm");
+        b.title = "submit the same request with threshold 0 (the unconstrained planner) to compare";
+        b.addEventListener("click", () => {
+          const request = Object.assign({}, job.request, { threshold_m: 0 });
+          api("POST", "/v1/jobs", { kind: "plan", request })
+            .then((other) => { b.replaceWith(" submitted as job " + shortId(other.id) + "; reopen this job when it is planned"); refreshJobs(); })
+            .catch((err) => { b.replaceWith(" not submitted: " + (err.detail || err.message)); });
+        });
+        dd.append(" ", b);
+      }
     }
     const dispatch = $("risk-dispatch");
     const d = risk.dispatch;

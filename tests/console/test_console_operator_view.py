@@ -249,3 +249,27 @@ def test_the_submit_form_lists_the_services_names_and_keeps_the_scenarios_values
     expect(page.locator("#submit-problem")).to_contain_text("422")
     expect(page.locator("#detail-body")).to_be_hidden()
     assert page.js_errors == []
+
+
+def test_the_risk_card_compares_with_the_same_task_planned_at_0_mm(page, live):
+    job = live["job"]
+    login(page, live["url"], ALICE)
+    open_job(page, job["id"], timeout_ms=TIMEOUT_MS)
+    button = page.locator('[data-role="plan-unconstrained"]')
+    expect(button).to_be_visible(timeout=TIMEOUT_MS)
+    with live["srv"].client("alice") as alice:
+        before = {j["id"] for j in alice.get("/v1/jobs").json()["jobs"]}
+        button.click()
+        expect(page.locator("#risk-facts")).to_contain_text("submitted as job", timeout=TIMEOUT_MS)
+        new = [j for j in alice.get("/v1/jobs").json()["jobs"] if j["id"] not in before]
+        assert len(new) == 1 and new[0]["request"] == {**job["request"], "threshold_m": 0}
+        free = wait_state(alice, new[0]["id"], {"planned", "failed"}, PLAN_TIMEOUT_S)
+    assert free["state"] == "planned", free["error"]
+    page.reload()
+    open_job(page, job["id"], timeout_ms=TIMEOUT_MS)
+    facts = page.locator("#risk-facts")
+    free_min = free["result"]["min_margin_m"] * 1000
+    expect(facts).to_contain_text(f"the unconstrained plan (job {free['id'][:8]}) reaches {free_min:.1f} mm", timeout=TIMEOUT_MS)
+    breaks = free["result"]["min_margin_m"] < job["result"]["threshold_m"] - 1e-4
+    expect(facts).to_contain_text("below the threshold" if breaks else "within the threshold")
+    assert page.js_errors == []
