@@ -587,7 +587,12 @@
       Number(dur).toFixed(2) + " s, min margin " + mm(plan.min_margin_m) + " mm against a threshold of " + mm(threshold) +
       " mm (headroom " + mm(headroom) + " mm)" +
       (failures.length ? "; rejected while planning: " + failures.map(([k, v]) => k + " " + v).join(", ") : "") +
-      (plan.failure ? "; failure " + plan.failure.code + ": " + plan.failure.message : "");
+      (plan.failure ? "; failure " + plan.failure.code + ": " + plan.failure.message : "") +
+      // hands: auto: the quick survey that ranked the configurations, and how each one planned
+      (stats.survey && typeof stats.survey === "object" ? ". Hands chosen by the stability survey (R): " +
+        Object.entries(stats.survey).map(([h, r]) => h + " " + (typeof r === "number" ? r.toFixed(3) : "n/a")).join(", ") : "") +
+      (stats.configurations && typeof stats.configurations === "object" && Object.keys(stats.configurations).length > 1
+        ? "; configurations planned: " + Object.entries(stats.configurations).map(([h, c]) => h + " " + ((c && c.status) || "?")).join(", ") : "");
     const tl = $("timeline");
     tl.max = String(Math.max(traj.length - 1, 0));
     tl.value = "0";
