@@ -97,3 +97,14 @@ def test_a_plan_file_stores_the_mesh_by_name(tmp_path):
     plan = json.loads((tmp_path / "plan.json").read_text())
     assert plan["scenario"]["object"]["mesh"] == {"name": "carrier_px", "scale": 1.0}
     assert _paths(plan["scenario"]) == []
+
+
+def test_an_object_built_from_a_mesh_name_alone_finds_the_registered_file():
+    from planner.objects import build_object
+    from schemas.scenario import ObjectDef
+
+    by_name = build_object(ObjectDef(shape="mesh", mesh={"name": "carrier_px"}, mass_kg=8.0))
+    by_path = build_object(ObjectDef(shape="mesh", mesh={"path": str(MESH_DIR / "carrier_px.obj")}, mass_kg=8.0))
+    assert by_name.content_hash == by_path.content_hash
+    with pytest.raises(ValueError, match="unknown mesh 'teapot'"):
+        build_object(ObjectDef(shape="mesh", mesh={"name": "teapot"}, mass_kg=8.0))
