@@ -91,15 +91,23 @@ class RobotModelFiles:
         self.name = name
         self.meshes: list[Path] = []
         tree = ET.parse(urdf)
-        for mesh in tree.iter("mesh"):
-            filename = mesh.get("filename", "")
-            path = _mesh_file(filename, urdf.parent)
-            if path is None or path.suffix.lower() not in MESH_TYPES:
-                # A mesh the console cannot load is dropped from the drawing (its link is drawn without it).
-                mesh.set("filename", "")
-                continue
-            mesh.set("filename", f"/v1/robots/{name}/meshes/{len(self.meshes)}{path.suffix.lower()}")
-            self.meshes.append(path)
+        self.dropped: list[str] = []
+        for link in tree.getroot().iter("link"):
+            for tag in ("visual", "collision"):
+                for element in list(link.findall(tag)):
+                    mesh = element.find("geometry/mesh")
+                    if mesh is None:
+                        continue
+                    path = _mesh_file(mesh.get("filename", ""), urdf.parent)
+                    if tag == "collision" or path is None or path.suffix.lower() not in MESH_TYPES:
+                        # Not drawn: collision meshes (the console draws visuals), and meshes it cannot load
+                        # (its link is drawn without them). Their file names never reach the browser.
+                        link.remove(element)
+                        if tag == "visual":
+                            self.dropped.append(link.get("name", "?"))
+                        continue
+                    mesh.set("filename", f"/v1/robots/{name}/meshes/{len(self.meshes)}{path.suffix.lower()}")
+                    self.meshes.append(path)
         self.urdf_text = ET.tostring(tree.getroot(), encoding="unicode")
 
 
