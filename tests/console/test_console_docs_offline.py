@@ -103,3 +103,23 @@ def test_the_vendored_files_match_their_pinned_hashes():
     assert out.returncode == 0, out.stdout + out.stderr
     for name in ("three", "urdf-loader", "swagger-ui-dist", "redoc"):
         assert (ROOT / "service" / "console" / "vendor" / name / "LICENSE").is_file(), name
+
+
+def test_the_vendor_check_catches_a_changed_or_missing_file(tmp_path, monkeypatch, capsys):
+    import importlib.util
+    import shutil
+
+    spec = importlib.util.spec_from_file_location("fetch_console_vendor", ROOT / "scripts" / "fetch_console_vendor.py")
+    script = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "fetch_console_vendor", script)  # dataclasses look their module up
+    spec.loader.exec_module(script)  # type: ignore[union-attr]
+    copy = tmp_path / "vendor"
+    shutil.copytree(ROOT / "service" / "console" / "vendor", copy)
+    monkeypatch.setattr(script, "VENDOR", copy)
+    assert script.check() == 0
+    target = copy / "three" / "build" / "three.module.js"
+    target.write_bytes(target.read_bytes() + b"\n// changed")
+    (copy / "redoc" / "bundles" / "redoc.standalone.js").unlink()
+    assert script.check() == 1
+    out = capsys.readouterr().out
+    assert "MISMATCH three@0.187.0 build/three.module.js" in out and "MISSING  redoc@3.0.1 bundles/redoc.standalone.js" in out
