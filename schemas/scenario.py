@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, PrivateAttr, model_validator
 
 from .common import Finite, FiniteVector, HandsChoice, Pose7, StrictModel, Vec3
 from .stance import StanceDef
@@ -20,16 +20,23 @@ MAX_SIZE_NUMBERS = 8
 
 
 class MeshSource(StrictModel):
-    """A mesh by registered name, or (in scenario files, not in service requests) by file.
+    """An object mesh: a registered name (portable), or, in scenario files and not in service requests, a file
+    (a relative path resolves against the scenario file)."""
 
-    With a name, the planner sets ``path`` to the registered file when it loads the scenario
-    (the name wins over any path given with it).
-    """
-
-    name: str | None = Field(None, max_length=128, description="a registered mesh (e.g. carrier_px)")
+    name: str | None = Field(None, min_length=1, max_length=128,
+                             description="a registered mesh (planner.scene.meshes: carrier_nx, carrier_px, ...)")
     path: str | None = Field(None, max_length=4096,
                              description="STL or OBJ file; relative paths resolve against the scenario file")
     scale: Finite = Field(1.0, gt=0)
+    #: The path as the scenario file wrote it, when ``path`` was resolved against the file's folder
+    #: (never serialised: a dump shows what was written, see planner.scene.meshes.portable_mesh).
+    _written: str | None = PrivateAttr(None)
+
+    @model_validator(mode="after")
+    def _name_or_path(self) -> "MeshSource":
+        if self.name is None and self.path is None:
+            raise ValueError("a mesh needs name: REGISTERED or path: FILE")
+        return self
 
     @model_validator(mode="after")
     def _one_source(self) -> "MeshSource":

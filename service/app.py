@@ -11,7 +11,10 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 from starlette.middleware.gzip import GZipMiddleware
 
+from .api import catalogue as catalogue_api
+from .api import docs as docs_api
 from .api import jobs as jobs_api
+from .api import risk as risk_api
 from .api import system as system_api
 from .auth import TokenStore
 from .bridge import Bridge
@@ -46,11 +49,16 @@ def create_app(settings: ServiceSettings, *, tokens: TokenStore | None = None, r
         finally:
             svc.close()
 
+    # docs_url/redoc_url None: FastAPI's pages load from a CDN; service.api.docs serves them from the package.
     app = FastAPI(title="Regrasp planning service", version=code_version(), description=DESCRIPTION,
-                  lifespan=lifespan)
+                  lifespan=lifespan, docs_url=None, redoc_url=None,
+                  generate_unique_id_function=docs_api.operation_id)
     install_problem_handlers(app)
     app.include_router(jobs_api.router)
+    app.include_router(risk_api.router)
+    app.include_router(catalogue_api.router)
     app.include_router(system_api.router)
+    docs_api.install(app)
     if system_api.CONSOLE_DIR.is_dir():
         app.mount("/console", StaticFiles(directory=system_api.CONSOLE_DIR, html=True), name="console")
 
@@ -120,7 +128,7 @@ def _problem_openapi(app: FastAPI) -> None:
                     content = resp.get("content", {})
                     if "application/problem+json" in content and "application/json" in content:
                         content["application/problem+json"] = content.pop("application/json")
-        app.openapi_schema = doc
-        return doc
+        app.openapi_schema = docs_api.add_body_examples(doc)
+        return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]

@@ -2,8 +2,10 @@
 
 Every component runs for real on loopback: a simulated controller peer (zenoh), the HTTP
 service with its worker processes and SQLite job store, the safety gate and the MCAP audit.
-Three demo users play their roles: alice plans (she may also approve, but the two-person rule
-refuses her own plan), bob approves, carol operates the robot.
+The demo users are the personas of ``regrasp serve --dev`` (service.auth.DEV_USERS): alice plans,
+carol approves, bob operates the robot (he may also approve). Each step is printed as it runs,
+including the planning progress and the execution's progress as the controller reports it.
+Every file is written once: the audit file stays where the service wrote it.
 """
 
 from __future__ import annotations
@@ -11,7 +13,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import secrets
 import shutil
 import signal
 import socket
@@ -21,7 +22,7 @@ import time
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Literal
 
 from pydantic import BaseModel, Field
 
@@ -40,6 +41,7 @@ class DemoSettings(BaseModel):
     lease_s: float = Field(3.0, gt=0, le=60, description="zenoh transport lease of the demo's peers (the robot default "
                                                           "is 1 s): a pause of the machine longer than the lease drops "
                                                           "the controller's liveliness token and aborts the execution")
+    figure_format: Literal["png", "svg", "pdf"] = Field("png", description="format of the demo's figures")
     start_timeout_s: float = Field(60.0, gt=0)
     job_timeout_s: float = Field(300.0, gt=0)
 
@@ -97,10 +99,11 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
     if data_dir.exists():
         shutil.rmtree(data_dir)
     result = DemoResult(ok=False)
-    tokens = {f"demo-alice-{secrets.token_hex(8)}": {"user": "alice", "roles": ["planner", "approver"]},
-              f"demo-bob-{secrets.token_hex(8)}": {"user": "bob", "roles": ["approver"]},
-              f"demo-carol-{secrets.token_hex(8)}": {"user": "carol", "roles": ["operator"]}}
+    from service.auth import DEV_USERS, make_dev_tokens
+
+    tokens = make_dev_tokens()  # the same users and roles as `regrasp serve --dev`
     tok = {v["user"]: k for k, v in tokens.items()}
+    roles = {user: ", ".join(r) for user, r in DEV_USERS.items()}
     http_port, zenoh_port = free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{zenoh_port}"
     # A key pair for this run: the service signs every command with it, the controller trusts its public half.
@@ -131,10 +134,11 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
         carol = stack.enter_context(ServiceClient(base, tok["carol"]))
         _wait_for(lambda: alice.health() is not None, settings.start_timeout_s, "the service", srv)
         result.steps.append(("service", "up"))
+        say(f"users (as `regrasp serve --dev`): alice ({roles['alice']}), carol ({roles['carol']}), bob ({roles['bob']})")
 
         say(f"alice submits the stability survey of scenario {settings.scenario!r} ({settings.survey_states} states per configuration)")
         job = alice.submit("survey", {"scenario": settings.scenario, "states_per_configuration": settings.survey_states})
-        survey_job = alice.wait(job["id"], timeout=settings.job_timeout_s)
+        survey_job = alice.wait(job["id"], timeout=settings.job_timeout_s, on_event=ProgressReporter(say, "survey"))
         if survey_job["state"] != "succeeded":
             raise RuntimeError(f"survey job ended {survey_job['state']}: {survey_job.get('error')}")
         survey = survey_job["result"]
@@ -147,7 +151,8 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
 
         say(f"alice submits the plan with the recommended hands {hands}")
         job = alice.submit("plan", {"scenario": settings.scenario, "hands": hands})
-        plan_job = alice.wait(job["id"], states=("planned", "failed", "canceled"), timeout=settings.job_timeout_s)
+        plan_job = alice.wait(job["id"], states=("planned", "failed", "canceled"), timeout=settings.job_timeout_s,
+                              on_event=ProgressReporter(say, "plan"))
         if plan_job["state"] != "planned":
             raise RuntimeError(f"plan job ended {plan_job['state']}: {plan_job.get('error')}")
         plan = plan_job["result"]
@@ -157,57 +162,100 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
                               planning_time_s=plan["stats"].get("time_s"), duration_s=plan["trajectory"][-1]["t"])
         result.steps.append(("plan", f"{plan['hands']}, min margin {plan['min_margin_m'] * 1000:.1f} mm"))
 
-        say("alice tries to approve her own plan (the two-person rule must refuse)")
+        say("alice tries to approve her own plan (refused: a planner is not an approver, and never of her own plan)")
         try:
             alice.approve(plan_job["id"])
             raise RuntimeError("the submitter was allowed to approve her own plan")
         except ServiceError as exc:
-            if exc.status != 403 or "two-person rule" not in str(exc):
+            if exc.status != 403:
                 raise RuntimeError(f"alice's self-approval was refused for another reason: {exc}") from None
             result.steps.append(("two-person rule", f"alice refused ({exc.status})"))
-        say("bob approves the plan (bound to its SHA-256)")
-        bob.approve(plan_job["id"], plan_sha256=plan_job["plan_sha256"])
-        result.steps.append(("approval", "bob approved"))
+        say(f"carol approves the plan (bound to its SHA-256 {plan_job['plan_sha256'][:12]}...)")
+        carol.approve(plan_job["id"], plan_sha256=plan_job["plan_sha256"])
+        result.steps.append(("approval", "carol approved"))
 
-        say("carol dispatches: the safety gate rechecks every 5 ms sample, then the segments stream to the controller")
-        _wait_for(lambda: carol.health().get("controller_alive", True), settings.start_timeout_s, "the simulated controller", sim)
-        carol.dispatch(plan_job["id"])
+        say("bob dispatches: the safety gate rechecks every 5 ms sample, then the segments stream to the controller")
+        _wait_for(lambda: bob.health().get("controller_alive", True), settings.start_timeout_s, "the simulated controller", sim)
+        bob.dispatch(plan_job["id"])
         from schemas.jobs import TERMINAL_STATES
 
-        done = carol.wait(plan_job["id"], states=TERMINAL_STATES, timeout=settings.job_timeout_s)
+        done = bob.wait(plan_job["id"], states=TERMINAL_STATES, timeout=settings.job_timeout_s,
+                        on_event=ProgressReporter(say, "execution", points=len(plan["trajectory"])))
         outcome = done["state"] if done["state"] == "succeeded" else f"{done['state']}: {(done.get('error') or {}).get('message')}"
         result.summary["execution"] = outcome
         result.steps.append(("execution", outcome))
-        audit_path = out / f"job-{plan_job['id']}.mcap"
-        verdict = _download_sealed_audit(carol, plan_job["id"], audit_path, settings.job_timeout_s)
+        say("waiting for the audit file to be sealed")
+        audit_path, verdict = _sealed_audit(data_dir / "audit", plan_job["id"], settings.job_timeout_s)
         result.artefacts["audit"] = str(audit_path)
         result.summary["audit"] = f"{verdict.status}, {verdict.records} chained records"
         result.summary["audit_exit_code"] = verdict.exit_code
         result.ok = done["state"] == "succeeded" and verdict.exit_code == 0
-    _plots(out, plan, survey, result)
+    _plots(out, plan, survey, result, settings.figure_format)
     return result
 
 
-def _download_sealed_audit(client, job_id: str, path: Path, timeout: float):
-    """Download the job's audit file once its writer has sealed it (it trails the job by a moment)."""
-    import httpx
+class ProgressReporter:
+    """Prints a job's progress from its events as they come: planning messages, the gate, execution progress.
 
+    Planning messages are printed when they change, at most every ``min_interval_s``; execution
+    progress at every tenth of the plan's points the controller reports.
+    """
+
+    def __init__(self, say: Callable[[str], None], what: str, *, points: int | None = None,
+                 min_interval_s: float = 2.0) -> None:
+        self.say, self.what, self.points, self.min_interval_s = say, what, points, min_interval_s
+        #: An execution's reporter skips the planning history the event stream replays first.
+        self.planning = points is None
+        self.last_message: str | None = None
+        self.last_at = -math.inf
+        self.next_tenth = 1
+
+    def __call__(self, event: dict[str, Any]) -> None:
+        kind, data = event.get("kind"), event.get("data") or {}
+        if kind == "bridge":
+            self._bridge(str(data.get("event")), data.get("payload") or {})
+        elif kind == "progress" and event.get("message") and self.planning:
+            now = time.monotonic()
+            if event["message"] != self.last_message and now - self.last_at >= self.min_interval_s:
+                self.last_message, self.last_at = event["message"], now
+                self.say(f"  {self.what}: {event['message']} ({100 * (event.get('progress') or 0):.0f} %)")
+
+    def _bridge(self, name: str, d: dict[str, Any]) -> None:
+        if name == "gate":
+            self.say("  safety gate: " + (f"passed ({d.get('samples')} samples)" if d.get("passed")
+                                          else f"veto [{d.get('check')}]: {d.get('message')}"))
+        elif name == "dispatching":
+            self.points = d.get("points") or self.points
+            self.say(f"  sending {d.get('segments')} segments ({self.points} points) to the controller")
+        elif name in ("executing", "robot_state") and self.points and isinstance(d.get("index"), int):
+            while self.next_tenth <= 10 and d["index"] >= self.next_tenth * (self.points - 1) / 10:
+                self.say(f"  executing: {10 * self.next_tenth} % (point {d['index']} of {self.points - 1})")
+                self.next_tenth += 1
+        elif name == "finished":
+            self.say(f"  execution finished: {d.get('status')}" + (f" ({d['reason']})" if d.get("reason") else ""))
+        elif name in ("controller", "stop_sent"):
+            self.say(f"  controller: {d.get('status') or 'stop sent'}" + (f" ({d['reason']})" if d.get("reason") else ""))
+
+
+def _sealed_audit(audit_dir: Path, job_id: str, timeout: float):
+    """The service's own audit file of the job, once its writer has sealed it (it trails the job by a moment)."""
     from service.audit.verify import verify
 
+    path = audit_dir / f"{job_id}.mcap"
     deadline = time.monotonic() + timeout
     verdict = None
     while time.monotonic() < deadline:
         try:
-            client.download_audit(job_id, path)
-            verdict = verify(path)
-            if verdict.finished:
-                return verdict
-        except (httpx.HTTPError, OSError, ValueError):
+            if path.is_file():
+                verdict = verify(path)
+                if verdict.finished:
+                    return path, verdict
+        except (OSError, ValueError):
             pass
         time.sleep(0.5)
     if verdict is None:
-        raise TimeoutError(f"the audit file of job {job_id} could not be downloaded within {timeout:.0f} s")
-    return verdict
+        raise TimeoutError(f"the audit file of job {job_id} was not written within {timeout:.0f} s")
+    return path, verdict
 
 
 def _lookahead_segments(speed: float) -> int:
@@ -226,19 +274,33 @@ def _stance_of(scenario: str) -> str:
     return st if isinstance(st, str) else st.name
 
 
-def _plots(out: Path, plan: dict, survey: dict, result: DemoResult) -> None:
+def _plots(out: Path, plan: dict, survey: dict, result: DemoResult, fmt: str = "png") -> None:
     import numpy as np
 
-    from service.plots import plot_com_trace, plot_margin_over_time, plot_survey_bars
+    from service.plots import (
+        describe,
+        holding_events,
+        plot_com_trace,
+        plot_margin_over_time,
+        plot_survey_bars,
+    )
 
+    scenario, stance = plan["scenario"]["name"], plan["stance"]["name"]
     poly = np.array(plan["support_polygon"])
     xy = np.array([p["com"][:2] for p in plan["trajectory"]])
-    result.artefacts["com_trace"] = str(plot_com_trace(out / "plan-com-trace.png", title=f"{plan['scenario']['name']} ({plan['hands']})",
+    head = describe(scenario, stance, plan["threshold_m"], hands=plan["hands"])
+    result.artefacts["com_trace"] = str(plot_com_trace(out / f"plan-com-trace.{fmt}", title=f"CoM ground trace\n{head}",
                                                        polygon=poly, threshold_m=plan["threshold_m"],
-                                                       traces=[(f"{plan['threshold_m'] * 1000:.0f} mm", xy, "tab:blue")]))
+                                                       traces=[(f"CoM, {plan['threshold_m'] * 1000:g} mm plan", xy, "tab:blue")]))
     t = np.array([p["t"] for p in plan["trajectory"]])
     m = np.array([p["margin_m"] for p in plan["trajectory"]])
-    result.artefacts["margin"] = str(plot_margin_over_time(out / "plan-margin.png", title="CoM margin over time",
-                                                           threshold_m=plan["threshold_m"], traces=[("margin", t, m, "tab:blue")]))
-    result.artefacts["survey_chart"] = str(plot_survey_bars(out / "survey-bars.png", title="stability ratio R per hand configuration",
-                                                            rows=survey["rows"]))
+    result.artefacts["margin"] = str(plot_margin_over_time(out / f"plan-margin.{fmt}", title=f"CoM margin over time\n{head}",
+                                                           threshold_m=plan["threshold_m"], traces=[("planned margin", t, m, "tab:blue")],
+                                                           events=holding_events(plan["trajectory"])))
+    stats = survey.get("stats") or {}
+    states = stats.get("states_per_configuration")
+    title = "stable ratio R per hand configuration\n" + describe(scenario, survey["stance"]["name"], survey["threshold_m"],
+                                                                 states=states) + (" per configuration" if states else "")
+    result.artefacts["survey_chart"] = str(plot_survey_bars(out / f"survey-bars.{fmt}", title=title, rows=survey["rows"],
+                                                            recommended=survey.get("recommended"),
+                                                            indistinguishable=survey.get("indistinguishable") or ()))

@@ -1,7 +1,9 @@
-"""Pictures: stances, CoM traces over the support polygon, survey charts.
+"""Pictures: stances, CoM traces over the support polygon, margins over time, survey charts.
 
-Matplotlib with the Agg backend (no display needed). Every function writes one PNG
-and returns its path.
+Matplotlib with the Agg backend (no display needed). Every function writes one figure and
+returns its path; the format follows the path's suffix (``.png``, ``.svg`` or ``.pdf``, see
+:data:`FORMATS`). Every axis says what it shows and in which unit; titles say what was run
+(:func:`describe`: scenario, stance, threshold, states).
 """
 
 from __future__ import annotations
@@ -16,16 +18,55 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Polygon as MplPolygon  # noqa: E402
 
+#: The figure formats the commands write (``--format``).
+FORMATS = ("png", "svg", "pdf")
+#: Raster resolution of PNG figures (a 6.4 x 5 in figure is 960 x 750 px).
+PNG_DPI = 150
+#: One colour per hand configuration, the same in every chart.
+HANDS_COLOURS = {"left-left": "tab:blue", "right-right": "tab:orange", "left-right": "tab:green", "right-left": "tab:purple"}
+
+
+def with_format(path: Path | str, fmt: str | None) -> Path:
+    """``path`` with the suffix of ``fmt`` (png, svg, pdf); unchanged when ``fmt`` is None."""
+    path = Path(path)
+    if fmt is None:
+        return path
+    if fmt not in FORMATS:
+        raise ValueError(f"unknown figure format {fmt!r}; use one of {', '.join(FORMATS)}")
+    return path.with_suffix("." + fmt)
+
+
+def describe(scenario: str | None = None, stance: str | None = None, threshold_m: float | None = None,
+             states: int | None = None, hands: str | None = None) -> str:
+    """The facts a title names: scenario, stance, threshold (mm), states, hands (those given)."""
+    parts = []
+    if scenario:
+        parts.append(f"scenario {scenario}")
+    if stance:
+        parts.append(f"{stance} stance")
+    if threshold_m is not None:
+        parts.append(f"threshold {threshold_m * 1000:g} mm")
+    if states is not None:
+        parts.append(f"{states:,} states")
+    if hands:
+        parts.append(f"hands {hands}")
+    return ", ".join(parts)
+
 
 def _save(fig, ax, path: Path, title: str, *, legend: bool = True, grid: bool = True) -> Path:
-    """Title, legend, grid, layout, write the PNG and free the figure."""
-    ax.set_title(title)
+    """Title, legend, grid, layout, write the figure (format from the suffix) and free it."""
+    path = Path(path)
+    fmt = path.suffix.lstrip(".").lower() or "png"
+    if fmt not in FORMATS:
+        plt.close(fig)
+        raise ValueError(f"cannot write {path}: figures are {', '.join(FORMATS)}")
+    ax.set_title(title, fontsize=10)
     if legend:
         ax.legend(loc="best", fontsize=7)
     if grid:
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=PNG_DPI, format=fmt)
     plt.close(fig)
     return path
 
@@ -76,7 +117,7 @@ def plot_stance(path: Path, *, name: str, feet: list[dict], sole_sizes: dict[str
     ax.set_ylim(-0.3, 0.3)
     ax.set_xlabel("x (m, forward)")
     ax.set_ylabel("y (m, left)")
-    return _save(fig, ax, path, f"stance: {name}")
+    return _save(fig, ax, path, f"stance {name}: feet, support polygon and CoM")
 
 
 def plot_com_trace(path: Path, *, title: str, polygon: np.ndarray, threshold_m: float,
@@ -100,43 +141,100 @@ def plot_com_trace(path: Path, *, title: str, polygon: np.ndarray, threshold_m: 
     return _save(fig, ax, path, title)
 
 
+def holding_events(trajectory: Sequence[dict]) -> list[tuple[float, str]]:
+    """Where the held object changes: (t, "pick" | "place" | "regrasp") from a plan's trajectory."""
+    events = []
+    for a, b in zip(trajectory, trajectory[1:]):
+        ha, hb = a.get("holding", "none"), b.get("holding", "none")
+        if ha != hb:
+            events.append((float(b["t"]), "pick" if ha == "none" else "place" if hb == "none" else "regrasp"))
+    return events
+
+
+EVENT_STYLE = {"pick": ("tab:green", "-."), "place": ("tab:red", "-."), "regrasp": ("tab:brown", ":")}
+
+
 def plot_margin_over_time(path: Path, *, title: str, threshold_m: float,
-                          traces: list[tuple[str, np.ndarray, np.ndarray, str]]) -> Path:
-    """Margin (mm) over time (s) for each trace (label, t, margin_m, colour)."""
-    fig, ax = plt.subplots(figsize=(6, 3))
+                          traces: list[tuple[str, np.ndarray, np.ndarray, str]],
+                          events: Sequence[tuple[float, str]] = ()) -> Path:
+    """CoM margin (mm) over time (s) for each trace (label, t, margin_m, colour).
+
+    ``events`` (t, kind) mark the pick, place and regrasp moments: the margin jumps there as the
+    object's mass joins or leaves the CoM (see :func:`holding_events`).
+    """
+    fig, ax = plt.subplots(figsize=(7.5, 3.6))
     for label, t, m, colour in traces:
         ax.plot(t, np.asarray(m) * 1000, color=colour, label=label)
-    ax.axhline(threshold_m * 1000, color="tab:orange", ls="--", label="threshold")
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel("margin (mm)")
+    ax.axhline(threshold_m * 1000, color="tab:orange", ls="--", label=f"threshold {threshold_m * 1000:g} mm")
+    seen: set[str] = set()
+    for t, kind in events:
+        colour, style = EVENT_STYLE.get(kind, ("grey", ":"))
+        ax.axvline(t, color=colour, ls=style, lw=1, label=kind if kind not in seen else None)
+        ax.annotate(kind, (t, 1.0), xycoords=("data", "axes fraction"), xytext=(2, -10), textcoords="offset points",
+                    fontsize=7, color=colour)
+        seen.add(kind)
+    for label, t, m, colour in traces[:1]:
+        if len(m):
+            k = int(np.argmin(m))
+            ax.plot(t[k], m[k] * 1000, "o", mfc="none", mec="tab:red", ms=8, label=f"worst {m[k] * 1000:.1f} mm at {t[k]:.2f} s")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("CoM margin to the polygon edge (mm)")
     return _save(fig, ax, path, title)
 
 
-def plot_survey_bars(path: Path, *, title: str, rows: list[dict]) -> Path:
-    """Bar chart of the stability ratio R per hand configuration."""
-    fig, ax = plt.subplots(figsize=(5.5, 3.2))
+def plot_survey_bars(path: Path, *, title: str, rows: list[dict], recommended: str | None = None,
+                     indistinguishable: Sequence[str] = ()) -> Path:
+    """Bar chart of the stability ratio R per hand configuration, the recommended one marked.
+
+    A row's 95 % interval (``ratio_ci95``) is drawn as an error bar where the survey has one;
+    configurations whose interval overlaps the recommended one's are hatched (a tie).
+    """
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
     names = [r["hands"] for r in rows]
     values = [r["ratio"] if r["ratio"] is not None else 0.0 for r in rows]
-    bars = ax.bar(names, values, color=["tab:blue" if r["ratio"] is not None else "lightgrey" for r in rows])
+    colours = [HANDS_COLOURS.get(r["hands"], "tab:blue") if r["ratio"] is not None else "lightgrey" for r in rows]
+    bars = ax.bar(names, values, color=colours, edgecolor=["black" if r["hands"] == recommended else "none" for r in rows],
+                  linewidth=[2.5 if r["hands"] == recommended else 0 for r in rows],
+                  hatch=["//" if r["hands"] in indistinguishable else "" for r in rows])
     for bar, r in zip(bars, rows):
+        ci = r.get("ratio_ci95")
+        if r["ratio"] is not None and ci:
+            x = bar.get_x() + bar.get_width() / 2
+            ax.errorbar([x], [r["ratio"]], yerr=[[r["ratio"] - ci[0]], [ci[1] - r["ratio"]]], color="black", capsize=4, lw=1)
         text = f"{r['ratio']:.3f}" if r["ratio"] is not None else "n/a"
-        ax.text(bar.get_x() + bar.get_width() / 2, bar.get_height() + 0.01, text, ha="center", fontsize=8)
-    ax.set_ylim(0, 1.1)
-    ax.set_ylabel("R = C / (C + U)")
+        text += f"\nC={r['stable']:,} U={r['unstable']:,}"
+        if r["hands"] == recommended:
+            text = "recommended\n" + text
+        ax.text(bar.get_x() + bar.get_width() / 2, bar.get_height() + 0.02, text, ha="center", fontsize=7,
+                fontweight="bold" if r["hands"] == recommended else "normal")
+    ax.set_ylim(0, 1.3)
+    ax.set_xlabel("hand configuration (start hand - end hand)")
+    ax.set_ylabel("stable ratio R = C / (C + U), no unit")
     return _save(fig, ax, path, title, legend=False, grid=False)
 
 
 def plot_survey_scatter(path: Path, *, title: str, polygon: np.ndarray, threshold_m: float,
-                        xy: np.ndarray, stable: np.ndarray, max_points: int = 20000) -> Path:
-    """CoM ground projections of explored states, stable green / unstable red, over the polygon."""
-    fig, ax = plt.subplots(figsize=(5.5, 5))
+                        xy: np.ndarray, stable: np.ndarray, hands: np.ndarray | None = None,
+                        max_points: int = 20000) -> Path:
+    """CoM ground projections of explored states over the polygon: one colour per hand configuration,
+    stable states as dots, unstable ones as crosses (``hands`` None: one colour for all)."""
+    fig, ax = plt.subplots(figsize=(6.4, 5.6))
     _draw_polygon(ax, polygon, threshold_m)
     xy = np.asarray(xy)
     stable = np.asarray(stable, dtype=bool)
+    hands = np.asarray(hands) if hands is not None else np.full(len(xy), "all")
     if len(xy) > max_points:
         idx = np.linspace(0, len(xy) - 1, max_points).astype(int)
-        xy, stable = xy[idx], stable[idx]
-    ax.scatter(xy[stable, 0], xy[stable, 1], s=2, c="tab:green", label="stable", alpha=0.5)
-    ax.scatter(xy[~stable, 0], xy[~stable, 1], s=2, c="tab:red", label="unstable", alpha=0.5)
+        xy, stable, hands = xy[idx], stable[idx], hands[idx]
+    for name in [h for h in HANDS_COLOURS if h in set(hands.tolist())] + sorted(set(hands.tolist()) - set(HANDS_COLOURS)):
+        colour = HANDS_COLOURS.get(name, "tab:grey")
+        sel = hands == name
+        ok, bad = sel & stable, sel & ~stable
+        ax.scatter(xy[ok, 0], xy[ok, 1], s=3, color=colour, alpha=0.5, label=f"{name}: stable ({ok.sum():,})")
+        if bad.any():
+            ax.scatter(xy[bad, 0], xy[bad, 1], s=14, color=colour, marker="x", lw=0.8,
+                       label=f"{name}: unstable ({bad.sum():,})")
     ax.set_aspect("equal")
+    ax.set_xlabel("CoM x (m, forward)")
+    ax.set_ylabel("CoM y (m, left)")
     return _save(fig, ax, path, title)

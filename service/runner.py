@@ -212,7 +212,7 @@ class Runner:
             else:
                 extra["plan_sha256"] = sha
                 self._finish(run, "planned", "planned; waiting for approval", result_text=text, extra=extra,
-                             data={"plan_sha256": sha})
+                             data={"plan_sha256": sha, "risk": summary.get("risk")})
         else:
             self._finish(run, "succeeded", "survey finished", result_text=text, extra=extra)
 

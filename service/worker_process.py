@@ -106,7 +106,14 @@ class JobHandlers:
             result = self.table[kind](request, ctx)
             if ctx.cancelled() and result is None:
                 raise JobCanceled("canceled")
-            return "done", package(result)
+            packaged = package(result)
+            if kind == "plan" and packaged["summary"].get("status") == "solved":
+                from .risk import (
+                    safe_risk_card,  # the gate's dry run, where the plan is (not in the API process)
+                )
+
+                packaged["summary"]["risk"] = safe_risk_card(result, packaged["text"])
+            return "done", packaged
         except CANCELED_TYPES:
             return "canceled", None
         except InvalidResult as exc:

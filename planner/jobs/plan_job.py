@@ -21,6 +21,7 @@ from planner.regrasp.plan_assembly import assemble, trajectory_points
 from planner.regrasp.results import PlannerResult
 from planner.regrasp.settings import PlannerSettings
 from planner.regrasp.task import Task
+from planner.scene.meshes import portable_dump
 from planner.scene.objects import ObjectModelError
 from planner.scene.placements import PlacementError
 from planner.scene.scenarios import resolve_scenario, with_overrides
@@ -74,7 +75,7 @@ def _infeasible(task_or_none: Task | None, scenario: Scenario, code: str, messag
         "status": "infeasible",
         "failure": {"code": code, "message": message, "counts": dict(counts or {})},
         "robot": {"name": robot.name, "urdf_sha256": robot.urdf_sha256, "joint_names": list(robot.joint_names)},
-        "scenario": scenario.model_dump(by_alias=True, mode="json"),
+        "scenario": portable_dump(scenario, by_alias=True, mode="json"),
         "stance": stance_doc,
         "support_polygon": polygon,
         "object": {"name": scenario.object.name, "mass_kg": scenario.object.mass_kg,
@@ -241,7 +242,7 @@ def plan_scenario(
         "status": "solved",
         "failure": None,
         "robot": {"name": task.robot.name, "urdf_sha256": task.robot.urdf_sha256, "joint_names": list(task.robot.joint_names)},
-        "scenario": scenario.model_dump(by_alias=True, mode="json"),
+        "scenario": portable_dump(scenario, by_alias=True, mode="json"),
         "stance": task.stance.result().model_dump(),
         "support_polygon": task.stance.polygon.vertices.tolist(),
         "object": {"name": task.obj.name, "mass_kg": task.obj.mass_kg, "com_local": task.obj.com_local.tolist(),

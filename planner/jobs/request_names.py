@@ -18,10 +18,9 @@ from __future__ import annotations
 
 import re
 from functools import lru_cache
-from pathlib import Path
 from typing import Any
 
-from planner.scene.scenarios import DATA_DIR as SCENARIO_DATA_DIR
+from planner.scene.meshes import registered_meshes
 
 #: A registered name: letters, digits, ``_``, ``-`` and ``.``, starting with a letter or digit.
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
@@ -29,7 +28,6 @@ NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
 FILE_SUFFIX_RE = re.compile(r"\.[A-Za-z][A-Za-z0-9]*$")
 #: How much of a refused value an error quotes.
 QUOTE_CHARS = 60
-MESH_DIR = SCENARIO_DATA_DIR
 
 
 class RequestNameError(ValueError):
@@ -72,18 +70,6 @@ def registered_robots() -> tuple[str, ...]:
 
 
 @lru_cache(maxsize=1)
-def registered_meshes() -> dict[str, Path]:
-    """Mesh name -> the registered mesh file (the meshes shipped with the built-in scenarios)."""
-    return {p.stem: p.resolve() for p in sorted(MESH_DIR.glob("*.obj"))}
-
-
-def registered_mesh_path(name: str) -> Path:
-    """The file of a registered mesh; :class:`RequestNameError` listing the valid names otherwise."""
-    meshes = registered_meshes()
-    if name not in meshes:
-        raise RequestNameError("object.mesh.name", f"unknown mesh {_quote(name)}; registered meshes: "
-                                                   f"{', '.join(meshes) or 'none'}", list(meshes))
-    return meshes[name]
 
 
 def check_name(field: str, what: str, value: Any, valid: tuple[str, ...] | list[str], *,

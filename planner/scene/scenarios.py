@@ -45,17 +45,12 @@ def parse_scenario(data: Any, source: str = "scenario", base_dir: Path | None = 
         scenario = Scenario.model_validate(data)
     except ValidationError as exc:
         raise ScenarioError(_format_validation(exc, source)) from None
-    if scenario.object.mesh is not None and scenario.object.mesh.name is not None:
-        from .request_names import RequestNameError, registered_mesh_path
+    from .meshes import UnknownMeshError, resolve_mesh
 
-        try:  # a registered mesh: the file is the planner's own, found by name
-            scenario.object.mesh.path = str(registered_mesh_path(scenario.object.mesh.name))
-        except RequestNameError as exc:
-            raise ScenarioError(f"{source}: {exc}") from None
-    elif scenario.object.mesh is not None and base_dir is not None:
-        mesh_path = Path(scenario.object.mesh.path)
-        if not mesh_path.is_absolute():
-            scenario.object.mesh.path = str((base_dir / mesh_path).resolve())
+    try:
+        resolve_mesh(scenario.object.mesh, base_dir)
+    except UnknownMeshError as exc:
+        raise ScenarioError(f"{source}: object.mesh: {exc}") from None
     return scenario
 
 
@@ -116,7 +111,9 @@ def with_overrides(
         data["survey"]["states_per_configuration"] = states_per_configuration
     if time_limit_s is not None:
         data["limits"]["time_s"] = time_limit_s
-    return parse_scenario(data, f"scenario {scenario.name!r} with overrides")
+    from .meshes import carry_mesh_source
+
+    return carry_mesh_source(scenario, parse_scenario(data, f"scenario {scenario.name!r} with overrides"))
 
 
 @dataclass

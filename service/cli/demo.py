@@ -18,7 +18,7 @@ from rich.table import Table
 from .common import console, fail
 
 
-def stance_step(out: Path, robot_name: str) -> list[dict]:
+def stance_step(out: Path, robot_name: str, fmt: str = "png") -> list[dict]:
     """Solve the built-in stances and draw them; returns one summary row per stance."""
     from planner.robot.model import load_robot
     from planner.stability.stances import (
@@ -39,7 +39,7 @@ def stance_step(out: Path, robot_name: str) -> list[dict]:
             continue
         feet = [f.model_dump() for f in st.feet]
         sizes = {f["frame"]: sole_size(robot, f["frame"]) for f in feet}
-        picture = plot_stance(out / f"stance-{name}.png", name=name, feet=feet, sole_sizes=sizes,
+        picture = plot_stance(out / f"stance-{name}.{fmt}", name=name, feet=feet, sole_sizes=sizes,
                               polygon=st.polygon.vertices, com=st.robot_com, margin_m=st.margin)
         rows.append({"stance": name, "com": st.robot_com, "polygon": st.polygon.vertices,
                      "margin_m": st.margin, "picture": picture})
@@ -56,13 +56,16 @@ def stance_step(out: Path, robot_name: str) -> list[dict]:
               help="States per hand configuration in the demo's survey.")
 @click.option("--speed", default=10.0, show_default=True, type=click.FloatRange(min=0.1),
               help="The simulated controller plays K times faster than real time.")
-def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, survey_states: int, speed: float) -> None:
+@click.option("--format", "fmt", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
+              help="Format of the figures.")
+def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, survey_states: int, speed: float,
+         fmt: str) -> None:
     """Run the main job end to end on the embedded defaults and show its result."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     console.rule(f"[bold]regrasp demo[/] -> {out.resolve()}")
     console.print("[bold]1. Robot and stances[/]")
-    rows = stance_step(out, robot_name)
+    rows = stance_step(out, robot_name, fmt)
     table = Table("stance", "CoM x, y, z (m)", "support polygon (x, y) m", "margin (mm)")
     for r in rows:
         if "error" in r:
@@ -82,9 +85,10 @@ def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, surve
     from planner.warmup import warm_up
     from service.demo import DemoSettings, run_demo
 
-    console.print(f"  planner kernels ready in {warm_up(robot_name):.1f} s (compiled on a machine's first run, then loaded from cache)")
+    console.print("  compiling the planner's kernels (a machine's first run; later runs load them from cache) ...")
+    console.print(f"  planner kernels ready in {warm_up(robot_name):.1f} s")
 
-    settings = DemoSettings(scenario=scenario, survey_states=survey_states, controller_speed=speed)
+    settings = DemoSettings(scenario=scenario, survey_states=survey_states, controller_speed=speed, figure_format=fmt)
     console.print("[bold]2. The paper's scenario through the service, the gate and the simulated robot[/]")
     t0 = time.perf_counter()
     try:
@@ -104,7 +108,7 @@ def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, surve
     table.add_row("demo time", f"{time.perf_counter() - t0:.1f} s")
     console.print(table)
     for name, path in res.artefacts.items():
-        console.print(f"  {name}: {path}")
+        console.print(f"  {name}: {path}", highlight=False, soft_wrap=True)  # whole paths, to copy
     console.print("Open the MCAP file in Foxglove (File > Open) to replay the plan and the executed motion.")
     console.print("Operator console: run [bold]regrasp serve --dev[/] and open http://127.0.0.1:8000/ with a printed token.")
     if not res.ok:

@@ -64,18 +64,47 @@ def summary_table(plans: list[tuple[str, dict]]) -> Table:
     return table
 
 
-def plot_plan(plan: dict, path: Path, compare: dict | None = None) -> Path:
+def plot_plan(plan: dict, path: Path, compare: dict | None = None) -> list[Path]:
+    """The CoM ground trace over the support polygon at ``path``, and beside it (``*-margin``) the margin
+    over time with the pick and place moments marked; the format follows the path's suffix."""
     import numpy as np
 
-    from service.plots import plot_com_trace
+    from service.plots import (
+        describe,
+        holding_events,
+        plot_com_trace,
+        plot_margin_over_time,
+    )
 
-    traces = []
-    if plan["status"] == "solved":
-        traces.append((f"threshold {plan['threshold_m'] * 1000:.0f} mm", np.array([p["com"][:2] for p in plan["trajectory"]]), "tab:blue"))
-    if compare is not None and compare["status"] == "solved":
-        traces.append((f"threshold {compare['threshold_m'] * 1000:.0f} mm", np.array([p["com"][:2] for p in compare["trajectory"]]), "tab:red"))
-    return plot_com_trace(path, title=f"{plan['scenario']['name']} ({plan.get('hands')}): CoM ground trace",
-                          polygon=np.array(plan["support_polygon"]), threshold_m=plan["threshold_m"], traces=traces)
+    traces, margins = [], []
+    for doc, colour in ((plan, "tab:blue"), (compare, "tab:red")):
+        if doc is not None and doc["status"] == "solved":
+            label = f"plan at {doc['threshold_m'] * 1000:g} mm"
+            traces.append((label, np.array([p["com"][:2] for p in doc["trajectory"]]), colour))
+            margins.append((label, np.array([p["t"] for p in doc["trajectory"]]),
+                            np.array([p["margin_m"] for p in doc["trajectory"]]), colour))
+    head = describe(plan["scenario"]["name"], plan["stance"]["name"], plan["threshold_m"], hands=plan.get("hands"))
+    path = Path(path)
+    out = [plot_com_trace(path, title=f"CoM ground trace\n{head}", polygon=np.array(plan["support_polygon"]),
+                          threshold_m=plan["threshold_m"], traces=traces)]
+    if margins:
+        out.append(plot_margin_over_time(path.with_name(path.stem + "-margin" + path.suffix), title=f"CoM margin over time\n{head}",
+                                         threshold_m=plan["threshold_m"], traces=margins,
+                                         events=holding_events(plan["trajectory"])))
+    return out
+
+
+def plan_summary(plan: dict, path: Path | None = None) -> dict:
+    """What ``plan --json`` prints: the plan's headline figures (the plan itself is in the --out file)."""
+    traj = plan.get("trajectory") or []
+    st = plan.get("stats") or {}
+    return {"status": plan["status"], "failure": plan.get("failure"), "scenario": plan["scenario"]["name"],
+            "stance": plan["stance"]["name"], "hands": plan.get("hands"), "threshold_m": plan["threshold_m"],
+            "min_margin_m": plan.get("min_margin_m"),
+            "headroom_m": plan["min_margin_m"] - plan["threshold_m"] if plan.get("min_margin_m") is not None else None,
+            "points": len(traj), "duration_s": traj[-1]["t"] if traj else None, "segments": len(plan.get("segments") or []),
+            "planning_time_s": st.get("time_s"), "failures": st.get("failures") or {},
+            "plan_file": str(path.resolve()) if path is not None else None}
 
 
 @click.command()
@@ -88,11 +117,15 @@ def plot_plan(plan: dict, path: Path, compare: dict | None = None) -> Path:
 @click.option("--solutions", type=click.IntRange(1, 20), default=1, show_default=True, help="Keep the K best solutions.")
 @click.option("--time-limit-s", type=float, help="Safety-net time limit in seconds.")
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="Where to write the plan JSON.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Write the CoM trace over the support polygon (PNG).")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False),
+              help="Write the CoM trace over the support polygon here, and the margin over time beside it (*-margin).")
+@click.option("--format", "fmt", type=click.Choice(["png", "svg", "pdf"]),
+              help="Figure format of --plot (default: the path's suffix, else png).")
 @click.option("--compare-threshold-mm", type=float, help="Also plan at this threshold (e.g. 0) and overlay it on the plot.")
+@click.option("--json", "as_json", is_flag=True, help="Print the plan's summary as JSON on stdout (the plan goes to --out).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, solutions, time_limit_s, out_path,
-         plot_path, compare_threshold_mm, quiet) -> None:
+         plot_path, fmt, compare_threshold_mm, as_json, quiet) -> None:
     """Plan a regrasp task: pick, regrasp or hand over, and place, keeping the CoM margin."""
     from planner.errors import InputError
     from planner.jobs.plan_job import PlanOptions, plan_scenario
@@ -106,7 +139,7 @@ def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, soluti
         options = PlanOptions(hands=hands, threshold_m=threshold_m, seed=seed, solutions=solutions, stance=stance,
                               time_limit_s=time_limit_s)
         t0 = time.perf_counter()
-        if quiet:
+        if quiet or as_json:
             doc = plan_scenario(sc, options)
         else:
             doc = run_with_progress("planning", lambda p: plan_scenario(sc, options, progress=p))
@@ -114,19 +147,36 @@ def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, soluti
         if compare_m is not None:
             opts2 = PlanOptions(hands=doc.get("hands") or hands, threshold_m=compare_m, seed=seed,
                                 stance=stance, time_limit_s=time_limit_s)
-            compare = (plan_scenario(sc, opts2) if quiet else
+            compare = (plan_scenario(sc, opts2) if quiet or as_json else
                        run_with_progress("comparison", lambda p: plan_scenario(sc, opts2, progress=p)))
     except InputError as exc:
         fail(str(exc))
+    Path(out_path).parent.mkdir(parents=True, exist_ok=True)
     Path(out_path).write_text(json.dumps(doc, allow_nan=False))
+    figures: list[Path] = []
+    if plot_path:
+        from service.plots import with_format
+
+        target = with_format(plot_path, fmt or (None if Path(plot_path).suffix else "png"))
+        target.parent.mkdir(parents=True, exist_ok=True)
+        figures = plot_plan(doc, target, compare)
+    if as_json:
+        summary = plan_summary(doc, Path(out_path))
+        summary["figures"] = [str(f.resolve()) for f in figures]
+        if compare is not None:
+            summary["compare"] = plan_summary(compare)
+        click.echo(json.dumps(summary, allow_nan=False))
+        if doc["status"] != "solved":
+            raise SystemExit(1)
+        return
     plans = [(f"{sc.name}", doc)]
     if compare is not None:
         plans.append((f"at {compare_threshold_mm:g} mm", compare))
     console.print(summary_table(plans))
     if doc["status"] != "solved":
         console.print(f"[yellow]infeasible[/] ({doc['failure']['code']}): {doc['failure']['message']}")
-    if plot_path:
-        console.print(f"plot: {plot_plan(doc, Path(plot_path), compare)}")
+    for figure in figures:
+        console.print(f"plot: {figure}", highlight=False, soft_wrap=True)
     console.print(f"plan written to {Path(out_path).resolve()} ({time.perf_counter() - t0:.1f} s)")
     if doc["status"] != "solved":
         raise SystemExit(1)

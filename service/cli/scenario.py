@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 import yaml
 
-from .common import console, fail
+from .common import console, fail, print_json
 
 
 @click.group()
@@ -14,17 +14,25 @@ def scenario() -> None:
 
 
 @scenario.command("list")
-def list_scenarios() -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print the list as JSON (one object per scenario).")
+def list_scenarios(as_json: bool) -> None:
     """Print the built-in scenarios with their stance, object and threshold."""
     from planner.scene.scenarios import builtin_names, load_builtin
 
+    entries = []
     for name in builtin_names():
         sc = load_builtin(name)
         stance = sc.stance if isinstance(sc.stance, str) else sc.stance.name
+        entries.append({"name": name, "robot": sc.robot, "stance": stance, "object": {"shape": sc.object.shape,
+                        "mass_kg": sc.object.mass_kg}, "threshold_m": sc.threshold_m, "hands": sc.hands, "seed": sc.seed})
+        if as_json:
+            continue
         click.echo(
             f"{name}\tstance={stance}\tobject={sc.object.shape} {sc.object.mass_kg:g} kg\t"
             f"threshold={sc.threshold_m * 1000:g} mm\thands={sc.hands}"
         )
+    if as_json:
+        print_json(entries)
 
 
 @scenario.command("show")
@@ -37,7 +45,10 @@ def show(name: str) -> None:
         sc = load_scenario(name)
     except ScenarioError as exc:
         fail(str(exc))
-    click.echo(yaml.safe_dump(sc.model_dump(by_alias=True, exclude_none=True), sort_keys=False))
+    from planner.scene.meshes import portable_dump
+
+    # Meshes by registered name or as the file wrote them: the printed scenario works saved anywhere.
+    click.echo(yaml.safe_dump(portable_dump(sc, by_alias=True, exclude_none=True), sort_keys=False))
 
 
 def unknown_names(sc) -> list[str]:  # type: ignore[no-untyped-def]

@@ -61,20 +61,23 @@ def write_scatter_csv(path: Path, hands: np.ndarray, xy: np.ndarray, stable: np.
     return path
 
 
-def _plots(doc: dict, outcomes, directory: Path, prefix: str) -> list[Path]:
-    """The bar chart of R; where states were evaluated, the CoM scatter and its CSV data."""
+def _plots(doc: dict, outcomes, directory: Path, prefix: str, fmt: str = "png", scenario: str | None = None) -> list[Path]:
+    """The bar chart of R; where states were evaluated, the CoM scatter (coloured by configuration) and its CSV data."""
     import numpy as np
 
-    from service.plots import plot_survey_bars, plot_survey_scatter
+    from service.plots import describe, plot_survey_bars, plot_survey_scatter
 
     directory.mkdir(parents=True, exist_ok=True)
-    title = f"{doc['stance']['name']}, threshold {doc['threshold_m'] * 1000:.0f} mm"
-    paths = [plot_survey_bars(directory / f"{prefix}bars.png", title=f"R per hand configuration ({title})", rows=doc["rows"])]
+    states = (doc.get("stats") or {}).get("states_per_configuration")
+    title = describe(scenario, doc["stance"]["name"], doc["threshold_m"], states=states) + (" per configuration" if states else "")
+    paths = [plot_survey_bars(directory / f"{prefix}bars.{fmt}", title=f"stable ratio R per hand configuration\n{title}",
+                              rows=doc["rows"], recommended=doc.get("recommended"),
+                              indistinguishable=doc.get("indistinguishable") or ())]
     hands, xy, stable = scatter_data(outcomes)
     if len(xy):
-        paths.append(plot_survey_scatter(directory / f"{prefix}scatter.png", title=f"explored CoM projections ({title})",
+        paths.append(plot_survey_scatter(directory / f"{prefix}scatter.{fmt}", title=f"explored CoM projections\n{title}",
                                          polygon=np.array(doc["stats"]["support_polygon"]), threshold_m=doc["threshold_m"],
-                                         xy=xy, stable=stable))
+                                         xy=xy, stable=stable, hands=hands))
         paths.append(write_scatter_csv(directory / f"{prefix}scatter.csv", hands, xy, stable))
     return paths
 
@@ -113,7 +116,10 @@ def stance_matrix(docs: list[dict]) -> Table:
 @click.option("--states-out", type=click.Path(dir_okay=False), help="Write every evaluated state to an .npz file.")
 @click.option("--all-stances", is_flag=True, help="Run the task in the four built-in stances: a stance x hands matrix of R.")
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), help="Write the bar chart and CoM scatter to this directory.")
-def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, workers, as_json, states_out, all_stances, plot_dir) -> None:
+@click.option("--format", "fmt", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
+              help="Format of the --plot figures.")
+def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, workers, as_json, states_out, all_stances,
+           plot_dir, fmt) -> None:
     """Count stable (C) and unstable (U) explored states per hand configuration; R = C / (C + U)."""
     from planner.errors import InputError
     from planner.scene.scenarios import resolve_scenario
@@ -133,6 +139,7 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
         fail("--states-out writes the states of one stance; use it without --all-stances")
     stance_list = BUILTIN_STANCES if all_stances else (stance,)
     docs = []
+    names: list[str] = []
     try:
         for st in stance_list:
             sc = resolve_scenario(ref, stance=st, threshold_m=threshold, seed=seed,
@@ -140,6 +147,7 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
             label = f"survey {sc.name} ({sc.stance if isinstance(sc.stance, str) else sc.stance.name})"
             doc, outcomes = run_with_progress(label, lambda p, sc=sc: run_survey(sc, workers=workers, progress=p))
             docs.append((doc, outcomes))
+            names.append(sc.name)
     except InputError as exc:
         fail(str(exc))
     except ValueError as exc:
@@ -155,8 +163,8 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
         n = write_states(states_out, doc, outcomes, {"joint_names": list(load_robot(doc["robot"]["name"]).joint_names)})
         info(f"{n} evaluated states written to {Path(states_out).resolve()}", highlight=False, soft_wrap=True)
     if plot_dir:
-        for doc, outcomes in docs:
-            for path in _plots(doc, outcomes, Path(plot_dir), f"survey-{doc['stance']['name']}-"):
+        for (doc, outcomes), name in zip(docs, names):
+            for path in _plots(doc, outcomes, Path(plot_dir), f"survey-{doc['stance']['name']}-", fmt, scenario=name):
                 info(f"plot: {path}", highlight=False, soft_wrap=True)
     if as_json:
         click.echo(json.dumps(docs[0][0] if not all_stances else {"stances": [d for d, _ in docs]}, allow_nan=False))

@@ -1,6 +1,12 @@
 /*
  * Regrasp operator console: plain JavaScript against the HTTP API of docs/contract.md section 5.
- * No build step, no external libraries: charts are inline SVG drawn here.
+ * No build step: charts are inline SVG drawn here; the 3D view (view3d.js, an ES module on the
+ * package's vendored three.js and urdf-loader) is driven through window.regrasp3d.
+ *
+ * One cursor links the views: a trajectory index chosen by hovering the margin chart, scrubbing
+ * the timeline, hovering or clicking a segment row, or clicking the CoM trace in 3D; every view
+ * follows it (setCursor). During execution a second cursor follows the index the controller
+ * reports, and the measured joint states give an executed margin drawn against the planned one.
  *
  * Live progress: the job's Server-Sent Events stream (GET /v1/jobs/{id}/events) is read with
  * fetch() so that the bearer token goes in the Authorization header (EventSource cannot send
@@ -39,6 +45,14 @@
     me: undefined,
     busy: false,         // an action's request is in flight: every action button is disabled
     identityPending: false,
+    catalogue: null,     // GET /v1/catalogue: scenarios (with their own values), stances, hands, robots
+    plan: null,          // the plan drawn (job result), with derived figures
+    cursor: 0,           // trajectory index shown by every view
+    exec: null,          // {jobId, index, points, trace: [[index, margin_m]], message} during/after execution
+    risk: null,          // GET /v1/jobs/{id}/risk of the job shown
+    riskFor: null,       // job id + state whose risk report is loaded
+    urdfCache: {},       // robot name -> URDF text (served by the API)
+    playTimer: null,
   };
 
   const $ = (id) => document.getElementById(id);
@@ -265,7 +279,12 @@
     $("detail-body").hidden = false;
     $("job-id").textContent = job.id;
     stateBadge($("job-state"), job.state);
-    $("job-progress-bar").style.width = Math.round((job.progress || 0) * 100) + "%";
+    const executing = EXECUTING.has(job.state);
+    // While the robot moves, the bar shows execution progress (the controller's index), not planning's.
+    const fraction = executing ? execFraction(job) : (job.kind === "plan" && job.state === "succeeded") ? 1 : (job.progress || 0);
+    $("job-progress-bar").style.width = Math.round(fraction * 100) + "%";
+    $("job-progress-bar").dataset.kind = executing ? "execution" : "planning";
+    $("job-progress-bar").parentElement.title = (executing ? "execution " : "planning ") + Math.round(fraction * 100) + " %";
     $("job-kind").textContent = job.kind;
     $("job-submitter").textContent = job.submitter;
     $("job-message").textContent = job.message || "-";
@@ -275,12 +294,14 @@
     $("job-approval").textContent = a ? (a.approved_by + " at " + fmtTime(a.approved_at) + ", expires " + fmtTime(a.expires_at)) : "-";
     $("job-error").textContent = job.error ? (job.error.code + ": " + job.error.message) : "-";
     updateButtons(job);
+    updateExecBar(job);
+    loadRisk(job);
     // keep the list row in step
     const row = $("jobs").querySelector('tbody tr[data-job-id="' + job.id + '"]');
     if (row) {
       row.dataset.state = job.state;
       stateBadge(row.querySelector("span"), job.state);
-      row.children[3].textContent = Math.round((job.progress || 0) * 100) + "%";
+      row.children[3].textContent = Math.round(fraction * 100) + "%";
     }
     const key = job.id + ":" + (job.plan_sha256 || "") + ":" + (job.result ? "r" : "-");
     if (key !== state.renderedResultFor) {
@@ -299,20 +320,25 @@
       stop: EXECUTING.has(s),
       cancel: CANCELABLE.has(s),
     };
+    const anyShown = [];
     for (const [action, fits] of Object.entries(show)) {
       const button = $("btn-" + action);
       const why = fits ? refusal(action, job) : HIDE;
       button.hidden = why === HIDE;
-      button.disabled = state.busy || (why !== null && why !== HIDE);
+      // Stop is never held back by another request in flight.
+      button.disabled = (action === "stop" ? false : state.busy) || (why !== null && why !== HIDE);
       if (why !== null && why !== HIDE) { button.title = why; button.dataset.refused = why; }
       else { button.removeAttribute("title"); delete button.dataset.refused; }
+      if (!button.hidden) anyShown.push(action);
     }
+    $("actions").dataset.shown = anyShown.join(",");
   }
 
   async function act(action) {
     const job = state.job;
     if (!job) return;
     showProblem(null);
+    if ((action === "approve" || action === "dispatch") && !(await confirmAction(action, job))) return;
     let body;
     if (action === "approve") body = job.plan_sha256 ? { plan_sha256: job.plan_sha256 } : {};
     if (action === "reject" || action === "stop" || action === "cancel") body = { reason: "operator console" };
@@ -471,10 +497,10 @@
     if (p.state) job.state = p.state;
     if (typeof p.progress === "number") job.progress = p.progress;
     if (event.event === "bridge") {
-      const d = (p.data && (p.data.payload || p.data)) || {};
-      const seg = (typeof d.segment_index === "number" && typeof d.segment_count === "number")
-        ? " " + (d.segment_index + 1) + "/" + d.segment_count : "";
-      job.message = "robot: " + (p.message || (p.data && p.data.event) || "event") + seg;
+      const name = (p.data && p.data.event) || p.message || "event";
+      const d = (p.data && p.data.payload) || {};
+      const text = bridgeMessage(job, name, d);
+      if (text) job.message = text;
     } else if (p.message) {
       job.message = p.message;
     }
@@ -547,14 +573,133 @@
     const polygon = plan.support_polygon || [];
     const threshold = Number(plan.threshold_m || 0);
     const inner = shrinkConvex(polygon, threshold);
+    state.plan = derivePlan(plan);
+    if (!state.exec || state.exec.jobId !== (state.job && state.job.id)) state.exec = null;
     drawComChart(polygon, inner, traj, threshold);
     drawMarginChart(traj, plan.segments || [], threshold, Number(plan.dt_s || 0));
     renderSegments(plan.segments || [], traj);
     const dur = traj.length ? traj[traj.length - 1].t : 0;
+    const headroom = (typeof plan.min_margin_m === "number") ? plan.min_margin_m - threshold : null;
+    const stats = plan.stats || {};
+    const failures = stats.failures && typeof stats.failures === "object" ? Object.entries(stats.failures).filter(([, v]) => typeof v === "number" && v > 0) : [];
     $("plan-summary").textContent =
       "status " + plan.status + ", hands " + (plan.hands || "-") + ", " + traj.length + " points over " +
-      Number(dur).toFixed(2) + " s, min margin " + mm(plan.min_margin_m) + " mm, threshold " + mm(threshold) + " mm" +
-      (plan.failure ? ", failure " + plan.failure.code + ": " + plan.failure.message : "");
+      Number(dur).toFixed(2) + " s, min margin " + mm(plan.min_margin_m) + " mm against a threshold of " + mm(threshold) +
+      " mm (headroom " + mm(headroom) + " mm)" +
+      (failures.length ? "; rejected while planning: " + failures.map(([k, v]) => k + " " + v).join(", ") : "") +
+      (plan.failure ? "; failure " + plan.failure.code + ": " + plan.failure.message : "") +
+      // hands: auto: the quick survey that ranked the configurations, and how each one planned
+      (stats.survey && typeof stats.survey === "object" ? ". Hands chosen by the stability survey (R): " +
+        Object.entries(stats.survey).map(([h, r]) => h + " " + (typeof r === "number" ? r.toFixed(3) : "n/a")).join(", ") : "") +
+      (stats.configurations && typeof stats.configurations === "object" && Object.keys(stats.configurations).length > 1
+        ? "; configurations planned: " + Object.entries(stats.configurations).map(([h, c]) => h + " " + ((c && c.status) || "?")).join(", ") : "");
+    const tl = $("timeline");
+    tl.max = String(Math.max(traj.length - 1, 0));
+    tl.value = "0";
+    state.cursor = 0;
+    show3d(plan);
+    setCursor(state.plan.worst >= 0 ? state.plan.worst : 0, "plan");
+  }
+
+  /* Figures every view needs: time per index, segment per index, worst point, pick and place moments. */
+  function derivePlan(plan) {
+    const traj = plan.trajectory || [];
+    const segOf = new Int32Array(traj.length).fill(-1);
+    (plan.segments || []).forEach((seg, i) => { for (let k = Math.max(seg.first, 0); k <= Math.min(seg.last, traj.length - 1); k++) if (segOf[k] < 0) segOf[k] = i; });
+    let worst = -1, best = Infinity;
+    traj.forEach((p, i) => { if (typeof p.margin_m === "number" && p.margin_m < best) { best = p.margin_m; worst = i; } });
+    const events = [];  // pick: an object taken off the table; place: put down; regrasp: handed over
+    for (let i = 1; i < traj.length; i++) {
+      const a = traj[i - 1].holding || "none", b = traj[i].holding || "none";
+      if (a === b) continue;
+      const kind = a === "none" ? "pick" : b === "none" ? "place" : "regrasp";
+      events.push({ index: i, kind, from: a, to: b });
+    }
+    return { doc: plan, traj, segOf, worst, events, dt: Number(plan.dt_s || 0) };
+  }
+
+  async function robotUrdf(name) {
+    if (!state.urdfCache[name]) {
+      const headers = { "Authorization": "Bearer " + state.token, "Accept": "application/xml" };
+      const r = await fetch("/v1/robots/" + encodeURIComponent(name) + "/urdf", { headers });
+      if (!r.ok) throw new ApiError(r.status, "cannot load the URDF of robot " + name + " (HTTP " + r.status + ")");
+      state.urdfCache[name] = await r.text();
+    }
+    return state.urdfCache[name];
+  }
+
+  async function fetchBinary(path) {
+    const r = await fetch(path, { headers: { "Authorization": "Bearer " + state.token } });
+    return r.ok ? r.arrayBuffer() : null;
+  }
+
+  async function fetchObjectMesh(name) {
+    const r = await fetch("/v1/meshes/" + encodeURIComponent(name), { headers: { "Authorization": "Bearer " + state.token } });
+    return r.ok ? r.text() : null;
+  }
+
+  async function show3d(plan) {
+    const box = $("view3d");
+    const v3 = window.regrasp3d;
+    if (!v3) { box.dataset.status = "loading"; window.addEventListener("regrasp3d:ready", () => show3d(plan), { once: true }); return; }
+    v3.fetchObjectMesh = fetchObjectMesh;
+    v3.ensure(box);
+    if (!v3.hasWebGL()) { box.dataset.status = "no-webgl"; return; }
+    const name = plan.robot && plan.robot.name;
+    box.dataset.status = "loading";
+    try {
+      const urdf = await robotUrdf(name);
+      if (state.plan && state.plan.doc !== plan) return;  // another plan was selected meanwhile
+      await v3.show(plan, urdf, fetchBinary);
+      box.dataset.status = "drawn";
+      box.dataset.robot = name;
+      v3.setIndex(state.cursor);
+    } catch (err) {
+      box.dataset.status = "error";
+      v3.clear();
+      box.title = "3D view: " + (err.detail || err.message);
+    }
+  }
+
+  /* The one cursor: every view shows trajectory index i. */
+  function setCursor(i, source) {
+    const P = state.plan;
+    if (!P || !P.traj.length) return;
+    i = Math.max(0, Math.min(P.traj.length - 1, Math.round(i)));
+    state.cursor = i;
+    const p = P.traj[i];
+    if (source !== "timeline") $("timeline").value = String(i);
+    if (window.regrasp3d && $("view3d").dataset.status === "drawn" && !(state.exec && state.exec.live && source !== "user-3d")) window.regrasp3d.setIndex(i);
+    moveChartCursor("margin", i);
+    moveChartCursor("com", i);
+    const seg = P.segOf[i];
+    for (const tr of $("segments").querySelectorAll("tbody tr")) tr.classList.toggle("active", Number(tr.dataset.segment) === seg);
+    const s = seg >= 0 ? P.doc.segments[seg] : null;
+    $("cursor-readout").textContent = "t = " + Number(p.t).toFixed(2) + " s (point " + i + "), margin " + mm(p.margin_m) + " mm" +
+      (s ? ", segment " + seg + " " + s.kind + " (" + s.hand + ")" : "") + ", holding " + (p.holding || "none") +
+      (i === P.worst ? " - worst margin of the plan" : "");
+    $("cursor-readout").dataset.index = String(i);
+    $("cursor-readout").dataset.segment = String(seg);
+  }
+
+  function moveChartCursor(chart, i) {
+    const c = state.charts && state.charts[chart];
+    if (!c) return;
+    c.cursor(i);
+  }
+
+  function playTimeline() {
+    const P = state.plan;
+    if (!P) return;
+    if (state.playTimer) { clearInterval(state.playTimer); state.playTimer = null; $("timeline-play").textContent = "Play"; return; }
+    $("timeline-play").textContent = "Pause";
+    const stepMs = 40, stride = Math.max(1, Math.round(stepMs / 1000 / (P.dt || 0.005)));
+    let i = state.cursor >= P.traj.length - 1 ? 0 : state.cursor;
+    state.playTimer = setInterval(() => {
+      i += stride;
+      if (i >= P.traj.length - 1) { i = P.traj.length - 1; clearInterval(state.playTimer); state.playTimer = null; $("timeline-play").textContent = "Play"; }
+      setCursor(i, "play");
+    }, stepMs);
   }
 
   function drawComChart(polygon, inner, traj, threshold) {
@@ -597,31 +742,61 @@
       root.append(svg("circle", { cx: X(s[0]), cy: Y(s[1]), r: 5, class: "com-start" }));
       root.append(svg("rect", { x: X(e[0]) - 4, y: Y(e[1]) - 4, width: 8, height: 8, class: "com-end" }));
     }
+    const zmp = traj.filter((p) => Array.isArray(p.zmp)).map((p) => [p.zmp[0], p.zmp[1]]);
+    if (zmp.length) root.insertBefore(svg("polyline", { points: path(zmp), class: "zmp-trace", "data-role": "zmp-trace" }), root.querySelector('[data-role="com-trace"]'));
+    const P = state.plan;
+    if (P && P.worst >= 0 && Array.isArray(traj[P.worst].com)) {
+      const w = traj[P.worst].com;
+      root.append(svg("circle", { cx: X(w[0]), cy: Y(w[1]), r: 6, class: "worst-ring", "data-role": "worst" }));
+    }
     const legend = svg("g", { class: "legend", transform: "translate(" + (pad + 6) + "," + 16 + ")" });
-    const items = [["support", "support polygon"], ["threshold", "shrunk by " + mm(threshold) + " mm"], ["com-trace", "CoM trace"]];
-    items.forEach(([cls, label], i) => {
-      legend.append(svg("line", { x1: i * 140, x2: i * 140 + 18, y1: 0, y2: 0, class: cls + " legend-line" }));
-      legend.append(svg("text", { x: i * 140 + 22, y: 4 }, label));
+    const items = [["support", "support polygon"], ["threshold", "shrunk by " + mm(threshold) + " mm"], ["com-trace", "CoM"], ["zmp-trace", "ZMP"]];
+    let lx = 0;
+    items.forEach(([cls, label]) => {
+      legend.append(svg("line", { x1: lx, x2: lx + 18, y1: 0, y2: 0, class: cls + " legend-line" }));
+      legend.append(svg("text", { x: lx + 22, y: 4 }, label));
+      lx += 34 + label.length * 5.6;
     });
     root.append(legend);
+    const dot = svg("circle", { cx: -10, cy: -10, r: 5, class: "cursor-dot", "data-role": "cursor" });
+    const zdot = svg("rect", { x: -10, y: -10, width: 7, height: 7, class: "zmp-dot" });
+    const edot = svg("circle", { cx: -10, cy: -10, r: 6, class: "exec-dot", "data-role": "exec-dot", visibility: "hidden" });
+    root.append(zdot, dot, edot);
+    state.charts = state.charts || {};
+    state.charts.com = {
+      cursor(i) {
+        const p = traj[i];
+        if (!p) return;
+        if (Array.isArray(p.com)) { dot.setAttribute("cx", X(p.com[0])); dot.setAttribute("cy", Y(p.com[1])); }
+        if (Array.isArray(p.zmp)) { zdot.setAttribute("x", X(p.zmp[0]) - 3.5); zdot.setAttribute("y", Y(p.zmp[1]) - 3.5); }
+        root.dataset.cursor = String(i);
+      },
+      exec(i, measured) {
+        const c = measured ? measured.com : (traj[i] && traj[i].com);
+        if (!Array.isArray(c)) return;
+        edot.setAttribute("cx", X(c[0])); edot.setAttribute("cy", Y(c[1])); edot.setAttribute("visibility", "visible");
+      },
+    };
   }
 
   function drawMarginChart(traj, segments, threshold, dt) {
     const W = 460, H = 360, padL = 52, padR = 12, padT = 26, padB = 40;
     const root = chartFrame($("margin-chart"), W, H, "Stability margin over time");
-    const pts = traj.filter((p) => typeof p.margin_m === "number").map((p, i) => [typeof p.t === "number" ? p.t : i * dt, p.margin_m]);
+    state.charts = state.charts || {};
+    state.charts.margin = null;
+    const pts = traj.map((p, i) => [typeof p.t === "number" ? p.t : i * dt, p.margin_m]).filter((p) => typeof p[1] === "number");
     if (!pts.length) { root.append(svg("text", { x: W / 2, y: H / 2, "text-anchor": "middle" }, "no margins")); return; }
     const tmin = pts[0][0], tmax = Math.max(pts[pts.length - 1][0], tmin + 1e-6);
     let mmin = Math.min(0, threshold, ...pts.map((p) => p[1])), mmax = Math.max(threshold, ...pts.map((p) => p[1]));
-    mmax += (mmax - mmin) * 0.08 || 0.01;
+    mmax += (mmax - mmin) * 0.12 || 0.01;
     const X = (t) => padL + (t - tmin) / (tmax - tmin) * (W - padL - padR);
     const Y = (m) => H - padB - (m - mmin) / (mmax - mmin) * (H - padT - padB);
-    // segment bands
+    const tOf = (i) => (traj[i] && typeof traj[i].t === "number") ? traj[i].t : i * dt;
     const palette = { transit: "band-transit", transfer: "band-transfer", handover: "band-handover", approach: "band-approach", retreat: "band-retreat" };
     segments.forEach((seg, i) => {
       const a = traj[seg.first], b = traj[seg.last];
       if (!a || !b) return;
-      const x1 = X(a.t), x2 = X(b.t);
+      const x1 = X(tOf(seg.first)), x2 = X(tOf(seg.last));
       root.append(svg("rect", { x: x1, y: padT, width: Math.max(1, x2 - x1), height: H - padT - padB,
         class: "band " + (palette[seg.kind] || "band-other") + (i % 2 ? " band-odd" : ""), "data-segment": i }));
       if (x2 - x1 > 34) root.append(svg("text", { x: (x1 + x2) / 2, y: padT - 6, "text-anchor": "middle", class: "band-label" }, seg.kind));
@@ -635,22 +810,96 @@
       root.append(svg("text", { x: padL - 4, y: Y(m) + 4, "text-anchor": "end" }, (m * 1000).toFixed(0)));
     }
     root.append(svg("text", { x: (W + padL) / 2, y: H - 6, "text-anchor": "middle" }, "time (s)"));
-    root.append(svg("text", { x: 12, y: H / 2, "text-anchor": "middle", transform: "rotate(-90 12 " + H / 2 + ")" }, "margin (mm)"));
+    root.append(svg("text", { x: 12, y: H / 2, "text-anchor": "middle", transform: "rotate(-90 12 " + H / 2 + ")" }, "CoM margin (mm)"));
     root.append(svg("line", { x1: padL, x2: W - padR, y1: Y(threshold), y2: Y(threshold), class: "threshold-line", "data-role": "threshold-line" }));
     root.append(svg("text", { x: W - padR - 4, y: Y(threshold) - 5, "text-anchor": "end", class: "threshold-label" }, "threshold " + mm(threshold) + " mm"));
     root.append(svg("polyline", { points: pts.map((p) => X(p[0]).toFixed(1) + "," + Y(p[1]).toFixed(1)).join(" "), class: "margin-line", "data-role": "margin-line" }));
+    // Pick, place and regrasp moments: the margin jumps there as the object's mass joins or leaves the CoM.
+    const P = state.plan;
+    for (const ev of (P ? P.events : [])) {
+      const x = X(tOf(ev.index));
+      root.append(svg("line", { x1: x, x2: x, y1: padT, y2: H - padB, class: "event-line event-" + ev.kind, "data-role": "event", "data-kind": ev.kind }));
+      root.append(svg("text", { x: x + 3, y: padT + 12, class: "event-label" }, ev.kind));
+    }
+    if (P && P.worst >= 0) {
+      const w = traj[P.worst];
+      root.append(svg("circle", { cx: X(tOf(P.worst)), cy: Y(w.margin_m), r: 5, class: "worst-point", "data-role": "worst" }));
+      root.append(svg("text", { x: X(tOf(P.worst)) + 7, y: Y(w.margin_m) + 14, class: "worst-label" }, "worst " + mm(w.margin_m) + " mm"));
+    }
+    const execLine = svg("polyline", { points: "", class: "exec-line", "data-role": "exec-line" });
+    root.append(execLine);
+    const execCursor = svg("line", { x1: -10, x2: -10, y1: padT, y2: H - padB, class: "exec-cursor", "data-role": "exec-cursor", visibility: "hidden" });
+    root.append(execCursor);
+    const cursor = svg("line", { x1: -10, x2: -10, y1: padT, y2: H - padB, class: "cursor", "data-role": "cursor" });
+    const dot = svg("circle", { cx: -10, cy: -10, r: 4, class: "cursor-dot" });
+    root.append(cursor, dot);
+    // legend
+    const legend = svg("g", { class: "legend", transform: "translate(" + (padL + 6) + "," + (H - padB - 10) + ")" });
+    [["margin-line", "planned"], ["exec-line", "executed (measured joints)"]].forEach(([cls, label], k) => {
+      legend.append(svg("line", { x1: k * 90, x2: k * 90 + 16, y1: 0, y2: 0, class: cls }));
+      legend.append(svg("text", { x: k * 90 + 20, y: 4 }, label));
+    });
+    root.append(legend);
+    // hover and click: the nearest trajectory index under the pointer
+    const overlay = svg("rect", { x: padL, y: padT, width: W - padL - padR, height: H - padT - padB, class: "hover-overlay", "data-role": "hover" });
+    root.append(overlay);
+    const indexAt = (evt) => {
+      const box = root.getBoundingClientRect();
+      const x = (evt.clientX - box.left) * (W / box.width);
+      const t = tmin + (x - padL) / (W - padL - padR) * (tmax - tmin);
+      return indexOfTime(traj, t, dt);
+    };
+    overlay.addEventListener("mousemove", (evt) => setCursor(indexAt(evt), "margin"));
+    overlay.addEventListener("click", (evt) => setCursor(indexAt(evt), "margin"));
+    state.charts.margin = {
+      cursor(i) {
+        const p = traj[i];
+        if (!p) return;
+        cursor.setAttribute("x1", X(tOf(i))); cursor.setAttribute("x2", X(tOf(i)));
+        if (typeof p.margin_m === "number") { dot.setAttribute("cx", X(tOf(i))); dot.setAttribute("cy", Y(p.margin_m)); }
+        root.dataset.cursor = String(i);
+      },
+      exec(i, trace) {
+        if (typeof i === "number" && traj[i]) {
+          execCursor.setAttribute("x1", X(tOf(i))); execCursor.setAttribute("x2", X(tOf(i)));
+          execCursor.setAttribute("visibility", "visible");
+          root.dataset.execIndex = String(i);
+        }
+        if (trace && trace.length) {
+          execLine.setAttribute("points", trace.map(([k, m]) => X(tOf(k)).toFixed(1) + "," + Y(Math.max(mmin, Math.min(mmax, m))).toFixed(1)).join(" "));
+        }
+      },
+    };
+  }
+
+  function indexOfTime(traj, t, dt) {
+    if (dt > 0) return Math.max(0, Math.min(traj.length - 1, Math.round((t - (traj[0].t || 0)) / dt)));
+    let lo = 0, hi = traj.length - 1;
+    while (lo < hi) { const mid = (lo + hi) >> 1; if (traj[mid].t < t) lo = mid + 1; else hi = mid; }
+    return lo;
   }
 
   function renderSegments(segments, traj) {
     const body = $("segments").querySelector("tbody");
+    const P = state.plan;
     body.replaceChildren(...segments.map((seg, i) => {
-      const tr = el("tr");
-      const span = traj.slice(seg.first, seg.last + 1).map((p) => p.margin_m).filter((m) => typeof m === "number");
+      const tr = el("tr", { "data-segment": i, "tabindex": "0" });
+      let worst = seg.first, best = Infinity;
+      for (let k = seg.first; k <= seg.last && k < traj.length; k++) {
+        const m = traj[k].margin_m;
+        if (typeof m === "number" && m < best) { best = m; worst = k; }
+      }
+      tr.dataset.worst = String(worst);
       const t0 = traj[seg.first] ? traj[seg.first].t : null, t1 = traj[seg.last] ? traj[seg.last].t : null;
+      if (P && P.worst >= seg.first && P.worst <= seg.last) tr.classList.add("has-worst");
       tr.append(el("td", {}, i), el("td", {}, seg.kind), el("td", {}, seg.hand),
         el("td", {}, seg.first + "-" + seg.last),
         el("td", {}, t0 === null ? "-" : Number(t0).toFixed(2) + "-" + Number(t1).toFixed(2)),
-        el("td", {}, span.length ? mm(Math.min(...span)) : "-"));
+        el("td", {}, best < Infinity ? mm(best) : "-"), el("td", { class: "exec-min" }, "-"));
+      // hover shows the segment's worst moment in every view; a click keeps it there
+      tr.addEventListener("mouseenter", () => setCursor(worst, "segment"));
+      tr.addEventListener("click", () => setCursor(worst, "segment"));
+      tr.addEventListener("keydown", (e) => { if (e.key === "Enter") setCursor(worst, "segment"); });
       return tr;
     }));
   }
@@ -689,19 +938,286 @@
     root.append(svg("text", { x: 12, y: H / 2, "text-anchor": "middle", transform: "rotate(-90 12 " + H / 2 + ")" }, "R = C / (C + U)"));
   }
 
+  // ------------------------------------------------------------- execution
+  /* Execution progress: the index the controller reports over the plan's points. */
+  function execFraction(job) {
+    const ex = state.exec;
+    if (!ex || ex.jobId !== job.id || !ex.points) return 0;
+    return Math.max(0, Math.min(1, (ex.index || 0) / Math.max(ex.points - 1, 1)));
+  }
+
+  function updateExecBar(job) {
+    const bar = $("exec-bar");
+    const executing = EXECUTING.has(job.state);
+    bar.hidden = !executing;
+    document.body.classList.toggle("with-exec-bar", executing);  // room below the page for the bar
+    if (!executing) {
+      if (state.exec && state.exec.jobId === job.id) state.exec.live = false;
+      return;
+    }
+    $("exec-job").textContent = shortId(job.id);
+    $("exec-message").textContent = job.message || job.state;
+    $("exec-progress-bar").style.width = Math.round(execFraction(job) * 100) + "%";
+  }
+
+  function ensureExec(job) {
+    if (!state.exec || state.exec.jobId !== job.id) {
+      const n = state.plan ? state.plan.traj.length : 0;
+      state.exec = { jobId: job.id, index: 0, points: n, trace: [], live: true, segMin: {} };
+    }
+    return state.exec;
+  }
+
+  /* What a bridge event means to an operator (the dispatcher's event names are not shown raw). */
+  function bridgeMessage(job, name, d) {
+    const ex = ensureExec(job);
+    if (name === "dispatching" && typeof d.points === "number") ex.points = d.points;
+    const of = () => "point " + (ex.index || 0) + " of " + Math.max((ex.points || 1) - 1, 0) +
+      (state.plan && state.plan.traj[ex.index] ? " (t = " + Number(state.plan.traj[ex.index].t).toFixed(1) + " s)" : "");
+    switch (name) {
+      case "gate": {
+        const text = d.passed ? "safety gate passed (" + (d.samples || 0) + " samples checked)" :
+          "safety gate vetoed: " + (d.check || "?") + (d.point_index !== undefined && d.point_index !== null ? " at point " + d.point_index : "") + ": " + (d.message || "");
+        return text;
+      }
+      case "dispatching": return "sending the plan to the controller (" + (d.segments || "?") + " segments)";
+      case "executing":
+        if (typeof d.index === "number") { ex.index = d.index; followExec(null); }
+        return "robot moving: " + of();
+      case "robot_state":
+        if (typeof d.index === "number") ex.index = d.index;
+        followExec(d);
+        return "robot moving: " + of();
+      case "segment":
+        if (typeof d.segment_index === "number" && typeof d.segment_count === "number") {
+          return "robot moving: " + of() + "; segment " + (d.segment_index + 1) + " of " + d.segment_count + " sent";
+        }
+        return null;  // acknowledgements and re-sends keep the last message
+      case "controller":
+        return "controller reports " + (d.status || "?") + (d.reason ? ": " + d.reason : "");
+      case "stop_sent": return "stop sent to the controller" + (d.reason ? " (" + d.reason + ")" : "");
+      case "finished": return "execution finished: " + (d.status || "") + (d.reason ? " (" + d.reason + ")" : "");
+      default: return null;
+    }
+  }
+
+  /* Move the execution cursor; with a measured joint state, draw the robot there and its executed margin. */
+  function followExec(d) {
+    const ex = state.exec;
+    const P = state.plan;
+    if (!ex || !P) return;
+    ex.live = true;
+    const i = Math.max(0, Math.min(P.traj.length - 1, ex.index || 0));
+    let measured = null;
+    if (d && Array.isArray(d.q) && Array.isArray(d.joint_names) && window.regrasp3d && $("view3d").dataset.status === "drawn") {
+      measured = window.regrasp3d.setMeasured(d.joint_names, d.q, i);
+      ex.measured = true;
+    } else if (!ex.measured && window.regrasp3d && $("view3d").dataset.status === "drawn") {
+      window.regrasp3d.setIndex(i);  // no measured joints yet: the planned pose at the reported index
+    }
+    if (measured && isFinite(measured.margin_m)) {
+      ex.trace.push([i, measured.margin_m]);
+      const seg = P.segOf[i];
+      if (seg >= 0) {
+        ex.segMin[seg] = Math.min(ex.segMin[seg] === undefined ? Infinity : ex.segMin[seg], measured.margin_m);
+        const cell = $("segments").querySelector('tbody tr[data-segment="' + seg + '"] td.exec-min');
+        if (cell) cell.textContent = mm(ex.segMin[seg]);
+      }
+    }
+    if (state.charts && state.charts.margin) state.charts.margin.exec(i, ex.trace);
+    if (state.charts && state.charts.com) state.charts.com.exec(i, measured);
+    $("view3d").dataset.execIndex = String(i);
+  }
+
+  // --------------------------------------------------------------- confirm
+  /* Approve and dispatch ask first, showing the plan's hash prefix (what the approval binds to). */
+  function confirmAction(action, job) {
+    const dialog = $("confirm");
+    const sha = job.plan_sha256 || (job.approval && job.approval.plan_sha256) || "";
+    const risk = state.risk && state.risk.job_id === job.id ? state.risk.planning : null;
+    const headroom = risk && risk.com_margin ? " Worst CoM margin headroom " + mm(risk.com_margin.headroom_m) + " mm at t = " +
+      Number(risk.com_margin.t).toFixed(2) + " s." : "";
+    $("confirm-title").textContent = action === "approve" ? "Approve this plan?" : "Dispatch this plan to the robot?";
+    $("confirm-text").textContent = action === "approve"
+      ? "Your approval binds to this exact plan and expires after the service's approval time." + headroom
+      : "The robot will move (101 kg). The safety gate rechecks the plan first; keep the Stop button in reach." + headroom;
+    $("confirm-hash").textContent = sha.slice(0, 12);
+    $("confirm-ok").textContent = action === "approve" ? "Approve " + sha.slice(0, 8) : "Dispatch " + sha.slice(0, 8);
+    dialog.dataset.action = action;
+    return new Promise((resolve) => {
+      dialog.addEventListener("close", () => resolve(dialog.returnValue === "ok"), { once: true });
+      dialog.returnValue = "";
+      dialog.showModal();
+      $("confirm-cancel").focus();
+    });
+  }
+
+  // ------------------------------------------------------------------ risk
+  const HAS_PLAN = new Set(["planned", "approved", "dispatching", "executing", "succeeded", "aborted", "rejected"]);
+
+  async function loadRisk(job) {
+    const box = $("risk-card");
+    if (job.kind !== "plan" || !HAS_PLAN.has(job.state) || !job.plan_sha256) { box.hidden = true; return; }
+    const key = job.id + ":" + job.state;
+    if (state.riskFor === key) return;
+    state.riskFor = key;
+    try {
+      const risk = await api("GET", "/v1/jobs/" + encodeURIComponent(job.id) + "/risk");
+      if (!state.job || state.job.id !== job.id) return;
+      state.risk = risk;
+      renderRisk(risk);
+    } catch (err) {
+      if (err.status === 404 && !(state.job && state.job.id === job.id)) return;
+      box.hidden = false;
+      $("risk-verdict").textContent = "risk card unavailable: " + (err.detail || err.message);
+      $("risk-verdict").className = "risk-verdict warn";
+      if (err.status === 404) state.riskFor = null;
+    }
+  }
+
+  function momentText(m) {
+    if (!m || m.t === null || m.t === undefined) return "-";
+    const seg = m.segment ? ", segment " + m.segment.index + " " + m.segment.kind + " (" + m.segment.hand + ")" : "";
+    return "t = " + Number(m.t).toFixed(2) + " s (point " + m.point + seg + ")";
+  }
+
+  function renderRisk(risk) {
+    const box = $("risk-card");
+    box.hidden = false;
+    const card = risk.planning;
+    const verdict = $("risk-verdict");
+    const facts = $("risk-facts");
+    facts.replaceChildren();
+    const add = (label, value, attrs) => {
+      facts.append(el("dt", {}, label));
+      const dd = el("dd", attrs || {}, value);
+      facts.append(dd);
+      return dd;
+    };
+    if (!card) {
+      verdict.textContent = "no risk card for this plan";
+      verdict.className = "risk-verdict warn";
+    } else if (card.error) {
+      verdict.textContent = card.error;
+      verdict.className = "risk-verdict warn";
+    } else {
+      const g = card.gate || {};
+      verdict.textContent = g.passed
+        ? "gate dry run: PASS (" + (g.samples || 0) + " samples, " + (g.checks_passed || []).length + " checks; approval, hash and start state are checked at dispatch)"
+        : "gate dry run: VETO [" + g.check + "] " + momentText(g.failed_at) + ": " + g.message;
+      verdict.className = "risk-verdict " + (g.passed ? "ok" : "bad");
+      verdict.dataset.passed = String(!!g.passed);
+      const com = card.com_margin;
+      if (com) {
+        const dd = add("Worst CoM margin", mm(com.min_margin_m) + " mm, headroom " + mm(com.headroom_m) + " mm above the " +
+          mm(card.threshold_m) + " mm threshold, at " + momentText(com) + ", held by " + (com.hand || "none"),
+          { "data-role": "risk-worst", "data-point": String(com.point) });
+        if (typeof com.headroom_m === "number" && com.headroom_m < 0.005) dd.classList.add("tight");
+        const link = el("button", { type: "button", class: "secondary small", "data-role": "risk-goto" }, "show");
+        link.addEventListener("click", () => setCursor(com.point, "risk"));
+        dd.append(" ", link);
+      }
+      if (card.zmp) add("Worst ZMP margin", mm(card.zmp.min_margin_m) + " mm inside the support polygon, at " + momentText(card.zmp));
+      if (card.effort) add("Effort headroom", (100 * card.effort.headroom).toFixed(1) + " % (peak ratio " + card.effort.max_ratio.toFixed(3) +
+        " at " + momentText(card.effort) + "; the planner's static torques)");
+      else add("Effort headroom", "no effort limits in this plan");
+    }
+    const free = risk.unconstrained;
+    if (free) {
+      add("Against 0 mm", "the unconstrained plan (job " + shortId(free.job_id) + ") reaches " + mm(free.unconstrained_min_margin_m) +
+        " mm" + (free.unconstrained_breaks_threshold ? ", below the threshold" : ", within the threshold") +
+        (free.plans_differ ? "; the constrained motion differs" : "; the same motion"));
+    } else {
+      const dd = add("Against 0 mm", "no 0 mm plan of this task in the store");
+      const job = state.job;
+      if (job && job.id === risk.job_id && (state.me === null || hasRole("planner")) && job.request) {
+        const b = el("button", { type: "button", class: "secondary small", "data-role": "plan-unconstrained" }, "plan it at 0 mm");
+        b.title = "submit the same request with threshold 0 (the unconstrained planner) to compare";
+        b.addEventListener("click", () => {
+          const request = Object.assign({}, job.request, { threshold_m: 0 });
+          api("POST", "/v1/jobs", { kind: "plan", request })
+            .then((other) => { b.replaceWith(" submitted as job " + shortId(other.id) + "; reopen this job when it is planned"); refreshJobs(); })
+            .catch((err) => { b.replaceWith(" not submitted: " + (err.detail || err.message)); });
+        });
+        dd.append(" ", b);
+      }
+    }
+    const dispatch = $("risk-dispatch");
+    const d = risk.dispatch;
+    dispatch.hidden = !d;
+    if (d) {
+      const seg = d.segment ? ", segment " + d.segment.index + " " + d.segment.kind + " (" + d.segment.hand + ")" : "";
+      dispatch.textContent = d.passed ? "gate at dispatch: PASS (" + (d.samples || 0) + " samples)"
+        : "gate at dispatch: VETO [" + d.check + "]" + (d.sample_index !== null && d.sample_index !== undefined
+          ? " at sample " + d.sample_index + " (point " + d.point_index + ", t = " + Number(d.t).toFixed(3) + " s" + seg + ")" : "") + ": " + d.message;
+      dispatch.className = "risk-dispatch " + (d.passed ? "ok" : "bad");
+      dispatch.dataset.check = d.check || "";
+    }
+  }
+
+  // ------------------------------------------------------------- catalogue
+  async function loadCatalogue() {
+    if (!state.token || state.catalogue) return;
+    try {
+      state.catalogue = await api("GET", "/v1/catalogue");
+    } catch (err) {
+      return;  // the form keeps a free-text fallback below
+    }
+    const c = state.catalogue;
+    const fill = (id, values, keepFirst) => {
+      const sel = $(id);
+      const first = keepFirst ? sel.querySelector("option") : null;
+      sel.replaceChildren(...(first ? [first] : []), ...values.map((v) => el("option", { value: v }, v)));
+    };
+    fill("submit-scenario", c.scenarios.map((s) => s.name), false);
+    fill("submit-stance", c.stances, true);
+    fill("submit-hands", c.hands, true);
+    fill("submit-robot", c.robots, true);
+    const upright = c.scenarios.find((s) => s.name === "upright");
+    if (upright) $("submit-scenario").value = "upright";
+    showScenarioDefaults();
+  }
+
+  function showScenarioDefaults() {
+    const c = state.catalogue;
+    const s = c && c.scenarios.find((x) => x.name === $("submit-scenario").value);
+    if (!s) { $("submit-defaults").textContent = ""; return; }
+    $("submit-threshold").placeholder = "scenario's: " + (s.threshold_m * 1000).toFixed(0);
+    $("submit-seed").placeholder = "scenario's: " + s.seed;
+    $("submit-time-limit").placeholder = s.time_limit_s ? "scenario's: " + s.time_limit_s : "scenario's";
+    $("submit-stance").options[0].textContent = "scenario's own (" + s.stance + ")";
+    $("submit-hands").options[0].textContent = "scenario's own (" + s.hands + ")";
+    $("submit-robot").options[0].textContent = "scenario's own (" + s.robot + ")";
+    $("submit-defaults").textContent = "Empty fields keep the scenario's own values: " + s.robot + ", " + s.stance + " stance, threshold " +
+      (s.threshold_m * 1000).toFixed(0) + " mm, hands " + s.hands + ", seed " + s.seed + ", " + s.object_shape + " of " + s.object_mass_kg + " kg.";
+  }
+
+  function showSubmitProblem(err) {
+    const box = $("submit-problem");
+    if (!err) { box.hidden = true; box.textContent = ""; return; }
+    const status = err.status ? (err.status + " " + (err.title || "")) : "error";
+    box.textContent = "Not submitted. " + status.trim() + ": " + (err.detail || err.message);
+    box.hidden = false;
+  }
+
   // ------------------------------------------------------------------ start
   function submitJob(e) {
     e.preventDefault();
     const kind = $("submit-kind").value;
-    const request = { scenario: $("submit-scenario").value.trim() };
+    const request = { scenario: $("submit-scenario").value };
+    for (const [id, key] of [["submit-stance", "stance"], ["submit-hands", "hands"], ["submit-robot", "robot"]]) {
+      if ($(id).value) request[key] = $(id).value;
+    }
     const thr = $("submit-threshold").value;
     if (thr !== "") request.threshold_m = Number(thr) / 1000;
     const seed = $("submit-seed").value;
     if (seed !== "") request.seed = Number(seed);
-    showProblem(null);
+    const limit = $("submit-time-limit").value;
+    if (limit !== "") request.time_limit_s = Number(limit);
+    showSubmitProblem(null);
     api("POST", "/v1/jobs", { kind, request })
       .then((job) => { refreshJobs(); selectJob(job.id); })
-      .catch((err) => { $("detail-empty").hidden = true; $("detail-body").hidden = false; showProblem(err); });
+      .catch((err) => showSubmitProblem(err));  // a refused submission opens no job panel
   }
 
   function init() {
@@ -709,23 +1225,29 @@
     $("token-clear").addEventListener("click", () => { stopLive(); setToken(""); });
     $("jobs-refresh").addEventListener("click", refreshJobs);
     $("submit-form").addEventListener("submit", submitJob);
+    $("submit-scenario").addEventListener("change", showScenarioDefaults);
     $("btn-audit").addEventListener("click", downloadAudit);
-    for (const b of $("actions").querySelectorAll("button[data-action]")) {
+    for (const b of document.querySelectorAll("button[data-action]")) {
       b.addEventListener("click", () => act(b.dataset.action));
     }
+    $("timeline").addEventListener("input", () => setCursor(Number($("timeline").value), "timeline"));
+    $("timeline-play").addEventListener("click", playTimeline);
+    $("view3d").addEventListener("regrasp:pick", (e) => setCursor(e.detail.index, "user-3d"));
     if (state.token) $("token").placeholder = "token set (" + state.token.slice(0, 6) + "...)";
     refreshHealth();
     loadIdentity();
+    loadCatalogue();
     refreshJobs();
     setInterval(refreshHealth, 5000);
     setInterval(() => {
       if (!state.token || document.visibilityState === "hidden") return;
       refreshJobs();
       if (state.me === undefined && !state.identityPending) loadIdentity();  // a refused or failed look-up is retried
+      if (!state.catalogue) loadCatalogue();
     }, LIST_REFRESH_MS);
   }
 
   // exposed for tests and the browser console
-  window.regraspConsole = { shrinkConvex, parseSse, refusal, state };
+  window.regraspConsole = { shrinkConvex, parseSse, refusal, state, setCursor };
   if (document.readyState === "loading") document.addEventListener("DOMContentLoaded", init); else init();
 })();

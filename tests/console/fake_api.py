@@ -147,9 +147,9 @@ class FakeJobs:
                                "plan_sha256": job["plan_sha256"], "comment": None}
             self.set_state(job, "approved", f"approved by {by}")
 
-    def _event(self, job: dict, kind: str, message: str | None = None) -> None:
+    def _event(self, job: dict, kind: str, message: str | None = None, data: dict | None = None) -> None:
         self.events.append({"id": len(self.events) + 1, "job_id": job["id"], "at": _now(), "kind": kind,
-                            "state": job["state"], "progress": job["progress"], "message": message, "data": {}})
+                            "state": job["state"], "progress": job["progress"], "message": message, "data": data or {}})
 
     def set_state(self, job: dict, state: str, message: str | None = None) -> None:
         job["state"] = state
@@ -201,8 +201,9 @@ class FakeJobs:
                     job = self.jobs[job_id]
                     if job["state"] != "executing":
                         return
-                    job["progress"] = step / EXECUTION_STEPS
-                    self._event(job, "progress", f"executed {step}/{EXECUTION_STEPS}")
+                    # As the real bridge: the index the controller reports, as a bridge event.
+                    index = round(step / EXECUTION_STEPS * (len(job["result"]["trajectory"]) - 1))
+                    self._event(job, "bridge", "executing", {"event": "executing", "payload": {"index": index}})
             with self.lock:
                 self.set_state(self.jobs[job_id], "succeeded", "execution finished")
         thread = threading.Thread(target=run, daemon=True)
@@ -281,6 +282,38 @@ def create_app() -> FastAPI:
         with store.lock:
             job = store.jobs.get(job_id)
             return dict(job) if job else problem(404, f"no job {job_id}")
+
+    @app.get("/v1/catalogue")
+    def catalogue(request: Request) -> Any:
+        p = who(request)
+        if isinstance(p, JSONResponse):
+            return p
+        scenario = {"robot": "hrp5p", "hands": "auto", "seed": 1, "time_limit_s": 60.0, "object_shape": "box",
+                    "object_mass_kg": 8.0}
+        return {"kinds": ["plan", "survey"], "stances": ["upright", "staggered", "crouched", "one-legged"],
+                "hands": ["auto", "left-left", "right-right", "left-right", "right-left"], "robots": ["hrp5p", "jvrc1"],
+                "scenarios": [{**scenario, "name": "upright", "stance": "upright", "threshold_m": 0.06},
+                              {**scenario, "name": "staggered", "stance": "staggered", "threshold_m": 0.03}]}
+
+    @app.get("/v1/jobs/{job_id}/risk")
+    def risk(job_id: str, request: Request) -> Any:
+        p = who(request)
+        if isinstance(p, JSONResponse):
+            return p
+        with store.lock:
+            job = store.jobs.get(job_id)
+            if job is None or job["result"] is None:
+                return problem(404, f"no plan for job {job_id}")
+            traj = job["result"]["trajectory"]
+            worst = min(range(len(traj)), key=lambda i: traj[i]["margin_m"])
+        moment = {"sample": worst * 2, "point": worst, "t": traj[worst]["t"], "segment": None}
+        return {"job_id": job_id, "unconstrained": None, "dispatch": None,
+                "planning": {"schema": "regrasp.risk/1", "plan_sha256": job["plan_sha256"], "threshold_m": THRESHOLD_M,
+                             "gate": {"passed": True, "check": None, "message": "every check passed", "failed_at": None,
+                                      "samples": 2 * len(traj), "checks_passed": ["structure"], "skipped": []},
+                             "com_margin": {"min_margin_m": traj[worst]["margin_m"],
+                                            "headroom_m": traj[worst]["margin_m"] - THRESHOLD_M, "hand": "none", **moment},
+                             "zmp": None, "effort": None}}
 
     @app.get("/v1/jobs/{job_id}/audit")
     def audit(job_id: str, request: Request) -> Any:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
-from .ui import login, open_job, use_token
+from .ui import click_and_confirm, login, open_job, use_token
 
 TIMEOUT_MS = 10_000
 ACTIONS = ("approve", "reject", "dispatch", "stop", "cancel")
@@ -76,7 +76,7 @@ def test_stop_button_stops_a_dispatching_job(page, fake_server):
     store.approve(store.plan_id)
     login(page, url, "operator-token-carol")
     open_job(page, store.plan_id)
-    page.click("#btn-dispatch")
+    click_and_confirm(page, "dispatch")
     expect(page.locator("#job-state")).to_have_text("dispatching", timeout=TIMEOUT_MS)
     _expect_buttons(page, {"approve": "hidden", "reject": "hidden", "dispatch": "hidden", "stop": "enabled",
                            "cancel": "hidden"})
@@ -100,7 +100,7 @@ def test_stop_button_stops_an_executing_job(page, fake_server):
     store.approve(store.plan_id)
     login(page, url, "operator-token-carol")
     open_job(page, store.plan_id)
-    page.click("#btn-dispatch")
+    click_and_confirm(page, "dispatch")
     expect(page.locator("#job-state")).to_have_text("executing", timeout=TIMEOUT_MS)
     page.click("#btn-stop")
     expect(page.locator("#job-state")).to_have_text("aborted", timeout=TIMEOUT_MS)

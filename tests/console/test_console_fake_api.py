@@ -5,7 +5,7 @@ from __future__ import annotations
 from playwright.sync_api import expect
 
 from .conftest import screenshot
-from .ui import login, open_job, use_token
+from .ui import click_and_confirm, login, open_job, use_token
 
 APPROVER = "approver-token-bob"
 OPERATOR = "operator-token-carol"
@@ -73,7 +73,7 @@ def test_without_v1_me_buttons_follow_the_state_and_a_refusal_shows_its_403(page
     store.me_enabled = False
     login(page, url, PLANNER)
     open_job(page, store.plan_id)
-    page.click("#btn-approve")
+    click_and_confirm(page, "approve")
     expect(page.locator("#problem")).to_contain_text("403")
     expect(page.locator("#problem")).to_contain_text("needs the role 'approver'")
     expect(page.locator("#job-state")).to_have_text("planned")
@@ -83,7 +83,7 @@ def test_approve_then_dispatch_and_the_state_changes_live(page, fake_server):
     url, store = fake_server
     login(page, url, APPROVER)
     open_job(page, store.plan_id)
-    page.click("#btn-approve")
+    click_and_confirm(page, "approve")
     expect(page.locator("#job-state")).to_have_text("approved", timeout=TIMEOUT_MS)
     expect(page.locator("#job-approval")).to_contain_text("bob")
     # the approver (no operator role) is not offered dispatch
@@ -91,7 +91,7 @@ def test_approve_then_dispatch_and_the_state_changes_live(page, fake_server):
     # the operator dispatches; execution progress arrives over SSE
     use_token(page, OPERATOR)
     open_job(page, store.plan_id)
-    page.click("#btn-dispatch")
+    click_and_confirm(page, "dispatch")
     expect(page.locator("#job-state")).to_have_text("executing", timeout=TIMEOUT_MS)
     expect(page.locator("#live-mode")).to_have_text("SSE")
     expect(page.locator("#btn-stop")).to_be_visible()
@@ -121,7 +121,7 @@ def test_without_sse_the_page_polls_and_still_follows_the_job(page, fake_server)
     store.approve(store.plan_id)
     login(page, url, OPERATOR)
     open_job(page, store.plan_id)
-    page.click("#btn-dispatch")
+    click_and_confirm(page, "dispatch")
     expect(page.locator("#live-mode")).to_have_text("polling every 500 ms", timeout=TIMEOUT_MS)
     expect(page.locator("#job-state")).to_have_text("succeeded", timeout=TIMEOUT_MS)
     assert page.js_errors == []
@@ -132,7 +132,7 @@ def test_planner_submits_a_job_from_the_form(page, fake_server):
     login(page, url, PLANNER)
     expect(page.locator("#jobs tbody tr")).to_have_count(2, timeout=TIMEOUT_MS)
     page.click("#submit-box summary")
-    page.fill("#submit-scenario", "staggered")
+    page.select_option("#submit-scenario", "staggered")
     page.fill("#submit-threshold", "40")
     page.click("#submit-form button[type=submit]")
     expect(page.locator("#jobs tbody tr")).to_have_count(3, timeout=TIMEOUT_MS)

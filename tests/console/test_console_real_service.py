@@ -21,7 +21,7 @@ from playwright.sync_api import expect
 from tests.service.conftest import wait_state
 
 from .conftest import SCREENSHOT_DIR, screenshot, serve
-from .ui import login, use_token
+from .ui import click_and_confirm, login, use_token
 
 TOKENS = {
     "e2e-token-alice-planner": {"user": "alice", "roles": ["planner"]},
@@ -102,13 +102,13 @@ def test_approve_then_dispatch_on_the_real_service(page, real_service, tmp_path)
         page.click(f'#jobs tbody tr[data-job-id="{job_id}"]', timeout=TIMEOUT_MS)
         expect(page.locator("#job-state")).to_have_text("planned", timeout=TIMEOUT_MS)
         expect(page.locator('#com-chart polyline[data-role="com-trace"]')).to_have_count(1)
-        page.click("#btn-approve")
+        click_and_confirm(page, "approve")
         expect(page.locator("#job-state")).to_have_text("approved", timeout=TIMEOUT_MS)
         expect(page.locator("#job-approval")).to_contain_text("bob")
 
         use_token(page, CAROL)
         expect(page.locator("#btn-dispatch")).to_be_visible(timeout=TIMEOUT_MS)
-        page.click("#btn-dispatch")
+        click_and_confirm(page, "dispatch")
         expect(page.locator("#job-state")).to_have_text("executing", timeout=TIMEOUT_MS)
         expect(page.locator("#live-mode")).to_have_text("SSE")
         expect(page.locator("#job-state")).to_have_text("succeeded", timeout=TIMEOUT_MS)
@@ -218,7 +218,7 @@ def test_stop_an_executing_job_from_the_console(page, real_service):
         try:
             login(page, url, CAROL)
             page.click(f'#jobs tbody tr[data-job-id="{job_id}"]', timeout=TIMEOUT_MS)
-            page.click("#btn-dispatch", timeout=TIMEOUT_MS)
+            click_and_confirm(page, "dispatch", timeout_ms=TIMEOUT_MS)
             expect(page.locator("#job-state")).to_have_text("executing", timeout=TIMEOUT_MS)
             page.click("#btn-stop")
             expect(page.locator("#job-state")).to_have_text("aborted", timeout=TIMEOUT_MS)

@@ -26,3 +26,22 @@ def open_job(page, job_id: str, timeout_ms: int = TIMEOUT_MS) -> None:
     """Click the job's row and wait until its details are shown."""
     page.click(f'#jobs tbody tr[data-job-id="{job_id}"]', timeout=timeout_ms)
     expect(page.locator("#job-id")).to_have_text(job_id, timeout=timeout_ms)
+
+
+def confirm(page, action: str, plan_sha256: str | None = None, timeout_ms: int = TIMEOUT_MS) -> None:
+    """Answer the console's confirmation of ``action`` (approve, dispatch) with Confirm.
+
+    With ``plan_sha256``, first check that the dialog shows that plan's hash prefix."""
+    dialog = page.locator("#confirm")
+    expect(dialog).to_be_visible(timeout=timeout_ms)
+    expect(dialog).to_have_attribute("data-action", action)
+    if plan_sha256 is not None:
+        expect(page.locator("#confirm-hash")).to_have_text(plan_sha256[:12])
+    page.click("#confirm-ok")
+    expect(dialog).to_be_hidden(timeout=timeout_ms)
+
+
+def click_and_confirm(page, action: str, plan_sha256: str | None = None, timeout_ms: int = TIMEOUT_MS) -> None:
+    """Click an action's button and confirm it."""
+    page.click(f"#btn-{action}", timeout=timeout_ms)
+    confirm(page, action, plan_sha256, timeout_ms)
