@@ -26,7 +26,8 @@ from .regrasp_graph import Canceled as GraphCanceled
 from .regrasp_planner import HandConfigPlanner, PlannerResult, PlannerSettings, Task
 from .scenarios import ScenarioError, load_scenario, with_overrides
 from .stances import StanceError
-from .survey import SurveyCanceled, quick_survey, run_survey_request
+from .survey import SurveyCanceled, run_survey_request
+from .survey_auto import auto_order, survey_summary
 
 ProgressFn = Callable[[float, str], None]
 StopFn = Callable[[], bool]
@@ -184,7 +185,7 @@ def plan_scenario(
         progress(0.05, "surveying hand configurations (auto)")
         t_survey = time.perf_counter()
         try:
-            order, survey_doc = _auto_order(task, stop_or_late)
+            order, survey_doc = auto_order(task, stop_or_late)
             task.timings["auto_survey_s"] = time.perf_counter() - t_survey
         except SurveyCanceled:
             if should_stop():
@@ -234,6 +235,7 @@ def plan_scenario(
     }
     if survey_doc is not None:
         stats["survey"] = {row["hands"]: row.get("ratio") for row in survey_doc["rows"]}
+        stats["survey_recommendation"] = survey_summary(survey_doc)
     if not solved:
         if ran_out or not results:
             return timed_out(results)
@@ -280,15 +282,6 @@ def plan_scenario(
         "alternatives": alternatives,
         "stats": stats,
     }
-
-
-def _auto_order(task: Task, should_stop: StopFn) -> tuple[list[str], dict | None]:
-    """Hand configurations ordered by the survey's ratio R (highest first)."""
-    doc = quick_survey(task, should_stop=should_stop)
-    rows = [r for r in doc["rows"] if r.get("ratio") is not None]
-    rows.sort(key=lambda r: (-r["ratio"], -r["stable"], HAND_CONFIGS.index(r["hands"])))
-    order = [r["hands"] for r in rows] + [h for h in HAND_CONFIGS if h not in {r["hands"] for r in rows}]
-    return order, doc
 
 
 def plan_job(request: dict[str, Any], ctx) -> dict[str, Any]:
