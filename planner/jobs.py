@@ -284,9 +284,18 @@ def plan_scenario(
     }
 
 
+def survey_overrides(request: dict[str, Any]) -> dict[str, Any] | None:
+    """The survey estimator fields of a request (CONTRACT.md section 5), for ``with_overrides(survey=...)``."""
+    fields = {k: request.get(k) for k in ("until", "ci_half_width", "seeds_min", "seeds_max", "states_per_seed")}
+    if request.get("states_per_configuration") is not None:
+        fields.update(until="states", states_per_seed=request["states_per_configuration"])
+    return {k: v for k, v in fields.items() if v is not None} or None
+
+
 def plan_job(request: dict[str, Any], ctx) -> dict[str, Any]:
-    """The service's plan job: CONTRACT.md section 5 request -> plan document."""
-    scenario = resolve_scenario(request["scenario"])
+    """The service's plan job: CONTRACT.md section 5 request -> plan document (a ``hands: auto`` plan takes the
+    request's survey fields for its survey, so it follows the same answer as the survey job)."""
+    scenario = resolve_scenario(request["scenario"], survey=survey_overrides(request))
     options = PlanOptions(hands=request.get("hands"), threshold_m=request.get("threshold_m"), seed=request.get("seed"),
                           stance=request.get("stance"), time_limit_s=request.get("time_limit_s"))
 

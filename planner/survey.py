@@ -150,7 +150,10 @@ def _outcome(r: RowWork, estimator: Estimator, keep_states: bool) -> ConfigOutco
     stats = dict(r.stats, seeds=len(counts), exploration_s=sum(c.time_s for c in counts),
                  states_per_s=sum(c.stable + c.unstable for c in counts) / max(sum(c.time_s for c in counts), 1e-9),
                  evaluated=sum(c.stable + c.unstable for c in counts),
-                 solved_seeds=sum(c.solved for c in counts), statuses=sorted({c.status for c in counts}))
+                 solved_seeds=sum(c.solved for c in counts), statuses=sorted({c.status for c in counts}),
+                 rejected={"collision": sum(leg["collisions"] for c in counts for leg in c.legs), "joint_limits": 0},
+                 legs_per_seed=[[{k: leg[k] for k in ("counted", "stable", "unstable", "solved", "nodes")} for leg in c.legs]
+                                for c in counts])
     out = ConfigOutcome(r.hands, v.stable if v else 0, v.unstable if v else 0, r.reason, stats,
                         interval=list(v.interval) if v and v.interval else None, converged=bool(v and v.converged),
                         per_seed=[c.entry() for c in counts])
@@ -273,14 +276,12 @@ def write_states(path: str, doc: dict, outcomes: list[ConfigOutcome], task_info:
 def run_survey_request(request: dict[str, Any], ctx) -> dict[str, Any]:
     """The service's survey job (CONTRACT.md section 5); its answer is cached for ``hands: auto``."""
     from .entry import Canceled
-    from .jobs import resolve_scenario
+    from .jobs import resolve_scenario, survey_overrides
     from .survey_cache import SurveyCache
 
-    survey = {k: request.get(k) for k in ("until", "ci_half_width", "seeds_min", "seeds_max", "states_per_seed")}
     scenario = resolve_scenario(request["scenario"], stance=request.get("stance"), threshold_m=request.get("threshold_m"),
-                                seed=request.get("seed"), states_per_configuration=request.get("states_per_configuration"),
-                                time_limit_s=request.get("time_limit_s"),
-                                survey={k: v for k, v in survey.items() if v is not None} or None)
+                                seed=request.get("seed"), time_limit_s=request.get("time_limit_s"),
+                                survey=survey_overrides(request))
     cache = SurveyCache.default()
     try:
         doc = cache.get_or_run(scenario, lambda: run_survey(scenario, should_stop=lambda: bool(ctx.cancelled()),

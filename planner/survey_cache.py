@@ -3,7 +3,7 @@
 ``hands: auto``, the demo and the service's survey jobs all take the answer of the survey's
 default estimator (the scenario's ``survey:`` field) for the task, computed once. The key is the
 SHA-256 of the resolved scenario's canonical JSON (the form of plan hashes, CONTRACT.md section
-3) together with the robot model's URDF hash and the survey schema, so a changed object, stance,
+3) together with the robot model's URDF hash, the survey schema and the survey code's hash, so a changed object, stance,
 threshold, seed, estimator or robot is a different task. Documents are written atomically (a
 temporary file renamed into place), so processes sharing the folder (a service's workers) never
 read half a document; two that compute the same task at once both write the same answer.
@@ -19,6 +19,7 @@ import json
 import os
 import tempfile
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable
 
@@ -32,13 +33,31 @@ def canonical(doc: Any) -> bytes:
     return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8")
 
 
+#: The modules whose code decides a survey's counts: a change to any of them is a new key.
+SURVEY_CODE = ("survey.py", "survey_counting.py", "survey_estimator.py", "trrt.py", "state_eval.py", "stances.py",
+               "regrasp_planner.py", "regrasp_graph.py", "collision.py", "handover.py", "grasps.py")
+
+
+@lru_cache(maxsize=1)
+def code_version() -> str:
+    """SHA-256 over the survey's code (a cached answer of older code is never reused)."""
+    h = hashlib.sha256()
+    here = Path(__file__).parent
+    for name in SURVEY_CODE:
+        path = here / name
+        h.update(name.encode())
+        h.update(path.read_bytes() if path.is_file() else b"-")
+    return h.hexdigest()
+
+
 def task_key(scenario: Scenario, urdf_sha256: str) -> str:
     """The cache key of a resolved scenario: what decides its survey's answer."""
     data = scenario.model_dump(by_alias=True, mode="json")
     data.pop("hands", None)  # what the plan asks for does not change the survey
     data.pop("description", None)
     data.pop("limits", None)  # planning limits; the survey stops on its own caps
-    return hashlib.sha256(canonical({"scenario": data, "urdf_sha256": urdf_sha256, "schema": SURVEY_SCHEMA})).hexdigest()
+    return hashlib.sha256(canonical({"scenario": data, "urdf_sha256": urdf_sha256, "schema": SURVEY_SCHEMA,
+                                     "code": code_version()})).hexdigest()
 
 
 @dataclass(frozen=True)

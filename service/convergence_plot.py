@@ -56,7 +56,10 @@ def plot_convergence(path: Path, doc: dict[str, Any], title: str | None = None) 
     ax.set_ylabel("R = C / (C + U), 95 % interval")
     ax.set_ylim(-0.02, 1.02)
     ax.set_title(title or f"{doc['stance']['name']}: convergence of R" + (f" (target +-{hw:g})" if hw else ""))
-    ax.legend(loc="best", fontsize=7)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="best", fontsize=7)
+    else:
+        ax.text(0.5, 0.5, "no configuration has a ratio", ha="center", va="center", transform=ax.transAxes)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
