@@ -6,17 +6,19 @@ check it are checks, not states: they decide whether the edge joins the tree and
 counted. A pose that collides is not counted (``stats['rejected']`` says how many); joint
 limits cannot be broken, since a steered pose is clipped to them.
 
-How a leg is explored: one tree grows from the leg's start (the pick's lift pose, or the
-handover pose), a share ``goal_bias`` of its samples aimed at the leg's goal. Each round
-steers ``batch_size`` samples from the tree as it stands; the new poses are evaluated in one
-batch, then judged one by one in a fixed order:
+How a leg is explored: a tree grows from the leg's start (the pick's lift pose, or the handover
+pose) and, taking turns with it, one from the leg's goal (``bidirectional``, as the planner's
+own T-RRT does: a goal reached only through a narrow approach, such as a handover in front of
+the chest, is found from its side); a share ``goal_bias`` of each tree's samples aims at the
+other's root. Each round steers ``batch_size`` samples from the trees as they stand; the new
+poses are evaluated in one batch, then judged one by one in a fixed order:
 
 * an unstable pose is counted and not grown from (the constrained planner discards it);
 * a stable pose must pass the T-RRT transition test (cost = -margin) and have a valid edge
   (every interpolated check collision-free and stable) to join the tree;
-* after every extension, the goal test: a new node within one step of the goal whose
-  straight edge to it is valid ends the leg. There is no straight-line shortcut from the
-  start: the goal is reached only by growing the tree to it.
+* after every extension, the goal test: a new node within one step of the other tree (of the
+  goal, with one tree) whose straight edge to it is valid ends the leg. There is no
+  straight-line shortcut from the start: the goal is reached only by growing the trees.
 
 The leg ends at its goal or when it has counted ``leg_cap_states`` poses (not solved). Poses
 judged after the one that reached the goal (or the cap) in the same round are not counted, so
@@ -49,6 +51,7 @@ class CountingSettings(BaseModel):
 
     batch_size: int = Field(16, ge=1, description="samples steered per round (judged one by one, in order)")
     goal_bias: float = Field(0.1, ge=0, le=1, description="share of samples aimed at the leg's goal")
+    bidirectional: bool = Field(True, description="a second tree grows from the goal; the leg ends when the trees meet")
     step_rad: float = Field(0.3, gt=0, description="largest extension (Euclidean, active joints)")
     time_limit_s: float = Field(600.0, gt=0, description="safety net per seed; seeded runs end on their caps")
 
@@ -142,7 +145,8 @@ class _Leg:
         ends = evaluator.evaluate(np.vstack([start, goal]), leg.hold, active=self.active)
         self.search = _Search(start, goal, self.active, robot.lower, robot.upper, float(ends.margin[0]),
                               float(ends.margin[1]), trrt.model_copy(update={"step_rad": settings.step_rad}))
-        self.tree = self.search.trees[0]
+        self.trees = self.search.trees  # from the start; from the goal (grown when bidirectional)
+        self.turn = 0
         self.goal = goal[self.active]
         self.count = LegCount()
         self.label = leg.hold.label if leg.hold is not None else "none"
@@ -160,18 +164,25 @@ class _Leg:
             ok[ok] = self.free(Q[ok])
         return ok, batch.margin
 
-    def propose(self, rng: np.random.Generator) -> list[tuple[int, np.ndarray, float]]:
-        """Samples steered from the tree as it stands: (nearest node, new pose, distance to the sample)."""
+    def propose(self, rng: np.random.Generator) -> list[tuple[int, int, np.ndarray, float]]:
+        """Samples steered from the trees as they stand: (tree, nearest node, new pose, distance to the sample).
+
+        With one tree, the goal-biased samples aim at the goal; with two, the trees take turns and
+        each aims its goal-biased samples at the other's root."""
         s = self.search
         out = []
         for _ in range(self.settings.batch_size):
-            target = self.goal if rng.random() < self.settings.goal_bias else rng.uniform(s.lo, s.hi)
-            near, dist = self.tree.nearest(target)
+            ti = self.turn if self.settings.bidirectional else 0
+            self.turn ^= 1
+            tree = self.trees[ti]
+            aim = self.goal if ti == 0 else self.trees[0].nodes[0]
+            target = aim if rng.random() < self.settings.goal_bias else rng.uniform(s.lo, s.hi)
+            near, dist = tree.nearest(target)
             if dist < 1e-12:
                 continue
-            x = self.tree.nodes[near]
+            x = tree.nodes[near]
             new = target if dist <= self.settings.step_rad else x + (target - x) * (self.settings.step_rad / dist)
-            out.append((near, np.clip(new, s.lo, s.hi), dist))
+            out.append((ti, near, np.clip(new, s.lo, s.hi), dist))
         return out
 
     def round(self, rng: np.random.Generator, rec: _Counted, cap: int | None, stop_at_goal: bool) -> bool:
@@ -180,7 +191,7 @@ class _Leg:
         cands = self.propose(rng)
         if not cands:
             return False
-        X = np.array([c[1] for c in cands])
+        X = np.array([c[2] for c in cands])
         Q = self.search.full(X)
         batch = self.evaluator.evaluate(Q, self.leg.hold, active=self.active)
         free = self.free(Q)
@@ -196,15 +207,16 @@ class _Leg:
             if cap is not None and self.count.counted + len(counted) >= cap:
                 end_at = k + 1
             if batch.stable[k]:
-                near, new, dist = cands[k]
-                if self.search.transition(self.tree, near, new, float(batch.margin[k]), dist, rng):
+                ti, near, new, dist = cands[k]
+                if self.search.transition(self.trees[ti], near, new, float(batch.margin[k]), dist, rng):
                     tries.append(k)
                 else:
                     self.count.transition_rejects += 1
             if end_at <= k + 1:
                 break
         tries = [k for k in tries if k < end_at]
-        edges = [edge_states(self.tree.nodes[cands[k][0]], cands[k][1], self.search.s.edge_resolution_rad)[:-1] for k in tries]
+        res = self.search.s.edge_resolution_rad
+        edges = [edge_states(self.trees[cands[k][0]].nodes[cands[k][1]], cands[k][2], res)[:-1] for k in tries]
         with_checks = [i for i, e in enumerate(edges) if len(e)]
         edge_ok = [True] * len(tries)
         if with_checks:
@@ -215,17 +227,27 @@ class _Leg:
             if not ok:
                 self.count.invalid_edges += 1
                 continue
-            near, new, _ = cands[k]
-            added.append((k, self.tree.add(new, near, float(batch.margin[k]))))
+            ti, near, new, _ = cands[k]
+            added.append((k, self.trees[ti].add(new, near, float(batch.margin[k]))))
         reached = None
         if stop_at_goal and added:
-            near_goal = [(k, i) for k, i in added
-                         if float(np.linalg.norm(self.tree.nodes[i] - self.goal)) <= self.settings.step_rad]
+            # The goal test: the new node within one step of the goal (or of the goal's tree) by a valid edge.
+            near_goal = []
+            for k, i in added:
+                ti = cands[k][0]
+                q = self.trees[ti].nodes[i]
+                if self.settings.bidirectional:
+                    j, d = self.trees[ti ^ 1].nearest(q)
+                    target = self.trees[ti ^ 1].nodes[j]
+                else:
+                    target = self.goal
+                    d = float(np.linalg.norm(q - target))
+                if d <= self.settings.step_rad:
+                    near_goal.append((k, q, target))
             self.count.goal_tests += len(added)
             if near_goal:
-                checks = [self.search.full(edge_states(self.tree.nodes[i], self.goal, self.search.s.edge_resolution_rad))
-                          for _, i in near_goal]
-                for (k, _), ok in zip(near_goal, all_valid_coarse_to_fine(checks, self.valid)):
+                checks = [self.search.full(edge_states(q, target, res)) for _, q, target in near_goal]
+                for (k, _, _), ok in zip(near_goal, all_valid_coarse_to_fine(checks, self.valid)):
                     if ok:
                         reached = k
                         break
@@ -238,7 +260,7 @@ class _Leg:
             rec.add(self.index, self.label, Q[keep], pose7, st, batch.margin[keep], batch.com[keep])
             self.count.stable += int(st.sum())
             self.count.unstable += int((~st).sum())
-        self.count.nodes = self.tree.size
+        self.count.nodes = sum(t.size for t in self.trees)
         if reached is not None:
             self.count.solved = True
             return True

@@ -30,8 +30,8 @@ class DemoSettings(BaseModel):
     """What the demo runs and how long it waits (SI units)."""
 
     scenario: str = "upright"
-    survey_states: int | None = Field(None, ge=1, description="states per seed in the demo's survey (until: states); "
-                                      "default: the scenario's own estimator, seeds until the intervals are tight")
+    survey_states: int | None = Field(None, ge=1, description="states per seed in the demo's survey (until: states, "
+                                      "10 seeds); default: the scenario's own estimator, seeds until the intervals are tight")
     controller_speed: float = Field(10.0, gt=0, description="the simulated controller plays K times faster than real time")
     workers: int = Field(2, ge=1)
     watchdog_timeout_s: float = Field(3.0, gt=0, le=5.0, description="bridge watchdog for the simulated controller "
@@ -128,7 +128,8 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
         _wait_for(lambda: alice.health() is not None, settings.start_timeout_s, "the service", srv)
         result.steps.append(("service", "up"))
 
-        budget = {} if settings.survey_states is None else {"until": "states", "states_per_seed": settings.survey_states}
+        budget = ({} if settings.survey_states is None else
+                  {"until": "states", "states_per_seed": settings.survey_states, "seeds_min": 10, "seeds_max": 10})
         say(f"alice submits the stability survey of scenario {settings.scenario!r} "
             f"({'the scenario estimator' if not budget else str(settings.survey_states) + ' states per seed'})")
         job = alice.submit("survey", {"scenario": settings.scenario, **budget})
