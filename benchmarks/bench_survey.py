@@ -1,44 +1,63 @@
-"""Stability survey speed: evaluated states per second (collision checks included), and the
-wall time of a survey of all four configurations with N states each (default 20,000).
+"""Stability survey speed: a converged survey of one stance, and `hands: auto` planning once it is cached.
 
-Run: python benchmarks/bench_survey.py [--scenario upright] [--states 20000] [--workers 2]
-Target (2 cores, grasp cache warm): 4 x 20,000 states in <= 10 s.
+Run: python benchmarks/bench_survey.py [--scenario upright] [--workers 2] [--ci-half-width 0.02] [--plans 5]
+Targets (2 cores): a converged survey of one stance (4 configurations, +-0.02) within 120 s; a
+`hands: auto` plan within 3 s (warm median) once the task's survey is cached.
+Prints, per configuration: seeds, states per seed (min / median / max), R and its interval, legs solved.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import statistics
+import tempfile
 import time
 
-from planner.scene.scenarios import load_builtin
+from planner.jobs.plan_job import PlanOptions, plan_scenario
+from planner.scene.scenarios import load_builtin, with_overrides
 from planner.survey.runner import run_survey
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenario", default="upright")
-    ap.add_argument("--states", type=int, default=20_000)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--ci-half-width", type=float, default=0.02)
+    ap.add_argument("--seeds-max", type=int, default=256)
+    ap.add_argument("--leg-cap", type=int, default=20_000)
+    ap.add_argument("--plans", type=int, default=5, help="hands: auto plans timed once the survey is cached (0: none)")
     args = ap.parse_args()
-    sc = load_builtin(args.scenario)
-    run_survey(sc, states=50, workers=1, hands=["right-right"])  # warm the grasp cache
+    os.environ.setdefault("REGRASP_SURVEY_CACHE_DIR", tempfile.mkdtemp(prefix="bench-survey-"))
+    sc = with_overrides(load_builtin(args.scenario), survey={"ci_half_width": args.ci_half_width, "seeds_max": args.seeds_max,
+                                                             "leg_cap_states": args.leg_cap})
+    run_survey(sc, states=20, workers=1, hands=["right-right"], keep_states=False)  # warm the grasp cache and kernels
     t0 = time.perf_counter()
-    doc, _ = run_survey(sc, states=args.states, workers=args.workers)
+    doc, _ = run_survey(sc, workers=args.workers, keep_states=False)
     wall = time.perf_counter() - t0
-    print(f"survey of {args.scenario!r}: 4 configurations x {args.states} states, {args.workers} workers: {wall:.1f} s wall")
-    total_explore = 0.0
-    total_states = 0
+    print(f"converged survey of {args.scenario!r} (+-{args.ci_half_width}), {args.workers} workers: {wall:.1f} s wall")
     for row in doc["rows"]:
-        st = doc["stats"]["configurations"][row["hands"]]
         if row["ratio"] is None:
             print(f"  {row['hands']:<12} n/a: {row['reason']}")
             continue
-        total_explore += st["exploration_s"]
-        total_states += st["evaluated"]
-        print(f"  {row['hands']:<12} R={row['ratio']:.4f}  key poses {st['key_poses_s']:.1f} s, exploration "
-              f"{st['exploration_s']:.1f} s = {st['states_per_s']:,.0f} states/s (rejected: {st['rejected']})")
-    if total_explore:
-        print(f"  exploration alone: {total_states / total_explore:,.0f} evaluated states/s per core (collision checks included)")
+        n = [p["stable"] + p["unstable"] for p in row["per_seed"]]
+        st = doc["stats"]["configurations"][row["hands"]]
+        print(f"  {row['hands']:<12} R={row['ratio']:.4f} [{row['ratio_ci95'][0]:.4f}, {row['ratio_ci95'][1]:.4f}] "
+              f"seeds {row['seeds']}{'' if row['converged'] else ' (not converged)'}, states/seed min {min(n)} "
+              f"median {statistics.median(n):.0f} max {max(n)}, solved {st['solved_seeds']}/{row['seeds']}, "
+              f"{st['states_per_s']:,.0f} states/s per core")
+    print(f"  recommended {doc['recommended']}, indistinguishable {doc['indistinguishable']}")
+    if args.plans:
+        from planner.survey.cache import SurveyCache, task_key
+
+        SurveyCache.default().put(task_key(sc, doc["robot"]["urdf_sha256"]), doc)
+        times = []
+        for _ in range(args.plans):
+            t = time.perf_counter()
+            plan = plan_scenario(sc, PlanOptions(hands="auto"))
+            times.append(time.perf_counter() - t)
+        print(f"hands: auto plans with the survey cached: median {statistics.median(times):.2f} s over {len(times)} "
+              f"(min {min(times):.2f}, max {max(times):.2f}); hands {plan['hands']}, status {plan['status']}")
 
 
 if __name__ == "__main__":

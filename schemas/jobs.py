@@ -109,7 +109,14 @@ class JobRequest(StrictModel):
     threshold_m: Finite | None = Field(None, ge=0, le=0.5, description="CoM margin threshold, m; 0 = unconstrained planner")
     hands: HandsChoice | None = Field(None, description="hand configuration overriding the scenario's")
     seed: int | None = Field(None, ge=0, le=2**63 - 1, description="random seed; the same seed gives the same plan")
-    states_per_configuration: int | None = Field(None, ge=1, le=1_000_000, description="survey: states evaluated per hand configuration")
+    states_per_configuration: int | None = Field(None, ge=1, le=1_000_000,
+                                                 description="survey (regrasp.survey/1 form): read as until: states with this many states per seed")
+    until: Literal["solved", "states"] | None = Field(None, description="survey estimator (also for a plan's hands: auto): "
+                                                      "seeds until the intervals are tight, or a fixed number of states per seed")
+    ci_half_width: Finite | None = Field(None, gt=0, le=0.5, description="survey: largest distance of the 95 % bounds from R")
+    seeds_min: int | None = Field(None, ge=1, le=10_000, description="survey: fewest seeds per configuration")
+    seeds_max: int | None = Field(None, ge=1, le=10_000, description="survey: most seeds per configuration")
+    states_per_seed: int | None = Field(None, ge=1, le=1_000_000, description="survey, until: states: states counted per seed")
     time_limit_s: Finite | None = Field(None, gt=0, le=3600, description="planner safety-net time limit, s")
 
 

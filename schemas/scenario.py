@@ -94,7 +94,29 @@ class Limits(StrictModel):
 
 
 class SurveySettings(StrictModel):
-    states_per_configuration: int = Field(10_000, ge=1, le=1_000_000)
+    """How long the survey explores (CONTRACT.md section 4): seeds until every row's interval is tight
+    (``until: solved``), or a fixed number of states per seed (``until: states``)."""
+
+    until: Literal["solved", "states"] = Field("solved", description="solved: each seed explores until it reaches the "
+                                               "goal or the leg cap; states: each seed counts states_per_seed states")
+    ci_half_width: Finite = Field(0.02, gt=0, le=0.5, description="largest distance of the 95 % bounds from R")
+    seeds_min: int = Field(10, ge=1, le=10_000)
+    seeds_max: int = Field(256, ge=1, le=10_000)
+    states_per_seed: int | None = Field(None, ge=1, le=1_000_000, description="until: states: states counted per seed")
+    leg_cap_states: int = Field(20_000, ge=1, le=1_000_000, description="a leg that counted this many states ends unsolved")
+    states_per_configuration: int | None = Field(None, ge=1, le=1_000_000,
+                                                 description="the regrasp.survey/1 field: read as until: states with "
+                                                 "this many states per seed")
+
+    @model_validator(mode="after")
+    def _check(self) -> "SurveySettings":
+        if self.states_per_configuration is not None and self.states_per_seed is None:
+            self.until, self.states_per_seed = "states", self.states_per_configuration
+        if self.until == "states" and self.states_per_seed is None:
+            raise ValueError("survey until: states needs states_per_seed")
+        if self.seeds_max < self.seeds_min:
+            raise ValueError(f"survey seeds_max {self.seeds_max} is below seeds_min {self.seeds_min}")
+        return self
 
 
 class Scenario(StrictModel):

@@ -1,4 +1,7 @@
-"""The stability survey (``schema: regrasp.survey/1``, docs/contract.md section 4)."""
+"""The stability survey (``schema: regrasp.survey/2``, docs/contract.md section 4).
+
+Version 2 adds the estimator (seeds until every row's 95 % interval is tight) and, per row, the
+interval, the seeds and their counts; the fields of version 1 keep their meaning."""
 
 from __future__ import annotations
 
@@ -10,7 +13,7 @@ from .common import HandConfig, OpenModel
 from .plan import RobotRef
 from .stance import StanceResult
 
-SURVEY_SCHEMA = "regrasp.survey/1"
+SURVEY_SCHEMA = "regrasp.survey/2"
 
 
 class SurveyRow(OpenModel):
@@ -19,17 +22,23 @@ class SurveyRow(OpenModel):
     unstable: int = Field(ge=0)
     ratio: float | None
     reason: str | None = None
+    ratio_ci95: list[float] | None = Field(None, description="95 % bootstrap interval of ratio over seeds")
+    seeds: int = Field(0, ge=0, description="seeds whose counts are summed")
+    converged: bool = False
+    per_seed: list[dict[str, Any]] = Field(default_factory=list, description="{seed, stable, unstable, solved} per seed")
 
 
 class Survey(OpenModel):
-    schema_: Literal["regrasp.survey/1"] = Field(SURVEY_SCHEMA, alias="schema")
+    schema_: Literal["regrasp.survey/2"] = Field(SURVEY_SCHEMA, alias="schema")
     robot: RobotRef
     stance: StanceResult
     threshold_m: float
     seed: int
     object: dict[str, Any]
     rows: list[SurveyRow]
+    estimator: dict[str, Any] = Field(default_factory=dict)
     recommended: HandConfig | None
+    indistinguishable: list[HandConfig] = Field(default_factory=list)
     stats: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -43,3 +52,19 @@ def recommend(rows: list[SurveyRow]) -> HandConfig | None:
         return None
     best = max(ranked, key=lambda r: (r.ratio, r.stable, -TIE_ORDER.index(r.hands)))
     return best.hands
+
+
+def overlaps(a: list[float] | None, b: list[float] | None) -> bool:
+    """Whether two closed intervals share a point (a missing interval overlaps everything)."""
+    if a is None or b is None:
+        return True
+    return a[0] <= b[1] and b[0] <= a[1]
+
+
+def indistinguishable(rows: list[SurveyRow], best: HandConfig | None) -> list[HandConfig]:
+    """The rows (other than ``best``) whose interval overlaps the recommended row's, in the tie order."""
+    if best is None:
+        return []
+    top = next(r for r in rows if r.hands == best)
+    out = [r.hands for r in rows if r.hands != best and r.ratio is not None and overlaps(r.ratio_ci95, top.ratio_ci95)]
+    return sorted(out, key=TIE_ORDER.index)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,6 +36,8 @@ class Service:
     def build(cls, settings: ServiceSettings, *, tokens: TokenStore | None = None, run_workers: bool = True,
               bridge: Bridge | None = None) -> "Service":
         settings.data_dir.mkdir(parents=True, exist_ok=True)
+        # One survey answer per task, shared by the workers' jobs (planner/survey_cache.py).
+        os.environ.setdefault("REGRASP_SURVEY_CACHE_DIR", str((settings.data_dir / "survey-cache").resolve()))
         engine = make_engine(settings.resolved_database_url, pool_size=20)
         migrate(engine)
         store = JobStore(engine)

@@ -31,7 +31,8 @@ class DemoSettings(BaseModel):
     """What the demo runs and how long it waits (SI units)."""
 
     scenario: str = "upright"
-    survey_states: int = Field(400, ge=1, description="states per hand configuration in the demo's survey")
+    survey_states: int | None = Field(None, ge=1, description="states per seed in the demo's survey (until: states, "
+                                      "10 seeds); default: the scenario's own estimator, seeds until the intervals are tight")
     controller_speed: float = Field(10.0, gt=0, description="the simulated controller plays K times faster than real time")
     workers: int = Field(2, ge=1)
     watchdog_timeout_s: float = Field(3.0, gt=0, le=5.0, description="bridge watchdog for the simulated controller "
@@ -136,8 +137,11 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
         result.steps.append(("service", "up"))
         say(f"users (as `regrasp serve --dev`): alice ({roles['alice']}), carol ({roles['carol']}), bob ({roles['bob']})")
 
-        say(f"alice submits the stability survey of scenario {settings.scenario!r} ({settings.survey_states} states per configuration)")
-        job = alice.submit("survey", {"scenario": settings.scenario, "states_per_configuration": settings.survey_states})
+        budget = ({} if settings.survey_states is None else
+                  {"until": "states", "states_per_seed": settings.survey_states, "seeds_min": 10, "seeds_max": 10})
+        say(f"alice submits the stability survey of scenario {settings.scenario!r} "
+            f"({'the scenario estimator' if not budget else str(settings.survey_states) + ' states per seed'})")
+        job = alice.submit("survey", {"scenario": settings.scenario, **budget})
         survey_job = alice.wait(job["id"], timeout=settings.job_timeout_s, on_event=ProgressReporter(say, "survey"))
         if survey_job["state"] != "succeeded":
             raise RuntimeError(f"survey job ended {survey_job['state']}: {survey_job.get('error')}")
@@ -149,8 +153,8 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
         result.summary["recommended"] = hands
         result.steps.append(("survey", f"recommended {hands}"))
 
-        say(f"alice submits the plan with the recommended hands {hands}")
-        job = alice.submit("plan", {"scenario": settings.scenario, "hands": hands})
+        say(f"alice submits the plan with hands: auto (the survey's answer, {hands}, from the service's survey cache)")
+        job = alice.submit("plan", {"scenario": settings.scenario, "hands": "auto", **budget})
         plan_job = alice.wait(job["id"], states=("planned", "failed", "canceled"), timeout=settings.job_timeout_s,
                               on_event=ProgressReporter(say, "plan"))
         if plan_job["state"] != "planned":

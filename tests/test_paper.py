@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import re
 
 import pytest
 from click.testing import CliRunner
@@ -51,34 +50,46 @@ def test_every_section_is_there(report):
 
 def test_table_numbers_match_the_json(report):
     md, data, _ = report
+    assert data["settings"]["no_limits"] is True and "without effort and grip limits" in md.lower()
     for stance in STANCES:
         t = data["tables"][stance]
-        assert f"{t['states']} states per configuration" in md
         rows = {r[0]: r for r in _table_rows(md, f"### {stance.capitalize()} stance")[1:] if r[0] in HANDS}
         assert set(rows) == set(HANDS)
-        for h in HANDS:
-            row = t["rows"][h]
-            assert rows[h][1] == "/".join(map(str, row["stable"]))
-            assert rows[h][2] == "/".join(map(str, row["unstable"]))
-            if row["ratio_mean"] is not None:
-                assert rows[h][3] == f"{row['ratio_mean']:.4f} ± {row['ratio_sd']:.4f}"
-                for c, u, r in zip(row["stable"], row["unstable"], row["ratio"]):
-                    assert r == pytest.approx(c / (c + u))
+        paper = {p["hands"]: p for p in t["paper"]}
+        for row in t["rows"]:
+            h = row["hands"]
+            assert rows[h][1:3] == [str(row["stable"]), str(row["unstable"])]
+            assert row["stable"] == sum(p["stable"] for p in row["per_seed"])
+            if row["ratio"] is not None:
+                lo, hi = row["ratio_ci95"]
+                assert rows[h][3] == f"{row['ratio']:.4f} [{lo:.4f}, {hi:.4f}]"
+                assert row["ratio"] == pytest.approx(row["stable"] / (row["stable"] + row["unstable"]))
             pc, pu, pr = PAPER_TABLES[stance][h]
-            assert rows[h][4:7] == [str(pc), str(pu), f"{pr:.4f}"]
-        assert len(t["seeds"]) >= 2  # a spread over seeds
+            assert (paper[h]["stable"], paper[h]["unstable"], paper[h]["ratio"]) == (pc, pu, pr)
+            assert rows[h][5:8] == [str(pc), str(pu), f"{pr:.4f}"]
+        assert data["figures"][f"convergence-{stance}"].endswith(".png")
 
 
 def test_comparison_matrix_and_claims_match_the_json(report):
     md, data, _ = report
+    from service.paper_claims import CLAIM_TEXT
+
     matrix = {r[0]: r[1:] for r in _table_rows(md, "## Stance comparison")[1:]}
     for stance in STANCES:
+        by = {r["hands"]: r for r in data["comparison"][stance]["rows"]}
         for h, cell in zip(HANDS, matrix[stance]):
-            mean = data["comparison"][stance]["rows"][h]["ratio_mean"]
-            assert cell == (f"{mean:.3f}" if mean is not None else cell)
+            if by[h]["ratio"] is not None:
+                assert cell.startswith(f"{by[h]['ratio']:.4f}")
+    assert [c["id"] for c in data["claims"]] == list(CLAIM_TEXT)
     for claim in data["claims"]:
-        assert re.search(re.escape(f"**{claim['verdict']}**: {claim['claim']}"), md)
-    assert len(data["claims"]) >= 5
+        assert claim["verdict"] in ("reproduced", "not reproduced")
+        assert f"**{claim['verdict']}** (`{claim['id']}`)" in md
+        if claim["verdict"] == "not reproduced":
+            # A cause, and a run that changes that one thing, judged again.
+            assert claim["cause"] and claim["cause_run"]["verdict"] in ("reproduced", "not reproduced")
+            assert f"Cause: {claim['cause']}." in md
+        else:
+            assert claim["cause"] is None
     for stance in STANCES:
         p = data["plans"][stance]
         assert p["constrained"]["threshold_m"] > 0 and p["unconstrained"]["threshold_m"] == 0.0

@@ -11,9 +11,10 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 from planner.errors import Canceled, InputError
-from planner.jobs.plan_job import plan_job, survey_job
+from planner.jobs.plan_job import plan_job
 from planner.jobs.recovery import recover_job
 from planner.jobs.request_names import RequestNameError, resolve_request
+from planner.jobs.survey_job import survey_job
 
 __all__ = ["Canceled", "JobContext", "run_plan", "run_recover", "run_survey"]
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from planner.errors import Canceled, InputError
+from planner.jobs.survey_job import survey_overrides
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import assemble, trajectory_points
 from planner.regrasp.results import PlannerResult
@@ -26,9 +27,8 @@ from planner.scene.objects import ObjectModelError
 from planner.scene.placements import PlacementError
 from planner.scene.scenarios import resolve_scenario, with_overrides
 from planner.stability.stances import StanceError
-from planner.survey.runner import quick_survey, run_survey_request
+from planner.survey.auto import auto_order, survey_summary
 from planner.termination import Termination
-from schemas.common import HAND_CONFIGS
 from schemas.plan import PLAN_SCHEMA
 from schemas.scenario import Scenario
 
@@ -162,7 +162,7 @@ def plan_scenario(
         progress(0.05, "surveying hand configurations (auto)")
         t_survey = time.perf_counter()
         try:
-            order, survey_doc = _auto_order(task, termination.should_stop)
+            order, survey_doc = auto_order(task, termination.should_stop)
             task.timings["auto_survey_s"] = time.perf_counter() - t_survey
         except Canceled:
             if should_stop():
@@ -210,6 +210,7 @@ def plan_scenario(
     }
     if survey_doc is not None:
         stats["survey"] = {row["hands"]: row.get("ratio") for row in survey_doc["rows"]}
+        stats["survey_recommendation"] = survey_summary(survey_doc)
     if not solved:
         if ran_out or not results:
             return timed_out(results)
@@ -258,18 +259,10 @@ def plan_scenario(
     }
 
 
-def _auto_order(task: Task, should_stop: StopFn) -> tuple[list[str], dict | None]:
-    """Hand configurations ordered by the survey's ratio R (highest first)."""
-    doc = quick_survey(task, should_stop=should_stop)
-    rows = [r for r in doc["rows"] if r.get("ratio") is not None]
-    rows.sort(key=lambda r: (-r["ratio"], -r["stable"], HAND_CONFIGS.index(r["hands"])))
-    order = [r["hands"] for r in rows] + [h for h in HAND_CONFIGS if h not in {r["hands"] for r in rows}]
-    return order, doc
-
-
 def plan_job(request: dict[str, Any], ctx) -> dict[str, Any]:
-    """The service's plan job: docs/contract.md section 5 request -> plan document."""
-    scenario = resolve_scenario(request["scenario"])
+    """The service's plan job: docs/contract.md section 5 request -> plan document (a ``hands: auto`` plan takes the
+    request's survey fields for its survey, so it follows the same answer as the survey job)."""
+    scenario = resolve_scenario(request["scenario"], survey=survey_overrides(request))
     options = PlanOptions(hands=request.get("hands"), threshold_m=request.get("threshold_m"), seed=request.get("seed"),
                           stance=request.get("stance"), time_limit_s=request.get("time_limit_s"))
 
@@ -277,7 +270,3 @@ def plan_job(request: dict[str, Any], ctx) -> dict[str, Any]:
         return bool(ctx.cancelled())
 
     return plan_scenario(scenario, options, progress=ctx.progress, should_stop=stop)
-
-
-def survey_job(request: dict[str, Any], ctx) -> dict[str, Any]:
-    return run_survey_request(request, ctx)

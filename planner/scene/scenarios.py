@@ -96,8 +96,13 @@ def with_overrides(
     seed: int | None = None,
     states_per_configuration: int | None = None,
     time_limit_s: float | None = None,
+    survey: dict[str, Any] | None = None,
 ) -> Scenario:
-    """The scenario with request/CLI overrides applied and re-validated."""
+    """The scenario with request/CLI overrides applied and re-validated.
+
+    ``survey`` overrides fields of the scenario's ``survey:`` (until, ci_half_width, seeds_min,
+    seeds_max, states_per_seed, leg_cap_states); ``states_per_configuration`` is the older way to say
+    ``until: states`` with that many states per seed."""
     data = scenario.model_dump(by_alias=True)
     if stance is not None:
         data["stance"] = stance.model_dump() if isinstance(stance, StanceDef) else stance
@@ -108,7 +113,13 @@ def with_overrides(
     if seed is not None:
         data["seed"] = seed
     if states_per_configuration is not None:
-        data["survey"]["states_per_configuration"] = states_per_configuration
+        survey = {**(survey or {}), "until": "states", "states_per_seed": states_per_configuration}
+    if survey:
+        merged = {**data["survey"], **{k: v for k, v in survey.items() if v is not None}}
+        if merged.get("until") == "solved":
+            merged["states_per_seed"] = None
+        merged["states_per_configuration"] = None
+        data["survey"] = merged
     if time_limit_s is not None:
         data["limits"]["time_s"] = time_limit_s
     from .meshes import carry_mesh_source

@@ -61,19 +61,22 @@ def builtin_stance(robot: RobotModel, name: str) -> StanceDef:
     spec = robot.spec
     fy, h = spec.upright.foot_y_m, spec.upright.pelvis_height_m
     lf, rf = spec.feet["left"].frame, spec.feet["right"].frame
-    # Two-foot stances: like a balance controller, the pelvis is placed so that the CoM of the
-    # standing posture is above the centre of the support polygon.
+    # As in the paper, a stance moves the feet relative to the robot's own frame. Upright and
+    # crouched stand the CoM over the centre of the polygon (crouched lowers the pelvis too);
+    # staggered keeps the pelvis where upright has it, so its CoM is not re-centred over the new
+    # polygon; one-legged stands the CoM over the right sole.
     if name == "upright":
         return StanceDef(name=name, feet=[FootPlacement(frame=rf, pose=_pose(0, -fy, 0)), FootPlacement(frame=lf, pose=_pose(0, fy, 0))],
                          pelvis_height_m=h, com_over=SUPPORT_CENTRE)
     if name == "staggered":
-        # Right sole 50 mm forward, left sole 200 mm back.
+        # Right sole 50 mm forward, left sole 200 mm back; the pelvis of the upright stance.
+        upright = solve_stance(robot, builtin_stance(robot, "upright"))
         return StanceDef(
             name=name,
             feet=[FootPlacement(frame=rf, pose=_pose(0.05, -fy, 0)), FootPlacement(frame=lf, pose=_pose(-0.20, fy, 0))],
             pelvis_height_m=h,
-            pelvis_offset=[-0.075, 0.0],
-            com_over=SUPPORT_CENTRE,
+            pelvis_offset=[float(upright.base_pose[0]), float(upright.base_pose[1])],
+            com_over=None,
         )
     if name == "crouched":
         return StanceDef(name=name, feet=[FootPlacement(frame=rf, pose=_pose(0, -fy, 0)), FootPlacement(frame=lf, pose=_pose(0, fy, 0))],

@@ -52,13 +52,13 @@ def stance_step(out: Path, robot_name: str, fmt: str = "png") -> list[dict]:
 @click.option("--robot", "robot_name", default="hrp5p", show_default=True)
 @click.option("--stances-only", is_flag=True, help="Only the first step: solve and draw the stances.")
 @click.option("--scenario", default="upright", show_default=True, help="The scenario the demo plans and executes.")
-@click.option("--survey-states", default=400, show_default=True, type=click.IntRange(1, 1_000_000),
-              help="States per hand configuration in the demo's survey.")
+@click.option("--survey-states", default=None, type=click.IntRange(1, 1_000_000),
+              help="States per seed in the demo's survey (until: states, 10 seeds); default: the scenario's own estimator.")
 @click.option("--speed", default=10.0, show_default=True, type=click.FloatRange(min=0.1),
               help="The simulated controller plays K times faster than real time.")
 @click.option("--format", "fmt", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
               help="Format of the figures.")
-def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, survey_states: int, speed: float,
+def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, survey_states: int | None, speed: float,
          fmt: str) -> None:
     """Run the main job end to end on the embedded defaults and show its result."""
     out = Path(out_dir)

@@ -26,12 +26,16 @@ LABELS = {
 
 def survey_table(doc: dict, title: str) -> Table:
     table = Table(title=title)
-    for col in ("Hand configuration", "C", "U", "R"):
+    for col in ("Hand configuration", "C", "U", "R", "95 % interval", "seeds"):
         table.add_column(col, justify="left" if col == "Hand configuration" else "right")
+    ties = set(doc.get("indistinguishable") or [])
     for row in doc["rows"]:
-        mark = " *" if row["hands"] == doc.get("recommended") else ""
+        mark = " *" if row["hands"] == doc.get("recommended") else (" =" if row["hands"] in ties else "")
         ratio = f"{row['ratio']:.4f}" if row["ratio"] is not None else f"n/a ({row.get('reason') or 'no plan'})"
-        table.add_row(LABELS[row["hands"]] + mark, str(row["stable"]), str(row["unstable"]), ratio)
+        ci = row.get("ratio_ci95")
+        interval = f"[{ci[0]:.4f}, {ci[1]:.4f}]" if ci else "-"
+        seeds = f"{row.get('seeds', 0)}{'' if row.get('converged') else ' (not converged)'}" if row["ratio"] is not None else "-"
+        table.add_row(LABELS[row["hands"]] + mark, str(row["stable"]), str(row["unstable"]), ratio, interval, seeds)
     return table
 
 
@@ -65,12 +69,14 @@ def _plots(doc: dict, outcomes, directory: Path, prefix: str, fmt: str = "png", 
     """The bar chart of R; where states were evaluated, the CoM scatter (coloured by configuration) and its CSV data."""
     import numpy as np
 
+    from service.convergence_plot import plot_convergence
     from service.plots import describe, plot_survey_bars, plot_survey_scatter
 
     directory.mkdir(parents=True, exist_ok=True)
     states = (doc.get("stats") or {}).get("states_per_configuration")
     title = describe(scenario, doc["stance"]["name"], doc["threshold_m"], states=states) + (" per configuration" if states else "")
-    paths = [plot_survey_bars(directory / f"{prefix}bars.{fmt}", title=f"stable ratio R per hand configuration\n{title}",
+    paths = [plot_convergence(directory / f"{prefix}convergence.{fmt}", doc),
+             plot_survey_bars(directory / f"{prefix}bars.{fmt}", title=f"stable ratio R per hand configuration\n{title}",
                               rows=doc["rows"], recommended=doc.get("recommended"),
                               indistinguishable=doc.get("indistinguishable") or ())]
     hands, xy, stable = scatter_data(outcomes)
@@ -109,21 +115,30 @@ def stance_matrix(docs: list[dict]) -> Table:
 @click.option("--scenario", "scenario_name", help="A built-in scenario name.")
 @click.option("--stance", help="Override the scenario's stance.")
 @click.option("--threshold-mm", type=float, help="Override the threshold, in millimetres.")
-@click.option("--states", type=int, help="Evaluated states per hand configuration (default: the scenario's).")
-@click.option("--seed", type=int, help="Random seed (same seed, same counts).")
+@click.option("--until", type=click.Choice(["solved", "states"]), help="solved: seeds explore until they reach the goal, "
+              "repeated until the intervals are tight; states: a fixed number of states per seed (--states).")
+@click.option("--states", type=int, help="States counted per seed (implies --until states).")
+@click.option("--ci-half-width", type=float, help="Largest distance of the 95 % bounds from R (default 0.02).")
+@click.option("--seeds-min", type=int, help="Fewest seeds per configuration (default 10).")
+@click.option("--seeds-max", type=int, help="Most seeds per configuration (default 256).")
+@click.option("--seed", type=int, help="First seed (seeds seed, seed + 1, ...; same seed, same counts).")
+@click.option("--no-limits", is_flag=True, help="Effort and grip checks off, as in the paper (recorded in the output; "
+              "this model has no such checks yet, so the counts do not change).")
 @click.option("--workers", type=click.IntRange(1, 64), help="Worker processes (default: one per core).")
 @click.option("--json", "as_json", is_flag=True, help="Print the survey document as JSON.")
 @click.option("--states-out", type=click.Path(dir_okay=False), help="Write every evaluated state to an .npz file.")
 @click.option("--all-stances", is_flag=True, help="Run the task in the four built-in stances: a stance x hands matrix of R.")
-@click.option("--plot", "plot_dir", type=click.Path(file_okay=False), help="Write the bar chart and CoM scatter to this directory.")
+@click.option("--plot", "plot_dir", type=click.Path(file_okay=False),
+              help="Write the convergence plot (R against states counted, with its interval), the bar chart and the CoM scatter here.")
 @click.option("--format", "fmt", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
               help="Format of the --plot figures.")
-def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, workers, as_json, states_out, all_stances,
-           plot_dir, fmt) -> None:
+def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci_half_width, seeds_min, seeds_max, seed,
+           no_limits, workers, as_json, states_out, all_stances, plot_dir, fmt) -> None:
     """Count stable (C) and unstable (U) explored states per hand configuration; R = C / (C + U)."""
     from planner.errors import InputError
     from planner.scene.scenarios import resolve_scenario
     from planner.stability.stances import BUILTIN_STANCES
+    from planner.survey.cache import SurveyCache, task_key
     from planner.survey.runner import run_survey, write_states
 
     ref = check_scenario_args(scenario_file, scenario_name)
@@ -132,6 +147,18 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
     info = err_console.print if as_json else console.print
     if states is not None and states < 1:
         fail(f"--states must be at least 1, got {states}")
+    if until == "states" and states is None:
+        fail("--until states needs --states N")
+    if until == "solved" and states is not None:
+        fail("--states is the fixed budget of --until states; leave it out with --until solved")
+    for flag, value in (("--seeds-min", seeds_min), ("--seeds-max", seeds_max)):
+        if value is not None and value < 1:
+            fail(f"{flag} must be at least 1, got {value}")
+    if ci_half_width is not None and not 0 < ci_half_width <= 0.5:
+        fail(f"--ci-half-width must be in (0, 0.5], got {ci_half_width}")
+    overrides = {"until": "states" if states is not None else until, "states_per_seed": states,
+                 "ci_half_width": ci_half_width, "seeds_min": seeds_min, "seeds_max": seeds_max}
+    overrides = {k: v for k, v in overrides.items() if v is not None} or None
     threshold = mm_to_m("--threshold-mm", threshold_mm)
     if all_stances and stance:
         fail("--all-stances and --stance exclude each other")
@@ -142,10 +169,21 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
     names: list[str] = []
     try:
         for st in stance_list:
-            sc = resolve_scenario(ref, stance=st, threshold_m=threshold, seed=seed,
-                                  states_per_configuration=states)
+            sc = resolve_scenario(ref, stance=st, threshold_m=threshold, seed=seed, survey=overrides)
             label = f"survey {sc.name} ({sc.stance if isinstance(sc.stance, str) else sc.stance.name})"
-            doc, outcomes = run_with_progress(label, lambda p, sc=sc: run_survey(sc, workers=workers, progress=p))
+            want_states = bool(states_out or plot_dir)
+            cache = SurveyCache.default()
+
+            def job(p, sc=sc, want_states=want_states, cache=cache):
+                if want_states:  # the states are not cached: run, and store the answer for the task
+                    doc, outcomes = run_survey(sc, workers=workers, progress=p, no_limits=no_limits)
+                    cache.put(task_key(sc, doc["robot"]["urdf_sha256"]), doc)
+                    return doc, outcomes
+                return cache.get_or_run(sc, lambda: run_survey(sc, workers=workers, progress=p, keep_states=False,
+                                                               no_limits=no_limits)[0]), []
+
+            doc, outcomes = run_with_progress(label, job)
+            doc["stats"]["no_limits"] = no_limits
             docs.append((doc, outcomes))
             names.append(sc.name)
     except InputError as exc:
@@ -170,8 +208,14 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
         click.echo(json.dumps(docs[0][0] if not all_stances else {"stances": [d for d, _ in docs]}, allow_nan=False))
         return
     for doc, _ in docs:
+        est = doc.get("estimator") or {}
+        budget = (f"{est.get('states_per_seed')} states per seed" if est.get("until") == "states"
+                  else f"seeds until +-{est.get('ci_half_width')}")
         console.print(survey_table(doc, f"{doc['stance']['name']} stance, threshold {doc['threshold_m'] * 1000:.0f} mm, "
-                                        f"{doc['stats']['states_per_configuration']} states, seed {doc['seed']}"))
-        console.print(f"recommended: [bold]{doc['recommended']}[/]  ({doc['stats']['time_s']:.1f} s)")
+                                        f"{budget}, seeds from {doc['seed']}{', no limits' if no_limits else ''}"))
+        ties = doc.get("indistinguishable") or []
+        console.print(f"recommended: [bold]{doc['recommended']}[/]"
+                      + (f" (a tie with {', '.join(ties)}: overlapping intervals)" if ties else "")
+                      + f"  ({doc['stats']['time_s']:.1f} s{', cached' if doc['stats'].get('cache') == 'hit' else ''})")
     if all_stances:
         console.print(stance_matrix([doc for doc, _ in docs]))

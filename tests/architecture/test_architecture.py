@@ -6,7 +6,12 @@ from __future__ import annotations
 
 import ast
 
-from tests.architecture.import_graph import PACKAGES, cycles, import_graph, project_modules
+from tests.architecture.import_graph import (
+    PACKAGES,
+    cycles,
+    import_graph,
+    project_modules,
+)
 
 #: Package order: a package may import those before it, never those after it.
 LAYERS = {name: rank for rank, name in enumerate(PACKAGES)}

@@ -28,8 +28,16 @@ import pytest
 from mcap.reader import make_reader
 
 from schemas.plan import plan_sha256
-from tests.service.conftest import (ROOT, Server, free_port, start_controller_sim, stop_process, submit_approved_plan,
-                                    wait_controller_alive, wait_state)
+from tests.service.conftest import (
+    ROOT,
+    Server,
+    free_port,
+    start_controller_sim,
+    stop_process,
+    submit_approved_plan,
+    wait_controller_alive,
+    wait_state,
+)
 
 #: Executions on the simulated controller in wall-clock time (a 2 s watchdog, a 3 s zenoh lease): a failure
 #: while the VM's host paused the guest for 0.5 s or more measured the host, and the test runs again.

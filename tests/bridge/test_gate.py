@@ -348,9 +348,9 @@ def _per_sample_reference(plan: dict, S: int, oversample: int) -> dict:
     interpolated linearly, the object quaternion along the shortest way and normalised.
     """
     import pinocchio as pin
+    from scipy.spatial.transform import Rotation
 
     from planner.robot.model import frame_poses
-    from scipy.spatial.transform import Rotation
 
     from .plans import _robot_and_stance
 

@@ -12,7 +12,6 @@ from typing import Any
 
 from tests.console.fake_api import synthetic_plan, synthetic_survey
 
-
 #: Scenario name that keeps a plan job planning (polling for a cancel) until canceled or this many s passed.
 SLOW_SCENARIO = "console-slow"
 SLOW_LIMIT_S = 60.0

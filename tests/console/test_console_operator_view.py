@@ -18,10 +18,15 @@ import pytest
 import yaml
 from playwright.sync_api import expect
 
-from tests.service.conftest import (
-    Server, free_port, start_controller_sim, stop_process, wait_controller_alive, wait_state,
-)
 from tests.service.conftest import TOKEN as SERVICE_TOKENS
+from tests.service.conftest import (
+    Server,
+    free_port,
+    start_controller_sim,
+    stop_process,
+    wait_controller_alive,
+    wait_state,
+)
 
 from .conftest import screenshot
 from .ui import confirm, login, open_job

@@ -13,7 +13,12 @@ from typing import Any
 
 import pytest
 
-from planner.jobs.request_names import RequestNameError, check_request, looks_like_path, resolve_request
+from planner.jobs.request_names import (
+    RequestNameError,
+    check_request,
+    looks_like_path,
+    resolve_request,
+)
 from service.worker_process import INTERNAL_ERROR_MESSAGE, JobHandlers, failure_of
 
 SECRET = "db-password-hunter2-and-a-full-admin-token"

@@ -14,8 +14,17 @@ from pathlib import Path
 from typing import Iterator
 
 import pytest
-from conftest import (BRIDGE_WATCHDOG_S, Server, free_port, job_events, start_controller_sim, stop_process,
-                      submit_approved_plan, wait_controller_alive, wait_state)
+from conftest import (
+    BRIDGE_WATCHDOG_S,
+    Server,
+    free_port,
+    job_events,
+    start_controller_sim,
+    stop_process,
+    submit_approved_plan,
+    wait_controller_alive,
+    wait_state,
+)
 
 #: Executions on the simulated controller in wall-clock time (a 2 s watchdog, a 3 s zenoh lease): a failure
 #: while the VM's host paused the guest for 0.5 s or more measured the host, and the test runs again.

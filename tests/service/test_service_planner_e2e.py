@@ -6,8 +6,14 @@ import time
 from typing import Iterator
 
 import pytest
-from conftest import Server, cancel_latency_s, free_port, start_controller_sim, stop_process, wait_state
-
+from conftest import (
+    Server,
+    cancel_latency_s,
+    free_port,
+    start_controller_sim,
+    stop_process,
+    wait_state,
+)
 from plan_checker import check_plan
 
 from schemas.plan import Plan, plan_sha256
@@ -119,8 +125,8 @@ def test_survey_job_runs_the_real_survey_and_cancels_within_1s(real_server: Serv
 def test_survey_job_end_to_end(real_server: Server) -> None:
     with real_server.client("alice") as alice:
         r = alice.post("/v1/jobs", json={"kind": "survey", "request": {"scenario": "upright", "seed": 1,
-                                                                      "states_per_configuration": 30}})
+                                                                      "states_per_configuration": 30, "seeds_min": 2, "seeds_max": 2}})
         job = wait_state(alice, r.json()["id"], {"succeeded", "failed"}, timeout=PLAN_TIMEOUT_S)
         assert job["state"] == "succeeded", job["error"]
         survey = job["result"]
-        assert survey["schema"] == "regrasp.survey/1" and len(survey["rows"]) >= 1
+        assert survey["schema"] == "regrasp.survey/2" and len(survey["rows"]) >= 1

@@ -14,7 +14,6 @@ from typing import Iterator
 
 import pytest
 from conftest import Server, cancel_latency_s, job_events, wait_state
-
 from plan_checker import check_plan
 
 from schemas.jobs import TERMINAL_STATES

@@ -6,7 +6,6 @@ server runs no workers (API only), so generated jobs just queue.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Iterator
 
 import pytest

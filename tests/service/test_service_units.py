@@ -13,10 +13,10 @@ import sqlalchemy as sa
 from conftest import schema_drift
 
 from service.auth import TokenStore, hash_token, is_loopback, make_dev_tokens
+from service.metrics import DURATION_BUCKETS
 from service.provenance import provenance
 from service.settings import ServiceSettings, load_settings
 from service.store import JobStore, make_engine, migrate
-from service.metrics import DURATION_BUCKETS
 
 
 @pytest.fixture

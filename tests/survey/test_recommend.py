@@ -65,53 +65,45 @@ def test_recommend_agrees_with_the_rule_for_any_counts(drawn):
     assert recommend(rows) == (ranked[0] if ranked else None)
 
 
-def test_hands_auto_tries_the_configurations_in_the_survey_s_order(monkeypatch):
-    """--hands auto ranks the quick survey's rows: the recommended first, then by the same rule, then the
+def test_hands_auto_tries_the_configurations_in_the_survey_s_order():
+    """--hands auto ranks the survey's rows: the recommended first, then by the same rule, then the
     configurations without a ratio in the contract's order."""
-    import planner.jobs.plan_job as jobs
+    from planner.survey.auto import order_from
 
     rows = [row("left-left", 6, 2), row("right-right", 0, 0), row("left-right", 3, 1), row("right-left", 9, 1)]
-    doc = {"rows": [r.model_dump() for r in rows], "recommended": recommend(rows)}
-    monkeypatch.setattr(jobs, "quick_survey", lambda task, should_stop=None: doc)
-    order, survey_doc = jobs._auto_order(None, lambda: False)
-    assert survey_doc is doc
+    doc = {"rows": [r.model_dump() for r in rows], "recommended": recommend(rows), "indistinguishable": []}
+    order = order_from(doc)
     assert order[0] == doc["recommended"] == "right-left"
     # left-left and left-right both have R = 0.75: the larger C (6) first.
     assert order == ["right-left", "left-left", "left-right", "right-right"]
 
 
+def test_on_a_tie_the_plan_says_so_and_tries_the_tied_rows_in_the_tie_order():
+    """Overlapping intervals: the recommendation cannot be told from the rows it overlaps; they come next in
+    the order left-left, right-right, left-right, right-left, whatever their ratios."""
+    from planner.survey.auto import order_from, survey_summary
+    from schemas.survey import indistinguishable
+
+    rows = [row("left-left", 80, 20), row("right-right", 85, 15), row("left-right", 90, 10), row("right-left", 50, 50)]
+    for r, ci in zip(rows, ([0.70, 0.88], [0.78, 0.92], [0.84, 0.95], [0.40, 0.60])):
+        r.ratio_ci95 = ci
+    best = recommend(rows)
+    ties = indistinguishable(rows, best)
+    assert best == "left-right" and ties == ["left-left", "right-right"]
+    doc = {"rows": [r.model_dump() for r in rows], "recommended": best, "indistinguishable": ties}
+    assert order_from(doc) == ["left-right", "left-left", "right-right", "right-left"]
+    summary = survey_summary(doc)
+    assert summary["tie"] and "a tie" in summary["note"] and summary["indistinguishable"] == ties
+    assert not survey_summary({**doc, "indistinguishable": []})["tie"]
+
+
 @given(st.permutations(CONTRACT_ORDER), st.lists(st.tuples(counts, counts), min_size=4, max_size=4))
 def test_hands_auto_order_agrees_with_the_rule_for_any_counts(order, pairs):
-    import planner.jobs.plan_job as jobs
+    from planner.survey.auto import order_from
 
     rows = [row(h, c, u) for h, (c, u) in zip(order, pairs)]
-    doc = {"rows": [r.model_dump() for r in rows], "recommended": recommend(rows)}
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(jobs, "quick_survey", lambda task, should_stop=None: doc)
-        tried, _ = jobs._auto_order(None, lambda: False)
+    doc = {"rows": [r.model_dump() for r in rows], "recommended": recommend(rows), "indistinguishable": []}
+    tried = order_from(doc)
     ranked = by_the_contract(rows)
     assert tried == ranked + [h for h in CONTRACT_ORDER if h not in ranked]
     assert tried[0] == (doc["recommended"] or "left-left")
-
-
-@given(st.permutations(CONTRACT_ORDER), st.lists(st.one_of(st.none(), st.integers(0, 4)), min_size=4, max_size=4))
-def test_a_survey_for_the_recommendation_only_recommends_what_the_whole_survey_does(order, stable):
-    """`hands: auto` skips the configurations a surveyed one outranks whatever they would count
-    (planner.survey.runner._outranked), in the one-process order of any request: the recommendation is unchanged. Four
-    states per configuration make R = 1 and ties common; None is a configuration without key poses."""
-    from planner.survey.runner import ConfigOutcome, _outranked, _serial_order
-
-    n = 4
-    whole = [ConfigOutcome(h, 0, 0, "no feasible grasp or key poses", {}) if c is None else ConfigOutcome(h, c, n - c, None, {})
-             for h, c in zip(order, stable)]
-    done: list[ConfigOutcome] = []
-    for k in _serial_order(order):
-        why = _outranked(order[k], done, n)
-        done.append(ConfigOutcome(order[k], 0, 0, why, {}) if why else whole[k])
-
-    def rows(outcomes):
-        return [SurveyRow(hands=o.hands, stable=o.stable, unstable=o.unstable, ratio=o.ratio, reason=o.reason) for o in outcomes]
-
-    assert recommend(rows(done)) == recommend(rows(whole))
-    skipped = [o.hands for o in done if o.reason and o.reason.startswith("not surveyed")]
-    assert all(CONTRACT_ORDER.index(h) > CONTRACT_ORDER.index(recommend(rows(whole))) for h in skipped)

@@ -16,7 +16,8 @@ from planner.regrasp.node_validation import validate_placement
 from planner.regrasp.probes import probe_givers, probe_grasps
 from planner.scene.collision import CollisionWorld
 from planner.scene.scenarios import load_scenario
-from planner.survey.runner import run_survey, run_survey_seeds, write_states
+from planner.survey.estimator import Estimator
+from planner.survey.runner import run_survey, write_states
 from service.cli.main import cli
 
 from .independent import Independent
@@ -24,6 +25,12 @@ from .independent import Independent
 DATA = Path(__file__).parent.parent / "data"
 HANDS = ["right-right", "left-left"]
 STATES = 300
+#: One seed of STATES states: the fixed-budget mode (until: states).
+ONE_SEED = Estimator(until="states", states_per_seed=STATES, seeds_min=1, seeds_max=1)
+
+
+def seeds_of(n: int, states: int = STATES) -> Estimator:
+    return Estimator(until="states", states_per_seed=states, seeds_min=n, seeds_max=n)
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +40,7 @@ def scenario():
 
 @pytest.fixture(scope="module")
 def surveyed(scenario, tmp_path_factory):
-    doc, outcomes = run_survey(scenario, states=STATES, hands=HANDS, workers=1)
+    doc, outcomes = run_survey(scenario, estimator=seeds_of(2), hands=HANDS, workers=1)
     path = tmp_path_factory.mktemp("survey") / "states.npz"
     from planner.robot.model import load_robot
 
@@ -46,8 +53,12 @@ def test_rows_count_exactly_the_requested_states(surveyed):
     assert [r["hands"] for r in doc["rows"]] == HANDS
     for row in doc["rows"]:
         assert row["reason"] is None, row
-        assert row["stable"] + row["unstable"] == STATES
-        assert row["ratio"] == pytest.approx(row["stable"] / STATES)
+        assert row["seeds"] == 2 and [p["seed"] for p in row["per_seed"]] == [1, 2]
+        assert all(p["stable"] + p["unstable"] == STATES for p in row["per_seed"])
+        assert row["stable"] + row["unstable"] == 2 * STATES
+        assert row["stable"] == sum(p["stable"] for p in row["per_seed"])
+        assert row["ratio"] == pytest.approx(row["stable"] / (2 * STATES))
+        assert row["ratio_ci95"][0] <= row["ratio"] <= row["ratio_ci95"][1]
     assert doc["recommended"] in HANDS
 
 
@@ -57,6 +68,8 @@ def test_counts_equal_the_recount_from_states_out(surveyed):
         mine = states["hands"] == row["hands"]
         assert int(states["stable"][mine].sum()) == row["stable"]
         assert int((~states["stable"][mine]).sum()) == row["unstable"]
+        for p in row["per_seed"]:
+            assert int(states["stable"][mine & (states["seed"] == p["seed"])].sum()) == p["stable"]
     assert states["q"].shape == (len(states["hands"]), len(states["joint_names"]))
     assert states["object_pose"].shape == (len(states["hands"]), 7)
 
@@ -105,12 +118,12 @@ def test_a_colliding_state_is_never_counted(scenario, surveyed):
 
 def test_same_seed_same_counts_in_any_process_layout(scenario, surveyed):
     doc, _, _ = surveyed
-    again, _ = run_survey(scenario, states=STATES, hands=HANDS, workers=2)
+    again, _ = run_survey(scenario, estimator=seeds_of(2), hands=HANDS, workers=2, keep_states=False)
     assert [(r["stable"], r["unstable"]) for r in again["rows"]] == [(r["stable"], r["unstable"]) for r in doc["rows"]]
 
 
 def test_threshold_beyond_the_polygon_gives_reasons_not_counts(scenario):
-    doc, _ = run_survey(scenario, states=10, hands=HANDS, threshold_m=0.2, workers=1)
+    doc, _ = run_survey(scenario, estimator=seeds_of(1, 10), hands=HANDS, threshold_m=0.2, workers=1)
     for row in doc["rows"]:
         assert row["ratio"] is None and "inradius" in row["reason"]
     assert doc["recommended"] is None
@@ -151,7 +164,7 @@ def test_states_out_with_all_stances_is_refused(tmp_path):
 
 def test_unknown_hands_are_rejected(scenario):
     with pytest.raises(ValueError, match="unknown hands 'both'"):
-        run_survey(scenario, states=10, hands=["both"], workers=1)
+        run_survey(scenario, estimator=seeds_of(1, 10), hands=["both"], workers=1)
 
 
 def test_key_poses_do_not_depend_on_which_configuration_ran_first(scenario):
@@ -174,50 +187,16 @@ def test_key_poses_do_not_depend_on_which_configuration_ran_first(scenario):
     assert path_of(shared, "left-left") == alone
 
 
-def test_configurations_in_rounds_count_as_in_one_process(scenario):
-    """Three configurations on two workers: the single-arm ones first, one per worker, then the
-    dual-arm one, starting from both hands' probes and validated nodes; the one-process survey runs
-    the same order, and the counts are equal."""
-    from planner.survey.runner import _rounds, _serial_order
-
-    hands = ["right-right", "left-right", "left-left"]
-    assert _rounds(hands, 2) == [[0, 2], [1]]
-    assert _serial_order(hands) == [0, 2, 1]
-    assert _rounds(hands, 3) == [[1, 0, 2]]  # a worker each: one round, the dual-arm one first
-    alone, _ = run_survey(scenario, states=200, hands=hands, workers=1)
-    chained, _ = run_survey(scenario, states=200, hands=hands, workers=2)
-    assert [(r["hands"], r["stable"], r["unstable"]) for r in chained["rows"]] == \
-        [(r["hands"], r["stable"], r["unstable"]) for r in alone["rows"]]
-
-
-def test_a_survey_for_the_recommendation_only_skips_what_cannot_win(scenario, surveyed):
-    """`hands: auto` needs only the recommendation: once left-left has every state stable (R = 1), a
-    configuration after it in the tie order can at best tie and lose, so it is not surveyed. The
-    recommendation and the surveyed rows are those of the whole survey; a round's configurations run
-    together, so none of them is skipped for another of the same round."""
-    full = {r["hands"]: r for r in surveyed[0]["rows"]}
-    assert full["left-left"]["unstable"] == 0 and full["left-left"]["stable"] == STATES  # the premise
-    doc, _ = run_survey(scenario, states=STATES, hands=["left-left", "right-right"], workers=1, recommendation_only=True)
-    rows = {r["hands"]: r for r in doc["rows"]}
-    assert doc["recommended"] == surveyed[0]["recommended"] == "left-left"
-    assert rows["left-left"] == full["left-left"]
-    assert rows["right-right"]["ratio"] is None and "not surveyed: left-left had all 300 states stable" in rows["right-right"]["reason"]
-    together, _ = run_survey(scenario, states=STATES, hands=["left-left", "right-right"], workers=2, recommendation_only=True)
-    assert together["rows"] == doc["rows"][:1] + [full["right-right"]]
-    with pytest.raises(ValueError, match="one seed"):
-        run_survey_seeds(scenario, [1, 2], states=STATES, hands=["left-left"], workers=1, recommendation_only=True)
-
-
 def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenario, monkeypatch):
-    """Workers validate key-pose nodes in their own copies of the task; the caller's task adopts them,
-    so the plan after a `hands: auto` survey finds its key path without validating a node again."""
+    """Key poses are found in the caller's task (the workers only explore), so the plan after a
+    `hands: auto` survey finds its key path without validating a node again."""
     import planner.regrasp.hand_config_planner as hcp
     from planner.regrasp.hand_config_planner import HandConfigPlanner
     from planner.regrasp.task import Task
     from planner.survey.runner import key_path
 
     task = Task(scenario)
-    run_survey(scenario, states=50, hands=["right-right", "left-left"], workers=2, task=task)
+    run_survey(scenario, estimator=seeds_of(2, 50), hands=["right-right", "left-left"], workers=2, task=task)
     assert task.node_cache, "the workers' validations did not reach the caller"
     before = dict(task.node_cache)
     fresh_calls = []
@@ -244,20 +223,23 @@ def test_the_cli_progress_bar_leaves_the_process_single_threaded():
     assert during == before
 
 
-def test_the_state_count_defaults_to_the_scenario_then_10000_and_zero_is_refused(scenario):
-    """docs/contract.md section 4: N from the scenario, 10,000 by default. (A threshold beyond the polygon skips the
-    exploration itself, so the count is read without running 10,000 states.)"""
+def test_the_estimator_defaults_to_the_scenario_s_and_the_old_count_reads_as_until_states(scenario):
+    """CONTRACT 4: the scenario's survey field (until solved, +-0.02, 10 to 256 seeds, legs capped at
+    20,000 states by default); `states_per_configuration` (survey/1) reads as until: states; 0 is refused.
+    (A threshold beyond the polygon skips the exploration itself.)"""
     from planner.jobs.plan_job import build_task
+    from planner.scene.scenarios import with_overrides
 
-    assert "survey" not in scenario.model_dump(exclude_unset=True)  # the fixture names no count
     task = build_task(scenario)
     doc, _ = run_survey(scenario, threshold_m=1.0, workers=1, task=task)
-    assert doc["stats"]["states_per_configuration"] == 10_000
+    assert doc["schema"] == "regrasp.survey/2"
+    assert doc["estimator"] == {"until": "solved", "ci_half_width": 0.02, "seeds_min": 10, "seeds_max": 256,
+                                "leg_cap_states": 20000}
     assert all(row["ratio"] is None and "inradius" in row["reason"] for row in doc["rows"])
-    own = scenario.model_copy(update={"survey": scenario.survey.model_copy(update={"states_per_configuration": 1234})})
+    own = with_overrides(scenario, states_per_configuration=1234)
     doc, _ = run_survey(own, threshold_m=1.0, workers=1, task=task)
-    assert doc["stats"]["states_per_configuration"] == 1234
-    with pytest.raises(ValueError, match="states per configuration must be >= 1, got 0"):
+    assert doc["estimator"]["until"] == "states" and doc["estimator"]["states_per_seed"] == 1234
+    with pytest.raises(ValueError, match="states per seed must be >= 1, got 0"):
         run_survey(scenario, states=0, workers=1, task=task)
 
 

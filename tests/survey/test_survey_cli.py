@@ -42,7 +42,7 @@ def all_stances(tmp_path_factory):
         mp.setattr(survey_module, "run_survey", one_configuration)
         res = CliRunner(env={"COLUMNS": "250"}).invoke(
             cli, ["survey", str(DATA / "small-box.yaml"), "--all-stances", "--threshold-mm", "70", "--states", "40",
-                  "--workers", "1", "--plot", str(out)])
+                  "--seeds-min", "2", "--seeds-max", "2", "--workers", "1", "--plot", str(out)])
     assert res.exit_code == 0, res.output
     return res.stdout, docs, out
 
@@ -57,7 +57,7 @@ def test_every_stance_is_surveyed_with_the_same_task(all_stances):
         if d["stance"]["name"] == "one-legged":
             assert all(r["ratio"] is None and "inradius" in r["reason"] for r in d["rows"])
         else:
-            assert all(r["stable"] + r["unstable"] == 40 for r in d["rows"]), d["rows"]
+            assert all(r["stable"] + r["unstable"] == 2 * 40 and r["seeds"] == 2 for r in d["rows"]), d["rows"]
 
 
 def test_each_stance_prints_a_table_of_c_u_r_with_the_recommended_marked(all_stances):
@@ -66,7 +66,7 @@ def test_each_stance_prints_a_table_of_c_u_r_with_the_recommended_marked(all_sta
     tables = stdout.split("recommended:")
     assert len(tables) == len(docs) + 1
     for text, doc in zip(tables, docs):
-        assert f"{doc['stance']['name']} stance, threshold 70 mm, 40 states, seed 1" in text
+        assert f"{doc['stance']['name']} stance, threshold 70 mm, 40 states per seed, seeds from 1" in text
         rows = {label_of[cells[0].removesuffix(" *")]: cells for cells in table_rows(text)
                 if cells[0].removesuffix(" *") in label_of}
         assert list(rows) == HANDS
@@ -126,7 +126,7 @@ def test_the_matrix_json_form_holds_every_stance_document(tmp_path):
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(survey_module, "run_survey", lambda scenario, **kw: real(scenario, hands=["left-left"], **kw))
         res = CliRunner().invoke(cli, ["survey", str(DATA / "small-box.yaml"), "--all-stances", "--threshold-mm", "118",
-                                       "--states", "10", "--workers", "1", "--json"])
+                                       "--states", "10", "--seeds-min", "1", "--seeds-max", "1", "--workers", "1", "--json"])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     assert [d["stance"]["name"] for d in doc["stances"]] == list(BUILTIN_STANCES)

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from planner.kinematics.batch import BatchKinematics
 from planner.motion.ik import IkSettings, IkSolver
 from planner.motion.ik_batch import BatchIk
-from planner.kinematics.batch import BatchKinematics
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from planner.transforms import matrices_to_pose7
 from planner.motion.trrt import ExploreLeg, TrrtSettings, explore, plan_motion
+from planner.transforms import matrices_to_pose7
 
 RESOLUTION = 0.02
 
@@ -246,7 +246,9 @@ def test_exploration_cancel(robot, upright, evaluator, hold_right, right_active)
     assert ex.status == "canceled" and ex.stats["evaluated"] < 10**6
 
 
-from hypothesis import given, settings as hsettings, strategies as st  # noqa: E402
+from hypothesis import given  # noqa: E402
+from hypothesis import settings as hsettings
+from hypothesis import strategies as st
 
 
 @hsettings(max_examples=8, deadline=None)

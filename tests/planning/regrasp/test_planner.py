@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from plan_checker import check_plan
 
 from planner.errors import InputError
 from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.scene.scenarios import load_scenario, with_overrides
 from schemas.plan import Plan, plan_sha256
-from plan_checker import check_plan
 
 from .summary import summary_cells
 

@@ -12,11 +12,16 @@ import pytest
 from click.testing import CliRunner
 
 from planner.kinematics.batch import BatchKinematics
-from planner.robot.model import center_of_mass, frame_poses, load_robot
 from planner.robot import jvrc1_urdf
+from planner.robot.model import center_of_mass, frame_poses, load_robot
 from planner.robot.registry import robot_names, urdf_path
 from planner.robot.urdf_geometry import collision_primitives
-from planner.stability.stances import BUILTIN_STANCES, StanceError, sole_size, solve_stance
+from planner.stability.stances import (
+    BUILTIN_STANCES,
+    StanceError,
+    sole_size,
+    solve_stance,
+)
 from schemas.stance import StanceDef
 
 SIDES = (("l", "L"), ("r", "R"))

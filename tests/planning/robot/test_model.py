@@ -7,9 +7,14 @@ import pinocchio as pin
 import pytest
 
 from planner.kinematics.batch import BatchKinematics
-from planner.robot.info import standing_height
-from planner.robot.model import UnknownNameError, center_of_mass, frame_poses, load_robot
 from planner.robot import hrp5p_urdf
+from planner.robot.info import standing_height
+from planner.robot.model import (
+    UnknownNameError,
+    center_of_mass,
+    frame_poses,
+    load_robot,
+)
 from planner.robot.registry import UnknownRobotError, urdf_path
 
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from planner.kinematics.reduced import ReducedKinematics
 from planner.stability.evaluator import HoldSpec, StateEvaluator
-
 from tests.planning.conftest import COM_LOCAL
 
 

@@ -1,0 +1,289 @@
+"""The survey's estimator of R per hand configuration: seeds repeated until the interval is tight.
+
+One seed is one counted exploration of the task (:func:`planner.survey.counting.explore_counted`):
+C stable and U unstable poses. R = C / (C + U) pooled over seeds. Seeds ``seed``, ``seed`` + 1,
+... are judged in that order: after each one (from ``seeds_min`` on), a row whose 95 % interval
+lies within ``ci_half_width`` of its R on both sides is converged and takes no more seeds; at
+``seeds_max`` it stops unconverged. The interval is the percentile bootstrap over seeds (2,000
+resamples from a generator seeded by the survey's seed and the row): resampling whole seeds keeps
+the strong correlation between the poses of one tree. A row with no unstable pose at all has
+[1 - 3/(C + U), 1] (the "rule of three": a bootstrap cannot show an interval there).
+
+Seeds may run in parallel (forked workers, one seed per job) and still give the same answer as
+in one process: every seed draws from its own generator, and a row is judged on its seeds in
+order, so seeds that ran beyond its convergence are dropped.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from typing import Any, Callable, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from planner.errors import Canceled
+from planner.motion.trrt import ExploreLeg, TrrtSettings
+from planner.survey.counting import (
+    CountedExploration,
+    CountingSettings,
+    explore_counted,
+)
+from schemas.common import HAND_CONFIGS
+
+#: Bootstrap resamples of the seeds per interval.
+BOOTSTRAP_RESAMPLES = 2000
+#: Seeds handed to the workers ahead of the judgement, per worker.
+LOOKAHEAD_PER_WORKER = 2
+
+
+class Estimator(BaseModel):
+    """When a survey has seen enough (CONTRACT.md section 4; the scenario's ``survey:`` field)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    until: Literal["solved", "states"] = Field("solved", description="solved: each seed explores until its tree reaches "
+                                               "the goal (or the leg cap); states: each seed counts states_per_seed poses")
+    ci_half_width: float = Field(0.02, gt=0, le=0.5, description="largest distance of the 95 % bounds from R")
+    seeds_min: int = Field(10, ge=1, le=10_000)
+    seeds_max: int = Field(256, ge=1, le=10_000)
+    states_per_seed: int | None = Field(None, ge=1, le=1_000_000, description="until: states only")
+    leg_cap_states: int = Field(20_000, ge=1, le=1_000_000, description="a leg that counted this many poses ends unsolved")
+
+    @model_validator(mode="after")
+    def _check(self) -> "Estimator":
+        if self.seeds_max < self.seeds_min:
+            raise ValueError(f"seeds_max {self.seeds_max} is below seeds_min {self.seeds_min}")
+        if self.until == "states" and self.states_per_seed is None:
+            raise ValueError("until: states needs states_per_seed")
+        return self
+
+    def document(self) -> dict[str, Any]:
+        """The survey document's ``estimator`` field."""
+        doc = {"until": self.until, "ci_half_width": self.ci_half_width, "seeds_min": self.seeds_min,
+               "seeds_max": self.seeds_max, "leg_cap_states": self.leg_cap_states}
+        if self.until == "states":
+            doc["states_per_seed"] = self.states_per_seed
+        return doc
+
+
+def ratio_interval(stable: np.ndarray, unstable: np.ndarray, rng: np.random.Generator,
+                   resamples: int = BOOTSTRAP_RESAMPLES) -> tuple[float, float] | None:
+    """The 95 % percentile-bootstrap interval of the pooled C / (C + U) over seeds (one entry per seed).
+
+    With no unstable pose at all: [1 - 3/(C + U), 1]. None when nothing was counted.
+    """
+    c = np.asarray(stable, dtype=float)
+    u = np.asarray(unstable, dtype=float)
+    n = c + u
+    total = float(n.sum())
+    if total <= 0:
+        return None
+    if float(u.sum()) == 0.0:
+        return max(0.0, 1.0 - 3.0 / total), 1.0
+    k = len(c)
+    idx = rng.integers(0, k, size=(resamples, k))
+    cs, ns = c[idx].sum(axis=1), n[idx].sum(axis=1)
+    ok = ns > 0
+    r = cs[ok] / ns[ok]
+    lo, hi = np.percentile(r, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+def within(ratio: float, interval: tuple[float, float], half_width: float) -> bool:
+    """Whether both bounds lie within ``half_width`` of ``ratio`` (a float tolerance of 1e-12)."""
+    lo, hi = interval
+    return ratio - lo <= half_width + 1e-12 and hi - ratio <= half_width + 1e-12
+
+
+def bootstrap_rng(seed: int, hands: str, n_seeds: int) -> np.random.Generator:
+    """The generator of one row's interval after ``n_seeds`` seeds (the same on any layout)."""
+    return np.random.default_rng([int(seed), HAND_CONFIGS.index(hands), int(n_seeds), 4019])
+
+
+@dataclass
+class SeedCount:
+    """One seed's counts, and its counted poses when they are kept."""
+
+    seed: int
+    stable: int
+    unstable: int
+    solved: bool
+    status: str
+    time_s: float
+    legs: list[dict] = field(default_factory=list)
+    states: CountedExploration | None = None
+
+    def entry(self) -> dict[str, Any]:
+        return {"seed": self.seed, "stable": self.stable, "unstable": self.unstable, "solved": self.solved}
+
+
+@dataclass
+class Judgement:
+    """A row's verdict on its first ``seeds`` seeds."""
+
+    seeds: int
+    stable: int
+    unstable: int
+    ratio: float | None
+    interval: tuple[float, float] | None
+    converged: bool
+
+
+def judge(counts: list[SeedCount], estimator: Estimator, seed: int, hands: str) -> Judgement:
+    """R and its interval over ``counts`` (seeds in order), and whether the row may stop there."""
+    c = np.array([s.stable for s in counts])
+    u = np.array([s.unstable for s in counts])
+    C, U = int(c.sum()), int(u.sum())
+    ratio = C / (C + U) if C + U else None
+    interval = ratio_interval(c, u, bootstrap_rng(seed, hands, len(counts))) if counts else None
+    converged = (ratio is not None and interval is not None and len(counts) >= estimator.seeds_min
+                 and within(ratio, interval, estimator.ci_half_width))
+    return Judgement(len(counts), C, U, ratio, interval, converged)
+
+
+def first_converged(counts: list[SeedCount], estimator: Estimator, seed: int, hands: str,
+                    start: int = 1) -> Judgement | None:
+    """The judgement at the first number of seeds (from ``start``) at which the row converged, else None."""
+    for k in range(max(start, estimator.seeds_min), len(counts) + 1):
+        j = judge(counts[:k], estimator, seed, hands)
+        if j.converged:
+            return j
+    return None
+
+
+def seed_rng(seed: int, hands: str) -> np.random.Generator:
+    """One seed's exploration generator: independent of the layout and of the other rows."""
+    return np.random.default_rng([int(seed), HAND_CONFIGS.index(hands), 19])
+
+
+def explore_seed(legs: list[ExploreLeg], evaluator, hands: str, seed: int, estimator: Estimator, *,
+                 settings: CountingSettings | None = None, trrt: TrrtSettings | None = None,
+                 should_stop: Callable[[], bool] | None = None, keep_states: bool = False) -> SeedCount:
+    """One seed's counted exploration of a configuration's legs."""
+    t0 = time.perf_counter()
+    budget = estimator.states_per_seed if estimator.until == "states" else None
+    ex = explore_counted(legs, evaluator, seed_rng(seed, hands), leg_cap_states=estimator.leg_cap_states, budget=budget,
+                         settings=settings, trrt=trrt, should_stop=should_stop)
+    return SeedCount(seed=seed, stable=ex.n_stable, unstable=ex.n_unstable, solved=ex.solved, status=ex.status,
+                     time_s=time.perf_counter() - t0, legs=ex.stats["legs"], states=ex if keep_states else None)
+
+
+# -- running rows ---------------------------------------------------------------------------------
+
+@dataclass
+class RowWork:
+    """What one configuration's seeds need: its legs (None with the reason when it has none)."""
+
+    hands: str
+    legs: list[ExploreLeg] | None
+    reason: str | None = None
+    stats: dict = field(default_factory=dict)
+    counts: list[SeedCount] = field(default_factory=list)
+    verdict: Judgement | None = None
+
+
+#: What the forked seed workers read (set by the parent just before the pool forks, cleared after).
+_FORK_STATE: dict[str, Any] = {}
+
+
+def _seed_job(args: tuple) -> SeedCount:
+    hands, seed, keep = args
+    rows: dict[str, RowWork] = _FORK_STATE["rows"]
+    return explore_seed(rows[hands].legs, _FORK_STATE["evaluator"], hands, seed, _FORK_STATE["estimator"],
+                        settings=_FORK_STATE["settings"], trrt=_FORK_STATE["trrt"], keep_states=keep)
+
+
+def run_rows(rows: list[RowWork], evaluator, estimator: Estimator, seed: int, *, workers: int = 1,
+             settings: CountingSettings | None = None, trrt: TrrtSettings | None = None,
+             should_stop: Callable[[], bool] = lambda: False, progress: Callable[[float, str], None] = lambda f, m: None,
+             keep_states: bool = False, can_fork: bool = False) -> None:
+    """Run each row's seeds until it converged or reached ``seeds_max``; fills ``counts`` and ``verdict``.
+
+    In forked workers when ``can_fork`` and ``workers`` > 1, else in this process; the verdicts are the same.
+    """
+    live = [r for r in rows if r.legs]
+    for r in rows:
+        if not r.legs:
+            r.verdict = Judgement(0, 0, 0, None, None, False)
+
+    def settle(r: RowWork) -> bool:
+        """Judge the row on its seeds so far; True when it needs no more."""
+        j = first_converged(r.counts, estimator, seed, r.hands, start=len(r.counts))
+        if j is not None:
+            r.verdict = j
+            return True
+        if len(r.counts) >= estimator.seeds_max:
+            r.verdict = judge(r.counts, estimator, seed, r.hands)
+            return True
+        return False
+
+    total = max(1, len(live))
+    if workers <= 1 or not can_fork or not live:
+        for i, r in enumerate(live):
+            done = False
+            while not done:
+                if should_stop():
+                    raise Canceled()
+                sd = seed + len(r.counts)
+                r.counts.append(explore_seed(r.legs, evaluator, r.hands, sd, estimator, settings=settings, trrt=trrt,
+                                             should_stop=should_stop, keep_states=keep_states))
+                if r.counts[-1].status == "canceled":
+                    raise Canceled()
+                done = settle(r)
+                progress((i + min(len(r.counts) / max(estimator.seeds_min, 1), 0.99)) / total,
+                         f"{r.hands}: {len(r.counts)} seeds")
+        return
+    import multiprocessing as mp
+
+    _FORK_STATE.update(rows={r.hands: r for r in live}, evaluator=evaluator, estimator=estimator,
+                       settings=settings, trrt=trrt)
+    try:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork")) as pool:
+            results: dict[str, dict[int, SeedCount]] = {r.hands: {} for r in live}
+            issued: dict[str, int] = {r.hands: 0 for r in live}
+            open_rows = list(live)
+            pending: dict[Future, tuple[str, int]] = {}
+
+            def top_up() -> None:
+                # Round-robin over the open rows, seeds in order, a few jobs ahead per worker.
+                while len(pending) < workers * LOOKAHEAD_PER_WORKER:
+                    candidates = [r for r in open_rows if issued[r.hands] < estimator.seeds_max]
+                    if not candidates:
+                        return
+                    r = min(candidates, key=lambda r: (issued[r.hands], rows.index(r)))
+                    sd = seed + issued[r.hands]
+                    issued[r.hands] += 1
+                    pending[pool.submit(_seed_job, (r.hands, sd, keep_states))] = (r.hands, sd)
+
+            top_up()
+            while open_rows:
+                finished, _ = wait(list(pending), timeout=0.2, return_when=FIRST_COMPLETED)
+                if should_stop():
+                    procs = list((getattr(pool, "_processes", None) or {}).values())
+                    pool.shutdown(wait=False, cancel_futures=True)
+                    for proc in procs:
+                        proc.kill()
+                    raise Canceled()
+                for f in finished:
+                    hands, sd = pending.pop(f)
+                    results[hands][sd] = f.result()
+                for r in list(open_rows):
+                    got = results[r.hands]
+                    while seed + len(r.counts) in got:
+                        r.counts.append(got.pop(seed + len(r.counts)))
+                        if settle(r):
+                            open_rows.remove(r)
+                            break
+                    progress(sum(min(len(x.counts) / max(estimator.seeds_min, 1), 1.0) for x in live) / total * 0.99,
+                             f"{sum(len(x.counts) for x in live)} seeds judged")
+                for f, (hands, _) in list(pending.items()):
+                    if all(r.hands != hands for r in open_rows) and f.cancel():
+                        del pending[f]
+                top_up()
+            for f in pending:
+                f.cancel()
+    finally:
+        _FORK_STATE.clear()

@@ -1,0 +1,78 @@
+"""One recommendation per task: the survey, `regrasp plan --hands auto` and the service's survey and plan jobs
+give the same answer for the same task and seeds, computed once and then read from the cache.
+
+The task is the small box (tests/data/small-box.yaml) with a small fixed-budget estimator in its own
+``survey:`` field (two seeds of 60 states): that is the default estimator every path takes for it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from service.cli.main import cli
+
+DATA = Path(__file__).parent.parent / "data"
+
+
+class Ctx:
+    def progress(self, fraction: float, message: str) -> None:
+        pass
+
+    def cancelled(self) -> bool:
+        return False
+
+
+@pytest.fixture(scope="module")
+def task_file(tmp_path_factory):
+    doc = yaml.safe_load((DATA / "small-box.yaml").read_text())
+    doc.update(hands="auto", survey={"until": "states", "states_per_seed": 60, "seeds_min": 2, "seeds_max": 2})
+    path = tmp_path_factory.mktemp("one-answer") / "task.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path, doc
+
+
+def test_survey_plan_auto_and_the_service_jobs_agree(task_file, tmp_path):
+    from planner.jobs.entry import run_plan, run_survey
+
+    path, doc = task_file
+    res = CliRunner().invoke(cli, ["survey", str(path), "--json", "--workers", "1"])
+    assert res.exit_code == 0, res.output
+    survey = json.loads(res.stdout)
+    best = survey["recommended"]
+    assert best is not None and survey["stats"]["cache"] == "miss"
+    assert all(r["seeds"] == 2 for r in survey["rows"] if r["ratio"] is not None)
+
+    res = CliRunner().invoke(cli, ["plan", str(path), "--hands", "auto", "--quiet", "--out", str(tmp_path / "plan.json")])
+    assert res.exit_code == 0, res.output
+    plan = json.loads((tmp_path / "plan.json").read_text())
+    assert plan["status"] == "solved" and plan["hands"] == best
+    said = plan["stats"]["survey_recommendation"]
+    assert said["recommended"] == best and said["cache"] == "hit" and said["task_key"] == survey["stats"]["task_key"]
+    assert said["tie"] == bool(survey["indistinguishable"])
+    if said["tie"]:
+        assert "a tie" in said["note"]
+
+    # The service's workers call these with the job's request (an inline scenario: the mesh-free box).
+    inline = {k: v for k, v in doc.items()}
+    job_survey = run_survey({"scenario": inline}, Ctx())
+    assert job_survey["recommended"] == best and job_survey["stats"]["cache"] == "hit"
+    assert [r["ratio"] for r in job_survey["rows"]] == [r["ratio"] for r in survey["rows"]]
+    job_plan = run_plan({"scenario": inline, "hands": "auto"}, Ctx())
+    assert job_plan["hands"] == best
+
+
+def test_another_seed_is_another_task(task_file):
+    """The cache key is the resolved scenario: a different first seed is surveyed afresh."""
+    from planner.scene.scenarios import load_scenario, with_overrides
+    from planner.survey.cache import task_key
+
+    path, _ = task_file
+    sc = load_scenario(path)
+    assert task_key(sc, "x") != task_key(with_overrides(sc, seed=2), "x")
+    assert task_key(sc, "x") == task_key(with_overrides(sc, hands="left-left"), "x")  # the plan's hands do not matter
+    assert task_key(sc, "x") != task_key(with_overrides(sc, threshold_m=0.02), "x")
