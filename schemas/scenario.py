@@ -94,7 +94,7 @@ class Limits(StrictModel):
 
 
 class SurveySettings(StrictModel):
-    """How long the survey explores (CONTRACT.md section 4): seeds until every row's interval is tight
+    """How long the survey explores (docs/contract.md section 4): seeds until every row's interval is tight
     (``until: solved``), or a fixed number of states per seed (``until: states``)."""
 
     until: Literal["solved", "states"] = Field("solved", description="solved: each seed explores until it reaches the "

@@ -7,7 +7,7 @@ the real-robot drill tasks, planning times with and without the constraint, and 
 on each of the paper's claims (:mod:`service.paper_claims`). Every claim not reproduced names a
 cause and shows a run that changes that one thing (the pelvis placement, the object's CoM side,
 its mass, the threshold), with the claim judged again on it. The numbers are also written to
-``report.json`` (CONTRACT.md section 4b). The tables are reproduced without effort and grip
+``report.json`` (docs/contract.md section 4b). The tables are reproduced without effort and grip
 limits, as the paper had none (this model has no such checks yet).
 """
 
@@ -87,7 +87,7 @@ def _scenario(name: str, stance: Any = None, **changes: Any):
 
 
 def _survey(sc, settings: PaperSettings) -> dict[str, Any]:
-    """A survey with the report's estimator: its rows (CONTRACT.md section 4) and what it ran with."""
+    """A survey with the report's estimator: its rows (docs/contract.md section 4) and what it ran with."""
     from planner.scene.scenarios import with_overrides
     from planner.survey.runner import run_survey
 

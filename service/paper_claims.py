@@ -1,4 +1,4 @@
-"""The paper's claims, judged strictly on survey rows (CONTRACT.md section 4b).
+"""The paper's claims, judged strictly on survey rows (docs/contract.md section 4b).
 
 A claim that names an ordering ("left-left above the other three") is ``reproduced`` only when
 every pair it names is ordered the same way by R and the two 95 % intervals do not overlap: the

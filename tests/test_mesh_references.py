@@ -1,4 +1,4 @@
-"""Object meshes by registered name or by a path relative to the scenario file (CONTRACT.md section 2).
+"""Object meshes by registered name or by a path relative to the scenario file (docs/contract.md section 2).
 
 `regrasp scenario show NAME` prints a scenario that works saved anywhere, and neither a scenario
 dump nor a plan file holds the absolute path of one checkout.

@@ -1,7 +1,7 @@
 """Object meshes by registered name, and scenario dumps that stay valid wherever they are saved.
 
 A scenario names its object mesh as ``{name: REGISTERED}`` (a mesh shipped with the planner) or
-``{path: FILE}`` relative to the scenario file (CONTRACT.md section 2). Loading resolves either
+``{path: FILE}`` relative to the scenario file (docs/contract.md section 2). Loading resolves either
 to a file (:func:`resolve_mesh`); dumping gives back the portable form (:func:`portable_mesh`):
 the name, or the path as the file wrote it, never the absolute path of one checkout. So
 ``regrasp scenario show NAME`` and a plan's ``scenario`` work when saved anywhere.

@@ -1,6 +1,6 @@
 """``hands: auto``: the order in which a plan tries the hand configurations, from the task's survey.
 
-The survey is the task's one recommendation (CONTRACT.md section 4): the scenario's default
+The survey is the task's one recommendation (docs/contract.md section 4): the scenario's default
 estimator, computed once per resolved scenario and cached (:mod:`planner.survey.cache`). The plan
 tries the recommended configuration first. When the recommendation is a statistical tie (other
 rows' intervals overlap its own), the plan says so and tries the tied rows next in the tie order

@@ -2,7 +2,7 @@
 
 ``hands: auto``, the demo and the service's survey jobs all take the answer of the survey's
 default estimator (the scenario's ``survey:`` field) for the task, computed once. The key is the
-SHA-256 of the resolved scenario's canonical JSON (the form of plan hashes, CONTRACT.md section
+SHA-256 of the resolved scenario's canonical JSON (the form of plan hashes, docs/contract.md section
 3) together with the robot model's URDF hash, the survey schema and the survey code's hash, so a changed object, stance,
 threshold, seed, estimator or robot is a different task. Documents are written atomically (a
 temporary file renamed into place), so processes sharing the folder (a service's workers) never

@@ -1,6 +1,6 @@
 """The survey's counted exploration: the paper's goal-biased, constrained T-RRT, counting each pose once.
 
-What is counted (CONTRACT.md section 4): each pose the exploration samples and steers to,
+What is counted (docs/contract.md section 4): each pose the exploration samples and steers to,
 once, as stable (margin >= threshold) or unstable. The points interpolated along an edge to
 check it are checks, not states: they decide whether the edge joins the tree and are never
 counted. A pose that collides is not counted (``stats['rejected']`` says how many); joint

@@ -40,7 +40,7 @@ LOOKAHEAD_PER_WORKER = 2
 
 
 class Estimator(BaseModel):
-    """When a survey has seen enough (CONTRACT.md section 4; the scenario's ``survey:`` field)."""
+    """When a survey has seen enough (docs/contract.md section 4; the scenario's ``survey:`` field)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 

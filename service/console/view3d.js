@@ -345,7 +345,7 @@ function disposeTree(obj) {
   });
 }
 
-/* The object's shape in its own frame (CONTRACT section 2): box centred, bar from its base, cylinder along z. */
+/* The object's shape in its own frame (docs/contract.md section 2): box centred, bar from its base, cylinder along z. */
 function objectGeometry(def, onMesh) {
   const material = new THREE.MeshStandardMaterial({ color: COLORS.object, roughness: 0.6 });
   const size = Array.isArray(def.size) ? def.size : null;

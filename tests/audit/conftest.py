@@ -15,7 +15,7 @@ def hrp5p_urdf() -> str:
 
 
 def tiny_plan(n: int = 12) -> dict:
-    """A plan-shaped dict (CONTRACT section 3 fields the writer reads)."""
+    """A plan-shaped dict (docs/contract.md section 3 fields the writer reads)."""
     names = ["LCY", "LCR", "RCY"]
     return {
         "robot": {"name": "hrp5p", "joint_names": names},

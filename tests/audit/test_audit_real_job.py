@@ -42,7 +42,7 @@ from tests.service.conftest import (
 #: Executions on the simulated controller in wall-clock time (a 2 s watchdog, a 3 s zenoh lease): a failure
 #: while the VM's host paused the guest for 0.5 s or more measured the host, and the test runs again.
 pytestmark = pytest.mark.host_pauses(limit_s=0.5)
-#: Contract states of a plan job that runs to the end, in order (CONTRACT section 5).
+#: Contract states of a plan job that runs to the end, in order (docs/contract.md section 5).
 PLAN_JOB_STATES = ["queued", "planning", "planned", "approved", "dispatching", "executing", "succeeded"]
 CONTROLLER_UP_TIMEOUT_S = 60.0
 JOB_TIMEOUT_S = 60.0
@@ -230,7 +230,7 @@ def test_dispatched_segments_cover_the_plan_with_contiguous_seq(audited: Audited
     assert all(s["segment_count"] == count and s["job_id"] == audited.job["id"] for s in sent)
     seqs = [s["seq"] for s in sent]
     assert seqs == list(range(dispatching["data"]["first_seq"], dispatching["data"]["first_seq"] + count))
-    # Every point of the plan went out once, in order, each segment at most 1 s (CONTRACT section 6).
+    # Every point of the plan went out once, in order, each segment at most 1 s (docs/contract.md section 6).
     assert [s["first_index"] for s in sent] == list(np.cumsum([0] + [s["points"] for s in sent[:-1]]))
     assert sum(s["points"] for s in sent) == len(document["trajectory"])
     assert all((s["points"] - 1) * document["dt_s"] <= 1.0 + 1e-9 for s in sent)

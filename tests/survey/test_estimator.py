@@ -1,4 +1,4 @@
-"""The survey's estimator and its counting rules (CONTRACT.md section 4), on problems whose answers are known.
+"""The survey's estimator and its counting rules (docs/contract.md section 4), on problems whose answers are known.
 
 The counting rules run on a two-joint toy whose stable region is x <= 0.5 (margin 0.5 - x) and whose
 obstacle is y > 0.8, with the project's own T-RRT transition test; the interval on seeds drawn with a

@@ -224,7 +224,7 @@ def test_the_cli_progress_bar_leaves_the_process_single_threaded():
 
 
 def test_the_estimator_defaults_to_the_scenario_s_and_the_old_count_reads_as_until_states(scenario):
-    """CONTRACT 4: the scenario's survey field (until solved, +-0.02, 10 to 256 seeds, legs capped at
+    """docs/contract.md section 4: the scenario's survey field (until solved, +-0.02, 10 to 256 seeds, legs capped at
     20,000 states by default); `states_per_configuration` (survey/1) reads as until: states; 0 is refused.
     (A threshold beyond the polygon skips the exploration itself.)"""
     from planner.jobs.plan_job import build_task
