@@ -16,10 +16,11 @@ import numpy as np
 from planner.kinematics.batch import BatchKinematics
 from planner.motion.ik import IkSolver
 from planner.motion.ik_batch import BatchIk
-from planner.motion.trrt import ExploreLeg, TrrtSettings, explore, plan_motion
+from planner.motion.trrt import TrrtSettings, plan_motion
 from planner.robot.model import load_robot
 from planner.stability.evaluator import HoldSpec, StateEvaluator
 from planner.stability.stances import solve_stance
+from planner.survey.counting import ExploreLeg, explore_counted
 
 COM_LOCAL = np.array([0.15, 0.08, 0.15])
 
@@ -122,9 +123,10 @@ def main() -> None:
     legs = [ExploreLeg(start, goal, hold, act)]
     ev = ev3  # a task whose pick and place states are stable (the survey's case)
     t0 = time.perf_counter()
-    ex = explore(legs, ev, None, args.states, np.random.default_rng(1))
+    ex = explore_counted(legs, ev, np.random.default_rng(1), budget=args.states)
     dt = time.perf_counter() - t0
-    print(f"explore, no collision: {args.states / dt:.0f} states/s ({args.states} in {dt:.2f} s; C={ex.n_stable} U={ex.n_unstable}, connected={ex.stats['connected']})")
+    print(f"counted exploration, no collision: {args.states / dt:.0f} sampled poses/s ({args.states} in {dt:.2f} s; "
+          f"C={ex.n_stable} U={ex.n_unstable}, solved={ex.solved})")
 
     if args.no_collision:
         return
@@ -152,12 +154,12 @@ def main() -> None:
         return out
 
     t0 = time.perf_counter()
-    ex = explore(legs, ev, collision_free, args.states, np.random.default_rng(1))
+    legs = [ExploreLeg(start, goal, hold, act, collision_free)]
+    ex = explore_counted(legs, ev, np.random.default_rng(1), budget=args.states)
     dt = time.perf_counter() - t0
     print(
-        f"explore, with collision: {args.states / dt:.0f} states/s ({args.states} in {dt:.2f} s; "
-        f"collision {calls['n'] / max(calls['t'], 1e-9):.0f} checks/s = {calls['t'] / dt:.0%} of the time; "
-        f"rejected {ex.stats['rejected']})"
+        f"counted exploration, with collision: {args.states / dt:.0f} sampled poses/s ({args.states} in {dt:.2f} s; "
+        f"collision {calls['n'] / max(calls['t'], 1e-9):.0f} checks/s = {calls['t'] / dt:.0%} of the time)"
     )
 
 

@@ -16,14 +16,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from planner.motion.trrt import (
-    ShouldStop,
+from planner.motion.edge_checks import (
     Validity,
     all_valid,
     all_valid_coarse_to_fine,
     coarse_mask,
-    edge_states,
 )
+from planner.motion.interpolation import edge_states
+from planner.motion.trrt import ShouldStop
 
 #: Straight-line skips tried per waypoint in the final pass (farthest first).
 MAX_SKIP_TRIES = 8

@@ -19,16 +19,10 @@ applies the transition tests one by one in a fixed order, so a seed gives the
 same result on any machine. Rounds stop on an iteration cap; a time limit is only
 a safety net; ``should_stop()`` is polled every round (cancel within milliseconds).
 
-Two modes share the machinery:
-
-* :func:`plan_motion` returns a path between two configurations; every state on
-  it (nodes and the edge states at ``edge_resolution_rad``) passed the caller's
-  validity callback (collision + margin >= threshold).
-* :func:`explore` is the survey's exploration (docs/contract.md section 4): it grows
-  the trees of each leg of a task (pick -> place, or pick -> handover -> place)
-  and records *every* state it evaluates for stability, with its stable flag,
-  until ``n_states`` states have been evaluated. States rejected before the
-  stability test (joint limits, collision) are not counted; ``stats`` says how many.
+:func:`plan_motion` returns a path between two configurations; every state on it (nodes and
+the edge states at ``edge_resolution_rad``) passed the caller's validity callback (collision +
+margin >= threshold). The stability survey grows the same trees (:class:`TreeSearch`) and counts
+the poses it samples (:mod:`planner.survey.counting`).
 """
 
 from __future__ import annotations
@@ -41,54 +35,16 @@ from typing import Callable, Literal, Sequence
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from planner.motion.edge_checks import (
+    Validity,
+    all_valid,
+    all_valid_coarse_to_fine,
+    coarse_mask,
+    split_all,
+)
 from planner.motion.interpolation import edge_states
-from planner.stability.evaluator import HoldSpec, StateEvaluator
-from planner.transforms import matrices_to_pose7
 
-#: validity(Q (N, n)) -> (valid (N,) bool, margin (N,) float)
-Validity = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
-#: collision_free(Q (N, n)) -> (N,) bool
-CollisionFree = Callable[[np.ndarray], np.ndarray]
 ShouldStop = Callable[[], bool]
-#: Planning checks an edge's every COARSE_STRIDE-th state first (0.1 rad apart at 0.02 rad resolution).
-COARSE_STRIDE = 5
-
-
-def coarse_mask(n: int) -> np.ndarray:
-    """The coarse states of an edge of ``n`` states: every ``COARSE_STRIDE``-th and the last
-    (most invalid edges already fail there)."""
-    m = np.zeros(n, dtype=bool)
-    m[COARSE_STRIDE - 1 :: COARSE_STRIDE] = True
-    m[-1] = True
-    return m
-
-
-def _split_all(valid: np.ndarray, lengths: Sequence[int]) -> list[bool]:
-    """Per run of consecutive states (``lengths`` of them each): whether all are valid."""
-    out, k = [], 0
-    for n in lengths:
-        out.append(bool(valid[k : k + n].all()))
-        k += n
-    return out
-
-
-def all_valid(parts: list[np.ndarray], validity: Validity) -> list[bool]:
-    """Whether every state of each part (full configurations) is valid, in one validity call."""
-    valid = np.asarray(validity(np.vstack(parts))[0], dtype=bool)
-    return _split_all(valid, [len(p) for p in parts])
-
-
-def all_valid_coarse_to_fine(edges: list[np.ndarray], validity: Validity) -> list[bool]:
-    """Whether every state of each edge (full configurations) is valid: the coarse states (every
-    ``COARSE_STRIDE``-th and the last) of all edges in one validity call, then the remaining states
-    of the edges that survived it in a second."""
-    masks = [coarse_mask(len(e)) for e in edges]
-    ok = all_valid([e[m] for e, m in zip(edges, masks)], validity)
-    todo = [k for k, good in enumerate(ok) if good and not masks[k].all()]
-    if todo:
-        for k, good in zip(todo, all_valid([edges[k][~masks[k]] for k in todo], validity)):
-            ok[k] = good
-    return ok
 
 
 class TrrtSettings(BaseModel):
@@ -172,7 +128,7 @@ class _Tree:
         return out
 
 
-class _Search:
+class TreeSearch:
     """Bidirectional T-RRT over one pair of end configurations (one leg of a task)."""
 
     def __init__(
@@ -288,7 +244,7 @@ def _check_inputs(start: np.ndarray, goal: np.ndarray, active: np.ndarray, nq: i
     return None
 
 
-def _run_round(search: _Search, rng: np.random.Generator, check: Validity) -> list[tuple[int, int]]:
+def _run_round(search: TreeSearch, rng: np.random.Generator, check: Validity) -> list[tuple[int, int]]:
     """Exploration round: propose, check whole edges in one call, add; returns the new (tree, node) pairs.
 
     ``check(Q)`` returns per state (valid, margin); an edge is accepted when all
@@ -301,7 +257,7 @@ def _run_round(search: _Search, rng: np.random.Generator, check: Validity) -> li
     lengths = [len(e) for e in edges]
     valid, margin = check(search.full(np.vstack(edges)))
     added = []
-    for (ti, near, new, dist), ok, end in zip(cands, _split_all(valid, lengths), np.cumsum(lengths) - 1):
+    for (ti, near, new, dist), ok, end in zip(cands, split_all(valid, lengths), np.cumsum(lengths) - 1):
         node_margin = float(margin[end])
         search.stats["extensions"] += 1
         if not ok:
@@ -315,7 +271,7 @@ def _run_round(search: _Search, rng: np.random.Generator, check: Validity) -> li
     return added
 
 
-def _edges_valid(search: _Search, edges: list[np.ndarray], check: Validity, lazy: bool) -> list[bool]:
+def _edges_valid(search: TreeSearch, edges: list[np.ndarray], check: Validity, lazy: bool) -> list[bool]:
     """Whether every state of each edge is valid; lazily, a coarse pass (every ``COARSE_STRIDE``-th
     state) first, then the remaining states of the edges that survived it."""
     if not edges:
@@ -324,7 +280,7 @@ def _edges_valid(search: _Search, edges: list[np.ndarray], check: Validity, lazy
     return all_valid_coarse_to_fine(full, check) if lazy else all_valid(full, check)
 
 
-def _run_round_lazy(search: _Search, rng: np.random.Generator, check: Validity) -> list[tuple[int, int]]:
+def _run_round_lazy(search: TreeSearch, rng: np.random.Generator, check: Validity) -> list[tuple[int, int]]:
     """Planning round in two validity calls: first every candidate edge's coarse states (every
     ``COARSE_STRIDE``-th state and the new node), then the transition test on the nodes that
     passed, then the remaining states of the accepted edges only.
@@ -342,7 +298,7 @@ def _run_round_lazy(search: _Search, rng: np.random.Generator, check: Validity) 
     lengths = [len(c) for c in coarse]
     valid, margin = check(search.full(np.vstack(coarse)))
     accepted = []
-    for i, ((ti, near, new, dist), ok, end) in enumerate(zip(cands, _split_all(valid, lengths), np.cumsum(lengths) - 1)):
+    for i, ((ti, near, new, dist), ok, end) in enumerate(zip(cands, split_all(valid, lengths), np.cumsum(lengths) - 1)):
         node_margin = float(margin[end])
         if not ok:
             search.stats["invalid_edges"] += 1
@@ -363,7 +319,7 @@ def _run_round_lazy(search: _Search, rng: np.random.Generator, check: Validity) 
     return added
 
 
-def _try_connect(search: _Search, added: list[tuple[int, int]], check: Validity, lazy: bool = False) -> None:
+def _try_connect(search: TreeSearch, added: list[tuple[int, int]], check: Validity, lazy: bool = False) -> None:
     """Straight connections from this round's new nodes to the nearest node of the other tree."""
     tries = []
     for ti, idx in added:
@@ -379,31 +335,6 @@ def _try_connect(search: _Search, added: list[tuple[int, int]], check: Validity,
         if ok:
             search.connected = (idx, j) if ti == 0 else (j, idx)
             return
-
-
-def make_validity(
-    evaluator: StateEvaluator,
-    hold: HoldSpec | None,
-    active: Sequence[int] | None = None,
-    collision_free: CollisionFree | None = None,
-    threshold_m: float | None = None,
-) -> Validity:
-    """A validity callback for :func:`plan_motion`: margin >= threshold first, then collision on the stable states only.
-
-    The margin test is cheap and vectorised; the collision checker, the costly
-    one, never sees a state that is already unstable. ``threshold_m`` defaults to
-    the evaluator's (0 with ``margin_cost=False`` is the unconstrained planner).
-    """
-    act = None if active is None else np.asarray(active, dtype=int)
-
-    def validity(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        batch = evaluator.evaluate(Q, hold, active=act, threshold_m=threshold_m)
-        valid = batch.stable.copy()
-        if collision_free is not None and valid.any():
-            valid[valid] = np.asarray(collision_free(Q[valid]), dtype=bool)
-        return valid, batch.margin
-
-    return validity
 
 
 def plan_motion(
@@ -438,7 +369,7 @@ def plan_motion(
         return MotionResult("invalid_start", None, None, f"start configuration is not valid (margin {ends_margin[0]:.4f} m)")
     if not ends_ok[1]:
         return MotionResult("invalid_goal", None, None, f"goal configuration is not valid (margin {ends_margin[1]:.4f} m)")
-    search = _Search(start, goal, active, np.asarray(lower, float), np.asarray(upper, float), float(ends_margin[0]), float(ends_margin[1]), s)
+    search = TreeSearch(start, goal, active, np.asarray(lower, float), np.asarray(upper, float), float(ends_margin[0]), float(ends_margin[1]), s)
     n_checked = [0]
 
     def check(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -470,7 +401,7 @@ def plan_motion(
     return MotionResult("solved", search.path(), search.path_margins(), None, stats)
 
 
-def _try_connect_direct(search: _Search, check: Validity, lazy: bool = False) -> None:
+def _try_connect_direct(search: TreeSearch, check: Validity, lazy: bool = False) -> None:
     ta, tb = search.trees
     states = search.edge_states(ta.nodes[0], tb.nodes[0])
     search.stats["connect_attempts"] += 1
@@ -479,196 +410,3 @@ def _try_connect_direct(search: _Search, check: Validity, lazy: bool = False) ->
 
 
 # ----------------------------------------------------------------------------- exploration (survey)
-
-
-@dataclass(frozen=True)
-class ExploreLeg:
-    """One leg of a task: from ``start`` to ``goal`` holding the object as ``hold``, moving ``active`` columns.
-
-    ``collision_free`` checks this leg's states (the held object differs per leg); when
-    None, :func:`explore`'s own callback is used.
-    """
-
-    start: np.ndarray
-    goal: np.ndarray
-    hold: HoldSpec | None
-    active: np.ndarray
-    collision_free: CollisionFree | None = None
-
-
-@dataclass
-class Exploration:
-    """Every evaluated state, in evaluation order, with per-leg connection statistics.
-
-    ``q`` (N, n), ``leg`` (N,) leg index, ``holding`` (N,) str, ``object_pose`` (N, 7)
-    ``[x y z qx qy qz qw]`` (NaN when nothing is held), ``stable`` (N,) bool,
-    ``margin`` (N,), ``com`` (N, 3).
-    """
-
-    q: np.ndarray
-    leg: np.ndarray
-    holding: np.ndarray
-    object_pose: np.ndarray
-    stable: np.ndarray
-    margin: np.ndarray
-    com: np.ndarray
-    status: Literal["done", "iteration_cap", "timeout", "canceled", "bad_input"]
-    stats: dict
-
-    @property
-    def n_stable(self) -> int:
-        return int(self.stable.sum())
-
-    @property
-    def n_unstable(self) -> int:
-        return int((~self.stable).sum())
-
-
-class _Recorder:
-    """Collects evaluated states up to the budget."""
-
-    def __init__(self, budget: int, nq: int):
-        self.budget = budget
-        self.q = np.empty((budget, nq))
-        self.leg = np.empty(budget, dtype=np.int32)
-        self.holding = np.empty(budget, dtype=object)
-        self.pose = np.full((budget, 7), np.nan)
-        self.stable = np.empty(budget, dtype=bool)
-        self.margin = np.empty(budget)
-        self.com = np.empty((budget, 3))
-        self.n = 0
-
-    @property
-    def full(self) -> bool:
-        return self.n >= self.budget
-
-    def add(self, leg: int, label: str, Q: np.ndarray, pose7: np.ndarray | None, stable: np.ndarray, margin: np.ndarray, com: np.ndarray) -> None:
-        k = min(len(Q), self.budget - self.n)
-        if k <= 0:
-            return
-        sl = slice(self.n, self.n + k)
-        self.q[sl] = Q[:k]
-        self.leg[sl] = leg
-        self.holding[sl] = label
-        if pose7 is not None:
-            self.pose[sl] = pose7[:k]
-        self.stable[sl] = stable[:k]
-        self.margin[sl] = margin[:k]
-        self.com[sl] = com[:k]
-        self.n += k
-
-
-def explore(
-    legs: Sequence[ExploreLeg],
-    evaluator: StateEvaluator,
-    collision_free: CollisionFree | None,
-    n_states: int,
-    rng: np.random.Generator,
-    settings: TrrtSettings | None = None,
-    should_stop: ShouldStop | None = None,
-    max_iterations: int | None = None,
-) -> Exploration:
-    """The survey's goal-biased energy-based exploration of a task (docs/contract.md section 4).
-
-    Each leg grows two T-RRT trees (from its start and from its goal, each biased
-    to the other's root); the legs take turns round by round. An extension is
-    checked as a whole edge (its states at ``edge_resolution_rad``, in one
-    vectorised batch): every state on it is tested for joint limits and with
-    ``collision_free`` (failures are not counted, only reported in ``stats``),
-    and every state that passes is evaluated for stability with ``evaluator``
-    and recorded as stable or unstable. An edge joins the tree only if all its
-    states are valid and the node passes the transition test, so the trees stay
-    in the stable region while the states around it are counted. The run stops
-    when ``n_states`` states have been evaluated (the last batch is truncated to
-    exactly that), or on the round cap / time limit / cancel.
-    """
-    s = settings or TrrtSettings()
-    t0 = time.perf_counter()
-    robot = evaluator.robot
-    nq = robot.nq
-    if n_states < 1:
-        raise ValueError(f"n_states must be >= 1, got {n_states}")
-    if not legs:
-        raise ValueError("explore needs at least one leg")
-    cap = max_iterations if max_iterations is not None else max(s.max_iterations, 20 * n_states // s.explore_batch_size)
-    rec = _Recorder(n_states, nq)
-    rejected = dict(joint_limits=0, collision=0)
-    searches: list[_Search] = []
-    leg_stats: list[dict] = []
-    lo, hi = robot.lower, robot.upper
-
-    def evaluate_states(leg_i: int, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Validity of the states of consecutive edges; records the evaluated ones."""
-        leg = legs[leg_i]
-        within = np.all((Q >= lo - 1e-12) & (Q <= hi + 1e-12), axis=1)
-        batch = evaluator.evaluate(Q, leg.hold, active=leg.active)
-        free = within.copy()
-        checker = leg.collision_free if leg.collision_free is not None else collision_free
-        if checker is not None and within.any():
-            free[within] = np.asarray(checker(Q[within]), dtype=bool)
-        valid = free & batch.stable
-        rejected["joint_limits"] += int((~within).sum())
-        rejected["collision"] += int((within & ~free).sum())
-        keep = free
-        pose7 = matrices_to_pose7(batch.object_pose[keep]) if batch.object_pose is not None else None
-        label = leg.hold.label if leg.hold is not None else "none"
-        if keep.any():
-            idx = np.flatnonzero(keep)
-            rec.add(leg_i, label, Q[idx], pose7, batch.stable[idx], batch.margin[idx], batch.com[idx])
-        return valid, batch.margin
-
-    status = "done"
-    for i, leg in enumerate(legs):
-        active = np.asarray(sorted(set(int(a) for a in leg.active)), dtype=int)
-        start, goal = np.asarray(leg.start, float), np.asarray(leg.goal, float)
-        err = _check_inputs(start, goal, active, nq)
-        if err:
-            raise ValueError(f"leg {i}: {err}")
-        valid, margin = evaluate_states(i, np.vstack([start, goal]))
-        search = _Search(start, goal, active, lo, hi, float(margin[0]), float(margin[1]), s)
-        search.batch_size = s.explore_batch_size
-        searches.append(search)
-        leg_stats.append(dict(start_valid=bool(valid[0]), goal_valid=bool(valid[1]), connected=False,
-                              connected_at_state=None, connected_at_round=None, rounds=0))
-
-    def make_check(i: int):
-        return lambda Q: evaluate_states(i, Q)
-
-    for i, search in enumerate(searches):
-        if leg_stats[i]["start_valid"] and leg_stats[i]["goal_valid"] and not rec.full:
-            _try_connect_direct(search, make_check(i))
-            if search.connected is not None:
-                leg_stats[i].update(connected=True, connected_at_state=rec.n, connected_at_round=0)
-
-    rounds = 0
-    while not rec.full:
-        if should_stop is not None and should_stop():
-            status = "canceled"
-            break
-        if rounds >= cap:
-            status = "iteration_cap"
-            break
-        if time.perf_counter() - t0 > s.time_limit_s:
-            status = "timeout"
-            break
-        i = rounds % len(searches)
-        rounds += 1
-        search = searches[i]
-        search.stats["rounds"] += 1
-        leg_stats[i]["rounds"] += 1
-        check = make_check(i)
-        added = _run_round(search, rng, check)
-        if added and search.connected is None and not rec.full:
-            _try_connect(search, added, check)
-            if search.connected is not None:
-                leg_stats[i].update(connected=True, connected_at_state=rec.n, connected_at_round=leg_stats[i]["rounds"])
-    n = rec.n
-    for st, search in zip(leg_stats, searches):
-        st.update({k: v for k, v in search.stats.items() if k != "rounds"}, nodes=[t.size for t in search.trees])
-    stats = dict(evaluated=n, stable=int(rec.stable[:n].sum()), unstable=int((~rec.stable[:n]).sum()),
-                 rejected=rejected, rounds=rounds, legs=leg_stats, time_s=time.perf_counter() - t0,
-                 connected=all(st["connected"] for st in leg_stats))
-    return Exploration(
-        q=rec.q[:n].copy(), leg=rec.leg[:n].copy(), holding=rec.holding[:n].astype(str), object_pose=rec.pose[:n].copy(),
-        stable=rec.stable[:n].copy(), margin=rec.margin[:n].copy(), com=rec.com[:n].copy(), status=status, stats=stats,
-    )

@@ -37,17 +37,27 @@ from typing import Callable, Sequence
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from planner.motion.trrt import (
-    ExploreLeg,
-    TrrtSettings,
-    _Search,
-    all_valid_coarse_to_fine,
-    edge_states,
-)
-from planner.stability.evaluator import StateEvaluator
+from planner.motion.edge_checks import CollisionFree, all_valid_coarse_to_fine
+from planner.motion.interpolation import edge_states
+from planner.motion.trrt import TreeSearch, TrrtSettings
+from planner.stability.evaluator import HoldSpec, StateEvaluator
 from planner.transforms import matrices_to_pose7
 
 ShouldStop = Callable[[], bool]
+
+
+@dataclass(frozen=True)
+class ExploreLeg:
+    """One leg of a task: from ``start`` to ``goal`` holding the object as ``hold``, moving ``active`` columns.
+
+    ``collision_free`` checks this leg's states (the held object differs per leg).
+    """
+
+    start: np.ndarray
+    goal: np.ndarray
+    hold: HoldSpec | None
+    active: np.ndarray
+    collision_free: CollisionFree | None = None
 
 
 class CountingSettings(BaseModel):
@@ -149,7 +159,7 @@ class _Leg:
         self.active = np.asarray(sorted(set(int(a) for a in leg.active)), dtype=int)
         start, goal = np.asarray(leg.start, float), np.asarray(leg.goal, float)
         ends = evaluator.evaluate(np.vstack([start, goal]), leg.hold, active=self.active)
-        self.search = _Search(start, goal, self.active, robot.lower, robot.upper, float(ends.margin[0]),
+        self.search = TreeSearch(start, goal, self.active, robot.lower, robot.upper, float(ends.margin[0]),
                               float(ends.margin[1]), trrt.model_copy(update={"step_rad": settings.step_rad}))
         self.trees = self.search.trees  # from the start; from the goal (grown when bidirectional)
         self.turn = 0

@@ -25,10 +25,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from planner.errors import Canceled
-from planner.motion.trrt import ExploreLeg, TrrtSettings
+from planner.motion.trrt import TrrtSettings
 from planner.survey.counting import (
     CountedExploration,
     CountingSettings,
+    ExploreLeg,
     explore_counted,
 )
 from schemas.common import HAND_CONFIGS

@@ -20,14 +20,14 @@ from typing import Any, Callable
 import numpy as np
 
 from planner.forking import pool_may_fork
-from planner.motion.trrt import ExploreLeg, TrrtSettings
+from planner.motion.trrt import TrrtSettings
 from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.path_assembly import carried
 from planner.regrasp.settings import HANDS_OF, PlannerSettings
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
-from planner.survey.counting import CountingSettings
+from planner.survey.counting import CountingSettings, ExploreLeg
 from planner.survey.estimator import Estimator, RowWork, run_rows
 from planner.termination import Termination
 from schemas.common import HAND_CONFIGS

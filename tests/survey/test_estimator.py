@@ -13,8 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from planner.motion.trrt import ExploreLeg
-from planner.survey.counting import explore_counted
+from planner.survey.counting import ExploreLeg, explore_counted
 from planner.survey.estimator import (
     Estimator,
     SeedCount,

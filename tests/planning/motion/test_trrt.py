@@ -8,8 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from planner.motion.trrt import ExploreLeg, TrrtSettings, explore, plan_motion
-from planner.transforms import matrices_to_pose7
+from planner.motion.trrt import TrrtSettings, plan_motion
+from planner.survey.counting import ExploreLeg, explore_counted
 
 RESOLUTION = 0.02
 
@@ -107,7 +107,7 @@ def test_iteration_cap_and_cancel(robot, task, right_active):
 
 
 def test_margin_cost_biases_towards_stability(robot, upright, evaluator, hold_right, right_active):
-    """The energy-based trees keep a larger mean margin than a flat-cost RRT of the same seed."""
+    """The energy-based trees sample poses of a larger mean margin than a flat-cost RRT of the same seed."""
     start = upright.q.copy()
     goal = start.copy()
     goal[right_active] = np.clip(start[right_active] + 0.5, robot.lower[right_active], robot.upper[right_active])
@@ -118,74 +118,16 @@ def test_margin_cost_biases_towards_stability(robot, upright, evaluator, hold_ri
 
     means = {}
     for cost in (True, False):
-        ex = explore([ExploreLeg(start, goal, hold_right, right_active)], evaluator, None, 3000, np.random.default_rng(3),
-                     TrrtSettings(margin_cost=cost))
+        ex = explore_counted([ExploreLeg(start, goal, hold_right, right_active)], evaluator, np.random.default_rng(3),
+                             budget=3000, trrt=TrrtSettings(margin_cost=cost))
         means[cost] = ex.margin.mean()
     assert means[True] > means[False]
-
-
-def test_exploration_counts_and_flags(robot, upright, evaluator, hold_right, right_active, independent):
-    start = upright.q.copy()
-    goal = start.copy()
-    goal[right_active] = np.clip(start[right_active] - 0.3, robot.lower[right_active], robot.upper[right_active])
-
-    def collision_free(Q):  # a fake obstacle: the shoulder pitch may not pass 0.05 rad
-        return Q[:, right_active[4]] < 0.05
-
-    n = 1500
-    ex = explore([ExploreLeg(start, goal, hold_right, right_active)], evaluator, collision_free, n, np.random.default_rng(1))
-    assert ex.status == "done"
-    assert len(ex.q) == len(ex.stable) == len(ex.margin) == len(ex.object_pose) == n
-    assert ex.stats["evaluated"] == n == ex.n_stable + ex.n_unstable
-    assert ex.stats["stable"] == ex.n_stable
-    # A colliding state is never counted, and collisions were rejected (reported in stats).
-    assert np.all(ex.q[:, right_active[4]] < 0.05)
-    assert ex.stats["rejected"]["collision"] > 0
-    assert set(ex.holding) == {"right"}
-    rng = np.random.default_rng(0)
-    for i in rng.choice(n, 40, replace=False):
-        m = independent.margin(ex.q[i], hold_right)
-        assert m == pytest.approx(ex.margin[i], abs=1e-9)
-        assert bool(ex.stable[i]) == (m >= 0.03)
-        T = evaluator.tcp_pose(ex.q[i], "right") @ np.linalg.inv(hold_right.T_obj_tcp)
-        assert np.allclose(ex.object_pose[i], matrices_to_pose7(T[None])[0], atol=1e-9)
-    again = explore([ExploreLeg(start, goal, hold_right, right_active)], evaluator, collision_free, n, np.random.default_rng(1))
-    assert np.array_equal(again.q, ex.q) and np.array_equal(again.stable, ex.stable)
-
-
-def test_exploration_through_a_handover(robot, upright, evaluator, hold_right):
-    """Two legs (right hand to the handover, left hand away from it) with both arms active."""
-    from planner.stability.evaluator import HoldSpec
-
-    both = np.r_[robot.waist_indices(), robot.arm_indices("left"), robot.arm_indices("right")]
-    start = upright.q.copy()
-    hand = start.copy()
-    hand[robot.arm_indices("right")[1]] -= 0.4
-    hand[robot.arm_indices("left")[1]] -= 0.4
-    goal = hand.copy()
-    goal[robot.arm_indices("right")[1]] += 0.4
-    hold_left = HoldSpec("left", hold_right.T_obj_tcp)
-    seen = {0: 0, 1: 0}
-
-    def checker(leg):
-        def collision_free(Q):
-            seen[leg] += len(Q)
-            return np.ones(len(Q), dtype=bool)
-        return collision_free
-
-    legs = [ExploreLeg(start, hand, hold_right, both, checker(0)), ExploreLeg(hand, goal, hold_left, both, checker(1))]
-    ex = explore(legs, evaluator, None, 800, np.random.default_rng(2))
-    assert ex.stats["evaluated"] == 800
-    assert seen[0] >= int((ex.leg == 0).sum()) > 0 and seen[1] >= int((ex.leg == 1).sum()) > 0  # each leg used its own checker
-    assert set(np.unique(ex.leg)) == {0, 1}
-    assert set(ex.holding[ex.leg == 0]) == {"right"} and set(ex.holding[ex.leg == 1]) == {"left"}
-    assert len(ex.stats["legs"]) == 2
 
 
 def test_exploration_aims_a_share_of_its_samples_at_the_other_end(robot, upright, right_active):
     """Goal bias (the paper's start/end bias): each tree grows from one end of the leg, and a
     ``goal_bias`` share of its samples is the other tree's root; the rest are uniform."""
-    from planner.motion.trrt import _Search
+    from planner.motion.trrt import TreeSearch
 
     start = upright.q.copy()
     goal = start.copy()
@@ -193,7 +135,7 @@ def test_exploration_aims_a_share_of_its_samples_at_the_other_end(robot, upright
 
     def aimed_share(bias: float) -> float:
         s = TrrtSettings(goal_bias=bias)
-        search = _Search(start, goal, right_active, robot.lower, robot.upper, 0.1, 0.1, s)
+        search = TreeSearch(start, goal, right_active, robot.lower, robot.upper, 0.1, 0.1, s)
         search.batch_size = 4000
         aimed = 0
         proposals = search.propose(np.random.default_rng(5))
@@ -206,44 +148,6 @@ def test_exploration_aims_a_share_of_its_samples_at_the_other_end(robot, upright
 
     assert aimed_share(1.0) == 1.0 and aimed_share(0.0) == 0.0
     assert aimed_share(TrrtSettings().goal_bias) == pytest.approx(TrrtSettings().goal_bias, abs=0.02)
-
-
-def test_exploration_says_whether_and_when_each_leg_connected(robot, upright, evaluator, hold_right, right_active):
-    start = upright.q.copy()
-    near_goal = start.copy()
-    near_goal[right_active[1]] -= 0.05  # a short free straight line: connected before any round
-    ex = explore([ExploreLeg(start, near_goal, hold_right, right_active)], evaluator, None, 300, np.random.default_rng(3))
-    leg = ex.stats["legs"][0]
-    assert leg["connected"] is True and leg["connected_at_round"] == 0
-    assert 2 <= leg["connected_at_state"] <= ex.stats["evaluated"]
-
-    far_goal = start.copy()
-    far_goal[right_active[4]] = start[right_active[4]] + 0.4
-    wall = start[right_active[4]] + 0.2
-
-    def walled(Q):  # a joint value no path between the two ends can avoid
-        return np.abs(Q[:, right_active[4]] - wall) > 0.05
-
-    ex = explore([ExploreLeg(start, far_goal, hold_right, right_active)], evaluator, walled, 300, np.random.default_rng(3))
-    leg = ex.stats["legs"][0]
-    assert ex.stats["evaluated"] == 300 and leg["start_valid"] and leg["goal_valid"]
-    assert leg["connected"] is False and leg["connected_at_state"] is None and leg["connected_at_round"] is None
-
-
-def test_exploration_cancel(robot, upright, evaluator, hold_right, right_active):
-    start = upright.q.copy()
-    goal = start.copy()
-    goal[right_active] += 0.2
-    goal = np.clip(goal, robot.lower, robot.upper)
-    polls = {"n": 0}
-
-    def should_stop():
-        polls["n"] += 1
-        return polls["n"] > 3
-
-    ex = explore([ExploreLeg(start, goal, hold_right, right_active)], evaluator, None, 10**6, np.random.default_rng(0),
-                 should_stop=should_stop)
-    assert ex.status == "canceled" and ex.stats["evaluated"] < 10**6
 
 
 from hypothesis import given  # noqa: E402

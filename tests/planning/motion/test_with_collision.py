@@ -7,7 +7,9 @@ import pytest
 
 collision = pytest.importorskip("planner.scene.collision")
 
-from planner.motion.trrt import ExploreLeg, explore, make_validity, plan_motion  # noqa: E402
+from planner.motion.edge_checks import make_validity  # noqa: E402
+from planner.motion.trrt import plan_motion  # noqa: E402
+from planner.survey.counting import ExploreLeg, explore_counted  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +56,7 @@ def test_explored_states_never_collide(robot, upright, evaluator, hold_right, ri
     def collision_free(Q):
         return ~world.check_batch(upright.base_pose, Q, held=held).collides
 
-    ex = explore([ExploreLeg(start, goal, hold_right, right_active, collision_free)], evaluator, None, 600, np.random.default_rng(4))
-    assert ex.stats["evaluated"] == 600
+    ex = explore_counted([ExploreLeg(start, goal, hold_right, right_active, collision_free)], evaluator,
+                         np.random.default_rng(4), budget=600)
+    assert len(ex.q) == 600
     assert not world.check_batch(upright.base_pose, ex.q, held=held).collides.any()
