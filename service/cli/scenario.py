@@ -30,14 +30,25 @@ def list_scenarios() -> None:
 @scenario.command("show")
 @click.argument("name")
 def show(name: str) -> None:
-    """Print a built-in scenario (or a scenario file) as resolved YAML."""
+    """Print a built-in scenario (or a scenario file) as resolved YAML (registered meshes by name)."""
     from planner.scenarios import ScenarioError, load_scenario
+
+    from pathlib import Path
+
+    from planner.request_names import registered_meshes
 
     try:
         sc = load_scenario(name)
     except ScenarioError as exc:
         fail(str(exc))
-    click.echo(yaml.safe_dump(sc.model_dump(by_alias=True, exclude_none=True), sort_keys=False))
+    doc = sc.model_dump(by_alias=True, exclude_none=True)
+    mesh = doc["object"].get("mesh")
+    if mesh is not None and mesh.get("path"):  # a registered mesh is printed by name: the output works anywhere
+        names = {path: mesh_name for mesh_name, path in registered_meshes().items()}
+        found = names.get(Path(mesh["path"]).resolve())
+        if found is not None:
+            doc["object"]["mesh"] = {"name": found, "scale": mesh.get("scale", 1.0)}
+    click.echo(yaml.safe_dump(doc, sort_keys=False))
 
 
 def unknown_names(sc) -> list[str]:  # type: ignore[no-untyped-def]
