@@ -40,7 +40,7 @@ _HOLDING = ("none", "left", "right", "both")
 
 
 class GateSettings(BaseModel):
-    """Tolerances and sampling of the gate; defaults follow docs/contract.md section 3."""
+    """Tolerances and sampling of the gate; defaults follow CONTRACT.md section 3."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
