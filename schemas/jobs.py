@@ -43,9 +43,8 @@ ROLES: tuple[str, ...] = ("planner", "approver", "operator", "admin")
 
 #: Longest name accepted for a built-in scenario (names are short file stems).
 MAX_NAME_LEN = 128
-#: A registered name: no path separators, no leading dot (the service checks the name is registered).
-NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
-ScenarioName = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN, pattern=NAME_PATTERN)]
+#: A built-in scenario name (kept for importers; requests take :data:`ScenarioRef`).
+ScenarioName = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN)]
 #: Bounds of an inline scenario document: values in all (every list item and mapping entry counted) and nesting.
 MAX_DOCUMENT_VALUES = 5_000
 MAX_DOCUMENT_DEPTH = 12

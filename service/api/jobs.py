@@ -58,11 +58,6 @@ def _load(svc: Service, job_id: str) -> dict[str, Any]:
     return row
 
 
-def _full(svc: Service, row: dict[str, Any]) -> Job:
-    result = svc.store.result(row["id"]) if row["state"] not in ("queued", "planning") else None
-    return job_view(row, result)
-
-
 def _job_json(svc: Service, row: dict[str, Any]) -> str:
     """The job as JSON with its stored result spliced in verbatim: a plan of several MB is never re-parsed."""
     text = svc.store.result_text(row["id"]) if row["state"] not in ("queued", "planning") else None

@@ -39,6 +39,8 @@ def list_scenarios(as_json: bool) -> None:
 @click.argument("name")
 def show(name: str) -> None:
     """Print a built-in scenario (or a scenario file) as resolved YAML."""
+
+
     from planner.scene.scenarios import ScenarioError, load_scenario
 
     try:

@@ -249,8 +249,9 @@ def cancel_latency_s(client: httpx.Client, job_id: str) -> float:
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    # One user (alice) submits the load test's 200 jobs: the per-user queue limit is the hardening tests' to check.
     srv = Server(tmp_path_factory.mktemp("svc"), workers=2, approval_ttl_s="3", timeout_margin_s="0.5",
-                 max_body_bytes="200000").start()
+                 max_body_bytes="200000", user_queue_limit="1000").start()
     try:
         with srv.client("admin") as c:
             srv.wait_workers_ready(c)

@@ -59,3 +59,16 @@ def test_unknown_name_exits_2_with_one_line(command: str, said: str, files: dict
     errors = [line for line in done.stderr.splitlines() if line.strip()]
     assert len(errors) == 1 and errors[0].startswith("error:") and said in errors[0], done.stderr[-2000:]
     assert not (tmp_path / "plan.json").exists()
+
+
+def test_scenario_show_names_registered_meshes_so_its_output_works_anywhere(tmp_path: Path) -> None:
+    import yaml
+
+    shown = subprocess.run([sys.executable, "-m", "service.cli.main", "scenario", "show", "upright"], cwd=ROOT,
+                           capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S, check=True).stdout
+    doc = yaml.safe_load(shown)
+    assert doc["object"]["mesh"] == {"name": "carrier_px", "scale": 1.0}
+    (tmp_path / "elsewhere.yaml").write_text(shown)
+    done = subprocess.run([sys.executable, "-m", "service.cli.main", "scenario", "check", "elsewhere.yaml"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S)
+    assert done.returncode == 0, done.stderr
