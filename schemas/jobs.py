@@ -10,7 +10,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, StringConstraints
+from pydantic import Field, Strict, StrictInt, StringConstraints
 
 from .common import Finite, HandsChoice, OpenModel, StrictModel
 
@@ -36,6 +36,8 @@ ROLES: tuple[str, ...] = ("planner", "approver", "operator", "admin")
 #: Longest name accepted for a built-in scenario (names are short file stems).
 MAX_NAME_LEN = 128
 ScenarioName = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN)]
+#: A finite number that JSON true/false is not (pydantic's lax mode would read them as 1.0/0.0).
+StrictFinite = Annotated[Finite, Strict()]
 
 
 class JobRequest(StrictModel):
@@ -45,11 +47,13 @@ class JobRequest(StrictModel):
         description="a built-in scenario name, or an inline scenario document (CONTRACT.md section 2)",
     )
     stance: ScenarioName | None = Field(None, description="built-in stance name overriding the scenario's")
-    threshold_m: Finite | None = Field(None, ge=0, le=0.5, description="CoM margin threshold, m; 0 = unconstrained planner")
+    threshold_m: StrictFinite | None = Field(None, ge=0, le=0.5, description="CoM margin threshold, m; 0 = unconstrained planner")
     hands: HandsChoice | None = Field(None, description="hand configuration overriding the scenario's")
-    seed: int | None = Field(None, ge=0, le=2**63 - 1, description="random seed; the same seed gives the same plan")
-    states_per_configuration: int | None = Field(None, ge=1, le=1_000_000, description="survey: states evaluated per hand configuration")
-    time_limit_s: Finite | None = Field(None, gt=0, le=3600, description="planner safety-net time limit, s")
+    # Strict: JSON true/false are not numbers here (pydantic's lax mode would read them as 1/0).
+    seed: StrictInt | None = Field(None, ge=0, le=2**63 - 1, description="random seed; the same seed gives the same plan")
+    states_per_configuration: StrictInt | None = Field(None, ge=1, le=1_000_000,
+                                                       description="survey: states evaluated per hand configuration")
+    time_limit_s: StrictFinite | None = Field(None, gt=0, le=3600, description="planner safety-net time limit, s")
 
 
 
