@@ -184,6 +184,8 @@
     // Submitting needs the planner role; the form stays hidden while the roles are unknown.
     $("submit-box").hidden = !(state.me === null || hasRole("planner"));
     if (state.job) updateButtons(state.job);
+    if (state.job) updateExecBar(state.job);
+    if (state.risk && state.job && state.risk.job_id === state.job.id) renderRisk(state.risk);  // its planner offer
   }
 
   /* Why the token may not do `action` on `job`: null if it may (or the page cannot tell),
