@@ -9,7 +9,6 @@ from typing import Literal
 
 import numpy as np
 
-from planner.regrasp.graph import (
     Validation,
 )
 from planner.regrasp.plan_assembly import MotionPiece

@@ -65,20 +65,34 @@ def write_scatter_csv(path: Path, hands: np.ndarray, xy: np.ndarray, stable: np.
     return path
 
 
+def plot_title(doc: dict, scenario: str | None) -> str:
+    """What a survey figure's title names: scenario, stance, threshold, states per configuration."""
+    from service.plots import describe
+
+    states = (doc.get("stats") or {}).get("states_per_configuration")
+    return describe(scenario, doc["stance"]["name"], doc["threshold_m"], states=states) + (" per configuration" if states else "")
+
+
+def bars_figure(doc: dict, path: Path, scenario: str | None = None) -> Path:
+    """The bar chart of R that ``--plot`` writes for a survey document (the recommended row marked)."""
+    from service.plots import plot_survey_bars
+
+    return plot_survey_bars(path, title=f"stable ratio R per hand configuration\n{plot_title(doc, scenario)}",
+                            rows=doc["rows"], recommended=doc.get("recommended"),
+                            indistinguishable=doc.get("indistinguishable") or ())
+
+
 def _plots(doc: dict, outcomes, directory: Path, prefix: str, fmt: str = "png", scenario: str | None = None) -> list[Path]:
     """The bar chart of R; where states were evaluated, the CoM scatter (coloured by configuration) and its CSV data."""
     import numpy as np
 
     from service.convergence_plot import plot_convergence
-    from service.plots import describe, plot_survey_bars, plot_survey_scatter
+    from service.plots import plot_survey_scatter
 
     directory.mkdir(parents=True, exist_ok=True)
-    states = (doc.get("stats") or {}).get("states_per_configuration")
-    title = describe(scenario, doc["stance"]["name"], doc["threshold_m"], states=states) + (" per configuration" if states else "")
+    title = plot_title(doc, scenario)
     paths = [plot_convergence(directory / f"{prefix}convergence.{fmt}", doc),
-             plot_survey_bars(directory / f"{prefix}bars.{fmt}", title=f"stable ratio R per hand configuration\n{title}",
-                              rows=doc["rows"], recommended=doc.get("recommended"),
-                              indistinguishable=doc.get("indistinguishable") or ())]
+             bars_figure(doc, directory / f"{prefix}bars.{fmt}", scenario)]
     hands, xy, stable = scatter_data(outcomes)
     if len(xy):
         paths.append(plot_survey_scatter(directory / f"{prefix}scatter.{fmt}", title=f"explored CoM projections\n{title}",

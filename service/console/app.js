@@ -45,6 +45,7 @@
     me: undefined,
     busy: false,         // an action's request is in flight: every action button is disabled
     identityPending: false,
+    runningJob: null,    // a job the list shows dispatching or executing (the execution bar's, if none is shown)
     catalogue: null,     // GET /v1/catalogue: scenarios (with their own values), stances, hands, robots
     plan: null,          // the plan drawn (job result), with derived figures
     cursor: 0,           // trajectory index shown by every view
@@ -183,6 +184,8 @@
     // Submitting needs the planner role; the form stays hidden while the roles are unknown.
     $("submit-box").hidden = !(state.me === null || hasRole("planner"));
     if (state.job) updateButtons(state.job);
+    if (state.job) updateExecBar(state.job);
+    if (state.risk && state.job && state.risk.job_id === state.job.id) renderRisk(state.risk);  // its planner offer
   }
 
   /* Why the token may not do `action` on `job`: null if it may (or the page cannot tell),
@@ -253,6 +256,8 @@
     });
     body.replaceChildren(...rows);
     $("jobs-empty").hidden = jobs.length > 0;
+    state.runningJob = jobs.find((j) => EXECUTING.has(j.state)) || null;
+    updateExecBar(state.job);
   }
 
   // ---------------------------------------------------------------- detail
@@ -317,7 +322,6 @@
       approve: job.kind === "plan" && s === "planned",
       reject: job.kind === "plan" && s === "planned",
       dispatch: job.kind === "plan" && s === "approved",
-      stop: EXECUTING.has(s),
       cancel: CANCELABLE.has(s),
     };
     const anyShown = [];
@@ -946,18 +950,37 @@
     return Math.max(0, Math.min(1, (ex.index || 0) / Math.max(ex.points - 1, 1)));
   }
 
+  /* The execution bar shows the job the robot is executing: the one shown if it is, else the one the
+     job list says is (an operator looking at another job still has Stop at hand). */
   function updateExecBar(job) {
     const bar = $("exec-bar");
-    const executing = EXECUTING.has(job.state);
+    if (job && !EXECUTING.has(job.state) && state.exec && state.exec.jobId === job.id) state.exec.live = false;
+    const listed = state.runningJob && !(job && state.runningJob.id === job.id) ? state.runningJob : null;  // the detail is fresher
+    const running = job && EXECUTING.has(job.state) ? job : listed;
+    const executing = !!running;
     bar.hidden = !executing;
     document.body.classList.toggle("with-exec-bar", executing);  // room below the page for the bar
-    if (!executing) {
-      if (state.exec && state.exec.jobId === job.id) state.exec.live = false;
-      return;
+    if (!executing) return;
+    const stop = $("btn-stop");
+    const why = refusal("stop", running);
+    stop.hidden = why === HIDE;
+    stop.disabled = why !== null && why !== HIDE;
+    stop.dataset.jobId = running.id;
+    $("exec-job").textContent = shortId(running.id);
+    $("exec-message").textContent = running.message || running.state;
+    $("exec-progress-bar").style.width = Math.round(execFraction(running) * 100) + "%";
+  }
+
+  /* Stop the job the execution bar shows (it may not be the job shown in the details). */
+  async function stopFromBar() {
+    const id = $("btn-stop").dataset.jobId;
+    if (state.job && state.job.id === id) return act("stop");
+    try {
+      await api("POST", "/v1/jobs/" + encodeURIComponent(id) + "/stop", { reason: "operator console" });
+      refreshJobs();
+    } catch (err) {
+      showBanner("Stop of job " + shortId(id) + " failed: " + (err.detail || err.message), "error");
     }
-    $("exec-job").textContent = shortId(job.id);
-    $("exec-message").textContent = job.message || job.state;
-    $("exec-progress-bar").style.width = Math.round(execFraction(job) * 100) + "%";
   }
 
   function ensureExec(job) {
@@ -1227,9 +1250,10 @@
     $("submit-form").addEventListener("submit", submitJob);
     $("submit-scenario").addEventListener("change", showScenarioDefaults);
     $("btn-audit").addEventListener("click", downloadAudit);
-    for (const b of document.querySelectorAll("button[data-action]")) {
+    for (const b of $("actions").querySelectorAll("button[data-action]")) {
       b.addEventListener("click", () => act(b.dataset.action));
     }
+    $("btn-stop").addEventListener("click", stopFromBar);
     $("timeline").addEventListener("input", () => setCursor(Number($("timeline").value), "timeline"));
     $("timeline-play").addEventListener("click", playTimeline);
     $("view3d").addEventListener("regrasp:pick", (e) => setCursor(e.detail.index, "user-3d"));

@@ -181,3 +181,22 @@ def test_an_unknown_token_gets_no_action(page, fake_server):
     expect(page.locator("#banner")).to_contain_text("401", timeout=TIMEOUT_MS)
     expect(page.locator("#submit-box")).to_be_hidden()
     assert page.evaluate("regraspConsole.state.me === undefined")  # refused: roles unknown, nothing offered
+
+
+def test_stop_stays_on_screen_for_an_execution_while_another_job_is_shown(page, fake_server):
+    url, store = fake_server
+    store.execution_step_s = 1.0  # 8 steps: executing for 8 s unless stopped
+    store.approve(store.plan_id)
+    login(page, url, "operator-token-carol")
+    open_job(page, store.plan_id)
+    click_and_confirm(page, "dispatch")
+    expect(page.locator("#job-state")).to_have_text("executing", timeout=TIMEOUT_MS)
+    survey_id = next(j for j, job in store.jobs.items() if job["kind"] == "survey")
+    open_job(page, survey_id)  # the operator looks at another job
+    expect(page.locator("#exec-bar")).to_be_visible(timeout=TIMEOUT_MS)
+    expect(page.locator("#exec-job")).to_have_text(store.plan_id[:8])
+    page.click("#btn-stop")
+    expect(page.locator("#exec-bar")).to_be_hidden(timeout=TIMEOUT_MS)
+    assert store.jobs[store.plan_id]["state"] == "aborted"
+    assert store.jobs[survey_id]["state"] == "succeeded"
+    assert page.js_errors == []

@@ -171,6 +171,7 @@ def test_approve_and_dispatch_ask_first_showing_the_plan_hash(page, live):
     _open(page, live["url"], CAROL, job["id"])
     page.click("#btn-approve")
     expect(page.locator("#confirm-hash")).to_have_text(sha[:12])
+    screenshot(page, "operator-view-confirm")
     page.click("#confirm-cancel")  # declined: nothing is sent
     expect(page.locator("#confirm")).to_be_hidden()
     with httpx.Client(base_url=live["url"], headers={"Authorization": f"Bearer {CAROL}"}) as carol:
