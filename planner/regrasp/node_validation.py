@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from planner.motion.ik import key_pose_targets
-
+from planner.regrasp.graph import (
     HandoverNode,
     PlacementNode,
     Validation,

@@ -14,7 +14,7 @@ import numpy as np
 
 from planner.grasping.grasps import Grasp
 from planner.motion.ik_batch import BatchIkResult
-
+from planner.regrasp.graph import (
     HandoverNode,
     PlacementNode,
     Validation,
