@@ -69,9 +69,6 @@ def registered_robots() -> tuple[str, ...]:
     return tuple(robot_names())
 
 
-@lru_cache(maxsize=1)
-
-
 def check_name(field: str, what: str, value: Any, valid: tuple[str, ...] | list[str], *,
                require_registered: bool = True) -> None:
     """``value`` must be a plain name and (unless ``require_registered`` is off) one of ``valid``."""

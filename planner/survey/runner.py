@@ -73,10 +73,10 @@ def _legs(planner: HandConfigPlanner, path: list) -> list[ExploreLeg]:
             goal = planner.motions.with_arm_of(kb.q_lift, ka.q_lift, a.hand)
             legs.append(ExploreLeg(ka.q_lift, goal, HoldSpec(a.hand, ka.T_obj_tcp), t.active[a.hand]))
         elif isinstance(b, HandoverNode):
-            ka, hp = planner.keyposes[a], planner.grasping.handovers[b]
+            ka, hp = planner.keyposes[a], planner.handovers[b]
             legs.append(ExploreLeg(ka.q_lift, hp.q_giver_at, HoldSpec(a.hand, ka.T_obj_tcp), t.active[a.hand]))
         else:
-            hp, kb = planner.grasping.handovers[a], planner.keyposes[b]
+            hp, kb = planner.handovers[a], planner.keyposes[b]
             goal = planner.motions.with_arm_of(kb.q_lift, hp.q_after, b.hand)
             legs.append(ExploreLeg(hp.q_after, goal, HoldSpec(b.hand, hp.T_taker_obj_tcp), t.active[b.hand]))
     return legs
