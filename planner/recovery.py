@@ -16,7 +16,9 @@ within the joint limits, slowed where the cart-table ZMP would leave the polygon
 (``planner.timing``), and checked densely against the floor.
 
 What the hands hold stays held (jaws unchanged); its mass counts in the system
-CoM when the request gives the object (mass, CoM and pose at the measured state).
+CoM, from the object the request carries (mass, CoM and pose at the measured state,
+which the service takes from the aborted plan); without one a recovery while
+holding is infeasible.
 Collisions are checked for the robot's own bodies; the controller does not report
 the tables and obstacles around it.
 """
