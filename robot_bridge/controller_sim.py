@@ -375,15 +375,12 @@ class ControllerSim:
         crash = False
         with self._lock:
             job = self._job
-            if seg.job_id in self._ended and not (job is not None and job.job_id == seg.job_id and seg.seq <= job.last_seq):
+            if seg.job_id in self._ended:  # every job that stops running is remembered here (_end)
                 reply = ("refused", f"job {seg.job_id} was ended by this controller ({self._ended[seg.job_id]}); "
                                     "its segments are refused")
             elif job is not None and job.job_id == seg.job_id:
                 if seg.seq <= job.last_seq:
                     reply = ("duplicate", f"seq {seg.seq} is already held (last {job.last_seq}); copy dropped")
-                    if job.state != "executing":
-                        reply = ("refused", f"job {job.job_id} was ended by this controller ({job.state}); "
-                                            "its segments are refused")
                 elif seg.seq != job.last_seq + 1 or seg.segment_index != job.last_index + 1:
                     # Ahead of a gap: refuse it (never play out of order) but keep the job; the bridge re-sends
                     # what is missing, and the dead-man or starvation ends the job if it never comes.
