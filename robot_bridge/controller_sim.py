@@ -51,13 +51,15 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from schemas.bridge import CommandHeartbeat, ExecStatus, Heartbeat, JointState, Stop, TrajectorySegment
 
-from .process_tuning import freeze_startup_objects, raise_thread_priority
+from .process_tuning import freeze_startup_objects, raise_thread_priority, use_realtime_scheduling
 from .settings import BridgeSettings, Keys
 from .signing import Verifier, open_signed
 from .zenoh_session import control_publisher, encode, open_session, telemetry_publisher
 
 #: Exit code of an injected crash.
 CRASH_EXIT_CODE = 3
+#: The shortest pause between control ticks, s (when a tick overran its period).
+MIN_TICK_PAUSE_S = 0.0005
 #: Jobs remembered as ended (their segments refused), most recent first out when full.
 ENDED_JOBS_KEPT = 10_000
 
@@ -500,6 +502,8 @@ class ControllerSim:
                 time.sleep(sleep)
             else:
                 next_tick = time.monotonic()  # fell behind: do not try to catch up in a burst
+                # Never a tick without a pause: at real-time priority a loop that fell behind must not hold the core.
+                time.sleep(MIN_TICK_PAUSE_S)
 
     def _heartbeat_frozen(self, now: float) -> bool:
         after = self.sim.freeze_heartbeat_after_s
@@ -556,6 +560,7 @@ def run_controller(bridge: BridgeSettings, sim: ControllerSimSettings, joint_nam
     sys.setswitchinterval(sim.switch_interval_s)
     # Raised before zenoh opens: its runtime threads inherit this thread's priority.
     raise_thread_priority(bridge.thread_nice)
+    use_realtime_scheduling(bridge.realtime_priority)
     verifier = Verifier.from_file(bridge.trusted_key) if bridge.trusted_key is not None else None
     ctl = ControllerSim(bridge, sim, joint_names, q0, limits, verifier=verifier)
     ctl.start()

@@ -117,7 +117,9 @@ def submit(
         require("planner", p, "submitting a job")
         robot, seed = _check_request(svc, body)
         request = body.request.model_dump(mode="json", exclude_none=True)
-    request_sha = hashlib.sha256(json.dumps({"kind": body.kind, "request": request}, sort_keys=True).encode()).hexdigest()
+    # What the submitter sent (a recover job's stored request adds the measured state, which a replay would not match).
+    asked = body.request.model_dump(mode="json", exclude_none=True)
+    request_sha = hashlib.sha256(json.dumps({"kind": body.kind, "request": asked}, sort_keys=True).encode()).hexdigest()
     try:
         row, created = svc.store.create(
             job_id=str(uuid.uuid4()), kind=body.kind, submitter=p.user, request=request, request_sha256=request_sha,
