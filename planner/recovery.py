@@ -3,7 +3,7 @@
 After an abort the robot stands where the stop caught it, mid-motion. A recover
 job plans from that measured state (``state/joints``: joint names, q, the stance
 the controller stands in and what its hands hold) back to the stance's own
-posture, and returns an ordinary plan document (CONTRACT.md section 3) that is
+posture, and returns an ordinary plan document (`regrasp.plan/1`) that is
 approved, gated and dispatched like any plan.
 
 The margin rule: the CoM margin stays at or above the threshold where it can.

@@ -46,7 +46,7 @@ class BridgeSettings(BaseSettings):
     stop_repeats: int = Field(3, ge=1, le=20, description="a stop is re-sent this many times until acknowledged")
     stop_repeat_period_s: float = Field(0.02, gt=0, le=1.0)
 
-    # ---- authenticated commands (CONTRACT section 6)
+    # ---- authenticated commands (docs/robot_bridge.md)
     signing_key: Path | None = Field(
         None, description="dispatcher: PEM (PKCS#8) Ed25519 private key every cmd/* message is signed with "
                           "(REGRASP_BRIDGE_SIGNING_KEY); without one the service refuses to dispatch")

@@ -27,7 +27,7 @@ from pydantic_core import from_json
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 
-#: File names written by :func:`generate_keys` (CONTRACT: ``regrasp keys generate DIR``).
+#: File names written by :func:`generate_keys` (``regrasp keys generate DIR``).
 PRIVATE_KEY_FILE = "dispatcher.key"
 PUBLIC_KEY_FILE = "dispatcher.pub"
 #: Field of a command that holds its signature.
