@@ -302,7 +302,8 @@ def main() -> None:
             [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", ROBOT_ID, "--initial-q", str(qfile),
              "--listen", endpoint, "--speed", str(args.speed), "--trusted-key", str(public),
              "--watchdog-ms", str(BENCH_WATCHDOG_S * 1000)],
-            cwd=REPO, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,  # stderr: its stop/refusal log
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
         try:
             proc.stdout.readline()

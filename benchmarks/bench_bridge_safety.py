@@ -20,7 +20,8 @@
    ``robot_bridge.dispatcher_process``, the GIL-heavy thread in the parent);
    ``in-process``, the dispatcher in the process of the GIL-heavy thread (raised
    thread priority, 0.5 ms switch interval); ``in-process-plain``, the same at a
-   normal priority and Python's 5 ms switch interval.
+   normal priority and Python's 5 ms switch interval; ``process-rt``, as ``process`` with
+   both peers' bridge threads under SCHED_RR (``realtime_priority``).
 
 The host is shared (other processes run beside this one); the load average and
 the CPU time the hypervisor took (steal) are printed with each figure. Keep the
@@ -60,6 +61,8 @@ from schemas.plan import plan_sha256  # noqa: E402
 from tests.bridge.plans import build_plan, stance_state  # noqa: E402
 
 ROBOT_ID = "benchsafety"
+#: SCHED_RR priority of the ``process-rt`` mode (both peers).
+REALTIME_PRIORITY = 10
 MOVES = {"RSP": -0.4, "REP": -0.3}
 MOVE_S = 2.0
 
@@ -141,11 +144,14 @@ def gil_load(stop: threading.Event, doc: dict) -> None:
         json.loads(json.dumps(doc))
 
 
-def start_controller(qfile: Path, public: Path, nice: str | None) -> tuple[subprocess.Popen, str]:
+def start_controller(qfile: Path, public: Path, nice: str | None, realtime: int | None = None
+                     ) -> tuple[subprocess.Popen, str]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     if nice is not None:
         env["REGRASP_BRIDGE_THREAD_NICE"] = nice
+    if realtime is not None:
+        env["REGRASP_BRIDGE_REALTIME_PRIORITY"] = str(realtime)
     proc = subprocess.Popen(
         [sys.executable, "-m", "service.cli.main", "controller-sim", "--robot-id", ROBOT_ID, "--initial-q", str(qfile),
          "--listen", endpoint, "--speed", "1", "--trusted-key", str(public)],
@@ -157,16 +163,18 @@ def start_controller(qfile: Path, public: Path, nice: str | None) -> tuple[subpr
 
 def false_aborts(mode: str, runs: int, burners: int, service_load: bool, qfile: Path, keys: tuple[Path, Path]) -> None:
     plain = mode == "in-process-plain"
+    realtime = mode == "process-rt"
     nice = "0" if plain else None  # 0: a normal process's own priority, i.e. not raised
-    proc, endpoint = start_controller(qfile, keys[1], nice)
+    proc, endpoint = start_controller(qfile, keys[1], nice, REALTIME_PRIORITY if realtime else None)
     settings = BridgeSettings(robot_id=ROBOT_ID, connect=[endpoint], signing_key=keys[0],
-                              **({"thread_nice": 0} if plain else {}))
+                              **({"thread_nice": 0} if plain else {}),
+                              **({"realtime_priority": REALTIME_PRIORITY} if realtime else {}))
     sys.setswitchinterval(0.005)
     if mode == "in-process":
         shorten_switch_interval()
 
     def make(s: BridgeSettings):
-        return DispatcherProcess(s) if mode == "process" else Dispatcher(s)
+        return DispatcherProcess(s) if mode.startswith("process") else Dispatcher(s)
 
     disp = make(settings)
     forward = build_plan(MOVES, duration_s=MOVE_S)

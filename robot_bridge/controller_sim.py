@@ -58,13 +58,19 @@ from schemas.bridge import (
     TrajectorySegment,
 )
 
-from .process_tuning import freeze_startup_objects, raise_thread_priority
+from .process_tuning import (
+    freeze_startup_objects,
+    raise_thread_priority,
+    use_realtime_scheduling,
+)
 from .settings import BridgeSettings, Keys
 from .signing import Verifier, open_signed
 from .zenoh_session import control_publisher, encode, open_session, telemetry_publisher
 
 #: Exit code of an injected crash.
 CRASH_EXIT_CODE = 3
+#: The shortest pause between control ticks, s (when a tick overran its period).
+MIN_TICK_PAUSE_S = 0.0005
 #: Jobs remembered as ended (their segments refused), most recent first out when full.
 ENDED_JOBS_KEPT = 10_000
 
@@ -382,15 +388,12 @@ class ControllerSim:
         crash = False
         with self._lock:
             job = self._job
-            if seg.job_id in self._ended and not (job is not None and job.job_id == seg.job_id and seg.seq <= job.last_seq):
+            if seg.job_id in self._ended:  # every job that stops running is remembered here (_end)
                 reply = ("refused", f"job {seg.job_id} was ended by this controller ({self._ended[seg.job_id]}); "
                                     "its segments are refused")
             elif job is not None and job.job_id == seg.job_id:
                 if seg.seq <= job.last_seq:
                     reply = ("duplicate", f"seq {seg.seq} is already held (last {job.last_seq}); copy dropped")
-                    if job.state != "executing":
-                        reply = ("refused", f"job {job.job_id} was ended by this controller ({job.state}); "
-                                            "its segments are refused")
                 elif seg.seq != job.last_seq + 1 or seg.segment_index != job.last_index + 1:
                     # Ahead of a gap: refuse it (never play out of order) but keep the job; the bridge re-sends
                     # what is missing, and the dead-man or starvation ends the job if it never comes.
@@ -510,6 +513,8 @@ class ControllerSim:
                 time.sleep(sleep)
             else:
                 next_tick = time.monotonic()  # fell behind: do not try to catch up in a burst
+                # Never a tick without a pause: at real-time priority a loop that fell behind must not hold the core.
+                time.sleep(MIN_TICK_PAUSE_S)
 
     def _heartbeat_frozen(self, now: float) -> bool:
         after = self.sim.freeze_heartbeat_after_s
@@ -566,6 +571,7 @@ def run_controller(bridge: BridgeSettings, sim: ControllerSimSettings, joint_nam
     sys.setswitchinterval(sim.switch_interval_s)
     # Raised before zenoh opens: its runtime threads inherit this thread's priority.
     raise_thread_priority(bridge.thread_nice)
+    use_realtime_scheduling(bridge.realtime_priority)
     verifier = Verifier.from_file(bridge.trusted_key) if bridge.trusted_key is not None else None
     ctl = ControllerSim(bridge, sim, joint_names, q0, limits, verifier=verifier)
     ctl.start()

@@ -379,9 +379,10 @@ class Dispatcher:
         ``plan`` is the plan dict, or its canonical JSON text or bytes (``schemas.plan.canonical_json``):
         the bytes are hashed as they are, which saves about a second on a 60 s plan.
 
-        Raises :class:`ControllerUnavailableError` before anything happens when no
-        controller is alive or its state is unknown (the job stays approved), and
-        :class:`BusyError` when another execution runs.
+        Raises :class:`NoSigningKeyError` without a signing key, :class:`ControllerUnavailableError`
+        before anything happens when no controller is alive or its state is unknown (the job stays
+        approved), and :class:`BusyError` when another execution runs. ``recovery``: the plan is a
+        recover job's (the gate's margin floor is then its start where that is under the threshold).
         """
         if self.signer is None:
             raise NoSigningKeyError("the bridge has no signing key (REGRASP_BRIDGE_SIGNING_KEY): a controller refuses "

@@ -208,6 +208,7 @@ def _child_main(settings_doc: dict, dispatch_doc: dict, cmd: Any, out: Any, pare
         freeze_startup_objects,
         raise_thread_priority,
         shorten_switch_interval,
+        use_realtime_scheduling,
     )
 
     send_lock = threading.Lock()
@@ -218,6 +219,7 @@ def _child_main(settings_doc: dict, dispatch_doc: dict, cmd: Any, out: Any, pare
 
     # Raised before zenoh starts its threads, which inherit it; the whole process carries only bridge traffic.
     raise_thread_priority(settings_doc.get("thread_nice"))
+    use_realtime_scheduling(settings_doc.get("realtime_priority"))
     shorten_switch_interval()
     try:
         settings = BridgeSettings(**settings_doc)

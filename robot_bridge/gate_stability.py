@@ -102,8 +102,10 @@ def _check_stability(ctx: _Context, p: _Parsed, fk: BatchFK, polygon: Polygon, s
 
     com = system(held, robot_com, obj_com)
     margin = polygon.margin(com[:, :2])
+    below = f"the threshold {ctx.threshold * 1000:.2f} mm"
     if ctx.recovery and margin[0] < ctx.threshold:
         need = float(margin[0]) - s.margin_tolerance_m
+        below = f"the recovery's floor {margin[0] * 1000:.2f} mm (where it starts, under the threshold)"
         ctx.note("com_margin", recovery_floor_m=float(margin[0]))
     k = int(np.argmin(margin))
     ctx.note("com_margin", min_margin_m=float(margin[k]), at_sample=k, threshold_m=ctx.threshold,
@@ -121,8 +123,8 @@ def _check_stability(ctx: _Context, p: _Parsed, fk: BatchFK, polygon: Polygon, s
         if bad2.size and (first is None or ks[bad2[0]] < first):
             first, value = int(ks[bad2[0]]), float(m2[bad2[0]])  # the mass set before the change fails first
     if first is not None:
-        raise Veto("com_margin", f"the CoM margin falls to {value * 1000:.2f} mm, below the threshold "
-                   f"{ctx.threshold * 1000:.2f} mm (tolerance {s.margin_tolerance_m * 1000:.2f} mm)", first)
+        raise Veto("com_margin", f"the CoM margin falls to {value * 1000:.2f} mm, below {below} "
+                   f"(tolerance {s.margin_tolerance_m * 1000:.2f} mm)", first)
     ctx.passed("com_margin")
 
     # ZMP (cart-table) at every controller sample (5 ms; the plan's points among them),

@@ -26,6 +26,25 @@ def shorten_switch_interval(interval_s: float = BRIDGE_SWITCH_INTERVAL_S) -> Non
         sys.setswitchinterval(interval_s)
 
 
+def use_realtime_scheduling(priority: int | None) -> bool:
+    """Run the calling thread (and the threads it starts from now on, which inherit it) under SCHED_RR at
+    ``priority`` (1-99): it then preempts every ordinary process, however busy the cores are. Needs
+    CAP_SYS_NICE; without it nothing changes and False is returned. None leaves the policy alone.
+
+    Only for threads that sleep between short pieces of work (the bridge's): the kernel's real-time
+    throttling (95 % of each second by default) is the safety net should one ever spin."""
+    import os
+    import threading
+
+    if priority is None or not hasattr(os, "sched_setscheduler"):
+        return False
+    try:
+        os.sched_setscheduler(threading.get_native_id(), os.SCHED_RR, os.sched_param(priority))
+    except (PermissionError, OSError):
+        return False
+    return True
+
+
 def raise_thread_priority(nice: int | None) -> bool:
     """Give the calling thread (and the threads it starts from now on, which inherit it) niceness ``nice``.
 

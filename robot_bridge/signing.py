@@ -30,7 +30,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import (
 )
 from pydantic_core import from_json
 
-#: File names written by :func:`generate_keys` (docs/contract.md: ``regrasp keys generate DIR``).
+#: File names written by :func:`generate_keys` (``regrasp keys generate DIR``).
 PRIVATE_KEY_FILE = "dispatcher.key"
 PUBLIC_KEY_FILE = "dispatcher.pub"
 #: Field of a command that holds its signature.

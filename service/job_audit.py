@@ -174,9 +174,11 @@ class JobAuditor:
             for kind, payload, at_ns in records_for_event(event, job, self.store):
                 head = writer.record(kind, payload, at_ns)
             self._done_upto[job_id] = event["id"]
-            fields: dict[str, Any] = {"audit_event_id": event["id"], "audit_path": str(path)}
-            if isinstance(head, str):
-                fields["audit_head"] = head
+            fields: dict[str, Any] = {"audit_event_id": event["id"]}
+            if not after_end:  # the job's file and head stay the ones its run ended with; the addendum lies beside
+                fields["audit_path"] = str(path)
+                if isinstance(head, str):
+                    fields["audit_head"] = head
             if (event["kind"] == "state" and event.get("state") in TERMINAL_STATES) or after_end:
                 writer.close()
                 self._writers.pop(job_id, None)

@@ -3,7 +3,7 @@
 After an abort the robot stands where the stop caught it, mid-motion. A recover
 job plans from that measured state (``state/joints``: joint names, q, the stance
 the controller stands in and what its hands hold) back to the stance's own
-posture, and returns an ordinary plan document (docs/contract.md section 3) that is
+posture, and returns an ordinary plan document (`regrasp.plan/1`) that is
 approved, gated and dispatched like any plan.
 
 The margin rule: the CoM margin stays at or above the threshold where it can.
@@ -16,7 +16,9 @@ within the joint limits, slowed where the cart-table ZMP would leave the polygon
 (``planner.motion.timing``), and checked densely against the floor.
 
 What the hands hold stays held (jaws unchanged); its mass counts in the system
-CoM when the request gives the object (mass, CoM and pose at the measured state).
+CoM, from the object the request carries (mass, CoM and pose at the measured state,
+which the service takes from the aborted plan); without one a recovery while
+holding is infeasible.
 Collisions are checked for the robot's own bodies; the controller does not report
 the tables and obstacles around it.
 """

@@ -146,7 +146,9 @@ def submit(
         require("planner", p, "submitting a job")
         robot, seed = _check_request(svc, body)
         request = body.request.model_dump(mode="json", exclude_none=True)
-    request_sha = hashlib.sha256(json.dumps({"kind": body.kind, "request": request}, sort_keys=True).encode()).hexdigest()
+    # What the submitter sent (a recover job's stored request adds the measured state, which a replay would not match).
+    asked = body.request.model_dump(mode="json", exclude_none=True)
+    request_sha = hashlib.sha256(json.dumps({"kind": body.kind, "request": asked}, sort_keys=True).encode()).hexdigest()
     try:
         row, created = svc.store.create(
             job_id=str(uuid.uuid4()), kind=body.kind, submitter=p.user, request=request, request_sha256=request_sha,
@@ -183,7 +185,31 @@ def _recover_request(svc: Service, body: JobSubmit) -> dict[str, Any]:
     request = req.model_dump(mode="json", exclude_none=True)
     request["model"] = svc.settings.robot
     request["measured"] = state
+    if state.get("holding") not in (None, "none"):
+        held = _held_object(svc)
+        if held is not None:
+            request["object"] = held
     return request
+
+
+def _held_object(svc: Service) -> dict[str, Any] | None:
+    """The object the hands hold after an abort, from the last aborted execution: its mass and CoM from the
+    plan, its pose at the trajectory index the controller last reported. None when that is not known."""
+    rows, _ = svc.store.list(state="aborted", limit=1)
+    if not rows:
+        return None
+    plan = svc.store.result(rows[0]["id"])
+    if not isinstance(plan, dict) or not plan.get("trajectory") or not isinstance(plan.get("object"), dict):
+        return None
+    index = None
+    for event in svc.store.events_after(rows[0]["id"], 0, 5000):
+        payload = (event.get("data") or {}).get("payload") or {}
+        if event["kind"] == "bridge" and (event.get("data") or {}).get("event") == "finished":
+            index = payload.get("last_index")
+    index = min(int(index or 0), len(plan["trajectory"]) - 1)
+    obj = plan["object"]
+    return {"name": obj.get("name"), "mass_kg": obj.get("mass_kg"), "com_local": obj.get("com_local"),
+            "pose": plan["trajectory"][index]["object_pose"], "from_job": rows[0]["id"], "at_index": index}
 
 
 # ------------------------------------------------------------------- reads

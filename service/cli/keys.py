@@ -1,4 +1,4 @@
-"""``regrasp keys``: the dispatcher's Ed25519 key pair that signs every command to the robot (docs/contract.md section 6).
+"""``regrasp keys``: the dispatcher's Ed25519 key pair that signs every command to the robot (docs/robot_bridge.md).
 
 ``regrasp keys generate DIR`` writes ``DIR/dispatcher.key`` (PKCS#8 PEM, mode 0600:
 the service signs with it, ``REGRASP_BRIDGE_SIGNING_KEY``) and ``DIR/dispatcher.pub``

@@ -88,3 +88,23 @@ def test_unrecoverable_states_are_infeasible_with_their_reason(case, code):
         kwargs["holding"] = "right"
     plan = plan_recovery("hrp5p", "upright", names, q1.tolist(), **kwargs)
     assert plan["status"] == "infeasible" and plan["failure"]["code"] == code, plan["failure"]
+
+
+def test_a_held_object_counts_in_the_recovery_and_stays_held(gate):
+    """Holding a 3 kg object in the right hand (its pose as the aborted plan had it): the recovery moves it with
+    the hand, keeps the jaws as they are, and the gate (which recomputes the system CoM with the object) passes it."""
+    from .plans import build_plan
+
+    aborted = build_plan({"RSP": -0.4}, duration_s=1.0, holding="right", mass_kg=3.0)
+    at = len(aborted["trajectory"]) - 1
+    names = aborted["robot"]["joint_names"]
+    q1 = aborted["trajectory"][at]["q"]
+    obj = {"mass_kg": 3.0, "com_local": aborted["object"]["com_local"], "pose": aborted["trajectory"][at]["object_pose"]}
+    plan = plan_recovery("hrp5p", "upright", names, q1, holding="right", obj=obj)
+    assert plan["status"] == "solved", plan["failure"]
+    assert {p["holding"] for p in plan["trajectory"]} == {"right"}
+    assert plan["object"]["mass_kg"] == 3.0
+    assert np.allclose(plan["trajectory"][0]["object_pose"][:3], obj["pose"][:3], atol=1e-9)
+    assert not np.allclose(plan["trajectory"][-1]["object_pose"][:3], obj["pose"][:3], atol=1e-3)  # it moved along
+    verdict = gate.check(plan, offline=True, recovery=True)
+    assert verdict.passed, verdict.summary()

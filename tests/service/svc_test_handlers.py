@@ -5,8 +5,9 @@ these tests): ``busy-S`` computes hashes for S seconds, reporting progress and
 polling ``ctx.cancelled()`` every few milliseconds; ``hang-S`` computes without
 ever polling (only a kill stops it); ``crash`` kills its own process (SIGKILL), ``exit-N`` ends it with
 ``os._exit(N)``; ``robot`` reports the worker's pid and robot loads; ``move-S`` a real plan that swings the
-right shoulder 0.5 rad forward over S seconds from the upright posture and stays there; ``planner-NAME`` runs the
-real planner on the built-in scenario NAME; ``error``
+right shoulder 0.5 rad forward over S seconds from the upright posture and stays there (``moveheld-S``
+holding a 3 kg object in the right hand from the first point); ``planner-NAME`` runs the real planner on the
+built-in scenario NAME; ``error``
 raises; ``infeasible`` returns an infeasible plan; ``quick`` returns at once.
 """
 
@@ -63,7 +64,7 @@ def run(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
         return _plan_doc(request, **robot_loads())
     if mode == "stand":
         return stand(request, ctx, float(arg or STAND_DURATION_S))
-    if mode == "move":
+    if mode in ("move", "moveheld"):
         import sys
         from pathlib import Path
 
@@ -71,7 +72,8 @@ def run(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
         from bridge.plans import build_plan
 
         ctx.progress(0.5, "moving plan")
-        return build_plan({"RSP": -0.5}, duration_s=float(arg or 4.0), rest_s=0.05)
+        holding = {"holding": "right", "mass_kg": 3.0} if mode == "moveheld" else {}
+        return build_plan({"RSP": -0.5}, duration_s=float(arg or 4.0), rest_s=0.05, **holding)
     if mode == "standbad":
         return stand(request, ctx, float(arg or STAND_DURATION_S), bad_joint=True)
     if mode == "planner":  # the real planner on the built-in scenario named after the dash

@@ -164,6 +164,33 @@ def test_recovery_after_an_abort_then_a_normal_plan_succeeds(rig: tuple[Server, 
     assert "plan" in [k for k, _ in rec] and [p["state"] for k, p in rec if k == "state"][-1] == "succeeded"
 
 
+def test_a_recovery_while_holding_carries_the_object_of_the_aborted_plan(rig: tuple[Server, Any]) -> None:
+    """Stopped mid-swing holding 3 kg: the controller reports what it holds, the recover job takes the object's
+    mass and pose from the aborted plan at the index the controller reached, and the recovery executes."""
+    srv, _ = rig
+    moving = submit_approved_plan(srv, {"scenario": "moveheld-4"})
+    with srv.client("bob") as bob, srv.client("carol") as carol:
+        assert bob.post(f"/v1/jobs/{moving}/dispatch").status_code == 202
+        wait_state(bob, moving, {"executing"} | END_STATES, timeout=30)
+        time.sleep(1.5)
+        assert bob.post(f"/v1/jobs/{moving}/stop").status_code == 202
+        assert wait_state(bob, moving, END_STATES, timeout=10)["state"] == "aborted"
+        time.sleep(0.3)
+        r = bob.post("/v1/jobs", json={"kind": "recover", "request": {"robot": BRIDGE_ROBOT_ID}})
+        assert r.status_code == 202, r.text
+        request = r.json()["request"]
+        assert request["measured"]["holding"] == "right"
+        assert request["object"]["mass_kg"] == 3.0 and request["object"]["from_job"] == moving
+        recover = r.json()["id"]
+        planned = wait_state(bob, recover, {"planned", "failed"}, timeout=120)
+        assert planned["state"] == "planned", planned["error"]
+        assert {p["holding"] for p in planned["result"]["trajectory"]} == {"right"}
+        assert carol.post(f"/v1/jobs/{recover}/approve", json={"plan_sha256": planned["plan_sha256"]}).status_code == 200
+        assert bob.post(f"/v1/jobs/{recover}/dispatch").status_code == 202
+        done = wait_state(bob, recover, END_STATES, timeout=60)
+        assert done["state"] == "succeeded", (done["message"], done["error"])
+
+
 def test_the_stop_is_sent_again_when_a_lost_controller_returns(tmp_path: Path) -> None:
     """SIGSTOP of the controller mid-execution: the job ends aborted (controller lost); after SIGCONT the
     dispatcher hears from it again and sends the stop again, and the job's audit records that after its end."""
