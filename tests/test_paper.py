@@ -38,7 +38,7 @@ def _table_rows(md: str, heading: str) -> list[list[str]]:
 def test_every_section_is_there(report):
     md, data, out = report
     for heading in ("## Tables I-IV", "## Stance comparison", "## CoM traces", "## The real-robot tasks",
-                    "## Planning time", "## Where we agree and where we differ", "## The paper's own inconsistencies"):
+                    "## Planning time", "## Where we agree and where we differ", "## Crouched handovers", "## The paper's own inconsistencies"):
         assert heading in md
     for stance in STANCES:
         assert f"### {stance.capitalize()} stance" in md
@@ -94,6 +94,21 @@ def test_comparison_matrix_and_claims_match_the_json(report):
     for stance in STANCES:
         p = data["plans"][stance]
         assert p["constrained"]["threshold_m"] > 0 and p["unconstrained"]["threshold_m"] == 0.0
+
+
+def test_the_crouched_handovers_show_why_they_fail_or_plan(report):
+    """The crouched handover poses follow the lowered pelvis; the report counts the handover validations by
+    cause, at 15 kg and at 8 kg, beside upright."""
+    md, data, _ = report
+    h = data["handovers"]
+    assert set(h) == {"crouched", "crouched-8kg", "upright"}
+    lowered = h["upright"]["pelvis_height_m"] - h["crouched"]["pelvis_height_m"]
+    assert lowered > 0.1
+    for a, b in zip(h["upright"]["handover_com_heights_m"], h["crouched"]["handover_com_heights_m"]):
+        assert abs((a - b) - lowered) < 0.01
+    for name, v in h.items():
+        assert sum(v["handover_validations"].values()) > 0
+        assert f"| {name} ({v['object_mass_kg']:g} kg) |" in md
 
 
 def test_drill_and_planning_time_tables_match_the_json(report):
