@@ -14,7 +14,6 @@ limits, as the paper had none (this model has no such checks yet).
 from __future__ import annotations
 
 import json
-import statistics
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
