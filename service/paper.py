@@ -73,6 +73,7 @@ class Results:
     drills: dict[str, Any] = field(default_factory=dict)
     claims: list[dict[str, Any]] = field(default_factory=list)
     cause_runs: dict[str, Any] = field(default_factory=dict)
+    handovers: dict[str, Any] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     figures: dict[str, str] = field(default_factory=dict)
 
@@ -181,6 +182,30 @@ def _variant_scenario(cause_id: str):
     if cause_id.startswith("one-legged-"):
         return _scenario("one-legged", threshold_m=0.02)
     raise KeyError(cause_id)
+
+
+def handover_failures(sc) -> dict[str, Any]:
+    """Why the dual-arm configurations of a task find a key path or not: its handover poses' height, and the
+    handover node validations by cause (the giver at the pose, the taker's approach, ...)."""
+    from collections import Counter
+
+    from planner.regrasp.graph import HandoverNode
+    from planner.regrasp.hand_config_planner import HandConfigPlanner
+    from planner.regrasp.task import Task
+    from planner.survey.runner import key_path
+
+    task = Task(sc)
+    out: dict[str, Any] = {"object_mass_kg": sc.object.mass_kg, "pelvis_height_m": float(task.stance.base_pose[2]),
+                           "handover_com_heights_m": sorted({round(float(h.T_world_obj[2, 3]
+                                                                         + (h.T_world_obj[:3, :3] @ task.obj.com_local)[2]), 3)
+                                                             for h in task.handover_poses})}
+    for hands in ("left-right", "right-left"):
+        path, reason = key_path(HandConfigPlanner(task, hands), lambda: False)
+        out[hands] = "key path found" if path is not None else reason
+    causes = Counter(f"{v.cause or 'valid'}: {v.detail}" if v.detail else (v.cause or "valid")
+                     for k, v in task.node_cache.items() if isinstance(k, HandoverNode))
+    out["handover_validations"] = dict(causes.most_common())
+    return out
 
 
 def evaluate_claims(res: Results) -> list[dict[str, Any]]:
@@ -317,6 +342,10 @@ def run(out: Path, settings: PaperSettings, progress: Callable[[str], None] = pr
             plot_com_trace(fig, title=f"{name} ({doc['hands']}), 55 mm", polygon=np.array(doc["support_polygon"]),
                            threshold_m=doc["threshold_m"], traces=[("55 mm", _trace(doc), "tab:blue")])
             res.figures[name] = fig.name
+    progress("crouched handovers: why the dual-arm configurations fail or plan")
+    res.handovers = {"crouched": handover_failures(_scenario("crouched")),
+                     "crouched-8kg": handover_failures(_scenario("crouched", object={"mass_kg": 8.0})),
+                     "upright": handover_failures(_scenario("upright"))}
     res.claims = evaluate_claims(res)
     run_causes(res, settings, progress)
     res.timings["total_s"] = time.perf_counter() - t_all
@@ -332,7 +361,7 @@ def _table_json(t: dict[str, Any]) -> dict[str, Any]:
 def _to_json(res: Results) -> dict[str, Any]:
     return {"settings": res.settings.document(), "tables": {s: _table_json(t) for s, t in res.tables.items()},
             "comparison": {s: _table_json(t) for s, t in res.comparison.items()}, "plans": res.plans,
-            "drills": res.drills, "claims": res.claims, "limits": "off (--no-limits): the paper had none",
+            "drills": res.drills, "handovers": res.handovers, "claims": res.claims, "limits": "off (--no-limits): the paper had none",
             "timings": res.timings, "figures": res.figures}
 
 
@@ -420,6 +449,16 @@ def render(res: Results) -> str:
     for name, d in res.drills.items():
         lines.append(f"| {name} | {d['status']}{' (' + d['failure'] + ')' if d['failure'] else ''} | {d['hands']} | "
                      f"{_fmt_mm(d['min_margin_m'])} | {_fmt_s(d['duration_s'])} | {_fmt_s(d['planning_time_s'])} |")
+    lines += ["", "## Crouched handovers", "",
+              "Handover poses are offsets from the stance's pelvis, so the crouched robot hands over lower. Why the "
+              "dual-arm configurations find a key path or not (handover node validations by cause):", "",
+              "| task | pelvis height | handover CoM heights | left-right | right-left | handover validations |",
+              "|---|---|---|---|---|---|"]
+    for name, h in res.handovers.items():
+        lines.append(f"| {name} ({h['object_mass_kg']:g} kg) | {h['pelvis_height_m']:.2f} m | "
+                     f"{', '.join(f'{z:.2f}' for z in h['handover_com_heights_m'])} m | {_short_reason(h['left-right'])} | "
+                     f"{_short_reason(h['right-left'])} | "
+                     + "; ".join(f"{k}: {n}" for k, n in h["handover_validations"].items()) + " |")
     lines += ["", "## Planning time with and without the constraint", "",
               "| stance | with the threshold | at 0 mm | ratio |", "|---|---|---|---|"]
     for stance in STANCES:

@@ -37,7 +37,7 @@ def _table_rows(md: str, heading: str) -> list[list[str]]:
 def test_every_section_is_there(report):
     md, data, out = report
     for heading in ("## Tables I-IV", "## Stance comparison", "## CoM traces", "## The real-robot tasks",
-                    "## Planning time", "## Where we agree and where we differ", "## The paper's own inconsistencies"):
+                    "## Planning time", "## Where we agree and where we differ", "## Crouched handovers", "## The paper's own inconsistencies"):
         assert heading in md
     for stance in STANCES:
         assert f"### {stance.capitalize()} stance" in md
@@ -93,6 +93,21 @@ def test_comparison_matrix_and_claims_match_the_json(report):
     for stance in STANCES:
         p = data["plans"][stance]
         assert p["constrained"]["threshold_m"] > 0 and p["unconstrained"]["threshold_m"] == 0.0
+
+
+def test_the_crouched_handovers_show_why_they_fail_or_plan(report):
+    """The crouched handover poses follow the lowered pelvis; the report counts the handover validations by
+    cause, at 15 kg and at 8 kg, beside upright."""
+    md, data, _ = report
+    h = data["handovers"]
+    assert set(h) == {"crouched", "crouched-8kg", "upright"}
+    assert h["upright"]["pelvis_height_m"] - h["crouched"]["pelvis_height_m"] > 0.1
+    above = [round(z - h["upright"]["pelvis_height_m"], 2) for z in h["upright"]["handover_com_heights_m"]]
+    for z in h["crouched"]["handover_com_heights_m"]:  # the same offsets above the lowered pelvis
+        assert any(abs((z - h["crouched"]["pelvis_height_m"]) - a) < 0.011 for a in above), (z, above)
+    for name, v in h.items():
+        assert sum(v["handover_validations"].values()) > 0
+        assert f"| {name} ({v['object_mass_kg']:g} kg) |" in md
 
 
 def test_drill_and_planning_time_tables_match_the_json(report):

@@ -167,7 +167,11 @@ def plan_scenario(
         except Canceled:
             if should_stop():
                 raise
-            return timed_out([])
+            return _infeasible(task, scenario, "TIMEOUT",
+                               f"the time limit of {scenario.limits.time_s:g} s ended the survey that hands: auto needs "
+                               f"(the task's survey is not cached yet): run `regrasp survey` on this scenario once "
+                               f"(its answer is cached for every later plan), or choose the hands",
+                               stats={"time_s": time.perf_counter() - t_start})
     else:
         order = [hands_choice]
     results: list[tuple[PlannerResult, HandConfigPlanner]] = []

@@ -26,11 +26,11 @@ from typing import Callable
 
 import numpy as np
 
+from planner.errors import Canceled
 from planner.forking import fork_is_safe, spare_cores
 from planner.grasping.grasps import Grasp
 from planner.regrasp.fork_share import share_with_child
 from planner.regrasp.graph import (
-    Canceled,
     GraphSpec,
     HandoverNode,
     PlacementNode,

@@ -17,12 +17,7 @@ import numpy as np
 from planner.motion.smoothing import shortcut
 from planner.motion.timing import time_path
 from planner.motion.trrt import plan_motion
-from planner.regrasp.graph import (
-    HOP_KINDS,
-    HandoverNode,
-    PlacementNode,
-    Validation,
-)
+from planner.regrasp.graph import HOP_KINDS, HandoverNode, PlacementNode, Validation
 from planner.regrasp.plan_assembly import MotionPiece
 from planner.regrasp.results import HandoverPoses, KeyPoses
 from planner.regrasp.settings import Side

@@ -14,11 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from planner.motion.ik import key_pose_targets
-from planner.regrasp.graph import (
-    HandoverNode,
-    PlacementNode,
-    Validation,
-)
+from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
 from planner.regrasp.plan_assembly import MotionPiece
 from planner.regrasp.probes import probe_grasps_with_waist
 from planner.regrasp.results import HandoverPoses, KeyPoses

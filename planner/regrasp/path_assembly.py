@@ -9,10 +9,7 @@ exchange. :mod:`planner.regrasp.plan_assembly` then turns the pieces into the pl
 from __future__ import annotations
 
 from planner.motion.timing import time_parameterize
-from planner.regrasp.graph import (
-    HandoverNode,
-    SearchResult,
-)
+from planner.regrasp.graph import HandoverNode, SearchResult
 from planner.regrasp.motions import MotionValidator
 from planner.regrasp.plan_assembly import MotionPiece
 from planner.stability.evaluator import HoldSpec

@@ -14,11 +14,7 @@ import numpy as np
 
 from planner.grasping.grasps import Grasp
 from planner.motion.ik_batch import BatchIkResult
-from planner.regrasp.graph import (
-    HandoverNode,
-    PlacementNode,
-    Validation,
-)
+from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
 from planner.regrasp.results import GraspProbe
 from planner.regrasp.settings import HANDS_INDEX, Side
 from planner.regrasp.task import Task

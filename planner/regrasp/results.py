@@ -9,9 +9,7 @@ from typing import Literal
 
 import numpy as np
 
-from planner.regrasp.graph import (
-    Validation,
-)
+from planner.regrasp.graph import Validation
 from planner.regrasp.plan_assembly import MotionPiece
 
 

@@ -12,9 +12,7 @@ from planner.motion.ik import IkSettings
 from planner.motion.smoothing import SmoothingSettings
 from planner.motion.timing import TimingSettings
 from planner.motion.trrt import TrrtSettings
-from planner.regrasp.graph import (
-    GraphWeights,
-)
+from planner.regrasp.graph import GraphWeights
 
 Side = Literal["left", "right"]
 HANDS_INDEX: dict[str, int] = {"left": 0, "right": 1}

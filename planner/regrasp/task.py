@@ -18,11 +18,7 @@ from planner.grasping.grasps import Grasp, GraspSet, plan_grasps
 from planner.grasping.handover import HandoverPose, handover_poses
 from planner.motion.ik import IkSolver
 from planner.motion.interpolation import interpolate
-from planner.regrasp.graph import (
-    HOP_KINDS,
-    HandoverNode,
-    PlacementNode,
-)
+from planner.regrasp.graph import HOP_KINDS, HandoverNode, PlacementNode
 from planner.regrasp.results import GraspProbe
 from planner.regrasp.settings import HANDS_INDEX, PlannerSettings, Side
 from planner.regrasp.state_checker import StateChecker

@@ -12,7 +12,7 @@ from .common import console
 
 @click.command()
 @click.option("--out", "out_dir", default="paper-out", show_default=True, type=click.Path(file_okay=False))
-@click.option("--quick", is_flag=True, help="Small sample counts (about two minutes, for CI: 150 states x 3 seeds per "
+@click.option("--quick", is_flag=True, help="Small sample counts (a few minutes, for CI: 150 states x 3 seeds per "
               "configuration); the full run repeats seeds until every interval is within +-0.02.")
 @click.option("--no-limits", is_flag=True, help="Effort and grip checks off, as in the paper (always so for the tables; "
               "recorded in the report; this model has no such checks yet).")
