@@ -326,8 +326,8 @@ def build_object(definition: ObjectDef, base_dir: Path | None = None) -> ObjectM
         mesh = box_union_mesh(boxes)
     elif shape == "mesh":
         assert definition.mesh is not None
-        if definition.mesh.path is None:  # a registered name not yet resolved (planner.meshes)
-            from .meshes import mesh_file
+        if definition.mesh.path is None:  # a registered name not yet resolved (planner.scene.meshes)
+            from planner.scene.meshes import mesh_file
 
             definition.mesh.path = str(mesh_file(definition.mesh.name or ""))
         path = Path(definition.mesh.path)

@@ -80,7 +80,7 @@ def test_no_straight_line_shortcut_even_when_the_goal_is_one_step_away():
 def test_unstable_poses_are_counted_and_not_grown_from():
     """With the goal at the stable edge and few goal-biased samples, many samples land beyond x = 0.5:
     counted, never tree nodes."""
-    from planner.survey_counting import CountingSettings
+    from planner.survey.counting import CountingSettings
 
     ex = explore_counted([leg([-0.9, -0.9], [0.45, 0.0])], Toy(), np.random.default_rng(7), leg_cap_states=2000,
                          settings=CountingSettings(goal_bias=0.02))
