@@ -200,7 +200,7 @@ def plot_survey_bars(path: Path, *, title: str, rows: list[dict], recommended: s
         ci = r.get("ratio_ci95")
         if r["ratio"] is not None and ci:
             x = bar.get_x() + bar.get_width() / 2
-            ax.errorbar([x], [r["ratio"]], yerr=[[r["ratio"] - ci[0]], [ci[1] - r["ratio"]]], color="black", capsize=4, lw=1)
+            ax.errorbar([x], [r["ratio"]], yerr=[[max(r["ratio"] - ci[0], 0.0)], [max(ci[1] - r["ratio"], 0.0)]], color="black", capsize=4, lw=1)
         text = f"{r['ratio']:.3f}" if r["ratio"] is not None else "n/a"
         text += f"\nC={r['stable']:,} U={r['unstable']:,}"
         if r["hands"] == recommended:
