@@ -17,7 +17,8 @@ from typing import Any, Callable
 
 from planner.errors import Canceled, InputError
 from planner.regrasp.hand_config_planner import HandConfigPlanner
-from planner.regrasp.plan_assembly import assemble, trajectory_points
+from planner.regrasp.plan_assembly import assemble, effort_ratios, trajectory_points
+from planner.stability.effort import EffortEvaluator
 from planner.regrasp.results import PlannerResult
 from planner.regrasp.settings import PlannerSettings
 from planner.regrasp.task import Task
@@ -43,6 +44,8 @@ class PlanOptions:
     solutions: int = 1
     stance: Any = None
     time_limit_s: float | None = None
+    #: check effort and grip (CONTRACT section 3); False is ``--no-limits``
+    limits: bool = True
 
 
 def library_versions() -> dict[str, str]:
@@ -111,7 +114,13 @@ def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]
     for end, failures, ok, hand in (("start", planner.start_failures, planner.start_ok, planner.start_hand),
                                     ("goal", planner.goal_failures, planner.goal_ok, planner.goal_hand)):
         if failures and not ok:
-            if max(failures, key=failures.get) == "com_margin":
+            dominant = max(failures, key=failures.get)
+            if dominant in ("effort", "grip"):
+                what = ("a joint's static torque over its effort limit" if dominant == "effort"
+                        else "the grip slipping (the object's weight or moment about the jaw's closing axis)")
+                return dominant.upper(), (f"no grasp of the object at its {end} pose with the {hand} hand is within the "
+                                          f"robot's limits: {what} ({dict(failures)})")
+            if dominant == "com_margin":
                 return "NO_STABLE_GRASP", (f"no grasp of the object at its {end} pose keeps the CoM margin >= the "
                                            f"threshold with the {hand} hand ({dict(failures)})")
             return f"{end.upper()}_INVALID", f"the {end} pose cannot be grasped by the {hand} hand: {dict(failures)}"
@@ -134,6 +143,8 @@ def plan_scenario(
     scenario = with_overrides(scenario, stance=options.stance, threshold_m=options.threshold_m,
                               hands=options.hands, seed=options.seed, time_limit_s=options.time_limit_s)
     progress(0.02, "setting up the task")
+    if not options.limits:
+        settings = (settings or PlannerSettings()).model_copy(update={"limits": False})
     try:
         task = task or build_task(scenario, settings)
     except ObjectModelError as exc:
@@ -219,6 +230,9 @@ def plan_scenario(
     best, planner = min(solved, key=lambda rp: rp[0].cost)
     t_asm = time.perf_counter()
     traj = assemble(best.pieces, task.evaluator, task.settings.timing.dt_s, task.placements[task.start_id])
+    traj.effort_ratio = effort_ratios(traj, task.limits or EffortEvaluator(task.robot, task.stance, task.obj.mass_kg,
+                                                                           task.obj.com_local))
+    stats["limits"] = task.limits is not None
     stats["assembly_s"] = time.perf_counter() - t_asm
     stats["time_s"] = time.perf_counter() - t_start
     stats["failures"] = dict(best.failures)

@@ -50,6 +50,14 @@ class AccelerationLimits(_Frozen):
     grippers: float
 
 
+class GripSpec(_Frozen):
+    """A jaw hand's grip (per hand): friction coefficient, squeeze force per jaw (N), contact patch radius (m)."""
+
+    friction: float = Field(gt=0)
+    force_n: float = Field(gt=0)
+    patch_radius_m: float = Field(gt=0)
+
+
 class RobotSpec(_Frozen):
     name: str
     urdf: str
@@ -62,6 +70,9 @@ class RobotSpec(_Frozen):
     upright: UprightSpec
     default_posture_rad: dict[str, float] = Field(default_factory=dict)
     acceleration_limits: AccelerationLimits
+    #: joint -> N*m (N for prismatic joints); overrides the URDF's <limit effort>
+    effort_limits: dict[str, float] = Field(default_factory=dict)
+    grip: GripSpec | None = None
     limit_sources: str = ""
     license_notice: str | None = None
 
