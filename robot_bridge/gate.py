@@ -34,6 +34,7 @@ from schemas.plan import PLAN_SCHEMA, plan_sha256
 
 from .robot_files import RobotFiles, robot_files
 from .support import Polygon, support_polygon
+from .gate_effort import EffortVeto, check_effort_and_grip
 from .urdf_kinematics import BatchFK, UrdfModel, load_urdf
 
 _HOLDING = ("none", "left", "right", "both")
@@ -54,6 +55,7 @@ class GateSettings(BaseModel):
     limit_tolerance_rel: float = Field(1e-6, ge=0, description="relative slack on velocity/acceleration limits")
     time_tolerance_s: float = Field(1e-6, ge=0, description="|t_i - i dt_s| allowed")
     gravity: float = Field(9.81, gt=0)
+    check_limits: bool = Field(True, description="check static joint torques and grip against the robot's limits")
     max_points: int = Field(720_000, gt=0, description="largest trajectory accepted (1 h at 200 Hz)")
 
 
@@ -229,6 +231,13 @@ class SafetyGate:
         fk = self._batch_fk(robot, p.joint_names)
         polygon = support_polygon(robot.model, p.feet)
         _timed(ctx, "stability_s", _check_stability, ctx, p, fk, polygon, s)
+        if s.check_limits:  # static joint torques and grip (robot_bridge.gate_effort)
+            try:
+                ctx.passed("effort_grip", **_timed(ctx, "effort_s", check_effort_and_grip, robot.model, robot.files.spec,
+                                                   p.joint_names, p.Q, p.base_pose, p.holding, p.object_pose,
+                                                   p.com_local, p.mass, p.feet, s.gravity))
+            except EffortVeto as veto:
+                raise Veto(veto.check, veto.message, veto.point * ctx.S) from None
 
 
 def _reject_constant(name: str) -> Any:
