@@ -233,9 +233,10 @@ class SafetyGate:
         _timed(ctx, "stability_s", _check_stability, ctx, p, fk, polygon, s)
         if s.check_limits:  # static joint torques and grip (robot_bridge.gate_effort)
             try:
-                ctx.passed("effort_grip", **_timed(ctx, "effort_s", check_effort_and_grip, robot.model, robot.files.spec,
-                                                   p.joint_names, p.Q, p.base_pose, p.holding, p.object_pose,
-                                                   p.com_local, p.mass, p.feet, s.gravity))
+                figures = _timed(ctx, "effort_s", check_effort_and_grip, robot.model, robot.files.spec, p.joint_names,
+                                 p.Q, p.base_pose, p.holding, p.object_pose, p.com_local, p.mass, p.feet, s.gravity)
+                ctx.passed("effort", max_ratio=figures["max_effort_ratio"])
+                ctx.passed("grip", max_ratio=figures["max_grip_ratio"])
             except EffortVeto as veto:
                 raise Veto(veto.check, veto.message, veto.point * ctx.S) from None
 

@@ -115,6 +115,9 @@ def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]
                                     ("goal", planner.goal_failures, planner.goal_ok, planner.goal_hand)):
         if failures and not ok:
             dominant = max(failures, key=failures.get)
+            limited = {c: failures[c] for c in ("effort", "grip") if failures.get(c)}
+            if limited:  # nodes the limits refused might have held the end: the limits decide (counts in the message)
+                dominant = max(limited, key=limited.get)
             if dominant in ("effort", "grip"):
                 what = ("a joint's static torque over its effort limit" if dominant == "effort"
                         else "the grip slipping (the object's weight or moment about the jaw's closing axis)")
