@@ -19,6 +19,8 @@ class SurveyRow(OpenModel):
     unstable: int = Field(ge=0)
     ratio: float | None
     reason: str | None = None
+    #: counted poses over an effort or grip limit (counted unstable too); None with the limits off
+    over_limits: int | None = None
 
 
 class Survey(OpenModel):

@@ -43,6 +43,8 @@ class PaperSettings:
     comparison_states: int
     plan_iterations: int
     workers: int | None = None
+    #: check effort and grip (False: ``--no-limits``, as the paper, which had neither)
+    limits: bool = True
 
     @classmethod
     def full(cls) -> "PaperSettings":
@@ -78,7 +80,10 @@ def _survey_rows(scenario, settings: PaperSettings, states: int, seeds: tuple[in
 
     t0 = time.perf_counter()
     sc = resolve_scenario(scenario, stance=stance, states_per_configuration=states)
-    runs = [doc for doc, _ in run_survey_seeds(sc, list(seeds), workers=settings.workers)]
+    from planner.regrasp.settings import PlannerSettings
+
+    runs = [doc for doc, _ in run_survey_seeds(sc, list(seeds), workers=settings.workers,
+                                               settings=PlannerSettings(limits=settings.limits))]
     rows = {}
     for h in HAND_CONFIGS:
         per_seed = [next(r for r in d["rows"] if r["hands"] == h) for d in runs]
@@ -87,6 +92,7 @@ def _survey_rows(scenario, settings: PaperSettings, states: int, seeds: tuple[in
             "stable": [r["stable"] for r in per_seed], "unstable": [r["unstable"] for r in per_seed],
             "ratio": [r["ratio"] for r in per_seed], "ratio_mean": mean, "ratio_sd": sd,
             "reason": next((r.get("reason") for r in per_seed if r.get("reason")), None),
+            "over_limits": [r.get("over_limits") for r in per_seed],
         }
     best = max((h for h in HAND_CONFIGS if rows[h]["ratio_mean"] is not None),
                key=lambda h: (rows[h]["ratio_mean"], sum(rows[h]["stable"]), -HAND_CONFIGS.index(h)), default=None)
@@ -94,7 +100,8 @@ def _survey_rows(scenario, settings: PaperSettings, states: int, seeds: tuple[in
             "threshold_m": runs[0]["threshold_m"], "object": runs[0]["object"], "time_s": time.perf_counter() - t0}
 
 
-def _plan(scenario: str, hands: str | None, threshold_m: float | None, iterations: int, stance: str | None = None) -> dict[str, Any]:
+def _plan(scenario: str, hands: str | None, threshold_m: float | None, iterations: int, stance: str | None = None,
+          limits: bool = True) -> dict[str, Any]:
     from planner.jobs.plan_job import PlanOptions, plan_scenario
     from planner.scene.scenarios import resolve_scenario
     from planner.scene.scenarios import with_overrides
@@ -104,7 +111,7 @@ def _plan(scenario: str, hands: str | None, threshold_m: float | None, iteration
     sc = with_overrides(sc)
     sc = sc.model_copy(update={"limits": sc.limits.model_copy(update=data_limits)})
     t0 = time.perf_counter()
-    doc = plan_scenario(sc, PlanOptions(hands=hands, threshold_m=threshold_m))
+    doc = plan_scenario(sc, PlanOptions(hands=hands, threshold_m=threshold_m, limits=limits))
     doc.setdefault("stats", {})["wall_s"] = time.perf_counter() - t0
     return doc
 
@@ -142,8 +149,8 @@ def run(out: Path, settings: PaperSettings, progress: Callable[[str], None] = pr
     for stance in STANCES:
         hands = res.tables[stance]["recommended"] or "right-right"
         progress(f"plans: {stance} stance, {hands}, threshold and 0 mm")
-        constrained = _plan(stance, hands, None, settings.plan_iterations)
-        free = _plan(stance, hands, 0.0, settings.plan_iterations)
+        constrained = _plan(stance, hands, None, settings.plan_iterations, limits=settings.limits)
+        free = _plan(stance, hands, 0.0, settings.plan_iterations, limits=settings.limits)
         differ = (constrained["status"] == "solved" and free["status"] == "solved"
                   and [p["q"] for p in constrained["trajectory"]] != [p["q"] for p in free["trajectory"]])
         thr = constrained["threshold_m"]
@@ -163,7 +170,7 @@ def run(out: Path, settings: PaperSettings, progress: Callable[[str], None] = pr
     # 4. The real-robot tasks at 55 mm.
     for name in DRILL_TASKS:
         progress(f"real-robot task: {name}")
-        doc = _plan(name, None, None, settings.plan_iterations)
+        doc = _plan(name, None, None, settings.plan_iterations, limits=settings.limits)
         res.drills[name] = _plan_summary(doc)
         if doc["status"] == "solved":
             fig = out / f"com-trace-{name}.png"

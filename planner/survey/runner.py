@@ -32,6 +32,7 @@ from planner.regrasp.path_assembly import carried
 from planner.regrasp.settings import HANDS_OF, PlannerSettings
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
+from planner.survey import limits as survey_limits
 from planner.termination import Termination
 from schemas.common import HAND_CONFIGS
 from schemas.scenario import Scenario
@@ -55,6 +56,8 @@ class ConfigOutcome:
     object_pose: np.ndarray | None = None
     stable_flags: np.ndarray | None = None
     com: np.ndarray | None = None
+    #: counted poses over an effort or grip limit (None: limits off)
+    over_limits: int | None = None
 
     @property
     def ratio(self) -> float | None:
@@ -129,6 +132,9 @@ def survey_configuration(task: Task, hands: str, states: int, seed: int | list[i
 def _explore(task: Task, hands: str, legs: list[ExploreLeg], states: int, seed: int, path: list, key_poses_s: float,
              should_stop: Callable[[], bool], keep_states: bool) -> ConfigOutcome:
     evaluator = task.evaluator.with_threshold(task.threshold_m)
+    # LIMITS HOOK (planner.survey.limits): a pose over an effort or grip limit counts as unstable, and the
+    # recorded ones over a limit are the row's over_limits (below).
+    evaluator = survey_limits.limited(task, evaluator)
     checked = []
     for leg in legs:
         held = [(leg.hold.tcp_side, leg.hold.T_obj_tcp)]
@@ -147,6 +153,7 @@ def _explore(task: Task, hands: str, legs: list[ExploreLeg], states: int, seed: 
                  states_per_s=ex.stats["evaluated"] / max(elapsed, 1e-9),
                  path=[_node_label(n) for n in path], status=ex.status)
     out = ConfigOutcome(hands, ex.n_stable, ex.n_unstable, None, stats)
+    out.over_limits = survey_limits.over_limits(task, ex.q, ex.holding, ex.object_pose)  # LIMITS HOOK
     if ex.status != "done":
         out.reason = f"exploration stopped early ({ex.status}) after {ex.stats['evaluated']} states"
     if keep_states:
@@ -360,7 +367,8 @@ def run_survey_seeds(
     docs = []
     for i, seed in enumerate(seeds):
         outcomes = [pc[i] for pc in per_config]
-        rows = [SurveyRow(hands=o.hands, stable=o.stable, unstable=o.unstable, ratio=o.ratio, reason=o.reason) for o in outcomes]
+        rows = [SurveyRow(hands=o.hands, stable=o.stable, unstable=o.unstable, ratio=o.ratio, reason=o.reason,
+                          over_limits=o.over_limits) for o in outcomes]
         doc = {
             "schema": SURVEY_SCHEMA,
             "robot": {"name": task.robot.name, "urdf_sha256": task.robot.urdf_sha256},

@@ -113,7 +113,9 @@ def stance_matrix(docs: list[dict]) -> Table:
 @click.option("--states-out", type=click.Path(dir_okay=False), help="Write every evaluated state to an .npz file.")
 @click.option("--all-stances", is_flag=True, help="Run the task in the four built-in stances: a stance x hands matrix of R.")
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), help="Write the bar chart and CoM scatter to this directory.")
-def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, workers, as_json, states_out, all_stances, plot_dir) -> None:
+@click.option("--no-limits", is_flag=True, help="Do not check joint torques against the effort limits, nor the grip (as the paper).")
+def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, workers, as_json, states_out, all_stances, plot_dir,
+           no_limits) -> None:
     """Count stable (C) and unstable (U) explored states per hand configuration; R = C / (C + U)."""
     from planner.errors import InputError
     from planner.scene.scenarios import resolve_scenario
@@ -132,13 +134,17 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, states, seed, wor
     if all_stances and states_out:
         fail("--states-out writes the states of one stance; use it without --all-stances")
     stance_list = BUILTIN_STANCES if all_stances else (stance,)
+    from planner.regrasp.settings import PlannerSettings
+
+    settings = PlannerSettings(limits=False) if no_limits else None
     docs = []
     try:
         for st in stance_list:
             sc = resolve_scenario(ref, stance=st, threshold_m=threshold, seed=seed,
                                   states_per_configuration=states)
             label = f"survey {sc.name} ({sc.stance if isinstance(sc.stance, str) else sc.stance.name})"
-            doc, outcomes = run_with_progress(label, lambda p, sc=sc: run_survey(sc, workers=workers, progress=p))
+            doc, outcomes = run_with_progress(label, lambda p, sc=sc: run_survey(sc, workers=workers, progress=p,
+                                                                                      settings=settings))
             docs.append((doc, outcomes))
     except InputError as exc:
         fail(str(exc))
