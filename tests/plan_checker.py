@@ -93,6 +93,8 @@ def _signed_margin(polygon: Polygon, x: float, y: float) -> float:
 
 def _acc_limits(spec: dict, names: list[str]) -> np.ndarray:
     acc = spec["acceleration_limits"]
+    if spec.get("schema") == "regrasp.robot/1":  # per joint, with a default
+        return np.array([acc.get(n, acc.get("default")) for n in names], dtype=float)
     out = []
     for n in names:
         if any(n in f["chain"] for f in spec["feet"].values()):
@@ -117,10 +119,21 @@ def _pose_err(a: pin.SE3, b: pin.SE3) -> tuple[float, float]:
     return float(np.linalg.norm(d.translation)), float(np.linalg.norm(pin.log3(d.rotation)))
 
 
-def check_plan(plan: dict, *, sample_every: int = 1) -> CheckReport:
+def check_plan(plan: dict, *, sample_every: int = 1, robot_spec: str | None = None) -> CheckReport:
+    """``robot_spec``: the robot's spec file (regrasp.robot/1) when it is not a built-in; its derived URDF is
+    the one `regrasp robot urdf FILE` names."""
     rep = CheckReport()
     assert plan["status"] == "solved", plan.get("failure")
-    urdf, spec = _urdf_and_spec(plan["robot"]["name"])
+    if robot_spec is None:
+        urdf, spec = _urdf_and_spec(plan["robot"]["name"])
+    else:
+        from click.testing import CliRunner
+
+        from service.cli.main import cli
+
+        res = CliRunner().invoke(cli, ["robot", "urdf", robot_spec])
+        assert res.exit_code == 0, res.output
+        urdf, spec = res.output.strip(), yaml.safe_load(open(robot_spec).read())
     model = pin.buildModelFromUrdf(urdf, pin.JointModelFreeFlyer())
     data = model.createData()
     mimics = _mimics(urdf)
@@ -181,7 +194,8 @@ def check_plan(plan: dict, *, sample_every: int = 1) -> CheckReport:
         rep.fail("the plan does not start and end at rest")
 
     coms = np.zeros((len(traj), 3))
-    tcp_ids = {"left": model.getFrameId("l_tcp"), "right": model.getFrameId("r_tcp")}
+    tcp_names = {s: h["frame"] for s, h in spec["hands"].items()} if spec.get("hands") else {"left": "l_tcp", "right": "r_tcp"}
+    tcp_ids = {side: model.getFrameId(f) for side, f in tcp_names.items()}
     sole_ids = {f["frame"]: model.getFrameId(f["frame"]) for f in feet}
     rel: dict = {}
     obj_prev = None
@@ -292,6 +306,8 @@ def _check_limits(rep: CheckReport, plan: dict, model, data, pinq, spec: dict, u
     m, com_local = obj["mass_kg"], np.asarray(obj["com_local"])
     contact = [f["frame"] for f in plan["stance"]["feet"] if f["in_contact"]]
     tcp = {"left": "l_tcp", "right": "r_tcp"}
+    if spec.get("hands"):
+        tcp = {s: h["frame"] for s, h in spec["hands"].items()}
     grip = spec.get("grip")
     v0 = np.zeros(model.nv)
     for i in range(0, len(traj), every):

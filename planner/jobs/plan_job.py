@@ -46,6 +46,8 @@ class PlanOptions:
     time_limit_s: float | None = None
     #: check effort and grip (CONTRACT section 3); False is ``--no-limits``
     limits: bool = True
+    #: a registered robot name or a spec file path, over the scenario's ``robot``
+    robot: str | None = None
 
 
 def library_versions() -> dict[str, str]:
@@ -145,6 +147,8 @@ def plan_scenario(
     started = time.monotonic()
     scenario = with_overrides(scenario, stance=options.stance, threshold_m=options.threshold_m,
                               hands=options.hands, seed=options.seed, time_limit_s=options.time_limit_s)
+    if options.robot is not None:
+        scenario = scenario.model_copy(update={"robot": options.robot})
     progress(0.02, "setting up the task")
     if not options.limits:
         settings = (settings or PlannerSettings()).model_copy(update={"limits": False})
@@ -286,8 +290,10 @@ def _auto_order(task: Task, should_stop: StopFn) -> tuple[list[str], dict | None
 def plan_job(request: dict[str, Any], ctx) -> dict[str, Any]:
     """The service's plan job: CONTRACT.md section 5 request -> plan document."""
     scenario = resolve_scenario(request["scenario"])
+    refuse_robot_paths(scenario.robot, request.get("robot"))
     options = PlanOptions(hands=request.get("hands"), threshold_m=request.get("threshold_m"), seed=request.get("seed"),
-                          stance=request.get("stance"), time_limit_s=request.get("time_limit_s"))
+                          stance=request.get("stance"), time_limit_s=request.get("time_limit_s"),
+                          robot=request.get("robot"))
 
     def stop() -> bool:
         return bool(ctx.cancelled())
@@ -296,4 +302,17 @@ def plan_job(request: dict[str, Any], ctx) -> dict[str, Any]:
 
 
 def survey_job(request: dict[str, Any], ctx) -> dict[str, Any]:
+    if isinstance(request.get("scenario"), dict):
+        refuse_robot_paths(request["scenario"].get("robot"), request.get("robot"))
+    refuse_robot_paths(request.get("robot"))
     return run_survey_request(request, ctx)
+
+
+def refuse_robot_paths(*robots: Any) -> None:
+    """A request names robots registered with the service (built-ins, ``REGRASP_ROBOT_DIRS``), never a file."""
+    from planner.robot.spec_file import is_spec_path
+
+    for robot in robots:
+        if isinstance(robot, str) and is_spec_path(robot):
+            raise InputError("a request names a robot by its registered name, not a file; register spec files in "
+                             "the service's robot folders (REGRASP_ROBOT_DIRS)")

@@ -70,6 +70,8 @@ class RobotSpec(_Frozen):
     upright: UprightSpec
     default_posture_rad: dict[str, float] = Field(default_factory=dict)
     acceleration_limits: AccelerationLimits
+    #: joint -> rad/s^2 (m/s^2 for prismatic joints), over the group limits (spec files give them per joint)
+    acceleration_per_joint: dict[str, float] = Field(default_factory=dict)
     #: joint -> N*m (N for prismatic joints); overrides the URDF's <limit effort>
     effort_limits: dict[str, float] = Field(default_factory=dict)
     grip: GripSpec | None = None
@@ -77,7 +79,9 @@ class RobotSpec(_Frozen):
     license_notice: str | None = None
 
     def acceleration_limit(self, joint: str) -> float:
-        """Acceleration limit of a joint by the group it belongs to."""
+        """Acceleration limit of a joint: its own, else the group it belongs to's."""
+        if joint in self.acceleration_per_joint:
+            return self.acceleration_per_joint[joint]
         acc = self.acceleration_limits
         if any(joint in f.chain for f in self.feet.values()):
             return acc.legs
