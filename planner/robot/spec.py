@@ -26,9 +26,10 @@ class FootSpec(_Frozen):
 
 class GripperSpec(_Frozen):
     joint: str
-    #: jaw opening (m) = opening_per_unit * joint value
+    #: jaw opening (m) = opening_per_unit * (joint value - closed_value)
     opening_per_unit: float = 1.0
     max_opening_m: float
+    closed_value: float = 0.0
 
 
 class ArmSpec(_Frozen):

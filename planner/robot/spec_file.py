@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import site
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -128,6 +129,8 @@ def _resolve(ref: str, spec_dir: Path, packages: dict[str, str], what: str) -> P
         roots = [Path(packages[pkg]).expanduser() if Path(packages[pkg]).is_absolute() else spec_dir / packages[pkg]] \
             if pkg in packages else []
         roots += [Path(p) / pkg for p in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if p]
+        # packages installed as Python wheels in the cmeel layout (<site-packages>/cmeel.prefix/share/PKG)
+        roots += [Path(p) / "cmeel.prefix" / "share" / pkg for p in site.getsitepackages()]
         for root in roots:
             if (root / rest).exists():
                 return (root / rest).resolve()
@@ -299,10 +302,17 @@ def derive(path: str | Path) -> DerivedRobot:
         if not urdf.is_movable(urdf.joints[master]):
             raise RobotSpecError(f"{where}.jaw.joints[0]: {master!r} is not a movable joint of its own (fixed or mimic)")
         w0, w1 = hand.jaw.width_m
-        if hand.jaw.closed != 0.0 or w0 != 0.0 or hand.jaw.open == 0.0 or w1 <= 0.0:
-            raise RobotSpecError(f"{where}.jaw: the jaw must close at joint value 0 with width 0 and open to a "
-                                 f"positive width (got closed {hand.jaw.closed}, width_m {hand.jaw.width_m})")
-        grippers[side] = GripperSpec(joint=master, opening_per_unit=w1 / hand.jaw.open, max_opening_m=w1)
+        if w0 != 0.0 or w1 <= 0.0 or hand.jaw.open == hand.jaw.closed:
+            raise RobotSpecError(f"{where}.jaw.width_m: the jaw closes to width 0 and opens to a positive width, at "
+                                 f"distinct joint values (got width_m {hand.jaw.width_m}, open {hand.jaw.open}, "
+                                 f"closed {hand.jaw.closed})")
+        lim = urdf.joints[master].find("limit")
+        upper = float(lim.attrib.get("upper", "nan")) if lim is not None else float("nan")
+        if not abs(upper - hand.jaw.open) <= 1e-9:
+            raise RobotSpecError(f"{where}.jaw.open: the jaw opens at its joint's upper limit ({upper}), got "
+                                 f"{hand.jaw.open}")
+        grippers[side] = GripperSpec(joint=master, opening_per_unit=w1 / (hand.jaw.open - hand.jaw.closed),
+                                     max_opening_m=w1, closed_value=hand.jaw.closed)
         arm_paths[side] = [j for j in urdf.chain(hand.frame) if j not in hand.jaw.joints]
     common = [a for a, b in zip(arm_paths["left"], arm_paths["right"]) if a == b]
     waist = [j for j in common if j not in leg_joints]
@@ -347,11 +357,21 @@ def derive(path: str | Path) -> DerivedRobot:
         acceleration_per_joint={k: v for k, v in rf.acceleration_limits.items() if k != "default"},
         effort_limits=rf.effort_limits, grip=rf.grip, limit_sources=rf.limit_sources, license_notice=rf.license_notice,
     )
-    text = ET.tostring(urdf.root, encoding="unicode")
     digest = hashlib.sha256(path.read_bytes() + b"\0" + urdf_file.read_bytes()).hexdigest()
     out_dir = cache_dir() / f"{rf.name}-{digest[:16]}"
     out_dir.mkdir(parents=True, exist_ok=True)
     derived = out_dir / f"{rf.name}.urdf"
+    if rf.collision == "auto":
+        if derived.is_file():  # fitted once per spec and URDF content
+            notes.append("collision: boxes fitted to the URDF's meshes (cached)")
+            text = derived.read_text()
+        else:
+            fitted = fit_mesh_collisions(urdf, urdf_file.parent, path.parent, rf.packages)
+            notes.append(f"collision: {fitted} boxes fitted to the URDF's meshes" if fitted else
+                         "collision: the URDF's primitives")
+            text = ET.tostring(urdf.root, encoding="unicode")
+    else:
+        raise RobotSpecError("collision: explicit primitives are not supported by this version; use auto")
     if not derived.is_file() or derived.read_text() != text:
         tmp = derived.with_suffix(f".tmp{os.getpid()}")
         tmp.write_text(text)
@@ -359,3 +379,87 @@ def derive(path: str | Path) -> DerivedRobot:
     spec = spec.model_copy(update={"urdf": str(derived)})
     return DerivedRobot(spec=spec, source=path, urdf=urdf_file, derived_urdf=derived, created_frames=tuple(created),
                         limit_sources=limit_sources, notes=tuple(notes))
+
+
+def fit_mesh_collisions(urdf: _Urdf, urdf_dir: Path, spec_dir: Path, packages: dict[str, str]) -> int:
+    """Replace every mesh collision of the URDF by its oriented bounding box (trimesh); how many were fitted.
+
+    The planner's fast collision screen works on primitives; a box per mesh keeps every link covered."""
+    import trimesh
+
+    count = 0
+    for link in urdf.root.findall("link"):
+        for col in link.findall("collision"):
+            geo = col.find("geometry")
+            mesh_el = geo.find("mesh") if geo is not None else None
+            if mesh_el is None:
+                continue
+            ref = mesh_el.attrib.get("filename", "")
+            where = f"collision: link {link.attrib['name']!r} mesh {ref!r}"
+            try:
+                mesh_path = _resolve(ref, urdf_dir, packages, where) if ref.startswith("package://") else \
+                    _resolve(ref.removeprefix("file://"), urdf_dir, {}, where)
+                mesh = trimesh.load(str(mesh_path), force="mesh")
+            except RobotSpecError:
+                raise
+            except Exception as exc:  # a mesh trimesh cannot read
+                raise RobotSpecError(f"{where}: cannot read the mesh: {exc}") from None
+            scale = np.array([float(v) for v in mesh_el.attrib.get("scale", "1 1 1").split()])
+            mesh.apply_scale(scale)
+            origin = col.find("origin")
+            xyz = np.array([float(v) for v in (origin.attrib.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
+            rpy = [float(v) for v in (origin.attrib.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()]
+            T_col = np.eye(4)
+            T_col[:3, :3] = _rpy_matrix(rpy)
+            T_col[:3, 3] = xyz
+            link.remove(col)
+            for T_box, extents in _fit_boxes(np.asarray(mesh.vertices, dtype=float)):
+                T = T_col @ T_box
+                new = ET.SubElement(link, "collision")
+                ET.SubElement(new, "origin", {"xyz": " ".join(repr(float(v)) for v in T[:3, 3]),
+                                              "rpy": " ".join(repr(float(v)) for v in _matrix_rpy(T[:3, :3]))})
+                ET.SubElement(ET.SubElement(new, "geometry"), "box", {"size": " ".join(repr(float(v)) for v in extents)})
+                count += 1
+    return count
+
+
+#: a mesh whose bounding box is longer than this on some side is covered by one box per occupied octant
+SPLIT_ABOVE_M = 0.15
+
+
+def _fit_boxes(vertices: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Boxes (pose (4, 4), extents (3,)) covering a mesh's vertices: its oriented bounding box, or, for a
+    large mesh (a torso with its shoulder mounts), the oriented boxes of the vertices in each octant of
+    that box, which follow the shape much more closely."""
+    import trimesh
+
+    T, extents = trimesh.bounds.oriented_bounds(vertices)
+    T = np.linalg.inv(T)  # oriented_bounds gives the transform to the box frame
+    if extents.max() <= SPLIT_ABOVE_M or len(vertices) < 64:
+        return [(T, extents)]
+    local = (vertices - T[:3, 3]) @ T[:3, :3]
+    out = []
+    for cell in range(8):
+        sel = np.ones(len(local), dtype=bool)
+        for axis in range(3):
+            sel &= (local[:, axis] >= 0) if (cell >> axis) & 1 else (local[:, axis] < 0)
+        if sel.sum() < 8:
+            continue
+        Tc, ec = trimesh.bounds.oriented_bounds(vertices[sel])
+        out.append((np.linalg.inv(Tc), ec))
+    return out
+
+
+def _rpy_matrix(rpy: list[float]) -> np.ndarray:
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _matrix_rpy(R: np.ndarray) -> tuple[float, float, float]:
+    pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
+    if abs(np.cos(pitch)) > 1e-9:
+        return float(np.arctan2(R[2, 1], R[2, 2])), pitch, float(np.arctan2(R[1, 0], R[0, 0]))
+    return float(np.arctan2(-R[1, 2], R[1, 1])), pitch, 0.0

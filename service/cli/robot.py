@@ -18,9 +18,15 @@ def list_robots() -> None:
     """Print the available robots, one per line."""
     from planner.robot.registry import DEFAULT_ROBOT, load_spec, robot_names
 
+    from planner.errors import InputError
+
     for name in robot_names():
         mark = " (default)" if name == DEFAULT_ROBOT else ""
-        click.echo(f"{name}{mark}\t{load_spec(name).description}")
+        try:
+            description = load_spec(name).description
+        except InputError as exc:  # e.g. a model package that is not installed
+            description = f"(unavailable: {exc})"
+        click.echo(f"{name}{mark}\t{description}")
 
 
 @robot.command("urdf")
@@ -64,7 +70,8 @@ def check(spec_file: str) -> None:
         by_source.setdefault(source, []).append(joint)
     for source, joints in by_source.items():
         console.print(f"effort limits from {source}: {', '.join(joints)}", highlight=False)
-    console.print("collision: the URDF's primitives" + (f"; {'; '.join(d.notes)}" if d.notes else ""), highlight=False)
+    for note in d.notes or ("collision: the URDF's primitives",):
+        console.print(note, highlight=False)
 
 
 @robot.command("info")
