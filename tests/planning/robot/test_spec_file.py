@@ -64,7 +64,7 @@ def test_a_joint_without_an_effort_limit_needs_one_in_the_spec(tmp_path):
     derive(write_small_humanoid(tmp_path, lambda s: s["effort_limits"].update(l_elbow=80.0), no_effort="l_elbow"))
 
 
-def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_agrees(tmp_path):
+def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_and_the_gate_agree(tmp_path, monkeypatch):
     from click.testing import CliRunner
     from plan_checker import check_plan
 
@@ -89,3 +89,11 @@ def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_agrees(tmp_p
     assert check_plan(plan, sample_every=5, robot_spec=str(spec_path)).errors == []
     res = CliRunner().invoke(cli, ["robot", "check", str(spec_path)], catch_exceptions=False)
     assert res.exit_code == 0 and "l_tcp" in res.output, res.output
+    # the gate finds the robot by name in the configured robot folders, with its own kinematics and limits
+    from robot_bridge.gate import SafetyGate
+
+    monkeypatch.setenv("REGRASP_ROBOT_DIRS", str(spec_path.parent))
+    verdict = SafetyGate().check(plan, offline=True)
+    assert verdict.passed, verdict.message
+    assert verdict.stats["effort"]["max_ratio"] == pytest.approx(max(p["effort_ratio"] for p in plan["trajectory"]),
+                                                                  abs=1e-9)
