@@ -1082,7 +1082,11 @@
     const box = $("risk-card");
     if (job.kind !== "plan" || !HAS_PLAN.has(job.state) || !job.plan_sha256) { box.hidden = true; return; }
     const key = job.id + ":" + job.state;
-    if (state.riskFor === key) return;
+    if (state.riskFor === key) {
+      // Loaded (or loading) already: a re-render of the same job keeps the card on screen.
+      if (state.risk && state.risk.job_id === job.id && box.hidden) renderRisk(state.risk);
+      return;
+    }
     state.riskFor = key;
     try {
       const risk = await api("GET", "/v1/jobs/" + encodeURIComponent(job.id) + "/risk");
