@@ -12,6 +12,7 @@ from .bridge import Bridge, make_bridge
 from .execution import Executions
 from .job_audit import AuditProcess
 from .metrics import Metrics
+from .owners import LiveOwners
 from .runner import Runner
 from .settings import ServiceSettings
 from .store import JobStore, make_engine, migrate
@@ -43,13 +44,14 @@ class Service:
         store = JobStore(engine)
         metrics = Metrics(store)
         bridge = bridge or make_bridge()
+        owners = LiveOwners()
         svc = cls(settings=settings, store=store, tokens=tokens or TokenStore.from_settings(settings),
-                  metrics=metrics, bridge=bridge, executions=Executions(store, bridge, settings))
+                  metrics=metrics, bridge=bridge, executions=Executions(store, bridge, settings, owners))
         if run_workers and settings.workers > 0:
             from .executors import make_executor
 
             svc.executor = make_executor(settings)
-            svc.runner = Runner(store, svc.executor, settings)
+            svc.runner = Runner(store, svc.executor, settings, owners=owners)
         if settings.audit:
             svc.auditor = AuditProcess(settings.resolved_database_url, settings.audit_dir)
         return svc

@@ -18,7 +18,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from .bridge import Bridge
-from .runner import LIVE_OWNERS, make_owner_id
+from .owners import LiveOwners, make_owner_id
 from .settings import ServiceSettings
 from .store.repo import JobStore
 
@@ -45,12 +45,14 @@ class RobotBusy(Exception):
 class Executions:
     """Runs dispatched jobs on the bridge, one thread each, and stops them on request."""
 
-    def __init__(self, store: JobStore, bridge: Bridge, settings: ServiceSettings) -> None:
+    def __init__(self, store: JobStore, bridge: Bridge, settings: ServiceSettings,
+                 owners: LiveOwners | None = None) -> None:
         self.store = store
         self.bridge = bridge
         self.settings = settings
         self.owner = make_owner_id()
-        LIVE_OWNERS.add(self.owner)
+        self.owners = owners or LiveOwners()
+        self.owners.add(self.owner)
         self._stops: dict[str, threading.Event] = {}
         self._threads: dict[str, threading.Thread] = {}
         self._lock = threading.Lock()
@@ -218,7 +220,7 @@ class Executions:
                 pass
         for thread in list(self._threads.values()):
             thread.join(5)
-        LIVE_OWNERS.discard(self.owner)
+        self.owners.discard(self.owner)
 
 
 def _jsonable(value: Any) -> Any:

@@ -9,17 +9,16 @@ recovers the job if this one dies (SIGKILL included).
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
-import uuid
 from dataclasses import dataclass
 from typing import Any
 
 from .executors.base import ExecEvent, Executor
+from .owners import LiveOwners, make_owner_id
 from .provenance import code_version, library_versions, robot_sha256
 from .settings import ServiceSettings
-from .store.repo import JobStore, this_host
+from .store.repo import JobStore
 
 log = logging.getLogger("regrasp.runner")
 
@@ -27,33 +26,6 @@ log = logging.getLogger("regrasp.runner")
 HOUSEKEEPING_S = 0.5
 #: Cancel flags of running jobs are read this often (cancel takes effect within ~this + the grace period).
 FLAG_POLL_S = 0.1
-
-
-def make_owner_id() -> str:
-    """Unique id of a runner: host, pid and a nonce (pids are reused)."""
-    return f"{this_host()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
-
-
-def owner_is_dead(owner: str) -> bool:
-    """True if the owner ran on this host and its process is gone (other hosts: rely on the lease)."""
-    host, _, rest = owner.partition(":")
-    pid_text = rest.partition(":")[0]
-    if host != this_host() or not pid_text.isdigit():
-        return False
-    pid = int(pid_text)
-    if pid == os.getpid():
-        return owner not in LIVE_OWNERS
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except PermissionError:
-        return False
-    return False
-
-
-#: Owner ids alive in this process (runners and dispatch executions); any other id with our pid is stale.
-LIVE_OWNERS: set[str] = set()
 
 
 @dataclass
@@ -71,12 +43,14 @@ class Runner:
     """Claims jobs for one executor and moves them through planning to their outcome."""
 
     def __init__(self, store: JobStore, executor: Executor, settings: ServiceSettings,
-                 *, owner: str | None = None) -> None:
+                 *, owner: str | None = None, owners: LiveOwners | None = None) -> None:
         self.store = store
         self.executor = executor
         self.settings = settings
         self.owner = owner or make_owner_id()
-        LIVE_OWNERS.add(self.owner)
+        #: The owners alive in this process (shared with the service's executions).
+        self.owners = owners or LiveOwners()
+        self.owners.add(self.owner)
         self._running: dict[str, _Running] = {}
         self._stop = threading.Event()
         self._flags_due = threading.Event()
@@ -94,7 +68,7 @@ class Runner:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout)
-        LIVE_OWNERS.discard(self.owner)
+        self.owners.discard(self.owner)
 
     def nudge(self) -> None:
         """Read the cancel flags at the next step instead of up to ``FLAG_POLL_S`` later (thread-safe).
@@ -127,7 +101,7 @@ class Runner:
             self.store.renew(self.owner, list(self._running), self.settings.lease_s)
         if now - self._last_housekeeping >= HOUSEKEEPING_S:
             self._last_housekeeping = now
-            for job_id, outcome in self.store.recover(owner_is_dead, self.settings.max_attempts):
+            for job_id, outcome in self.store.recover(self.owners.is_dead, self.settings.max_attempts):
                 log.warning("recovered job %s -> %s", job_id, outcome)
             self.store.expire_approvals()
         self._claim()

@@ -115,3 +115,14 @@ def test_dockerfile_is_multistage_non_root_with_healthcheck():
     assert "/healthz" in runtime
     assert "COPY --from=build" in runtime
     assert (DOCKER_DIR / "Dockerfile.dockerignore").is_file()
+
+
+def test_dockerfile_copies_every_package_the_wheel_includes():
+    """The image builds its wheel from what the build stage copies: every package of pyproject's
+    `packages.find` must be copied (robot_data included, or the image has no robot models)."""
+    import tomllib
+
+    include = tomllib.loads((DOCKER_DIR.parent / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]["include"]
+    packages = {name.rstrip("*") for name in include}
+    copied = set(re.findall(r"^COPY (\w+) \./\1$", DOCKERFILE.read_text(), flags=re.MULTILINE))
+    assert packages <= copied, f"not copied into the build stage: {sorted(packages - copied)}"
