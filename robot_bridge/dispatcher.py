@@ -316,12 +316,7 @@ class Dispatcher:
 
     def wait_for_controller(self, timeout_s: float) -> bool:
         """Wait (bounded) until a controller is alive and its joint state is known."""
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if self.controller_alive() and self.measured_state() is not None:
-                return True
-            time.sleep(0.01)
-        return False
+        return wait_for_controller(self, timeout_s)
 
     def measured_state(self) -> JointState | None:
         """The latest joint state, or None when none arrived within ``state_max_age_s``."""
@@ -700,3 +695,14 @@ class _Run:
     pending: dict[int, tuple[float, int]] = field(default_factory=dict)  # seq -> (last sent, re-sends)
     last_new_at: float = -math.inf  # when a segment last went out for the first time
     gap_resent_at: float = -math.inf  # when a refusal for a gap last started a re-send
+
+
+def wait_for_controller(bridge: Any, timeout_s: float) -> bool:
+    """Wait (bounded) until ``bridge`` (a dispatcher or its process proxy) sees a live controller whose
+    joint state is known."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if bridge.controller_alive() and bridge.measured_state() is not None:
+            return True
+        time.sleep(0.01)
+    return False

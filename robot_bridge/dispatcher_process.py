@@ -39,6 +39,7 @@ from .dispatcher import (
     DispatchSettings,
     ExecutionResult,
     NoSigningKeyError,
+    wait_for_controller,
 )
 from .settings import BridgeSettings
 
@@ -147,12 +148,7 @@ class DispatcherProcess:
         return JointState.model_validate(measured)
 
     def wait_for_controller(self, timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if self.controller_alive() and self.measured_state() is not None:
-                return True
-            time.sleep(0.01)
-        return False
+        return wait_for_controller(self, timeout_s)
 
     def stop(self, job_id: str | None = None, reason: str = "stop requested by operator") -> None:
         if not self._dead:

@@ -37,6 +37,18 @@ TOKEN = {entry["user"]: tok for tok, entry in TOKENS.items()}
 STARTUP_TIMEOUT_S = 60.0
 
 
+def inline_scenario(**changes: Any) -> dict[str, Any]:
+    """A small valid inline scenario (a box moved along a table), with ``changes`` applied."""
+    doc: dict[str, Any] = {
+        "schema": "regrasp.scenario/1", "name": "inline", "robot": "hrp5p", "stance": "upright",
+        "object": {"shape": "box", "size": [0.2, 0.2, 0.2], "mass_kg": 2.0},
+        "start_pose": [0.5, 0.0, 0.8, 0, 0, 0, 1], "goal_pose": [0.5, 0.2, 0.8, 0, 0, 0, 1],
+        "tables": [{"name": "t", "pose": [0.5, 0.0, 0.35, 0, 0, 0, 1], "size": [0.6, 1.0, 0.7]}],
+    }
+    doc.update(changes)
+    return doc
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import inline_scenario
 
 from planner.jobs.request_names import (
     RequestNameError,
@@ -30,17 +31,6 @@ class Ctx:
 
     def cancelled(self) -> bool:
         return False
-
-
-def _inline(**changes: Any) -> dict[str, Any]:
-    doc: dict[str, Any] = {
-        "schema": "regrasp.scenario/1", "name": "inline", "robot": "hrp5p", "stance": "upright",
-        "object": {"shape": "box", "size": [0.2, 0.2, 0.2], "mass_kg": 2.0},
-        "start_pose": [0.5, 0.0, 0.8, 0, 0, 0, 1], "goal_pose": [0.5, 0.2, 0.8, 0, 0, 0, 1],
-        "tables": [{"name": "t", "pose": [0.5, 0.0, 0.35, 0, 0, 0, 1], "size": [0.6, 1.0, 0.7]}],
-    }
-    doc.update(changes)
-    return doc
 
 
 @pytest.fixture
@@ -68,9 +58,9 @@ def _requests(files: dict[str, Path]) -> list[dict[str, Any]]:
         {"scenario": str(files["stance"])},
         {"scenario": relative},
         {"scenario": "upright", "robot": str(files["robot"])[:-5]},
-        {"scenario": _inline(stance=str(files["stance"]))},
-        {"scenario": _inline(robot="../" * 12 + str(files["robot"])[1:-5])},
-        {"scenario": _inline(object={"shape": "mesh", "mesh": {"path": str(files["mesh"])}, "mass_kg": 2.0})},
+        {"scenario": inline_scenario(stance=str(files["stance"]))},
+        {"scenario": inline_scenario(robot="../" * 12 + str(files["robot"])[1:-5])},
+        {"scenario": inline_scenario(object={"shape": "mesh", "mesh": {"path": str(files["mesh"])}, "mass_kg": 2.0})},
     ]
 
 
@@ -100,12 +90,12 @@ def test_a_named_scenario_is_the_builtin_even_with_a_file_of_that_name_in_the_cw
 def test_a_registered_mesh_by_name_is_loaded_from_the_planner_data() -> None:
     from planner.scene.scenarios import load_scenario
 
-    doc = _inline(object={"shape": "mesh", "mesh": {"name": "carrier_px"}, "mass_kg": 2.0})
+    doc = inline_scenario(object={"shape": "mesh", "mesh": {"name": "carrier_px"}, "mass_kg": 2.0})
     resolved = resolve_request({"scenario": doc})
     scenario = load_scenario(resolved["scenario"])
     assert Path(scenario.object.mesh.path).name == "carrier_px.obj"
     with pytest.raises(RequestNameError, match="valid meshes: carrier_nx, carrier_px"):
-        check_request({"scenario": _inline(object={"shape": "mesh", "mesh": {"name": "teapot"}, "mass_kg": 2.0})})
+        check_request({"scenario": inline_scenario(object={"shape": "mesh", "mesh": {"name": "teapot"}, "mass_kg": 2.0})})
 
 
 @pytest.mark.parametrize("value", ["a/b", "/etc/passwd", "..", "x..y", ".hidden", "tokens.json", "x.yaml", "a\\b",

@@ -18,7 +18,7 @@ from typing import Any, Iterator
 
 import httpx
 import pytest
-from conftest import TOKEN, Server, free_port
+from conftest import TOKEN, Server, free_port, inline_scenario
 
 #: The server's limits (see the module docstring).
 READ_TIMEOUT_S = 1.0
@@ -76,17 +76,6 @@ def _problem(r: httpx.Response, status: int) -> dict[str, Any]:
     return body
 
 
-def _inline(**changes: Any) -> dict[str, Any]:
-    doc: dict[str, Any] = {
-        "schema": "regrasp.scenario/1", "name": "inline", "robot": "hrp5p", "stance": "upright",
-        "object": {"shape": "box", "size": [0.2, 0.2, 0.2], "mass_kg": 2.0},
-        "start_pose": [0.5, 0.0, 0.8, 0, 0, 0, 1], "goal_pose": [0.5, 0.2, 0.8, 0, 0, 0, 1],
-        "tables": [{"name": "t", "pose": [0.5, 0.0, 0.35, 0, 0, 0, 1], "size": [0.6, 1.0, 0.7]}],
-    }
-    doc.update(changes)
-    return doc
-
-
 # --------------------------------------------------------------- names, never files
 def test_a_stance_that_names_a_server_file_is_refused_without_reading_it(srv: Server, hardened: Any) -> None:
     tokens_file = hardened[2]
@@ -102,9 +91,9 @@ def test_unknown_names_are_refused_at_submission_listing_the_valid_ones(srv: Ser
         cases = [({"scenario": "upright", "stance": "kneeling"}, "stance", ["upright", "crouched", "one-legged"]),
                  ({"scenario": "nosuch"}, "scenario", ["upright", "staggered"]),
                  ({"scenario": "upright", "robot": "nao"}, "robot", ["hrp5p", "jvrc1"]),
-                 ({"scenario": _inline(robot="nao")}, "robot", ["hrp5p", "jvrc1"]),
-                 ({"scenario": _inline(stance="kneeling")}, "stance", ["upright"]),
-                 ({"scenario": _inline(object={"shape": "mesh", "mesh": {"name": "teapot"}, "mass_kg": 2.0})},
+                 ({"scenario": inline_scenario(robot="nao")}, "robot", ["hrp5p", "jvrc1"]),
+                 ({"scenario": inline_scenario(stance="kneeling")}, "stance", ["upright"]),
+                 ({"scenario": inline_scenario(object={"shape": "mesh", "mesh": {"name": "teapot"}, "mass_kg": 2.0})},
                   "mesh", ["carrier_px", "carrier_nx"])]
         for request, what, valid in cases:
             body = _problem(_submit(c, request), 422)
@@ -119,14 +108,14 @@ def test_paths_in_an_inline_scenario_are_refused_and_do_not_tell_whether_a_file_
         details = []
         for path in (str(tokens_file), str(tokens_file) + ".missing"):
             mesh = {"shape": "mesh", "mesh": {"path": path}, "mass_kg": 2.0}
-            details.append(_problem(_submit(c, {"scenario": _inline(object=mesh)}), 422)["detail"])
+            details.append(_problem(_submit(c, {"scenario": inline_scenario(object=mesh)}), 422)["detail"])
         assert details[0] == details[1] and "registered mesh" in details[0]
         for robot in ("../../../tmp/robot", "/etc/robot.yaml"):
-            assert "never a file" in _problem(_submit(c, {"scenario": _inline(robot=robot)}), 422)["detail"]
-        assert "never a file" in _problem(_submit(c, {"scenario": _inline(stance=str(tokens_file))}), 422)["detail"]
+            assert "never a file" in _problem(_submit(c, {"scenario": inline_scenario(robot=robot)}), 422)["detail"]
+        assert "never a file" in _problem(_submit(c, {"scenario": inline_scenario(stance=str(tokens_file))}), 422)["detail"]
         # a registered mesh by name is accepted
         mesh = {"shape": "mesh", "mesh": {"name": "carrier_px"}, "mass_kg": 2.0}
-        assert _submit(c, {"scenario": _inline(object=mesh)}).status_code in (202, 429)
+        assert _submit(c, {"scenario": inline_scenario(object=mesh)}).status_code in (202, 429)
 
 
 def test_types_are_strict_and_only_json_bodies_are_taken(srv: Server) -> None:
@@ -142,7 +131,7 @@ def test_types_are_strict_and_only_json_bodies_are_taken(srv: Server) -> None:
 
 # ---------------------------------------------------------------- bounded work
 def test_a_150000_item_list_is_refused_fast_and_health_stays_responsive(srv: Server) -> None:
-    body = json.dumps({"kind": "plan", "request": {"scenario": _inline(tables=[0] * 150_000)}})
+    body = json.dumps({"kind": "plan", "request": {"scenario": inline_scenario(tables=[0] * 150_000)}})
     assert len(body) > 290_000
     latencies: list[float] = []
     stop = threading.Event()
@@ -287,7 +276,7 @@ def test_states_and_time_per_job_are_capped_by_the_settings(srv: Server) -> None
     with srv.client("alice") as c:
         body = _problem(_submit(c, {"scenario": "upright", "states_per_configuration": 1_000_000}, kind="survey"), 422)
         assert "at most 500000 states" in body["detail"], body
-        inline = _inline(survey={"states_per_configuration": 1_000_000})
+        inline = inline_scenario(survey={"states_per_configuration": 1_000_000})
         assert "at most 500000" in _problem(_submit(c, {"scenario": inline}, kind="survey"), 422)["detail"]
         body = _problem(_submit(c, {"scenario": "upright", "time_limit_s": 3000}), 422)
         assert "limit of 900 s" in body["detail"], body
@@ -368,8 +357,8 @@ def test_no_answer_names_a_python_class(srv: Server) -> None:
         answers = [c.post("/v1/jobs", content=b"[" * 100_000, headers={"Content-Type": "application/json"}),
                    c.post("/v1/jobs", content=b"\xff\xfe", headers={"Content-Type": "application/json"}),
                    c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "upright"}, "x": 1}),
-                   c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": _inline(tables=[0])}}),
-                   c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": _inline(object=[1])}}),
+                   c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": inline_scenario(tables=[0])}}),
+                   c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": inline_scenario(object=[1])}}),
                    c.get("/v1/jobs/" + "a" * 500)]
     for r in answers:
         assert 400 <= r.status_code < 500, (r.status_code, r.text[:300])
