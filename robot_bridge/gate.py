@@ -33,6 +33,7 @@ from .gate_checks import (
     _check_time,
     _limits,
 )
+from .gate_effort import EffortVeto, check_effort_and_grip
 from .gate_context import _Context, _first, _jsonable, _timed
 from .gate_parse import (
     _find_bad_point,
@@ -198,6 +199,14 @@ class SafetyGate:
         fk = self._batch_fk(robot, p.joint_names)
         polygon = support_polygon(robot.model, p.feet)
         _timed(ctx, "stability_s", _check_stability, ctx, p, fk, polygon, s)
+        if s.check_limits:  # static joint torques and grip (robot_bridge.gate_effort)
+            try:
+                figures = _timed(ctx, "effort_s", check_effort_and_grip, robot.model, robot.files.spec, p.joint_names,
+                                 p.Q, p.base_pose, p.holding, p.object_pose, p.com_local, p.mass, p.feet, s.gravity)
+                ctx.passed("effort", max_ratio=figures["max_effort_ratio"])
+                ctx.passed("grip", max_ratio=figures["max_grip_ratio"])
+            except EffortVeto as veto:
+                raise Veto(veto.check, veto.message, veto.point * ctx.S) from None
 
 
 def _digest(ctx: "_Context", plan: dict) -> str:
