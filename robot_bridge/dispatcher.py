@@ -47,7 +47,7 @@ from schemas.bridge import (
     TrajectorySegment,
 )
 
-from .gate import Approval, MeasuredState, SafetyGate
+from .gate import Approval, ExecutablePlan, MeasuredState, SafetyGate
 from .process_tuning import raise_thread_priority
 from .settings import BridgeSettings, Keys
 from .signing import Signer, canonical_bytes
@@ -165,19 +165,24 @@ class ExecutionResult:
                 "details": self.details}
 
 
-def split_segments(plan: dict[str, Any], job_id: str, plan_sha256: str, first_seq: int,
+def split_segments(plan: dict[str, Any] | ExecutablePlan, job_id: str, plan_sha256: str, first_seq: int,
                    segment_duration_s: float = MAX_SEGMENT_DURATION_S) -> list[TrajectorySegment]:
-    """The plan's trajectory cut into consecutive segments of at most ``segment_duration_s``."""
-    dt = float(plan["dt_s"])
-    traj = plan["trajectory"]
+    """The plan's trajectory cut into consecutive segments of at most ``segment_duration_s``.
+
+    ``plan`` is a plan document or the fields the gate decoded from its bytes (:class:`ExecutablePlan`)."""
+    if isinstance(plan, ExecutablePlan):
+        dt, names = float(plan.dt_s), list(plan.robot.joint_names)
+        qs, holding = [p.q for p in plan.trajectory], [p.holding for p in plan.trajectory]
+    else:
+        dt, names = float(plan["dt_s"]), list(plan["robot"]["joint_names"])
+        qs, holding = [p["q"] for p in plan["trajectory"]], [p["holding"] for p in plan["trajectory"]]
     per = max(1, int(math.floor(segment_duration_s / dt + 1e-9)) + 1)  # points spanning at most the duration
-    starts = list(range(0, len(traj), per))
-    names = list(plan["robot"]["joint_names"])
+    starts = list(range(0, len(qs), per))
     return [
         TrajectorySegment(
             job_id=job_id, plan_sha256=plan_sha256, seq=first_seq + k, segment_index=k, segment_count=len(starts),
             joint_names=names, dt_s=dt, t_from_start=start * dt, first_index=start,
-            points=[p["q"] for p in traj[start:start + per]], holding=[p["holding"] for p in traj[start:start + per]],
+            points=qs[start:start + per], holding=holding[start:start + per],
         )
         for k, start in enumerate(starts)
     ]
@@ -413,7 +418,7 @@ class Dispatcher:
         if isinstance(plan, (bytes, bytearray, str)):
             verdict, parsed = self.gate.check_json(plan, approval=approval, measured=measured, threshold_m=threshold_m,
                                                    recovery=recovery)
-            plan = parsed if parsed is not None else {}
+            plan = parsed if parsed is not None else {}  # None only with a veto (the plan is not read on)
         else:
             verdict = self.gate.check(plan, approval=approval, measured=measured, threshold_m=threshold_m,
                                       recovery=recovery)
@@ -425,8 +430,8 @@ class Dispatcher:
         first_seq = self._next_seq(len(segments))
         for seg in segments:
             seg.seq += first_seq
-        n_points = len(plan["trajectory"])
-        emit("dispatching", {"job_id": job_id, "segments": len(segments), "points": n_points, "dt_s": plan["dt_s"],
+        n_points = sum(len(seg.points) for seg in segments)
+        emit("dispatching", {"job_id": job_id, "segments": len(segments), "points": n_points, "dt_s": segments[0].dt_s,
                              "plan_sha256": verdict.plan_sha256, "first_seq": segments[0].seq})
         self._drain_exec()
         # Serialised once, now: a send (and a re-send) then only splices in its expires_at and signs.

@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import math
 import time
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any
 
@@ -36,6 +37,9 @@ from .gate_checks import (
 from .gate_effort import EffortVeto, check_effort_and_grip
 from .gate_context import _Context, _first, _jsonable, _timed
 from .gate_parse import (
+    ExecutablePlan,
+    _parse_executable,
+    decode_executable,
     _find_bad_point,
     _floats,
     _get,
@@ -51,7 +55,7 @@ from .support import support_polygon
 from .urdf_kinematics import BatchFK, load_urdf
 
 #: The gate's parts live in robot_bridge.gate_* modules; these names stay importable from here.
-__all__ = ["Approval", "GateSettings", "MeasuredState", "SafetyGate", "Veto", "loads_plan", "_HOLDING", "_Context",
+__all__ = ["Approval", "ExecutablePlan", "GateSettings", "MeasuredState", "SafetyGate", "Veto", "loads_plan", "_HOLDING", "_Context",
            "_Grid", "_Parsed", "_Robot", "_check_finite", "_check_position", "_check_rates", "_check_stability",
            "_check_start", "_check_time", "_find_bad_point", "_first", "_floats", "_get", "_interpolate", "_jsonable",
            "_limits", "_parse", "_reject_constant", "_rotate", "_timed"]
@@ -84,28 +88,36 @@ class SafetyGate:
         """
         return self._check(plan, None, approval, measured, threshold_m, now, offline, recovery=recovery)
 
-    def check_json(self, plan_json: bytes | str, **kwargs: Any) -> tuple[GateVerdict, dict[str, Any] | None]:
-        """Check a plan given as its canonical JSON bytes; returns the verdict and the parsed plan.
+    def check_json(self, plan_json: bytes | str,
+                   **kwargs: Any) -> tuple[GateVerdict, ExecutablePlan | dict[str, Any] | None]:
+        """Check a plan given as its canonical JSON bytes; returns the verdict and the plan as the gate read it.
 
         The fast path for large plans: the SHA-256 is taken over the bytes as they are
-        (milliseconds) instead of re-serialising the plan (about a second for a 60 s
-        plan), and the bytes are parsed with orjson (:func:`loads_plan`). Sound because
-        equal hashes mean equal bytes: bytes that are not the approved canonical JSON fail
-        the hash check. Keyword arguments as :meth:`check`.
+        (milliseconds) instead of re-serialising the plan (about a second for a 60 s plan), and
+        the bytes are decoded straight into the checked fields (:class:`ExecutablePlan`, msgspec),
+        which is what the dispatcher then sends. Sound because equal hashes mean equal bytes:
+        bytes that are not the approved canonical JSON fail the hash check. A plan the typed
+        reading does not take is parsed as a document (orjson) and checked as :meth:`check`
+        does, naming what is wrong; the document is then what is returned. Keyword arguments as
+        :meth:`check`.
         """
         raw = plan_json.encode() if isinstance(plan_json, str) else bytes(plan_json)
         t0 = time.perf_counter()
         digest = hashlib.sha256(raw).hexdigest()
         t1 = time.perf_counter()
-        try:
-            plan = loads_plan(raw)
-        except (ValueError, RecursionError) as exc:
-            ctx = _Context(settings=self.settings)
-            return ctx.verdict(False, "structure", f"the plan is not valid JSON: {exc}", None, time.perf_counter() - t0), None
+        executable = decode_executable(raw)
+        plan: Any = _Decoded(executable, raw) if executable is not None else None
+        if plan is None:
+            try:
+                plan = loads_plan(raw)
+            except (ValueError, RecursionError) as exc:
+                ctx = _Context(settings=self.settings)
+                return ctx.verdict(False, "structure", f"the plan is not valid JSON: {exc}", None,
+                                   time.perf_counter() - t0), None
         verdict = self._check(plan, (digest, t1 - t0), kwargs.pop("approval", None), kwargs.pop("measured", None),
                               kwargs.pop("threshold_m", None), kwargs.pop("now", None), kwargs.pop("offline", False),
                               json_s=time.perf_counter() - t1, recovery=kwargs.pop("recovery", False), **kwargs)
-        return verdict, plan
+        return verdict, (executable if executable is not None else plan)
 
     def _check(self, plan: Any, digest: tuple[str, float] | None, approval: Approval | None, measured: MeasuredState | None,
                threshold_m: float | None, now: datetime | None, offline: bool, json_s: float | None = None,
@@ -141,7 +153,7 @@ class SafetyGate:
     def _run(self, ctx: "_Context", plan: dict, approval: Approval | None, measured: MeasuredState | None,
              threshold_m: float | None, now: datetime | None, offline: bool) -> None:
         s = self.settings
-        p = _timed(ctx, "parse_s", _parse, ctx, plan, s)
+        p = _timed(ctx, "parse_s", _read, ctx, plan, s)
         robot = self._robot(p.robot_name)
         if sorted(p.joint_names) != sorted(robot.model.joint_names) or len(set(p.joint_names)) != len(p.joint_names):
             raise Veto("structure", f"robot.joint_names do not match the URDF of {p.robot_name!r}: unknown "
@@ -209,7 +221,25 @@ class SafetyGate:
                 raise Veto(veto.check, veto.message, veto.point * ctx.S) from None
 
 
-def _digest(ctx: "_Context", plan: dict) -> str:
+@dataclass(frozen=True)
+class _Decoded:
+    """The typed fields :meth:`SafetyGate.check_json` decoded, with the bytes they came from."""
+
+    plan: ExecutablePlan
+    raw: bytes
+
+
+def _read(ctx: "_Context", plan: Any, s: GateSettings) -> _Parsed:
+    """The gate's arrays of a plan document, or of the typed fields :meth:`SafetyGate.check_json` decoded."""
+    if isinstance(plan, _Decoded):
+        parsed = _parse_executable(plan.plan, s)
+        if parsed is not None:
+            return parsed
+        plan = loads_plan(plan.raw)  # a value out of range: the document's reading names it, as check() does
+    return _parse(ctx, plan, s)
+
+
+def _digest(ctx: "_Context", plan: Any) -> str:
     """The plan's SHA-256: over the bytes given to :meth:`SafetyGate.check_json`, else over its canonical JSON."""
     if ctx.digest is not None:
         ctx.note("timing", hash_s=ctx.digest[1])

@@ -1,8 +1,13 @@
 """Reading a plan document into the gate's arrays, naming the first malformed value.
 
-The plan arrives as canonical JSON bytes; :func:`loads_plan` parses them with orjson
-(json.loads's results, several times faster on a 10 MB plan). The bytes the plan's hash
-covers are hashed as they are, never written again.
+The plan arrives as canonical JSON bytes. :func:`decode_executable` reads them straight into
+typed structures (msgspec) holding only the fields the gate checks, the values' JSON types
+checked while decoding; that is the fast path, and the structures it returns are what the
+dispatcher cuts into segments, so what is executed is exactly what was checked. Anything the
+typed reading does not take as it is (a wrong type, a missing field, NaN, a value out of range)
+goes the slow way: :func:`loads_plan` (orjson, with json.loads's results) and :func:`_parse`,
+whose veto names the first malformed value. The bytes the plan's hash covers are hashed as they
+are, never written again.
 """
 
 from __future__ import annotations
@@ -10,12 +15,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from itertools import chain
-from operator import itemgetter
+from operator import attrgetter, itemgetter
 from typing import Any
 
+import msgspec
 import numpy as np
 
-from schemas.fast_json import loads
+from schemas.fast_json import collector_paused, loads
 from schemas.plan import PLAN_SCHEMA
 
 from .gate_context import _Context
@@ -29,6 +35,63 @@ def _reject_constant(name: str) -> Any:
 def loads_plan(raw: bytes) -> Any:
     """The plan JSON parsed (NaN and Infinity refused with json.loads's ValueError)."""
     return loads(raw, parse_constant=_reject_constant)
+
+
+class PointIn(msgspec.Struct, gc=False):
+    """One trajectory point as the gate reads it (other fields of the point are skipped)."""
+
+    t: float
+    q: list[float]
+    holding: str
+    object_pose: list[float]
+
+
+class FootIn(msgspec.Struct, gc=False):
+    frame: str
+    pose: list[float]
+    in_contact: bool = True
+
+
+class StanceIn(msgspec.Struct, gc=False):
+    base_pose: list[float]
+    feet: list[FootIn]
+
+
+class RobotIn(msgspec.Struct, gc=False):
+    name: str
+    joint_names: list[str]
+    urdf_sha256: str = ""
+
+
+class ObjectIn(msgspec.Struct, gc=False):
+    mass_kg: float
+    com_local: list[float]
+
+
+class ExecutablePlan(msgspec.Struct, gc=False):
+    """The fields of a plan document (schemas.plan) that the gate checks and the dispatcher sends."""
+
+    schema: str
+    status: str
+    robot: RobotIn
+    stance: StanceIn
+    object: ObjectIn
+    threshold_m: float
+    dt_s: float
+    trajectory: list[PointIn]
+
+
+_EXECUTABLE = msgspec.json.Decoder(ExecutablePlan)
+
+
+def decode_executable(raw: bytes) -> ExecutablePlan | None:
+    """The plan's checked fields read from its JSON bytes, or None when they are not all of their JSON
+    types (then :func:`loads_plan` and :func:`_parse` read the plan and name what is wrong)."""
+    try:
+        with collector_paused(len(raw)):  # as schemas.fast_json does for a document (its docstring says why)
+            return _EXECUTABLE.decode(raw)
+    except (msgspec.ValidationError, msgspec.DecodeError):
+        return None
 
 
 @dataclass
@@ -147,4 +210,35 @@ def _parse(ctx: "_Context", plan: Any, s: GateSettings) -> _Parsed:
         robot_name=str(name), urdf_sha256=str(robot.get("urdf_sha256", "")), joint_names=tuple(names), n=len(traj),
         dt=float(dt), t=t, Q=Q, holding=holding, object_pose=poses, base_pose=base, feet=clean_feet,
         mass=float(mass), com_local=com_local, threshold=float(thr), moving=np.flatnonzero(np.any(Q != Q[:1], axis=0)),
+    )
+
+
+def _parse_executable(plan: ExecutablePlan, s: GateSettings) -> _Parsed | None:
+    """:func:`_parse` on typed structures, when every value is as it must be; else None (the caller then
+    parses the plan as a document, and that path names the first malformed value)."""
+    traj, names = plan.trajectory, plan.robot.joint_names
+    dt, mass = plan.dt_s, plan.object.mass_kg
+    if (plan.schema != PLAN_SCHEMA or plan.status != "solved" or not names or not traj or len(traj) > s.max_points
+            or not (math.isfinite(dt) and 0 < dt <= 1.0) or not (math.isfinite(mass) and mass >= 0)
+            or len(plan.stance.base_pose) != 7 or not plan.stance.feet or len(plan.object.com_local) != 3
+            or any(len(f.pose) != 7 for f in plan.stance.feet)):
+        return None
+    n, nq = len(traj), len(names)
+    qs, ps = list(map(attrgetter("q"), traj)), list(map(attrgetter("object_pose"), traj))
+    if set(map(len, qs)) != {nq} or set(map(len, ps)) != {7}:
+        return None
+    index = {h: k for k, h in enumerate(_HOLDING)}
+    try:
+        holding = np.fromiter(map(index.__getitem__, map(attrgetter("holding"), traj)), dtype=np.int8, count=n)
+    except KeyError:
+        return None
+    Q = np.fromiter(chain.from_iterable(qs), dtype=float, count=n * nq).reshape(n, nq)
+    return _Parsed(
+        robot_name=plan.robot.name, urdf_sha256=plan.robot.urdf_sha256, joint_names=tuple(names), n=n, dt=float(dt),
+        t=np.fromiter(map(attrgetter("t"), traj), dtype=float, count=n), Q=Q, holding=holding,
+        object_pose=np.fromiter(chain.from_iterable(ps), dtype=float, count=n * 7).reshape(n, 7),
+        base_pose=np.array(plan.stance.base_pose, dtype=float),
+        feet=[{"frame": f.frame, "pose": np.array(f.pose, dtype=float), "in_contact": f.in_contact} for f in plan.stance.feet],
+        mass=float(mass), com_local=np.array(plan.object.com_local, dtype=float), threshold=float(plan.threshold_m),
+        moving=np.flatnonzero(np.any(Q != Q[:1], axis=0)),
     )

@@ -33,7 +33,7 @@ PAUSE_GC_FROM_BYTES = 256 * 1024
 
 
 @contextmanager
-def _collector_paused(size: int) -> Iterator[None]:
+def collector_paused(size: int) -> Iterator[None]:
     paused = size >= PAUSE_GC_FROM_BYTES and gc.isenabled()
     if paused:
         gc.disable()
@@ -48,7 +48,7 @@ def _collector_paused(size: int) -> Iterator[None]:
 
 def loads(data: bytes | bytearray | memoryview | str, *, parse_constant: Callable[[str], Any] | None = None) -> Any:
     """``json.loads(data, parse_constant=parse_constant)``, parsed by orjson when it can."""
-    with _collector_paused(len(data)):
+    with collector_paused(len(data)):
         try:
             return orjson.loads(data)
         except orjson.JSONDecodeError:
