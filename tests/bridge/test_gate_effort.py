@@ -114,3 +114,24 @@ def test_the_gate_reports_the_plans_effort_ratio():
     ev = EffortEvaluator(robot, solve_stance(robot, "upright"), 5.0, np.array(plan["object"]["com_local"]))
     ratio = ev.evaluate(np.array([p["q"] for p in traj]), "right", object_pose=T).effort_ratio
     assert v.stats["effort"]["max_ratio"] == pytest.approx(float(ratio.max()), abs=1e-9)
+
+
+def test_non_finite_torques_are_a_veto_not_a_pass():
+    """A NaN joint value (the gate's finite check stops it first; this check must hold on its own) makes NaN
+    torques: the effort check vetoes at that point, it never lets a NaN ratio (which compares false with
+    every limit) pass."""
+    from robot_bridge.robot_files import robot_files
+    from robot_bridge.urdf_kinematics import load_urdf
+
+    files = robot_files("hrp5p")
+    model = load_urdf(str(files.urdf))
+    n = 3
+    Q = np.zeros((n, len(model.joint_names)))
+    Q[1, list(model.joint_names).index("WY")] = np.nan
+    pose = np.tile([0.3, -0.2, 0.9, 0.0, 0.0, 0.0, 1.0], (n, 1))
+    feet = [{"frame": "l_sole", "pose": np.array([0, 0.1, 0, 0, 0, 0, 1.0]), "in_contact": True},
+            {"frame": "r_sole", "pose": np.array([0, -0.1, 0, 0, 0, 0, 1.0]), "in_contact": True}]
+    with np.errstate(all="ignore"), pytest.raises(EffortVeto) as err:
+        check_effort_and_grip(model, files.spec, tuple(model.joint_names), Q, np.array([0, 0, 0.8, 0, 0, 0, 1.0]),
+                              np.full(n, 2), pose, np.zeros(3), 2.0, feet, 9.81)
+    assert err.value.check == "effort" and err.value.point == 1 and "not finite" in err.value.message
