@@ -39,21 +39,29 @@ def canonical(doc: Any) -> bytes:
 SURVEY_PACKAGES = ("survey", "motion", "stability", "regrasp", "scene", "grasping", "kinematics", "robot", "compiled")
 
 
-def survey_code_files() -> list[Path]:
-    """The modules of :data:`SURVEY_PACKAGES`, in a fixed order (the compiled kernels' sources included)."""
-    root = Path(__file__).resolve().parents[1]
-    return sorted((p for pkg in SURVEY_PACKAGES for p in (root / pkg).rglob("*.py")), key=lambda p: p.relative_to(root).as_posix())
+#: The planner package's folder.
+PLANNER_ROOT = Path(__file__).resolve().parents[1]
+
+
+def survey_code_files(root: Path = PLANNER_ROOT) -> list[Path]:
+    """The modules of :data:`SURVEY_PACKAGES` under ``root``, in a fixed order (the compiled kernels' sources included)."""
+    return sorted((p for pkg in SURVEY_PACKAGES for p in (root / pkg).rglob("*.py")),
+                  key=lambda p: p.relative_to(root).as_posix())
+
+
+def code_digest(root: Path = PLANNER_ROOT) -> str:
+    """SHA-256 over the names and contents of :func:`survey_code_files` under ``root``."""
+    h = hashlib.sha256()
+    for path in survey_code_files(root):
+        h.update(path.relative_to(root).as_posix().encode())
+        h.update(hashlib.sha256(path.read_bytes()).digest())
+    return h.hexdigest()
 
 
 @lru_cache(maxsize=1)
 def code_version() -> str:
     """SHA-256 over the survey's code (a cached answer of older code is never reused)."""
-    h = hashlib.sha256()
-    root = Path(__file__).resolve().parents[1]
-    for path in survey_code_files():
-        h.update(path.relative_to(root).as_posix().encode())
-        h.update(hashlib.sha256(path.read_bytes()).digest())
-    return h.hexdigest()
+    return code_digest()
 
 
 def robot_fingerprint(robot: Any) -> str:
