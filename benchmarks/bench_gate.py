@@ -4,7 +4,8 @@ Target: >= 100,000 samples/s end to end (a 60 s trajectory, 12,000 samples at 5 
 checked in <= 0.12 s from its stored bytes, every check included). Prints the numeric
 checks (parse, limits, kinematics, CoM margin, ZMP) apart from the canonical-JSON
 SHA-256 of a plan given as a dict, then the path the dispatcher takes: the stored
-canonical bytes hashed as they are, decoded into the checked fields (msgspec), every check. Rates are given per
+canonical bytes hashed as they are (in a thread, alongside the decode), decoded into the checked
+fields (msgspec), every check (the torque and grip checks in a thread, alongside the others). Rates are given per
 5 ms controller sample and per gate sample (the midpoints too).
 Run: ``python benchmarks/bench_gate.py [--repeats N]``.
 """
@@ -66,7 +67,7 @@ def main() -> None:
     med = statistics.median(times)
     print(f"canonical-bytes path (check_json: sha256 of the stored bytes + typed decode + all checks), {len(raw) / 1e6:.1f} MB: "
           f"{med * 1000:.1f} ms median (min {min(times) * 1000:.1f} ms) -> {n / med:,.0f} samples/s at 5 ms "
-          f"({v.samples / med:,.0f} gate samples/s with midpoints) end to end (sha256 "
+          f"({v.samples / med:,.0f} gate samples/s with midpoints) end to end (sha256 alongside the decode "
           f"{statistics.median(hashes) * 1000:.1f} ms, decode {statistics.median(loads) * 1000:.1f} ms, checks "
           f"{statistics.median(checks) * 1000:.1f} ms)")
     target = 100_000

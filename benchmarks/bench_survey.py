@@ -48,9 +48,9 @@ def main() -> None:
               f"{st['states_per_s']:,.0f} states/s per core")
     print(f"  recommended {doc['recommended']}, indistinguishable {doc['indistinguishable']}")
     if args.plans:
-        from planner.survey.cache import SurveyCache, task_key
+        from planner.survey.cache import SurveyCache
 
-        SurveyCache.default().put(task_key(sc, doc["robot"]["urdf_sha256"]), doc)
+        SurveyCache.default().put(SurveyCache.default().key_for(sc), doc)
         times = []
         for _ in range(args.plans):
             t = time.perf_counter()

@@ -18,10 +18,13 @@ from __future__ import annotations
 
 import hashlib
 import math
+import threading
 import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any
+
+import numpy as np
 
 from schemas.bridge import GateVerdict
 from schemas.plan import plan_sha256
@@ -34,6 +37,7 @@ from .gate_checks import (
     _check_time,
     _limits,
 )
+from .gate_effort import EffortVeto, check_effort_and_grip
 from .gate_context import _Context, _first, _jsonable, _timed
 from .gate_parse import (
     ExecutablePlan,
@@ -102,9 +106,13 @@ class SafetyGate:
         """
         raw = plan_json.encode() if isinstance(plan_json, str) else bytes(plan_json)
         t0 = time.perf_counter()
-        digest = hashlib.sha256(raw).hexdigest()
+        hashed: list[tuple[str, float]] = []  # hashlib releases the GIL: the hash runs while the bytes are decoded
+        hasher = threading.Thread(target=lambda: hashed.append(_sha256_timed(raw)), name="gate-hash", daemon=True)
+        hasher.start()
         t1 = time.perf_counter()
         executable = decode_executable(raw)
+        hasher.join()
+        digest, hash_s = hashed[0]
         plan: Any = _Decoded(executable, raw) if executable is not None else None
         if plan is None:
             try:
@@ -113,7 +121,7 @@ class SafetyGate:
                 ctx = _Context(settings=self.settings)
                 return ctx.verdict(False, "structure", f"the plan is not valid JSON: {exc}", None,
                                    time.perf_counter() - t0), None
-        verdict = self._check(plan, (digest, t1 - t0), kwargs.pop("approval", None), kwargs.pop("measured", None),
+        verdict = self._check(plan, (digest, hash_s), kwargs.pop("approval", None), kwargs.pop("measured", None),
                               kwargs.pop("threshold_m", None), kwargs.pop("now", None), kwargs.pop("offline", False),
                               json_s=time.perf_counter() - t1, recovery=kwargs.pop("recovery", False), **kwargs)
         return verdict, (executable if executable is not None else plan)
@@ -196,6 +204,9 @@ class SafetyGate:
                        f"{robot.urdf_sha256} ({robot.files.urdf}); the kinematics would differ")
         ctx.passed("robot_model", urdf_sha256=robot.urdf_sha256)
 
+        # The torque and grip checks need only the plan's points: they run in a thread of their own while the
+        # checks below do (numpy releases the GIL in its loops); their verdict comes after the stability check's.
+        effort = _EffortRun(robot, p, s, ctx.S) if s.check_limits else None
         _check_time(ctx, p, s)
         if measured is None:
             if not offline:
@@ -210,6 +221,52 @@ class SafetyGate:
         fk = self._batch_fk(robot, p.joint_names)
         polygon = support_polygon(robot.model, p.feet)
         _timed(ctx, "stability_s", _check_stability, ctx, p, fk, polygon, s)
+        if effort is not None:  # static joint torques and grip (robot_bridge.gate_effort)
+            figures = _timed(ctx, "effort_wait_s", effort.result)
+            ctx.note("timing", effort_s=effort.elapsed_s)
+            ctx.passed("effort", max_ratio=figures["max_effort_ratio"])
+            ctx.passed("grip", max_ratio=figures["max_grip_ratio"])
+
+
+class _EffortRun:
+    """:func:`check_effort_and_grip` on a plan's points, in a thread started at construction.
+
+    A plain thread per check (not a pool): a pool's thread would not survive a fork of the process,
+    and a forked child's gate would then wait for ever."""
+
+    def __init__(self, robot: _Robot, p: _Parsed, s: GateSettings, samples_per_point: int):
+        self._S = samples_per_point
+        self._args = (robot.model, robot.files.spec, p.joint_names, p.Q, p.base_pose, p.holding, p.object_pose,
+                      p.com_local, p.mass, p.feet, s.gravity)
+        self._figures: dict[str, Any] | None = None
+        self._error: BaseException | None = None
+        self.elapsed_s = 0.0
+        self._thread = threading.Thread(target=self._work, name="gate-effort", daemon=True)
+        self._thread.start()
+
+    def _work(self) -> None:
+        t0 = time.perf_counter()
+        try:
+            with np.errstate(all="ignore"):  # non-finite torques are vetoed by value, not warned about
+                self._figures = check_effort_and_grip(*self._args)
+        except BaseException as exc:  # handed to the caller: a veto, or the gate's own failure (fails closed)
+            self._error = exc
+        self.elapsed_s = time.perf_counter() - t0
+
+    def result(self) -> dict[str, Any]:
+        """The figures; raises the effort or grip veto (at its sample), or the check's own error."""
+        self._thread.join()
+        if isinstance(self._error, EffortVeto):
+            raise Veto(self._error.check, self._error.message, self._error.point * self._S) from None
+        if self._error is not None:
+            raise self._error
+        assert self._figures is not None
+        return self._figures
+
+
+def _sha256_timed(raw: bytes) -> tuple[str, float]:
+    t0 = time.perf_counter()
+    return hashlib.sha256(raw).hexdigest(), time.perf_counter() - t0
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ class GateSettings(BaseModel):
     limit_tolerance_rel: float = Field(1e-6, ge=0, description="relative slack on velocity/acceleration limits")
     time_tolerance_s: float = Field(1e-6, ge=0, description="|t_i - i dt_s| allowed")
     gravity: float = Field(9.81, gt=0)
+    check_limits: bool = Field(True, description="check static joint torques and grip against the robot's limits")
     max_points: int = Field(720_000, gt=0, description="largest trajectory accepted (1 h at 200 Hz)")
 
 

@@ -167,6 +167,8 @@ GateCheck = Literal[
     "feet",  # the soles stay where the stance puts them
     "com_margin",  # CoM margin with the held object >= threshold - tolerance at every sample
     "zmp",  # cart-table ZMP inside the support polygon
+    "effort",  # static joint torques (robot, held object, contact wrenches) within the effort limits
+    "grip",  # the jaws' friction holds the held object's weight and its moment about the closing axis
     "gate_error",  # the gate itself failed: fail closed
 ]
 

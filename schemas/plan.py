@@ -46,6 +46,7 @@ class TrajectoryPoint(StrictModel):
     com: list[float]
     margin_m: float
     zmp: list[float]
+    effort_ratio: float | None = None
 
 
 class Segment(StrictModel):

@@ -26,6 +26,8 @@ class SurveyRow(OpenModel):
     seeds: int = Field(0, ge=0, description="seeds whose counts are summed")
     converged: bool = False
     per_seed: list[dict[str, Any]] = Field(default_factory=list, description="{seed, stable, unstable, solved} per seed")
+    #: counted poses over an effort or grip limit (counted unstable too); None with the limits off
+    over_limits: int | None = None
 
 
 class Survey(OpenModel):

@@ -8,7 +8,8 @@ on each of the paper's claims (:mod:`service.paper_claims`). Every claim not rep
 cause and shows a run that changes that one thing (the pelvis placement, the object's CoM side,
 its mass, the threshold), with the claim judged again on it. The numbers are also written to
 ``report.json`` (docs/contract.md section 4b). The tables are reproduced without effort and grip
-limits, as the paper had none (this model has no such checks yet).
+limits, as the paper had none; beside them, the same surveys and plans with the limits on show what the
+limits change (left out with ``--no-limits``).
 """
 
 from __future__ import annotations
@@ -46,8 +47,11 @@ class PaperSettings:
     estimator: dict[str, Any]
     plan_iterations: int
     workers: int | None = None
+    #: the tables and plans without effort and grip limits, as the paper had none (always so for the reproduction)
     no_limits: bool = True
     quick: bool = False
+    #: beside the reproduction, the tables' surveys and the stances' plans again with the limits on
+    limits_section: bool = True
 
     @classmethod
     def full(cls) -> "PaperSettings":
@@ -61,7 +65,8 @@ class PaperSettings:
 
     def document(self) -> dict[str, Any]:
         return {"estimator": dict(self.estimator), "plan_iterations": self.plan_iterations, "workers": self.workers,
-                "no_limits": self.no_limits, "quick": self.quick}
+                "no_limits": self.no_limits, "quick": self.quick,
+                "limits_section": self.limits_section}
 
 
 @dataclass
@@ -74,6 +79,7 @@ class Results:
     claims: list[dict[str, Any]] = field(default_factory=list)
     cause_runs: dict[str, Any] = field(default_factory=dict)
     handovers: dict[str, Any] = field(default_factory=dict)
+    limits: dict[str, Any] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     figures: dict[str, str] = field(default_factory=dict)
 
@@ -87,14 +93,16 @@ def _scenario(name: str, stance: Any = None, **changes: Any):
     return sc.model_copy(update=changes) if changes else sc
 
 
-def _survey(sc, settings: PaperSettings) -> dict[str, Any]:
-    """A survey with the report's estimator: its rows (docs/contract.md section 4) and what it ran with."""
+def _survey(sc, settings: PaperSettings, no_limits: bool | None = None) -> dict[str, Any]:
+    """A survey with the report's estimator: its rows (docs/contract.md section 4) and what it ran with
+    (without the limits unless ``no_limits`` is False)."""
     from planner.scene.scenarios import with_overrides
     from planner.survey.runner import run_survey
 
     t0 = time.perf_counter()
     sc = with_overrides(sc, survey=settings.estimator)
-    doc, _ = run_survey(sc, workers=settings.workers, keep_states=False, no_limits=settings.no_limits)
+    doc, _ = run_survey(sc, workers=settings.workers, keep_states=False,
+                        no_limits=settings.no_limits if no_limits is None else no_limits)
     return {"rows": doc["rows"], "recommended": doc["recommended"], "indistinguishable": doc["indistinguishable"],
             "estimator": doc["estimator"], "seed": doc["seed"], "threshold_m": doc["threshold_m"], "object": doc["object"],
             "stance": doc["stance"]["name"], "time_s": time.perf_counter() - t0, "doc": doc}
@@ -107,8 +115,9 @@ def _table(stance: str, settings: PaperSettings) -> dict[str, Any]:
 
 
 def _plan(scenario: Any, hands: str | None, threshold_m: float | None, iterations: int, stance: str | None = None,
-          estimator: dict[str, Any] | None = None) -> dict[str, Any]:
-    """A plan of a scenario (a name or a Scenario); ``hands: auto`` surveys with ``estimator`` (the report's)."""
+          estimator: dict[str, Any] | None = None, limits: bool = False) -> dict[str, Any]:
+    """A plan of a scenario (a name or a Scenario); ``hands: auto`` surveys with ``estimator`` (the report's).
+    Without effort and grip limits, as the paper, unless ``limits``."""
     from planner.jobs.plan_job import PlanOptions, plan_scenario
     from planner.scene.scenarios import resolve_scenario, with_overrides
 
@@ -117,7 +126,7 @@ def _plan(scenario: Any, hands: str | None, threshold_m: float | None, iteration
         sc = with_overrides(sc, survey=estimator)
     sc = sc.model_copy(update={"limits": sc.limits.model_copy(update={"max_iterations": iterations})})
     t0 = time.perf_counter()
-    doc = plan_scenario(sc, PlanOptions(hands=hands, threshold_m=threshold_m))
+    doc = plan_scenario(sc, PlanOptions(hands=hands, threshold_m=threshold_m, limits=limits))
     doc.setdefault("stats", {})["wall_s"] = time.perf_counter() - t0
     return doc
 
@@ -348,10 +357,33 @@ def run(out: Path, settings: PaperSettings, progress: Callable[[str], None] = pr
                      "upright": handover_failures(_scenario("upright"))}
     res.claims = evaluate_claims(res)
     run_causes(res, settings, progress)
+    if settings.limits_section:
+        run_limits(res, settings, progress)
     res.timings["total_s"] = time.perf_counter() - t_all
     (out / "report.json").write_text(json.dumps(_to_json(res), indent=2, allow_nan=False))
     (out / "report.md").write_text(render(res))
     return res
+
+
+def run_limits(res: Results, settings: PaperSettings, progress: Callable[[str], None]) -> None:
+    """What the effort and grip limits change: each table's survey and each stance's plan again with them on."""
+    t0 = time.perf_counter()
+    for stance in STANCES:
+        progress(f"limits: {stance} stance survey and plan with effort and grip checked")
+        with_limits = _survey(_scenario(stance), settings, no_limits=False)
+        hands = res.tables[stance]["recommended"] or "right-right"
+        plan = _plan(stance, hands, None, settings.plan_iterations, limits=True)
+        rows = {r["hands"]: r for r in res.tables[stance]["rows"]}
+        res.limits[stance] = {
+            "rows": [{"hands": r["hands"], "ratio_without": rows.get(r["hands"], {}).get("ratio"),
+                      "ratio_with": r["ratio"], "ratio_ci95_with": r.get("ratio_ci95"), "over_limits": r.get("over_limits"),
+                      "reason_with": r.get("reason")} for r in with_limits["rows"]],
+            "recommended_without": res.tables[stance]["recommended"], "recommended_with": with_limits["recommended"],
+            "plan": {"hands": hands, **_plan_summary(plan),
+                     "max_effort_ratio": max((p.get("effort_ratio") or 0.0 for p in plan.get("trajectory") or []),
+                                             default=None)},
+        }
+    res.timings["limits_s"] = time.perf_counter() - t0
 
 
 def _table_json(t: dict[str, Any]) -> dict[str, Any]:
@@ -361,7 +393,8 @@ def _table_json(t: dict[str, Any]) -> dict[str, Any]:
 def _to_json(res: Results) -> dict[str, Any]:
     return {"settings": res.settings.document(), "tables": {s: _table_json(t) for s, t in res.tables.items()},
             "comparison": {s: _table_json(t) for s, t in res.comparison.items()}, "plans": res.plans,
-            "drills": res.drills, "handovers": res.handovers, "claims": res.claims, "limits": "off (--no-limits): the paper had none",
+            "drills": res.drills, "handovers": res.handovers, "claims": res.claims,
+            "limits": {"reproduction": "off (--no-limits): the paper had none", "with_limits": res.limits},
             "timings": res.timings, "figures": res.figures}
 
 
@@ -404,8 +437,9 @@ def render(res: Results) -> str:
         "- Model: the project's HRP-5P-like robot (1.82 m, 101 kg, 37 DoF).",
         f"- Survey estimator: {budget}; R is pooled over the seeds and its 95 % interval is the percentile bootstrap "
         "over seeds. A claim is reproduced only when the orderings it names hold between intervals that do not overlap.",
-        "- Without effort and grip limits (`--no-limits`), as the paper had none; this model has no such checks yet, "
-        "so the limits change nothing here.",
+        "- Tables, comparison and plans without effort and grip limits, as the paper had none; the section "
+        "*What the limits change* runs the same surveys and plans with them on"
+        + ("." if res.limits else " (left out of this run: `--no-limits`)."),
         f"- Total run time: {res.timings.get('total_s', 0):.1f} s.", "",
         "## Tables I-IV: stability per hand configuration", "",
     ]
@@ -465,6 +499,21 @@ def render(res: Results) -> str:
         p = res.plans[stance]
         a, b = p["constrained"]["planning_time_s"], p["unconstrained"]["planning_time_s"]
         lines.append(f"| {stance} | {_fmt_s(a)} | {_fmt_s(b)} | {(a / b) if a and b else float('nan'):.2f} |")
+    if res.limits:
+        lines += ["", "## What the limits change", "",
+                  "The same surveys and the stances' plans with static joint torques and grip checked (docs/robots.md): "
+                  "a pose over a limit counts as unstable (and in `over_limits`).", "",
+                  "| stance | hand configuration | R without | R with [95 %] | over limits | plan with limits |",
+                  "|---|---|---|---|---|---|"]
+        for stance, lim in res.limits.items():
+            plan = lim["plan"]
+            verdict = (f"{plan['hands']}: {plan['status']}" + (f" ({plan['failure']})" if plan.get("failure") else "")
+                       + (f", max effort ratio {plan['max_effort_ratio']:.2f}" if plan.get("max_effort_ratio") else ""))
+            for k, row in enumerate(lim["rows"]):
+                with_cell = _ratio_cell({"ratio": row["ratio_with"], "ratio_ci95": row["ratio_ci95_with"],
+                                         "reason": row["reason_with"]})
+                lines.append(f"| {stance if k == 0 else ''} | {row['hands']} | {_fmt(row['ratio_without'])} | {with_cell} | "
+                             f"{row['over_limits'] if row['over_limits'] is not None else 'n/a'} | {verdict if k == 0 else ''} |")
     lines += ["", "## Where we agree and where we differ", ""]
     for c in res.claims:
         lines.append(f"- **{c['verdict']}** (`{c['id']}`): {c['text']} Evidence: {c['evidence']}.")

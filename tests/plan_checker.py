@@ -93,6 +93,8 @@ def _signed_margin(polygon: Polygon, x: float, y: float) -> float:
 
 def _acc_limits(spec: dict, names: list[str]) -> np.ndarray:
     acc = spec["acceleration_limits"]
+    if spec.get("schema") == "regrasp.robot/1":  # per joint, with a default
+        return np.array([acc.get(n, acc.get("default")) for n in names], dtype=float)
     out = []
     for n in names:
         if any(n in f["chain"] for f in spec["feet"].values()):
@@ -117,10 +119,21 @@ def _pose_err(a: pin.SE3, b: pin.SE3) -> tuple[float, float]:
     return float(np.linalg.norm(d.translation)), float(np.linalg.norm(pin.log3(d.rotation)))
 
 
-def check_plan(plan: dict, *, sample_every: int = 1) -> CheckReport:
+def check_plan(plan: dict, *, sample_every: int = 1, robot_spec: str | None = None) -> CheckReport:
+    """``robot_spec``: the robot's spec file (regrasp.robot/1) when it is not a built-in; its derived URDF is
+    the one `regrasp robot urdf FILE` names."""
     rep = CheckReport()
     assert plan["status"] == "solved", plan.get("failure")
-    urdf, spec = _urdf_and_spec(plan["robot"]["name"])
+    if robot_spec is None:
+        urdf, spec = _urdf_and_spec(plan["robot"]["name"])
+    else:
+        from click.testing import CliRunner
+
+        from service.cli.main import cli
+
+        res = CliRunner().invoke(cli, ["robot", "urdf", robot_spec])
+        assert res.exit_code == 0, res.output
+        urdf, spec = res.output.strip(), yaml.safe_load(open(robot_spec).read())
     model = pin.buildModelFromUrdf(urdf, pin.JointModelFreeFlyer())
     data = model.createData()
     mimics = _mimics(urdf)
@@ -181,7 +194,8 @@ def check_plan(plan: dict, *, sample_every: int = 1) -> CheckReport:
         rep.fail("the plan does not start and end at rest")
 
     coms = np.zeros((len(traj), 3))
-    tcp_ids = {"left": model.getFrameId("l_tcp"), "right": model.getFrameId("r_tcp")}
+    tcp_names = {s: h["frame"] for s, h in spec["hands"].items()} if spec.get("hands") else {"left": "l_tcp", "right": "r_tcp"}
+    tcp_ids = {side: model.getFrameId(f) for side, f in tcp_names.items()}
     sole_ids = {f["frame"]: model.getFrameId(f["frame"]) for f in feet}
     rel: dict = {}
     obj_prev = None
@@ -262,4 +276,85 @@ def check_plan(plan: dict, *, sample_every: int = 1) -> CheckReport:
         rep.fail("segments do not cover the trajectory")
     if plan.get("min_margin_m") is not None and abs(plan["min_margin_m"] - rep.min_margin) > 1e-6:
         rep.fail("min_margin_m differs from the recomputed minimum")
+    _check_limits(rep, plan, model, data, pinq, spec, urdf, max(sample_every, 1))
     return rep
+
+
+def _effort_limits(urdf: str, spec: dict, names: list[str]) -> dict[str, float]:
+    """Every non-jaw joint's effort limit: the spec's effort_limits over the URDF's <limit effort>."""
+    hands = spec.get("hands")
+    if hands:
+        jaws = {j for h in hands.values() if h.get("jaw") for j in h["jaw"].get("joints", [])}
+    else:
+        jaws = {a["gripper"]["joint"] for a in spec["arms"].values() if a.get("gripper")}
+    efforts = {}
+    for joint in ET.parse(urdf).getroot().iter("joint"):
+        lim = joint.find("limit")
+        if lim is not None and "effort" in lim.attrib:
+            efforts[joint.attrib["name"]] = float(lim.attrib["effort"])
+    efforts.update({k: float(v) for k, v in (spec.get("effort_limits") or {}).items()})
+    return {n: efforts[n] for n in names if n not in jaws}
+
+
+def _check_limits(rep: CheckReport, plan: dict, model, data, pinq, spec: dict, urdf: str, every: int) -> None:
+    """effort_ratio recomputed with pinocchio's RNEA and least-squares contact wrenches; the grip by hand."""
+    traj = plan["trajectory"]
+    names = plan["robot"]["joint_names"]
+    limits = _effort_limits(urdf, spec, names)
+    limited = (plan.get("stats") or {}).get("limits", True)
+    obj = plan["object"]
+    m, com_local = obj["mass_kg"], np.asarray(obj["com_local"])
+    contact = [f["frame"] for f in plan["stance"]["feet"] if f["in_contact"]]
+    tcp = {"left": "l_tcp", "right": "r_tcp"}
+    if spec.get("hands"):
+        tcp = {s: h["frame"] for s, h in spec["hands"].items()}
+    grip = spec.get("grip")
+    v0 = np.zeros(model.nv)
+    for i in range(0, len(traj), every):
+        p = traj[i]
+        q = pinq(np.asarray(p["q"]))
+        pin.framesForwardKinematics(model, data, q)
+        hands = {"none": (), "left": ("left",), "right": ("right",), "both": ("left", "right")}[p["holding"]]
+        fext = [pin.Force.Zero() for _ in range(model.njoints)]
+        oc = _se3(p["object_pose"]).act(com_local)
+        for side in hands:
+            fr = model.frames[model.getFrameId(tcp[side])]
+            f = pin.Force(np.array([0.0, 0.0, -G * m / len(hands)]), np.zeros(3))
+            fext[fr.parentJoint] += data.oMi[fr.parentJoint].actInv(pin.SE3(np.eye(3), oc).act(f))
+        # the wrench the soles must supply: the base rows of RNEA with the object's weight and no contacts
+        base = pin.rnea(model, data, q, v0, v0, fext)[:6].copy()  # in the base frame, at the base origin
+        wb = data.oMi[1].act(pin.Force(base[:3], base[3:]))  # world axes, about the world origin
+        A = []
+        for s in contact:
+            pt = data.oMf[model.getFrameId(s)].translation
+            X = np.zeros((6, 6))
+            X[:3, :3] = np.eye(3)
+            X[3:, :3] = pin.skew(pt)
+            X[3:, 3:] = np.eye(3)
+            A.append(X)
+        w = np.linalg.lstsq(np.hstack(A), np.r_[wb.linear, wb.angular], rcond=None)[0]
+        for k, s in enumerate(contact):
+            fr = model.frames[model.getFrameId(s)]
+            pt = data.oMf[model.getFrameId(s)].translation
+            f = pin.Force(w[6 * k:6 * k + 3], w[6 * k + 3:6 * k + 6])
+            fext[fr.parentJoint] += data.oMi[fr.parentJoint].actInv(pin.SE3(np.eye(3), pt).act(f))
+        tau = pin.rnea(model, data, q, v0, v0, fext)
+        if np.abs(tau[:6]).max() > 1e-6:
+            rep.fail(f"contact wrenches at point {i} do not balance the robot")
+        ratio = max(abs(tau[model.idx_vs[model.getJointId(n)]]) / lim for n, lim in limits.items())
+        if "effort_ratio" not in p:
+            rep.fail(f"trajectory[{i}] has no effort_ratio")
+            return
+        if abs(ratio - p["effort_ratio"]) > 1e-6:
+            rep.fail(f"effort_ratio at {i} differs from the recomputation ({p['effort_ratio']:.6f} vs {ratio:.6f})")
+        if limited and ratio > 1.0 + 1e-6:
+            rep.fail(f"a joint is over its effort limit at point {i} (ratio {ratio:.3f})")
+        if limited and grip and m > 0:
+            for side in hands:
+                share = G * m / len(hands)
+                T = data.oMf[model.getFrameId(tcp[side])]
+                moment = np.cross(oc - T.translation, [0.0, 0.0, -share])
+                about = abs(float(moment @ T.rotation[:, 1]))
+                cap = 2 * grip["friction"] * grip["force_n"]
+                if share > cap * (1 + 1e-6) or about > cap * grip["patch_radius_m"] * (1 + 1e-6):
+                    rep.fail(f"the {side} grip slips at point {i} ({share:.1f} N, {about:.2f} N*m)")

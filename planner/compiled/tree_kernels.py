@@ -76,11 +76,15 @@ def tree_from_rows(rows: Sequence[dict]) -> TreeSpec:
     return tree_spec(**{k: [r[k] for r in rows] for k in ROOT_SLOT})
 
 
-def walk(spec: TreeSpec, Q: np.ndarray, R: np.ndarray, p: np.ndarray, first: int = 0) -> None:
+def walk(spec: TreeSpec, Q: np.ndarray, R: np.ndarray, p: np.ndarray, first: int = 0, root_varies: bool = False) -> None:
     """Fill slots ``first..`` of ``R`` (S, 3, 3, N) and ``p`` (S, 3, N) for the configurations ``Q``
-    (N, nq); slots before ``first`` must already hold their frames (a given root)."""
+    (N, nq); slots before ``first`` must already hold their frames (a given root; ``root_varies`` when it
+    differs between configurations).
+
+    A slot whose joint value and whose ancestors are the same in every configuration (a batch moves a
+    few joints) is computed once and copied: the same numbers, without the arithmetic."""
     _walk(np.ascontiguousarray(Q, dtype=float), spec.parent, spec.R0, spec.p0, spec.kind, spec.axis_index, spec.axis,
-          spec.col, spec.mult, spec.offset, first, R, p)
+          spec.col, spec.mult, spec.offset, first, R, p, root_varies)
 
 
 def weighted_sum(R: np.ndarray, p: np.ndarray, slots: np.ndarray, mass: np.ndarray, lever: np.ndarray,
@@ -93,15 +97,26 @@ def weighted_sum(R: np.ndarray, p: np.ndarray, slots: np.ndarray, mass: np.ndarr
 
 
 @njit(cache=True, nogil=True)
-def _walk(Q, parent, R0, p0, kind, axis_index, axis, col, mult, offset, first, R, p):  # pragma: no cover - compiled
+def _walk(Q, parent, R0, p0, kind, axis_index, axis, col, mult, offset, first, R, p, root_varies):  # pragma: no cover - compiled
     rot = np.empty((3, 3))
+    N = Q.shape[0]
+    column_varies = np.zeros(Q.shape[1], dtype=np.bool_)
+    for c in range(Q.shape[1]):
+        for n in range(1, N):
+            if Q[n, c] != Q[0, c]:
+                column_varies[c] = True
+                break
+    varies = np.zeros(parent.shape[0], dtype=np.bool_)
+    for k in range(first):
+        varies[k] = root_varies
     for k in range(first, parent.shape[0]):
         a = parent[k]
         c = col[k]
         kd = kind[k]
         ii = (axis_index[k] + 1) % 3
         jj = (axis_index[k] + 2) % 3
-        for n in range(Q.shape[0]):  # states innermost: the arrays' last axis
+        varies[k] = (a >= 0 and varies[a]) or (kd <= 3 and c >= 0 and column_varies[c])
+        for n in range(N if varies[k] else min(N, 1)):  # states innermost: the arrays' last axis
             th = Q[n, c] * mult[k] + offset[k]
             if a >= 0:
                 for i in range(3):
@@ -149,6 +164,12 @@ def _walk(Q, parent, R0, p0, kind, axis_index, axis, col, mult, offset, first, R
                     r1 = R[k, i, 0, n] * rot[0, 1] + R[k, i, 1, n] * rot[1, 1] + R[k, i, 2, n] * rot[2, 1]
                     r2 = R[k, i, 0, n] * rot[0, 2] + R[k, i, 1, n] * rot[1, 2] + R[k, i, 2, n] * rot[2, 2]
                     R[k, i, 0, n], R[k, i, 1, n], R[k, i, 2, n] = r0, r1, r2
+        if not varies[k]:
+            for n in range(1, N):
+                for i in range(3):
+                    p[k, i, n] = p[k, i, 0]
+                    for j in range(3):
+                        R[k, i, j, n] = R[k, i, j, 0]
 
 
 @njit(cache=True, nogil=True)

@@ -254,7 +254,7 @@ def compute_grasps(obj: ObjectModel, hand: HandGeometry, settings: GraspSettings
     keyed = sorted(rows, key=lambda r: (round(float(np.linalg.norm(r[0][:3, 3] - com)), 6), tuple(np.round(r[0][:3, :].ravel(), 6))))
     grasps = []
     for i, (T, width, open_w) in enumerate(keyed):
-        grasps.append(Grasp(i, T, width, width / hand.opening_per_unit, open_w, open_w / hand.opening_per_unit,
+        grasps.append(Grasp(i, T, width, hand.jaw_value(width), open_w, hand.jaw_value(open_w),
                             float(np.linalg.norm(T[:3, 3] - com))))
     return grasps
 

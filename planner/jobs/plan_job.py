@@ -18,7 +18,8 @@ from typing import Any, Callable
 from planner.errors import Canceled, InputError
 from planner.jobs.survey_job import survey_overrides
 from planner.regrasp.hand_config_planner import HandConfigPlanner
-from planner.regrasp.plan_assembly import assemble, trajectory_points
+from planner.regrasp.plan_assembly import assemble, effort_ratios, trajectory_points
+from planner.stability.effort import EffortEvaluator
 from planner.regrasp.results import PlannerResult
 from planner.regrasp.settings import PlannerSettings
 from planner.regrasp.task import Task
@@ -44,6 +45,10 @@ class PlanOptions:
     solutions: int = 1
     stance: Any = None
     time_limit_s: float | None = None
+    #: check effort and grip (CONTRACT section 3); False is ``--no-limits``
+    limits: bool = True
+    #: a registered robot name or a spec file path, over the scenario's ``robot``
+    robot: str | None = None
 
 
 def library_versions() -> dict[str, str]:
@@ -112,7 +117,16 @@ def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]
     for end, failures, ok, hand in (("start", planner.start_failures, planner.start_ok, planner.start_hand),
                                     ("goal", planner.goal_failures, planner.goal_ok, planner.goal_hand)):
         if failures and not ok:
-            if max(failures, key=failures.get) == "com_margin":
+            dominant = max(failures, key=failures.get)
+            limited = {c: failures[c] for c in ("effort", "grip") if failures.get(c)}
+            if limited:  # nodes the limits refused might have held the end: the limits decide (counts in the message)
+                dominant = max(limited, key=limited.get)
+            if dominant in ("effort", "grip"):
+                what = ("a joint's static torque over its effort limit" if dominant == "effort"
+                        else "the grip slipping (the object's weight or moment about the jaw's closing axis)")
+                return dominant.upper(), (f"no grasp of the object at its {end} pose with the {hand} hand is within the "
+                                          f"robot's limits: {what} ({dict(failures)})")
+            if dominant == "com_margin":
                 return "NO_STABLE_GRASP", (f"no grasp of the object at its {end} pose keeps the CoM margin >= the "
                                            f"threshold with the {hand} hand ({dict(failures)})")
             return f"{end.upper()}_INVALID", f"the {end} pose cannot be grasped by the {hand} hand: {dict(failures)}"
@@ -134,7 +148,11 @@ def plan_scenario(
     started = time.monotonic()
     scenario = with_overrides(scenario, stance=options.stance, threshold_m=options.threshold_m,
                               hands=options.hands, seed=options.seed, time_limit_s=options.time_limit_s)
+    if options.robot is not None:
+        scenario = scenario.model_copy(update={"robot": options.robot})
     progress(0.02, "setting up the task")
+    if not options.limits:
+        settings = (settings or PlannerSettings()).model_copy(update={"limits": False})
     try:
         task = task or build_task(scenario, settings)
     except ObjectModelError as exc:
@@ -225,6 +243,9 @@ def plan_scenario(
     best, planner = min(solved, key=lambda rp: rp[0].cost)
     t_asm = time.perf_counter()
     traj = assemble(best.pieces, task.evaluator, task.settings.timing.dt_s, task.placements[task.start_id])
+    traj.effort_ratio = effort_ratios(traj, task.limits or EffortEvaluator(task.robot, task.stance, task.obj.mass_kg,
+                                                                           task.obj.com_local))
+    stats["limits"] = task.limits is not None
     stats["assembly_s"] = time.perf_counter() - t_asm
     stats["time_s"] = time.perf_counter() - t_start
     stats["failures"] = dict(best.failures)
@@ -268,7 +289,8 @@ def plan_job(request: dict[str, Any], ctx) -> dict[str, Any]:
     request's survey fields for its survey, so it follows the same answer as the survey job)."""
     scenario = resolve_scenario(request["scenario"], survey=survey_overrides(request))
     options = PlanOptions(hands=request.get("hands"), threshold_m=request.get("threshold_m"), seed=request.get("seed"),
-                          stance=request.get("stance"), time_limit_s=request.get("time_limit_s"))
+                          stance=request.get("stance"), time_limit_s=request.get("time_limit_s"),
+                          robot=request.get("robot"))
 
     def stop() -> bool:
         return bool(ctx.cancelled())

@@ -98,7 +98,7 @@ class BatchKinematics:
         else:
             R[1] = np.moveaxis(quat_to_matrix(base_pose[:, 3:]), 0, 2)
             p[1] = base_pose[:, :3].T
-        walk(self._tree, Q, R, p, first=2)
+        walk(self._tree, Q, R, p, first=2, root_varies=base_pose.ndim > 1)
         return [None, *R[1:]], [None, *p[1:]]
 
     def com(self, base_pose: np.ndarray, Q: np.ndarray) -> np.ndarray:

@@ -485,4 +485,5 @@ class RegraspGraph:
 
 def _dominant_code(failures: Counter) -> str:
     cause = failures.most_common(1)[0][0]
-    return {"ik": "IK_FAIL", "collision": "COLLISION", "com_margin": "COM_MARGIN", "motion": "MOTION"}.get(cause, "NO_PATH")
+    return {"ik": "IK_FAIL", "collision": "COLLISION", "com_margin": "COM_MARGIN", "motion": "MOTION",
+            "effort": "EFFORT", "grip": "GRIP"}.get(cause, "NO_PATH")

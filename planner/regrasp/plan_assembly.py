@@ -14,6 +14,7 @@ from typing import Literal
 import numpy as np
 
 from planner.motion.timing import zmp_cart_table
+from planner.stability.effort import EffortEvaluator
 from planner.stability.evaluator import HoldSpec, StateEvaluator
 from planner.transforms import matrices_to_pose7
 
@@ -45,6 +46,8 @@ class TimedTrajectory:
     margin: np.ndarray  # (M,)
     zmp: np.ndarray  # (M, 2)
     segments: list[dict]
+    #: (M,) max over joints of |static torque| / effort limit (:func:`effort_ratios`), once computed
+    effort_ratio: np.ndarray | None = None
 
 
 def _sides(holding: str) -> tuple[str, ...]:
@@ -111,12 +114,27 @@ def assemble(pieces: list[MotionPiece], evaluator: StateEvaluator, dt: float, st
     )
 
 
+def effort_ratios(traj: TimedTrajectory, limits: EffortEvaluator) -> np.ndarray:
+    """Each point's ``effort_ratio``: static torques with the object where the plan has it, per run of
+    points holding the same way."""
+    out = np.empty(len(traj.Q))
+    holding = np.array(traj.holding)
+    starts = np.flatnonzero(np.r_[True, holding[1:] != holding[:-1]])
+    for a, b in zip(starts, [*starts[1:], len(holding)]):
+        out[a:b] = limits.evaluate(traj.Q[a:b], holding[a], object_pose=traj.object_pose[a:b]).effort_ratio
+    return out
+
+
 def trajectory_points(traj: TimedTrajectory) -> list[dict]:
     """The plan's ``trajectory`` entries, floats at full precision (arrays converted whole: a plan
     has thousands of points, and per-point conversions cost ~0.4 s on a 50 s plan)."""
     poses = matrices_to_pose7(traj.object_pose).tolist()
-    return [
+    points = [
         {"t": t, "q": q, "holding": holding, "object_pose": pose, "com": com, "margin_m": margin, "zmp": zmp}
         for t, q, holding, pose, com, margin, zmp in zip(
             traj.t.tolist(), traj.Q.tolist(), traj.holding, poses, traj.com.tolist(), traj.margin.tolist(), traj.zmp.tolist())
     ]
+    if traj.effort_ratio is not None:
+        for point, ratio in zip(points, traj.effort_ratio.tolist()):
+            point["effort_ratio"] = ratio
+    return points

@@ -60,6 +60,8 @@ class PlannerSettings(BaseModel):
     screen_valid: int = Field(4, ge=1, description="start/goal nodes validated up front until this many are valid")
     ready_height_m: float = Field(0.15, gt=0, description="ready posture: the hand this far above the highest table top")
     via_lift_m: float = Field(0.15, gt=0, description="via posture: the hand lifted this far above a motion's end")
+    limits: bool = Field(True, description="check static joint torques against the effort limits and the grip (CONTRACT "
+                         "section 3); off reproduces the paper, which had neither")
     planning_buffer_m: float = Field(
         1e-3, ge=0, description="plan to threshold + this, so small IK residuals never bring a point below the threshold")
 

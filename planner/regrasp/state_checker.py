@@ -3,8 +3,10 @@
 Like OMPL's ``StateValidityChecker``, it answers validity and clearance; the clearance is the
 CoM margin (the signed distance of the system CoM's ground projection to the support polygon's
 edge). A state is valid when it is collision-free and, for the constrained planner
-(threshold > 0), its margin reaches the planning threshold. It also names the first failing
-cause over a run of states, the failure counts the planner reports.
+(threshold > 0), its margin reaches the planning threshold, and, unless the limits are off, its
+static joint torques stay within the effort limits and the grip holds the object
+(:mod:`planner.stability.effort`). It also names the first failing cause over a run of states
+(com_margin, effort, grip, collision: cheapest first), the failure counts the planner reports.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from typing import Callable
 import numpy as np
 
 from planner.scene.collision import CollisionWorld
+from planner.stability.effort import EffortEvaluator
 from planner.stability.evaluator import HoldSpec, StateEvaluator
 
 
@@ -25,8 +28,9 @@ class StateChecker:
     """
 
     def __init__(self, evaluator: StateEvaluator, world: CollisionWorld, base_pose: np.ndarray, constrained: bool,
-                 counters: Counter):
+                 counters: Counter, limits: EffortEvaluator | None = None):
         self.evaluator = evaluator
+        self.limits = limits
         self.world = world
         self.base_pose = base_pose
         self.constrained = constrained
@@ -42,6 +46,9 @@ class StateChecker:
             batch = self.evaluator.evaluate(Q, hold, active=active)
             self.counters["com_states"] += len(Q)
             ok = batch.stable.copy() if self.constrained else np.ones(len(Q), dtype=bool)
+            if self.limits is not None and ok.any():
+                idx = np.flatnonzero(ok)
+                ok[idx] = self._limit_causes(Q[idx], hold) == 0
             if ok.any():
                 idx = np.flatnonzero(ok)
                 res = self.world.check_batch(self.base_pose, Q[idx], held=held,
@@ -69,6 +76,15 @@ class StateChecker:
         margins = batch.margin.reshape(groups, k).min(axis=1)
         unstable = ~batch.stable.reshape(groups, k).all(axis=1) if self.constrained else np.zeros(groups, dtype=bool)
         causes: list[str | None] = ["com_margin" if u else None for u in unstable]
+        if self.limits is not None and (~unstable).any():
+            groups_in = np.flatnonzero(~unstable)
+            rows = (groups_in[:, None] * k + np.arange(k)).ravel()
+            codes = self._limit_causes(Q[rows], hold).reshape(-1, k)
+            for g, row_codes in zip(groups_in, codes):
+                bad = row_codes[row_codes > 0]
+                if bad.size:  # the first failing state's cause
+                    causes[g] = _LIMIT_CAUSE[int(bad[0])]
+                    unstable[g] = True
         check = np.flatnonzero(~unstable)
         if check.size:
             rows = (check[:, None] * k + np.arange(k)).ravel()
@@ -82,3 +98,13 @@ class StateChecker:
                 causes[g] = "collision"
         return causes, margins
 
+
+    def _limit_causes(self, Q: np.ndarray, hold: HoldSpec | None) -> np.ndarray:
+        """Per state 0 (within the limits), 1 (a joint over its effort limit) or 2 (the grip slips)."""
+        holding = "none" if hold is None else hold.side
+        res = self.limits.evaluate(Q, holding, T_tcp_obj=None if hold is None else hold.T_tcp_obj)
+        self.counters["limit_states"] += len(Q)
+        return np.where(~res.effort_ok, 1, np.where(~res.grip_ok, 2, 0))
+
+
+_LIMIT_CAUSE = {1: "effort", 2: "grip"}

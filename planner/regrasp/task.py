@@ -22,6 +22,7 @@ from planner.regrasp.graph import HOP_KINDS, HandoverNode, PlacementNode
 from planner.regrasp.results import GraspProbe
 from planner.regrasp.settings import HANDS_INDEX, PlannerSettings, Side
 from planner.regrasp.state_checker import StateChecker
+from planner.stability.effort import EffortEvaluator
 from planner.robot.model import RobotModel, load_robot
 from planner.scene.bodies import environment_boxes
 from planner.scene.collision import CollisionWorld
@@ -66,7 +67,11 @@ class Task:
             moving_joints=[*self.robot.spec.waist, *[j for a in self.robot.spec.arms.values() for j in a.chain],
                            *[a.gripper.joint for a in self.robot.spec.arms.values()]],
         )
-        self.checker = StateChecker(self.evaluator, self.world, self.stance.base_pose, self.constrained, self.counters)
+        #: static torques and grip, or None when the limits are switched off (``settings.limits``)
+        self.limits: EffortEvaluator | None = (
+            EffortEvaluator(self.robot, self.stance, self.obj.mass_kg, self.obj.com_local) if s.limits else None)
+        self.checker = StateChecker(self.evaluator, self.world, self.stance.base_pose, self.constrained, self.counters,
+                                    limits=self.limits)
         self.ik = IkSolver(self.robot, self.stance, s.ik, kinematics=self.world.kin)
         # The arm-only attempt is a cheap first try (few restarts); the waist joins when it fails.
         self.ik_arm_only = IkSolver(self.robot, self.stance, s.ik.model_copy(update={"use_waist": False, "restarts": s.arm_only_restarts}),

@@ -9,6 +9,7 @@ import pinocchio as pin
 
 from planner.robot.model import RobotModel
 from planner.robot.urdf_geometry import collision_primitives
+from planner.stability.effort import effort_limits
 from planner.stability.stances import BUILTIN_STANCES, StanceError, solve_stance
 
 
@@ -50,6 +51,8 @@ def robot_info(robot: RobotModel) -> dict[str, Any]:
         "position_limits": {n: [float(lo), float(hi)] for n, lo, hi in zip(robot.joint_names, robot.lower, robot.upper)},
         "velocity_limits": {n: float(v) for n, v in zip(robot.joint_names, robot.velocity_limit)},
         "acceleration_limits": {n: float(a) for n, a in zip(robot.joint_names, robot.acceleration_limit)},
+        "effort_limits": effort_limits(robot),
+        "grip": robot.spec.grip.model_dump() if robot.spec.grip is not None else None,
         "limit_sources": robot.spec.limit_sources,
         "frames": {"soles": robot.spec.sole_frames(), "tcps": robot.spec.tcp_frames()},
         "stances": stances,

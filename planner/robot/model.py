@@ -158,7 +158,7 @@ def load_robot(name: str = "hrp5p") -> RobotModel:
     vel = np.array(model.velocityLimit)[vids]
     acc = np.array([spec.acceleration_limit(n) for n in joint_names])
     return RobotModel(
-        name=name,
+        name=spec.name,
         spec=spec,
         urdf_path=path,
         urdf_sha256=urdf_sha256(name),

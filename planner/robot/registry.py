@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import hashlib
+import os
 from functools import lru_cache
 from pathlib import Path
 
@@ -20,8 +21,32 @@ DATA_DIR = robot_data.data_dir()
 DEFAULT_ROBOT = "hrp5p"
 
 
+ROBOT_DIRS_ENV = "REGRASP_ROBOT_DIRS"
+
+
+def robot_dirs() -> list[Path]:
+    """Configured folders of robot spec files (``REGRASP_ROBOT_DIRS``, separated like PATH)."""
+    return [Path(p).expanduser() for p in os.environ.get(ROBOT_DIRS_ENV, "").split(os.pathsep) if p]
+
+
+def _registered_spec_files() -> dict[str, Path]:
+    """name -> spec file of every ``regrasp.robot/1`` file in the configured folders (first folder wins)."""
+    out: dict[str, Path] = {}
+    for folder in robot_dirs():
+        for path in sorted([*folder.glob("*.yaml"), *folder.glob("*.yml")]):
+            out.setdefault(path.stem, path)
+    return out
+
+
 def robot_names() -> list[str]:
-    return sorted(p.stem for p in DATA_DIR.glob("*.yaml"))
+    return sorted({p.stem for p in DATA_DIR.glob("*.yaml")} | set(_registered_spec_files()))
+
+
+def _derived(ref: str):
+    """The derived robot of a spec file path (``regrasp.robot/1``)."""
+    from planner.robot.spec_file import derive
+
+    return derive(ref)
 
 
 def _spec_path(name: str) -> Path:
@@ -33,7 +58,20 @@ def _spec_path(name: str) -> Path:
 
 @lru_cache(maxsize=None)
 def load_spec(name: str) -> RobotSpec:
-    spec = RobotSpec.model_validate(yaml.safe_load(_spec_path(name).read_text()))
+    """A registered robot's spec by name, or a spec file's by its path."""
+    from planner.robot.spec_file import is_spec_path
+
+    if is_spec_path(name):
+        return _derived(name).spec
+    if not (DATA_DIR / f"{name}.yaml").is_file() and name in _registered_spec_files():
+        return _derived(str(_registered_spec_files()[name])).spec
+    data = yaml.safe_load(_spec_path(name).read_text())
+    if isinstance(data, dict) and data.get("schema") == "regrasp.robot/1":  # a built-in as a spec file (talos)
+        spec = _derived(str(_spec_path(name))).spec
+        if spec.name != name:
+            raise ValueError(f"robot spec file {name}.yaml names itself {spec.name!r}")
+        return spec
+    spec = RobotSpec.model_validate(data)
     if spec.name != name:
         raise ValueError(f"robot spec file {name}.yaml names itself {spec.name!r}")
     return spec
@@ -42,7 +80,7 @@ def load_spec(name: str) -> RobotSpec:
 def urdf_path(name: str) -> Path:
     """Absolute path of the robot's URDF (generated on first use for derived models)."""
     spec = load_spec(name)
-    path = (DATA_DIR / spec.urdf).resolve()
+    path = (DATA_DIR / spec.urdf).resolve()  # a spec file's derived URDF is absolute
     if not path.is_file():
         raise FileNotFoundError(f"URDF of robot {name!r} is missing at {path}; reinstall the package")
     return path

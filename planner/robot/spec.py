@@ -26,9 +26,10 @@ class FootSpec(_Frozen):
 
 class GripperSpec(_Frozen):
     joint: str
-    #: jaw opening (m) = opening_per_unit * joint value
+    #: jaw opening (m) = opening_per_unit * (joint value - closed_value)
     opening_per_unit: float = 1.0
     max_opening_m: float
+    closed_value: float = 0.0
 
 
 class ArmSpec(_Frozen):
@@ -50,6 +51,14 @@ class AccelerationLimits(_Frozen):
     grippers: float
 
 
+class GripSpec(_Frozen):
+    """A jaw hand's grip (per hand): friction coefficient, squeeze force per jaw (N), contact patch radius (m)."""
+
+    friction: float = Field(gt=0)
+    force_n: float = Field(gt=0)
+    patch_radius_m: float = Field(gt=0)
+
+
 class RobotSpec(_Frozen):
     name: str
     urdf: str
@@ -62,11 +71,18 @@ class RobotSpec(_Frozen):
     upright: UprightSpec
     default_posture_rad: dict[str, float] = Field(default_factory=dict)
     acceleration_limits: AccelerationLimits
+    #: joint -> rad/s^2 (m/s^2 for prismatic joints), over the group limits (spec files give them per joint)
+    acceleration_per_joint: dict[str, float] = Field(default_factory=dict)
+    #: joint -> N*m (N for prismatic joints); overrides the URDF's <limit effort>
+    effort_limits: dict[str, float] = Field(default_factory=dict)
+    grip: GripSpec | None = None
     limit_sources: str = ""
     license_notice: str | None = None
 
     def acceleration_limit(self, joint: str) -> float:
-        """Acceleration limit of a joint by the group it belongs to."""
+        """Acceleration limit of a joint: its own, else the group it belongs to's."""
+        if joint in self.acceleration_per_joint:
+            return self.acceleration_per_joint[joint]
         acc = self.acceleration_limits
         if any(joint in f.chain for f in self.feet.values()):
             return acc.legs

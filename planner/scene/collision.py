@@ -55,6 +55,11 @@ _SCREEN_SLACK_M = 1e-6
 _ENVELOPE_ROUNDING_M = 1e-9
 
 
+#: Sampled postures for the "always in contact" rule of the self-collision pairs, its seed and threshold.
+ALWAYS_IN_CONTACT_SAMPLES = 200
+ALWAYS_IN_CONTACT_SEED = 20240
+ALWAYS_IN_CONTACT_FRACTION = 0.95
+
 class CollisionSettings(BaseModel):
     """Tolerances of the collision checker (metres)."""
 
@@ -273,6 +278,14 @@ class CollisionWorld:
             hits = self._pair_hits(Rw, pw, ia, ib, np.full(ia.size, -self.settings.default_touch_margin_m))
             for k in np.flatnonzero(hits[:, 0]):
                 disabled.add(tuple(sorted((self.bodies[ia[k]].link, self.bodies[ib[k]].link))))  # type: ignore[arg-type]
+        # As MoveIt's setup assistant: a pair in contact in (nearly) every sampled posture cannot be told
+        # apart (links whose fitted boxes overlap across a joint); seeded, so the same pairs every time.
+        rng = np.random.default_rng(ALWAYS_IN_CONTACT_SEED)
+        Q = rng.uniform(robot.lower, robot.upper, (ALWAYS_IN_CONTACT_SAMPLES, robot.nq))
+        Rw, pw = self._robot_world(*self.kin.forward(base, Q))
+        hits = self._pair_hits(Rw, pw, ia, ib, np.zeros(ia.size))
+        for k in np.flatnonzero(hits.mean(axis=1) >= ALWAYS_IN_CONTACT_FRACTION):
+            disabled.add(tuple(sorted((self.bodies[ia[k]].link, self.bodies[ib[k]].link))))  # type: ignore[arg-type]
         return disabled
 
     def _build_pairs(self) -> None:

@@ -40,10 +40,16 @@ class HandGeometry:
     opening_per_unit: float
     robot: RobotModel = field(repr=False, compare=False)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
+    #: the jaw joint's value when closed (opening 0)
+    closed_value: float = 0.0
+
+    def jaw_value(self, opening_m: float) -> float:
+        """The jaw joint's value for an opening (m)."""
+        return float(opening_m) / self.opening_per_unit + self.closed_value
 
     def at_opening(self, opening_m: float) -> list[tuple[str, str, tuple[float, ...], np.ndarray]]:
         """(link, kind, dims, T_tcp_shape) of every shape with the jaw opened to ``opening_m``."""
-        value = round(float(opening_m) / self.opening_per_unit, 12)
+        value = round(self.jaw_value(opening_m), 12)
         poses = self._cache.get(value)
         if poses is None:
             poses = _hand_shape_poses(self.robot, self.side, value)[1]
@@ -53,6 +59,8 @@ class HandGeometry:
     def signature(self) -> bytes:
         """Bytes that identify the geometry (cache keys): shapes at the jaw closed and fully open."""
         parts = [f"{self.max_opening_m:.9f}/{self.opening_per_unit:.9f}".encode()]
+        if self.closed_value != 0.0:
+            parts.append(f"{self.closed_value:.9f}".encode())
         full = [T for *_rest, T in self.at_opening(self.max_opening_m)]
         for s, T_open in zip(self.shapes, full):
             # "+ 0.0" turns -0.0 into 0.0, so mirrored hands with equal geometry share a signature
@@ -82,7 +90,8 @@ def hand_geometry(robot: RobotModel, side: Side) -> HandGeometry:
         if not shapes:
             raise ValueError(f"robot {robot.name!r}: the {side} hand has no collision primitives")
         arm = robot.spec.arms[side]
-        return HandGeometry(side, tuple(shapes), arm.gripper.max_opening_m, arm.gripper.opening_per_unit, robot)
+        return HandGeometry(side, tuple(shapes), arm.gripper.max_opening_m, arm.gripper.opening_per_unit, robot,
+                            closed_value=arm.gripper.closed_value)
 
     return robot.derived(("hand_geometry", side), build)
 

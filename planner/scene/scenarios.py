@@ -45,6 +45,11 @@ def parse_scenario(data: Any, source: str = "scenario", base_dir: Path | None = 
         scenario = Scenario.model_validate(data)
     except ValidationError as exc:
         raise ScenarioError(_format_validation(exc, source)) from None
+    if base_dir is not None:  # a robot spec file named by a path relative to the scenario file
+        from planner.robot.spec_file import is_spec_path
+
+        if is_spec_path(scenario.robot) and not Path(scenario.robot).expanduser().is_absolute():
+            scenario = scenario.model_copy(update={"robot": str((base_dir / scenario.robot).resolve())})
     from .meshes import UnknownMeshError, resolve_mesh
 
     try:

@@ -22,7 +22,7 @@ def auto_order(task, should_stop: Callable[[], bool]) -> tuple[list[str], dict[s
     scenario = task.scenario.model_copy(update={"threshold_m": task.threshold_m, "seed": task.seed})
     doc = SurveyCache.default().get_or_run(
         scenario, lambda: run_survey(scenario, task=task, should_stop=should_stop, keep_states=False)[0],
-        urdf_sha256=task.robot.urdf_sha256)
+        robot=task.robot, limits=task.limits is not None)
     return order_from(doc), doc
 
 

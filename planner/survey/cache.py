@@ -3,8 +3,10 @@
 ``hands: auto``, the demo and the service's survey jobs all take the answer of the survey's
 default estimator (the scenario's ``survey:`` field) for the task, computed once. The key is the
 SHA-256 of the resolved scenario's canonical JSON (the form of plan hashes, docs/contract.md section
-3) together with the robot model's URDF hash, the survey schema and the survey code's hash, so a changed object, stance,
-threshold, seed, estimator or robot is a different task. Documents are written atomically (a
+3) together with the robot model's fingerprint (its URDF's hash and its spec: effort limits and grip
+live there), whether the effort and grip limits are checked, the survey schema and the hash of the
+planner code that decides the counts, so a changed object, stance, threshold, seed, estimator,
+robot, limit or code is a different task. Documents are written atomically (a
 temporary file renamed into place), so processes sharing the folder (a service's workers) never
 read half a document; two that compute the same task at once both write the same answer.
 
@@ -33,31 +35,50 @@ def canonical(doc: Any) -> bytes:
     return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8")
 
 
-#: The modules whose code decides a survey's counts: a change to any of them is a new key.
-SURVEY_CODE = ("survey.py", "survey_counting.py", "survey_estimator.py", "trrt.py", "state_eval.py", "stances.py",
-               "regrasp_planner.py", "regrasp_graph.py", "collision.py", "handover.py", "grasps.py")
+#: The planner's packages whose code decides a survey's counts: a change to any module in them is a new key.
+SURVEY_PACKAGES = ("survey", "motion", "stability", "regrasp", "scene", "grasping", "kinematics", "robot", "compiled")
+
+
+#: The planner package's folder.
+PLANNER_ROOT = Path(__file__).resolve().parents[1]
+
+
+def survey_code_files(root: Path = PLANNER_ROOT) -> list[Path]:
+    """The modules of :data:`SURVEY_PACKAGES` under ``root``, in a fixed order (the compiled kernels' sources included)."""
+    return sorted((p for pkg in SURVEY_PACKAGES for p in (root / pkg).rglob("*.py")),
+                  key=lambda p: p.relative_to(root).as_posix())
+
+
+def code_digest(root: Path = PLANNER_ROOT) -> str:
+    """SHA-256 over the names and contents of :func:`survey_code_files` under ``root``."""
+    h = hashlib.sha256()
+    for path in survey_code_files(root):
+        h.update(path.relative_to(root).as_posix().encode())
+        h.update(hashlib.sha256(path.read_bytes()).digest())
+    return h.hexdigest()
 
 
 @lru_cache(maxsize=1)
 def code_version() -> str:
     """SHA-256 over the survey's code (a cached answer of older code is never reused)."""
-    h = hashlib.sha256()
-    here = Path(__file__).parent
-    for name in SURVEY_CODE:
-        path = here / name
-        h.update(name.encode())
-        h.update(path.read_bytes() if path.is_file() else b"-")
-    return h.hexdigest()
+    return code_digest()
 
 
-def task_key(scenario: Scenario, urdf_sha256: str) -> str:
-    """The cache key of a resolved scenario: what decides its survey's answer."""
+def robot_fingerprint(robot: Any) -> str:
+    """SHA-256 of what of a robot model decides a survey: its URDF's hash and its spec."""
+    return hashlib.sha256(canonical({"urdf_sha256": robot.urdf_sha256,
+                                     "spec": robot.spec.model_dump(mode="json")})).hexdigest()
+
+
+def task_key(scenario: Scenario, robot_sha256: str, limits: bool = True) -> str:
+    """The cache key of a resolved scenario: what decides its survey's answer (``robot_sha256`` from
+    :func:`robot_fingerprint`; with or without the effort and grip limits)."""
     data = scenario.model_dump(by_alias=True, mode="json")
     data.pop("hands", None)  # what the plan asks for does not change the survey
     data.pop("description", None)
     data.pop("limits", None)  # planning limits; the survey stops on its own caps
-    return hashlib.sha256(canonical({"scenario": data, "urdf_sha256": urdf_sha256, "schema": SURVEY_SCHEMA,
-                                     "code": code_version()})).hexdigest()
+    return hashlib.sha256(canonical({"scenario": data, "robot": robot_sha256, "schema": SURVEY_SCHEMA,
+                                     "code": code_version(), "limits": bool(limits)})).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -92,16 +113,21 @@ class SurveyCache:
             Path(tmp).unlink(missing_ok=True)
             raise
 
-    def get_or_run(self, scenario: Scenario, run: Callable[[], dict[str, Any]], urdf_sha256: str | None = None) -> dict[str, Any]:
+    def key_for(self, scenario: Scenario, robot: Any = None, limits: bool = True) -> str:
+        """The key of ``scenario`` surveyed with ``robot`` (default: the scenario's, loaded)."""
+        if robot is None:
+            from planner.robot.model import load_robot
+
+            robot = load_robot(scenario.robot)
+        return task_key(scenario, robot_fingerprint(robot), limits)
+
+    def get_or_run(self, scenario: Scenario, run: Callable[[], dict[str, Any]], robot: Any = None,
+                   limits: bool = True) -> dict[str, Any]:
         """The cached document of this task, or ``run()``'s, stored for the next caller.
 
         The document says whether it came from the cache in ``stats.cache`` ("hit" or "miss") and
         names its key in ``stats.task_key``."""
-        if urdf_sha256 is None:
-            from planner.robot.model import load_robot
-
-            urdf_sha256 = load_robot(scenario.robot).urdf_sha256
-        key = task_key(scenario, urdf_sha256)
+        key = self.key_for(scenario, robot, limits)
         doc = self.get(key)
         if doc is not None:
             doc.setdefault("stats", {})["cache"] = "hit"

@@ -26,6 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from planner.errors import Canceled
 from planner.motion.trrt import TrrtSettings
+from planner.survey.limits import over_limits
 from planner.survey.counting import (
     CountedExploration,
     CountingSettings,
@@ -116,6 +117,8 @@ class SeedCount:
     time_s: float
     legs: list[dict] = field(default_factory=list)
     states: CountedExploration | None = None
+    #: counted poses over an effort or grip limit (None: the limits are off)
+    over_limits: int | None = None
 
     def entry(self) -> dict[str, Any]:
         return {"seed": self.seed, "stable": self.stable, "unstable": self.unstable, "solved": self.solved}
@@ -168,8 +171,11 @@ def explore_seed(legs: list[ExploreLeg], evaluator, hands: str, seed: int, estim
     budget = estimator.states_per_seed if estimator.until == "states" else None
     ex = explore_counted(legs, evaluator, seed_rng(seed, hands), leg_cap_states=estimator.leg_cap_states, budget=budget,
                          settings=settings, trrt=trrt, should_stop=should_stop)
+    limits = getattr(evaluator, "limits", None)  # a planner.survey.limits.LimitedEvaluator checks them
+    over = None if limits is None else over_limits(limits, ex.q, ex.holding, ex.object_pose)
     return SeedCount(seed=seed, stable=ex.n_stable, unstable=ex.n_unstable, solved=ex.solved, status=ex.status,
-                     time_s=time.perf_counter() - t0, legs=ex.stats["legs"], states=ex if keep_states else None)
+                     time_s=time.perf_counter() - t0, legs=ex.stats["legs"], states=ex if keep_states else None,
+                     over_limits=over)
 
 
 # -- running rows ---------------------------------------------------------------------------------

@@ -27,6 +27,7 @@ from planner.regrasp.path_assembly import carried
 from planner.regrasp.settings import HANDS_OF, PlannerSettings
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
+from planner.survey import limits as survey_limits
 from planner.survey.counting import CountingSettings, ExploreLeg
 from planner.survey.estimator import Estimator, RowWork, run_rows
 from planner.termination import Termination
@@ -50,6 +51,8 @@ class ConfigOutcome:
     object_pose: np.ndarray | None = None
     stable_flags: np.ndarray | None = None
     com: np.ndarray | None = None
+    #: counted poses over an effort or grip limit, summed over the judged seeds (None: limits off)
+    over_limits: int | None = None
     seed: np.ndarray | None = None
     interval: list[float] | None = None
     converged: bool = False
@@ -151,7 +154,9 @@ def _outcome(r: RowWork, estimator: Estimator, keep_states: bool) -> ConfigOutco
                                 for c in counts])
     out = ConfigOutcome(r.hands, v.stable if v else 0, v.unstable if v else 0, r.reason, stats,
                         interval=list(v.interval) if v and v.interval else None, converged=bool(v and v.converged),
-                        per_seed=[c.entry() for c in counts])
+                        per_seed=[c.entry() for c in counts],
+                        over_limits=(None if not counts or any(c.over_limits is None for c in counts)
+                                     else sum(c.over_limits for c in counts)))
     if r.reason is None and v is not None and v.stable + v.unstable == 0:
         out.reason = "no state was counted (every sampled pose collided)"
     if keep_states and counts and all(c.states is not None for c in counts):
@@ -196,7 +201,10 @@ def run_survey(
     for h in configs:
         if h not in HAND_CONFIGS:
             raise ValueError(f"unknown hands {h!r}; valid: {', '.join(HAND_CONFIGS)}")
+    if no_limits and task is None:
+        settings = (settings or PlannerSettings()).model_copy(update={"limits": False})
     task = task or Task(scenario, settings, threshold_m=threshold)
+    no_limits = task.limits is None
     inradius = task.stance.polygon.inradius
     if threshold > inradius:
         reason = (f"threshold {threshold * 1000:.1f} mm is larger than the support polygon's inradius "
@@ -212,13 +220,15 @@ def run_survey(
         rows = [by_k[k] for k in range(len(configs))]
         n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
         progress(0.05, f"exploring {len(configs)} hand configurations ({est.until})")
-        run_rows(rows, task.evaluator.with_threshold(threshold), est, first_seed, workers=n_workers,
+        # A pose over an effort or grip limit counts as unstable (planner.survey.limits).
+        run_rows(rows, survey_limits.limited(task, task.evaluator.with_threshold(threshold)), est, first_seed, workers=n_workers,
                  settings=counting, trrt=TrrtSettings(margin_cost=task.constrained), should_stop=should_stop,
                  progress=lambda f, m: progress(0.05 + 0.9 * f, m), keep_states=keep_states,
                  can_fork=pool_may_fork())
     outcomes = [_outcome(r, est, keep_states) for r in rows]
     survey_rows = [SurveyRow(hands=o.hands, stable=o.stable, unstable=o.unstable, ratio=o.ratio, reason=o.reason,
-                             ratio_ci95=o.interval, seeds=len(o.per_seed), converged=o.converged, per_seed=o.per_seed)
+                             ratio_ci95=o.interval, seeds=len(o.per_seed), converged=o.converged, per_seed=o.per_seed,
+                             over_limits=o.over_limits)
                    for o in outcomes]
     best = recommend(survey_rows)
     doc = {
@@ -230,7 +240,7 @@ def run_survey(
         "object": {"name": task.obj.name, "mass_kg": task.obj.mass_kg, "com_local": task.obj.com_local.tolist(),
                    "start_pose": list(scenario.start_pose), "goal_pose": list(scenario.goal_pose)},
         "estimator": est.document(),
-        "limits": "off" if no_limits else "not modelled",
+        "limits": "off" if no_limits else "effort and grip",
         "rows": [r.model_dump(exclude_none=False) for r in survey_rows],
         "recommended": best,
         "indistinguishable": indistinguishable(survey_rows, best),

@@ -18,21 +18,60 @@ def list_robots() -> None:
     """Print the available robots, one per line."""
     from planner.robot.registry import DEFAULT_ROBOT, load_spec, robot_names
 
+    from planner.errors import InputError
+
     for name in robot_names():
         mark = " (default)" if name == DEFAULT_ROBOT else ""
-        click.echo(f"{name}{mark}\t{load_spec(name).description}")
+        try:
+            description = load_spec(name).description
+        except InputError as exc:  # e.g. a model package that is not installed
+            description = f"(unavailable: {exc})"
+        click.echo(f"{name}{mark}\t{description}")
 
 
 @robot.command("urdf")
 @click.argument("name")
 def urdf(name: str) -> None:
-    """Print the absolute path of NAME's URDF (loads in pinocchio with a free-flyer root)."""
-    from planner.robot.registry import UnknownRobotError, urdf_path
+    """Print the absolute path of NAME's URDF (loads in pinocchio with a free-flyer root); for a spec FILE, the
+    derived URDF (the spec's frames added)."""
+    from planner.errors import InputError
+    from planner.robot.registry import urdf_path
 
     try:
         click.echo(str(urdf_path(name)))
-    except UnknownRobotError as exc:
+    except InputError as exc:
         fail(str(exc))
+
+
+@robot.command("check")
+@click.argument("spec_file", type=click.Path(dir_okay=False))
+def check(spec_file: str) -> None:
+    """Validate a robot spec file (regrasp.robot/1) and print what was derived from its URDF."""
+    from planner.errors import InputError
+    from planner.robot.spec_file import derive
+
+    try:
+        d = derive(spec_file)
+    except InputError as exc:
+        fail(str(exc))
+    s = d.spec
+    console.print(f"[bold]{s.name}[/]: valid", highlight=False)
+    console.print(f"URDF {d.urdf}", highlight=False, soft_wrap=True)
+    console.print(f"derived URDF {d.derived_urdf}", highlight=False, soft_wrap=True)
+    console.print(f"frames created: {', '.join(d.created_frames) or 'none (all in the URDF)'}", highlight=False)
+    for side, foot in s.feet.items():
+        console.print(f"{side} leg ({foot.frame}): {', '.join(foot.chain)}", highlight=False)
+    for side, arm in s.arms.items():
+        console.print(f"{side} arm ({arm.tcp}): {', '.join(arm.chain)}; jaw {arm.gripper.joint} "
+                      f"0..{arm.gripper.max_opening_m * 1000:.1f} mm", highlight=False)
+    console.print(f"waist: {', '.join(s.waist) or '-'}; neck: {', '.join(s.neck) or '-'}", highlight=False)
+    by_source: dict[str, list[str]] = {}
+    for joint, source in d.limit_sources.items():
+        by_source.setdefault(source, []).append(joint)
+    for source, joints in by_source.items():
+        console.print(f"effort limits from {source}: {', '.join(joints)}", highlight=False)
+    for note in d.notes or ("collision: the URDF's primitives",):
+        console.print(note, highlight=False)
 
 
 @robot.command("info")
@@ -42,11 +81,11 @@ def info(name: str, as_json: bool) -> None:
     """Describe a robot: mass, height, joints, limits and built-in stances."""
     from planner.robot.info import robot_info
     from planner.robot.model import load_robot
-    from planner.robot.registry import UnknownRobotError
+    from planner.errors import InputError
 
     try:
         doc = robot_info(load_robot(name))
-    except UnknownRobotError as exc:
+    except InputError as exc:
         fail(str(exc))
     if as_json:
         print_json(doc)

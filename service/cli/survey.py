@@ -136,8 +136,9 @@ def stance_matrix(docs: list[dict]) -> Table:
 @click.option("--seeds-min", type=int, help="Fewest seeds per configuration (default 10).")
 @click.option("--seeds-max", type=int, help="Most seeds per configuration (default 256).")
 @click.option("--seed", type=int, help="First seed (seeds seed, seed + 1, ...; same seed, same counts).")
-@click.option("--no-limits", is_flag=True, help="Effort and grip checks off, as in the paper (recorded in the output; "
-              "this model has no such checks yet, so the counts do not change).")
+@click.option("--no-limits", is_flag=True, help="Effort and grip checks off, as in the paper: a pose over a joint's effort "
+              "limit or slipping in the grip is then not counted unstable.")
+@click.option("--robot", "robot_ref", help="Override the scenario's robot: a name (`regrasp robot list`) or a robot spec file.")
 @click.option("--workers", type=click.IntRange(1, 64), help="Worker processes (default: one per core).")
 @click.option("--json", "as_json", is_flag=True, help="Print the survey document as JSON.")
 @click.option("--states-out", type=click.Path(dir_okay=False), help="Write every evaluated state to an .npz file.")
@@ -147,12 +148,12 @@ def stance_matrix(docs: list[dict]) -> Table:
 @click.option("--format", "fmt", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
               help="Format of the --plot figures.")
 def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci_half_width, seeds_min, seeds_max, seed,
-           no_limits, workers, as_json, states_out, all_stances, plot_dir, fmt) -> None:
+           no_limits, robot_ref, workers, as_json, states_out, all_stances, plot_dir, fmt) -> None:
     """Count stable (C) and unstable (U) explored states per hand configuration; R = C / (C + U)."""
     from planner.errors import InputError
     from planner.scene.scenarios import resolve_scenario
     from planner.stability.stances import BUILTIN_STANCES
-    from planner.survey.cache import SurveyCache, task_key
+    from planner.survey.cache import SurveyCache
     from planner.survey.runner import run_survey, write_states
 
     ref = check_scenario_args(scenario_file, scenario_name)
@@ -184,6 +185,8 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci
     try:
         for st in stance_list:
             sc = resolve_scenario(ref, stance=st, threshold_m=threshold, seed=seed, survey=overrides)
+            if robot_ref is not None:
+                sc = sc.model_copy(update={"robot": robot_ref})
             label = f"survey {sc.name} ({sc.stance if isinstance(sc.stance, str) else sc.stance.name})"
             want_states = bool(states_out or plot_dir)
             cache = SurveyCache.default()
@@ -191,10 +194,10 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci
             def job(p, sc=sc, want_states=want_states, cache=cache):
                 if want_states:  # the states are not cached: run, and store the answer for the task
                     doc, outcomes = run_survey(sc, workers=workers, progress=p, no_limits=no_limits)
-                    cache.put(task_key(sc, doc["robot"]["urdf_sha256"]), doc)
+                    cache.put(cache.key_for(sc, limits=not no_limits), doc)
                     return doc, outcomes
                 return cache.get_or_run(sc, lambda: run_survey(sc, workers=workers, progress=p, keep_states=False,
-                                                               no_limits=no_limits)[0]), []
+                                                               no_limits=no_limits)[0], limits=not no_limits), []
 
             doc, outcomes = run_with_progress(label, job)
             doc["stats"]["no_limits"] = no_limits

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, Phase, example, given, settings
 from hypothesis import strategies as st
 
-from robot_bridge.gate import Approval, MeasuredState, SafetyGate
+from robot_bridge.gate import Approval, GateSettings, MeasuredState, SafetyGate
 from schemas.plan import plan_sha256
 
 from .conftest import REPO
@@ -486,7 +486,7 @@ def test_zmp_is_checked_between_the_points(gate):
 @example(arm=-1.2, waist=0.35, mass=12.0, holding="right", threshold=0.12)  # far below the margin
 @example(arm=-0.1, waist=0.0, mass=0.0, holding="none", threshold=0.0)  # comfortably above
 def test_any_plan_below_the_margin_is_vetoed(arm, waist, mass, holding, threshold):
-    gate = SafetyGate()
+    gate = SafetyGate(GateSettings(check_limits=False))  # the margin alone (effort and grip: test_gate_effort.py)
     plan = build_plan({"RSP": arm, "WP": waist}, duration_s=2.0, mass_kg=mass, holding=holding, threshold_m=threshold)
     true = true_min_margin(plan)
     v = gate.check(plan, offline=True)

@@ -76,3 +76,34 @@ def test_another_seed_is_another_task(task_file):
     assert task_key(sc, "x") != task_key(with_overrides(sc, seed=2), "x")
     assert task_key(sc, "x") == task_key(with_overrides(sc, hands="left-left"), "x")  # the plan's hands do not matter
     assert task_key(sc, "x") != task_key(with_overrides(sc, threshold_m=0.02), "x")
+
+
+def test_the_key_covers_the_limits_the_robot_spec_and_the_planner_code(task_file, hrp5p, tmp_path):
+    """A survey with the limits off, a robot whose effort limits differ, or changed planner code is another
+    task: the key hashes them, the code found by package so that a module that moves is still hashed."""
+    import dataclasses
+
+    from planner.scene.scenarios import load_scenario
+    from planner.survey import cache
+    from planner.survey.cache import code_digest, code_version, robot_fingerprint, survey_code_files, task_key
+
+    path, _ = task_file
+    sc = load_scenario(path)
+    fp = robot_fingerprint(hrp5p)
+    assert task_key(sc, fp, limits=True) != task_key(sc, fp, limits=False)
+    weak = dataclasses.replace(hrp5p, spec=hrp5p.spec.model_copy(
+        update={"effort_limits": {**hrp5p.spec.effort_limits, "RWRP": 12.0}}))
+    assert robot_fingerprint(weak) != fp
+    hashed = {p.relative_to(cache.PLANNER_ROOT).as_posix() for p in survey_code_files()}
+    for module in ("survey/counting.py", "survey/estimator.py", "survey/limits.py", "motion/trrt.py",
+                   "stability/effort.py", "stability/evaluator.py", "regrasp/state_checker.py", "scene/collision.py"):
+        assert module in hashed, module
+    # a copy of the code hashes the same; one changed module makes another version
+    copy = tmp_path / "planner"
+    for p in survey_code_files():
+        target = copy / p.relative_to(cache.PLANNER_ROOT)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(p.read_bytes())
+    assert code_digest(copy) == code_version()
+    (copy / "survey" / "counting.py").write_text((copy / "survey" / "counting.py").read_text() + "\n# changed\n")
+    assert code_digest(copy) != code_version()

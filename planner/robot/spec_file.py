@@ -1,0 +1,465 @@
+"""Robot spec files (``schema: regrasp.robot/1``): any humanoid from its own URDF.
+
+A spec file names the URDF (relative to the file, absolute, or ``package://NAME/...`` /
+``package:///NAME/...`` resolved through the file's ``packages`` map or ``ROS_PACKAGE_PATH``),
+the links that carry the feet and hands, the jaws (or a rigid hand), the upright posture, the
+acceleration and effort limits and the grip. :func:`derive` validates it against the URDF (every
+error names the field), derives what the planner needs (the leg, arm, waist and neck chains from
+the URDF's tree) and writes the derived URDF (the URDF plus the sole and TCP frames it lacks) to a
+cache folder, never beside the robot's own files: third-party models keep their licences.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import site
+import re
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from planner.errors import InputError
+from planner.robot.spec import (
+    AccelerationLimits,
+    ArmSpec,
+    FootSpec,
+    GripperSpec,
+    GripSpec,
+    RobotSpec,
+    UprightSpec,
+)
+
+ROBOT_SCHEMA = "regrasp.robot/1"
+CACHE_ENV = "REGRASP_CACHE_DIR"
+DEFAULT_CACHE_DIR = Path("~/.cache/hrp-regrasp")
+SOLE_THICKNESS_M = 0.02
+_MOVABLE = ("revolute", "continuous", "prismatic")
+
+
+class RobotSpecError(InputError):
+    """A robot spec file that cannot be used; the message names the field."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class FootEntry(_Strict):
+    frame: str
+    link: str
+    pose_in_link: list[float] | None = Field(None, min_length=7, max_length=7)
+    size: list[float] | None = Field(None, min_length=2, max_length=2)
+
+
+class JawEntry(_Strict):
+    joints: list[str] = Field(min_length=1)
+    open: float
+    closed: float
+    width_m: list[float] = Field(min_length=2, max_length=2)
+
+
+class HandEntry(_Strict):
+    frame: str
+    link: str
+    pose_in_link: list[float] | None = Field(None, min_length=7, max_length=7)
+    jaw: JawEntry | None
+
+
+class UprightEntry(_Strict):
+    pelvis_height_m: float = Field(gt=0)
+    foot_y_m: float = Field(gt=0)
+
+
+class RobotFile(_Strict):
+    schema_: Literal["regrasp.robot/1"] = Field(alias="schema")
+    name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+    description: str = ""
+    urdf: str
+    packages: dict[str, str] = Field(default_factory=dict)
+    feet: dict[Literal["left", "right"], FootEntry]
+    hands: dict[Literal["left", "right"], HandEntry]
+    upright: UprightEntry
+    acceleration_limits: dict[str, float]
+    effort_limits: dict[str, float] = Field(default_factory=dict)
+    grip: GripSpec | None = None
+    collision: Literal["auto"] | dict = "auto"
+    default_posture_rad: dict[str, float] = Field(default_factory=dict)
+    limit_sources: str = ""
+    license_notice: str | None = None
+
+
+@dataclass(frozen=True)
+class DerivedRobot:
+    """A spec file made usable: the planner's spec, the derived URDF and what the derivation did."""
+
+    spec: RobotSpec
+    source: Path
+    urdf: Path
+    derived_urdf: Path
+    created_frames: tuple[str, ...]
+    limit_sources: dict[str, str] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+
+def is_spec_path(ref: str) -> bool:
+    """Whether a robot reference is a spec file path (not a registered name)."""
+    return ref.endswith((".yaml", ".yml")) or "/" in ref or os.sep in ref
+
+
+def cache_dir() -> Path:
+    env = os.environ.get(CACHE_ENV)
+    return (Path(env).expanduser() if env else DEFAULT_CACHE_DIR.expanduser()) / "robots"
+
+
+def resolve_urdf(ref: str, spec_dir: Path, packages: dict[str, str]) -> Path:
+    """The URDF file a spec names: relative to the spec, absolute, or a package:// URI."""
+    return _resolve(ref, spec_dir, packages, "urdf")
+
+
+def _resolve(ref: str, spec_dir: Path, packages: dict[str, str], what: str) -> Path:
+    m = re.match(r"^package://(/?)([^/]+)/(.*)$", ref)
+    if m:
+        pkg, rest = m.group(2), m.group(3)
+        roots = [Path(packages[pkg]).expanduser() if Path(packages[pkg]).is_absolute() else spec_dir / packages[pkg]] \
+            if pkg in packages else []
+        roots += [Path(p) / pkg for p in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if p]
+        # packages installed as Python wheels in the cmeel layout (<site-packages>/cmeel.prefix/share/PKG)
+        roots += [Path(p) / "cmeel.prefix" / "share" / pkg for p in site.getsitepackages()]
+        for root in roots:
+            if (root / rest).exists():
+                return (root / rest).resolve()
+        raise RobotSpecError(f"{what}: package {pkg!r} of {ref!r} is not found; give its folder in the spec's "
+                             f"`packages: {{{pkg}: DIR}}` or in ROS_PACKAGE_PATH")
+    path = Path(ref).expanduser()
+    path = path if path.is_absolute() else spec_dir / path
+    if not path.is_file():
+        raise RobotSpecError(f"{what}: no file {ref!r} (looked at {path})")
+    return path.resolve()
+
+
+def read_spec_file(path: str | Path) -> RobotFile:
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise RobotSpecError(f"cannot read robot spec {path}: {exc.strerror or exc}") from None
+    except yaml.YAMLError as exc:
+        raise RobotSpecError(f"robot spec {path} is not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise RobotSpecError(f"robot spec {path}: expected a mapping with schema {ROBOT_SCHEMA!r}")
+    if data.get("schema") != ROBOT_SCHEMA:
+        raise RobotSpecError(f"schema: expected {ROBOT_SCHEMA!r}, got {data.get('schema')!r}")
+    try:
+        return RobotFile.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise RobotSpecError(f"{where}: {first['msg']} (robot spec {path})") from None
+
+
+@dataclass
+class _Urdf:
+    root: ET.Element
+    links: set[str]
+    joints: dict[str, ET.Element]
+    parent_joint: dict[str, ET.Element]  # child link -> joint
+    root_link: str
+
+    @classmethod
+    def parse(cls, path: Path) -> "_Urdf":
+        try:
+            root = ET.parse(path).getroot()
+        except (OSError, ET.ParseError) as exc:
+            raise RobotSpecError(f"urdf: cannot read {path}: {exc}") from None
+        links = {el.attrib["name"] for el in root.findall("link")}
+        joints = {el.attrib["name"]: el for el in root.findall("joint")}
+        parent_joint = {el.find("child").attrib["link"]: el for el in joints.values()}
+        roots = [name for name in links if name not in parent_joint]
+        if len(roots) != 1:
+            raise RobotSpecError(f"urdf: expected one root link, found {sorted(roots)}")
+        return cls(root, links, joints, parent_joint, roots[0])
+
+    def is_movable(self, joint: ET.Element) -> bool:
+        return joint.attrib.get("type") in _MOVABLE and joint.find("mimic") is None
+
+    def chain(self, link: str) -> list[str]:
+        """Movable non-mimic joints from the root to ``link``, root first."""
+        out = []
+        while link in self.parent_joint:
+            j = self.parent_joint[link]
+            if self.is_movable(j):
+                out.append(j.attrib["name"])
+            link = j.find("parent").attrib["link"]
+        return out[::-1]
+
+    def effort(self, joint: str) -> float | None:
+        lim = self.joints[joint].find("limit")
+        if lim is None or "effort" not in lim.attrib:
+            return None
+        v = float(lim.attrib["effort"])
+        return v if v > 0 else None
+
+
+def _pose_xyz_rpy(pose: list[float]) -> tuple[str, str]:
+    x, y, z, qx, qy, qz, qw = pose
+    n = float(np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw))
+    if n < 1e-9:
+        raise ValueError("zero quaternion")
+    qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
+    roll = np.arctan2(2 * (qw * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
+    pitch = np.arcsin(np.clip(2 * (qw * qy - qz * qx), -1.0, 1.0))
+    yaw = np.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+    return f"{x!r} {y!r} {z!r}", f"{float(roll)!r} {float(pitch)!r} {float(yaw)!r}"
+
+
+def _add_frame(urdf: _Urdf, frame: str, link: str, pose: list[float], field_name: str,
+               box: tuple[float, float] | None = None) -> None:
+    try:
+        xyz, rpy = _pose_xyz_rpy(pose)
+    except ValueError:
+        raise RobotSpecError(f"{field_name}.pose_in_link: the quaternion is zero") from None
+    j = ET.SubElement(urdf.root, "joint", {"name": f"{frame}_frame_joint", "type": "fixed"})
+    ET.SubElement(j, "parent", {"link": link})
+    ET.SubElement(j, "child", {"link": frame})
+    ET.SubElement(j, "origin", {"xyz": xyz, "rpy": rpy})
+    el = ET.SubElement(urdf.root, "link", {"name": frame})
+    if box is not None:
+        _sole_box(el, box)
+    urdf.links.add(frame)
+    urdf.joints[j.attrib["name"]] = j
+    urdf.parent_joint[frame] = j
+
+
+def _sole_box(link_el: ET.Element, size: tuple[float, float]) -> None:
+    col = ET.SubElement(link_el, "collision")
+    ET.SubElement(col, "origin", {"xyz": f"0 0 {-SOLE_THICKNESS_M / 2!r}", "rpy": "0 0 0"})
+    geo = ET.SubElement(col, "geometry")
+    ET.SubElement(geo, "box", {"size": f"{size[0]!r} {size[1]!r} {SOLE_THICKNESS_M!r}"})
+
+
+def derive(path: str | Path) -> DerivedRobot:
+    """Validate a spec file against its URDF and write the derived URDF; errors name the field."""
+    path = Path(path).expanduser().resolve()
+    rf = read_spec_file(path)
+    urdf_file = resolve_urdf(rf.urdf, path.parent, rf.packages)
+    urdf = _Urdf.parse(urdf_file)
+    created: list[str] = []
+    notes: list[str] = []
+    for side in ("left", "right"):
+        if side not in rf.feet:
+            raise RobotSpecError(f"feet.{side}: missing")
+        if side not in rf.hands:
+            raise RobotSpecError(f"hands.{side}: missing")
+    feet: dict[str, FootSpec] = {}
+    for side, foot in rf.feet.items():
+        where = f"feet.{side}"
+        if foot.link not in urdf.links:
+            raise RobotSpecError(f"{where}.link: the URDF has no link {foot.link!r}")
+        if foot.frame not in urdf.links:
+            if foot.pose_in_link is None or foot.size is None:
+                raise RobotSpecError(f"{where}.frame: the URDF has no frame {foot.frame!r}; give pose_in_link and size "
+                                     "to create it on the link")
+            _add_frame(urdf, foot.frame, foot.link, foot.pose_in_link, where, box=(foot.size[0], foot.size[1]))
+            created.append(foot.frame)
+        else:
+            el = next(e for e in urdf.root.findall("link") if e.attrib["name"] == foot.frame)
+            if el.find("collision/geometry/box") is None:
+                if foot.size is None:
+                    raise RobotSpecError(f"{where}.size: frame {foot.frame!r} carries no sole box; give the sole's size")
+                _sole_box(el, (foot.size[0], foot.size[1]))
+                notes.append(f"sole box {foot.size} added to {foot.frame}")
+        chain = urdf.chain(foot.frame)
+        if len(chain) != 6:
+            raise RobotSpecError(f"{where}.link: {len(chain)} movable joints lead from the root to {foot.link!r} "
+                                 f"({', '.join(chain)}); a leg needs 6")
+        feet[side] = FootSpec(frame=foot.frame, chain=chain)
+    leg_joints = {j for f in feet.values() for j in f.chain}
+    arm_paths: dict[str, list[str]] = {}
+    grippers: dict[str, GripperSpec] = {}
+    for side, hand in rf.hands.items():
+        where = f"hands.{side}"
+        if hand.link not in urdf.links:
+            raise RobotSpecError(f"{where}.link: the URDF has no link {hand.link!r}")
+        if hand.frame not in urdf.links:
+            if hand.pose_in_link is None:
+                raise RobotSpecError(f"{where}.frame: the URDF has no frame {hand.frame!r}; give pose_in_link to "
+                                     "create it on the link")
+            _add_frame(urdf, hand.frame, hand.link, hand.pose_in_link, where)
+            created.append(hand.frame)
+        if hand.jaw is None:
+            raise RobotSpecError(f"{where}.jaw: rigid hands (jaw: null) are not supported by this planner version; "
+                                 "give the jaw joints")
+        for k, joint in enumerate(hand.jaw.joints):
+            if joint not in urdf.joints:
+                raise RobotSpecError(f"{where}.jaw.joints[{k}]: the URDF has no joint {joint!r}")
+        master = hand.jaw.joints[0]
+        if not urdf.is_movable(urdf.joints[master]):
+            raise RobotSpecError(f"{where}.jaw.joints[0]: {master!r} is not a movable joint of its own (fixed or mimic)")
+        w0, w1 = hand.jaw.width_m
+        if w0 != 0.0 or w1 <= 0.0 or hand.jaw.open == hand.jaw.closed:
+            raise RobotSpecError(f"{where}.jaw.width_m: the jaw closes to width 0 and opens to a positive width, at "
+                                 f"distinct joint values (got width_m {hand.jaw.width_m}, open {hand.jaw.open}, "
+                                 f"closed {hand.jaw.closed})")
+        lim = urdf.joints[master].find("limit")
+        upper = float(lim.attrib.get("upper", "nan")) if lim is not None else float("nan")
+        if not abs(upper - hand.jaw.open) <= 1e-9:
+            raise RobotSpecError(f"{where}.jaw.open: the jaw opens at its joint's upper limit ({upper}), got "
+                                 f"{hand.jaw.open}")
+        grippers[side] = GripperSpec(joint=master, opening_per_unit=w1 / (hand.jaw.open - hand.jaw.closed),
+                                     max_opening_m=w1, closed_value=hand.jaw.closed)
+        arm_paths[side] = [j for j in urdf.chain(hand.frame) if j not in hand.jaw.joints]
+    common = [a for a, b in zip(arm_paths["left"], arm_paths["right"]) if a == b]
+    waist = [j for j in common if j not in leg_joints]
+    arms = {side: ArmSpec(chain=p[len(common):], tcp=rf.hands[side].frame, gripper=grippers[side])
+            for side, p in arm_paths.items()}
+    for side, arm in arms.items():
+        if len(arm.chain) < 6:
+            raise RobotSpecError(f"hands.{side}.link: only {len(arm.chain)} arm joints lead to {rf.hands[side].link!r}; "
+                                 "an arm needs at least 6")
+    used = leg_joints | set(waist) | {j for a in arms.values() for j in a.chain} | {g.joint for g in grippers.values()}
+    movable = [name for name, el in urdf.joints.items() if urdf.is_movable(el)]
+    neck = [j for j in movable if j not in used]
+    for fld, table in (("acceleration_limits", rf.acceleration_limits), ("effort_limits", rf.effort_limits),
+                       ("default_posture_rad", rf.default_posture_rad)):
+        for joint in table:
+            if joint == "default" and fld == "acceleration_limits":
+                continue
+            if joint not in movable:
+                raise RobotSpecError(f"{fld}.{joint}: the URDF has no movable joint {joint!r}")
+    if "default" not in rf.acceleration_limits:
+        missing = [j for j in movable if j not in rf.acceleration_limits]
+        if missing:
+            raise RobotSpecError(f"acceleration_limits: no limit for {', '.join(missing[:5])}; give `default` or each joint")
+    limit_sources: dict[str, str] = {}
+    jaws = {g.joint for g in grippers.values()}
+    for joint in movable:
+        if joint in jaws:
+            continue
+        if joint in rf.effort_limits:
+            limit_sources[joint] = "spec effort_limits"
+        elif urdf.effort(joint) is not None:
+            limit_sources[joint] = "URDF <limit effort>"
+        else:
+            raise RobotSpecError(f"effort_limits.{joint}: the URDF's joint {joint!r} has no effort limit; give one")
+    default_acc = rf.acceleration_limits.get("default", min(rf.acceleration_limits.values()))
+    spec = RobotSpec(
+        name=rf.name, urdf="", description=rf.description, root_link=urdf.root_link, feet=feet, arms=arms, waist=waist,
+        neck=neck, upright=UprightSpec(foot_y_m=rf.upright.foot_y_m, pelvis_height_m=rf.upright.pelvis_height_m),
+        default_posture_rad=rf.default_posture_rad,
+        acceleration_limits=AccelerationLimits(legs=default_acc, waist=default_acc, neck=default_acc, arms=default_acc,
+                                               grippers=default_acc),
+        acceleration_per_joint={k: v for k, v in rf.acceleration_limits.items() if k != "default"},
+        effort_limits=rf.effort_limits, grip=rf.grip, limit_sources=rf.limit_sources, license_notice=rf.license_notice,
+    )
+    digest = hashlib.sha256(path.read_bytes() + b"\0" + urdf_file.read_bytes()).hexdigest()
+    out_dir = cache_dir() / f"{rf.name}-{digest[:16]}"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    derived = out_dir / f"{rf.name}.urdf"
+    if rf.collision == "auto":
+        if derived.is_file():  # fitted once per spec and URDF content
+            notes.append("collision: boxes fitted to the URDF's meshes (cached)")
+            text = derived.read_text()
+        else:
+            fitted = fit_mesh_collisions(urdf, urdf_file.parent, path.parent, rf.packages)
+            notes.append(f"collision: {fitted} boxes fitted to the URDF's meshes" if fitted else
+                         "collision: the URDF's primitives")
+            text = ET.tostring(urdf.root, encoding="unicode")
+    else:
+        raise RobotSpecError("collision: explicit primitives are not supported by this version; use auto")
+    if not derived.is_file() or derived.read_text() != text:
+        tmp = derived.with_suffix(f".tmp{os.getpid()}")
+        tmp.write_text(text)
+        tmp.replace(derived)
+    spec = spec.model_copy(update={"urdf": str(derived)})
+    return DerivedRobot(spec=spec, source=path, urdf=urdf_file, derived_urdf=derived, created_frames=tuple(created),
+                        limit_sources=limit_sources, notes=tuple(notes))
+
+
+def fit_mesh_collisions(urdf: _Urdf, urdf_dir: Path, spec_dir: Path, packages: dict[str, str]) -> int:
+    """Replace every mesh collision of the URDF by its oriented bounding box (trimesh); how many were fitted.
+
+    The planner's fast collision screen works on primitives; a box per mesh keeps every link covered."""
+    import trimesh
+
+    count = 0
+    for link in urdf.root.findall("link"):
+        for col in link.findall("collision"):
+            geo = col.find("geometry")
+            mesh_el = geo.find("mesh") if geo is not None else None
+            if mesh_el is None:
+                continue
+            ref = mesh_el.attrib.get("filename", "")
+            where = f"collision: link {link.attrib['name']!r} mesh {ref!r}"
+            try:
+                mesh_path = _resolve(ref, urdf_dir, packages, where) if ref.startswith("package://") else \
+                    _resolve(ref.removeprefix("file://"), urdf_dir, {}, where)
+                mesh = trimesh.load(str(mesh_path), force="mesh")
+            except RobotSpecError:
+                raise
+            except Exception as exc:  # a mesh trimesh cannot read
+                raise RobotSpecError(f"{where}: cannot read the mesh: {exc}") from None
+            scale = np.array([float(v) for v in mesh_el.attrib.get("scale", "1 1 1").split()])
+            mesh.apply_scale(scale)
+            origin = col.find("origin")
+            xyz = np.array([float(v) for v in (origin.attrib.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
+            rpy = [float(v) for v in (origin.attrib.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()]
+            T_col = np.eye(4)
+            T_col[:3, :3] = _rpy_matrix(rpy)
+            T_col[:3, 3] = xyz
+            link.remove(col)
+            for T_box, extents in _fit_boxes(np.asarray(mesh.vertices, dtype=float)):
+                T = T_col @ T_box
+                new = ET.SubElement(link, "collision")
+                ET.SubElement(new, "origin", {"xyz": " ".join(repr(float(v)) for v in T[:3, 3]),
+                                              "rpy": " ".join(repr(float(v)) for v in _matrix_rpy(T[:3, :3]))})
+                ET.SubElement(ET.SubElement(new, "geometry"), "box", {"size": " ".join(repr(float(v)) for v in extents)})
+                count += 1
+    return count
+
+
+#: a mesh whose bounding box is longer than this on some side is covered by one box per occupied octant
+SPLIT_ABOVE_M = 0.15
+
+
+def _fit_boxes(vertices: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Boxes (pose (4, 4), extents (3,)) covering a mesh's vertices: its oriented bounding box, or, for a
+    large mesh (a torso with its shoulder mounts), the oriented boxes of the vertices in each octant of
+    that box, which follow the shape much more closely."""
+    import trimesh
+
+    T, extents = trimesh.bounds.oriented_bounds(vertices)
+    T = np.linalg.inv(T)  # oriented_bounds gives the transform to the box frame
+    if extents.max() <= SPLIT_ABOVE_M or len(vertices) < 64:
+        return [(T, extents)]
+    local = (vertices - T[:3, 3]) @ T[:3, :3]
+    out = []
+    for cell in range(8):
+        sel = np.ones(len(local), dtype=bool)
+        for axis in range(3):
+            sel &= (local[:, axis] >= 0) if (cell >> axis) & 1 else (local[:, axis] < 0)
+        if sel.sum() < 8:
+            continue
+        Tc, ec = trimesh.bounds.oriented_bounds(vertices[sel])
+        out.append((np.linalg.inv(Tc), ec))
+    return out
+
+
+def _rpy_matrix(rpy: list[float]) -> np.ndarray:
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _matrix_rpy(R: np.ndarray) -> tuple[float, float, float]:
+    pitch = float(np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)))
+    if abs(np.cos(pitch)) > 1e-9:
+        return float(np.arctan2(R[2, 1], R[2, 2])), pitch, float(np.arctan2(R[1, 0], R[0, 0]))
+    return float(np.arctan2(-R[1, 2], R[1, 1])), pitch, 0.0

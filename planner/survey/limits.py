@@ -1,0 +1,60 @@
+"""Effort and grip limits in the stability survey: a pose over a limit counts as unstable.
+
+The survey's exploration classifies every counted pose with a :class:`StateEvaluator`;
+:func:`limited` wraps that evaluator so that ``stable`` also requires the static joint torques
+and the grip to be within the robot's limits (:mod:`planner.stability.effort`), and
+:func:`over_limits` counts the counted poses that are over a limit (the row's ``over_limits``).
+With the limits off (``PlannerSettings.limits``) both leave the survey as the paper ran it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Sequence
+
+import numpy as np
+
+from planner.stability.effort import EffortEvaluator
+from planner.stability.evaluator import HoldSpec, StateBatch, StateEvaluator
+from planner.transforms import quat_to_matrix
+
+
+class LimitedEvaluator:
+    """A :class:`StateEvaluator` whose ``stable`` also needs the effort and grip limits; the rest delegates."""
+
+    def __init__(self, evaluator: StateEvaluator, limits: EffortEvaluator):
+        self._evaluator = evaluator
+        self.limits = limits
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._evaluator, name)
+
+    def evaluate(self, Q: np.ndarray, hold: HoldSpec | None = None, active: Sequence[int] | None = None,
+                 threshold_m: float | None = None) -> StateBatch:
+        batch = self._evaluator.evaluate(Q, hold, active=active, threshold_m=threshold_m)
+        if len(batch) == 0:
+            return batch
+        res = self.limits.evaluate(Q, "none" if hold is None else hold.side, object_pose=batch.object_pose)
+        return dataclasses.replace(batch, stable=batch.stable & res.ok)
+
+
+def limited(task: Any, evaluator: StateEvaluator) -> StateEvaluator | LimitedEvaluator:
+    """The survey's evaluator for ``task``: with the limits when the task checks them."""
+    return evaluator if task.limits is None else LimitedEvaluator(evaluator, task.limits)
+
+
+def over_limits(limits: EffortEvaluator, q: np.ndarray, holding: np.ndarray, object_pose7: np.ndarray) -> int:
+    """How many counted poses (q (N, n), holding (N,), object poses (N, 7)) are over an effort or grip limit."""
+    if len(q) == 0:
+        return 0
+    T = np.zeros((len(q), 4, 4))
+    T[:, :3, :3] = quat_to_matrix(np.asarray(object_pose7)[:, 3:])
+    T[:, :3, 3] = np.asarray(object_pose7)[:, :3]
+    T[:, 3, 3] = 1.0
+    count = 0
+    holding = np.asarray(holding).astype(str)
+    for label in np.unique(holding):
+        idx = np.flatnonzero(holding == label)
+        res = limits.evaluate(q[idx], label, object_pose=T[idx])
+        count += int((~res.ok).sum())
+    return count

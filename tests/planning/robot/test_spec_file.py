@@ -1,0 +1,99 @@
+"""Robot spec files (regrasp.robot/1): a humanoid made up here, planned end to end; bad files name the field."""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+
+import pytest
+import yaml
+
+from planner.robot.spec_file import RobotSpecError, derive
+
+from .small_humanoid import write_small_humanoid
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("REGRASP_CACHE_DIR", str(tmp_path / "cache"))
+
+
+def test_derivation_creates_the_frames_in_a_cache_folder_and_finds_the_chains(tmp_path):
+    spec_path = write_small_humanoid(tmp_path / "robot")
+    d = derive(spec_path)
+    assert set(d.created_frames) == {"l_sole", "r_sole", "l_tcp", "r_tcp"}
+    assert d.derived_urdf.is_relative_to(tmp_path / "cache")
+    assert sorted(p.name for p in (tmp_path / "robot").iterdir()) == ["small_humanoid.urdf", "small_humanoid.yaml"]
+    assert "l_sole" not in (tmp_path / "robot" / "small_humanoid.urdf").read_text()  # the robot's own file untouched
+    links = {el.attrib["name"] for el in ET.parse(d.derived_urdf).getroot().findall("link")}
+    assert {"l_sole", "r_tcp"} <= links
+    assert d.spec.feet["left"].chain == ["l_hip_y", "l_hip_r", "l_hip_p", "l_knee", "l_ankle_p", "l_ankle_r"]
+    assert d.spec.arms["right"].chain == ["r_sh_p", "r_sh_r", "r_sh_y", "r_elbow", "r_wr_y", "r_wr_p"]
+    assert d.spec.waist == ["waist_y"] and d.spec.neck == ["neck_y"]
+    assert d.limit_sources["l_knee"] == "spec effort_limits" and d.limit_sources["l_hip_y"] == "URDF <limit effort>"
+
+
+def test_package_uris_resolve_with_and_without_a_host(tmp_path):
+    root = tmp_path / "pkgs"
+    (root / "mybot").mkdir(parents=True)
+    write_small_humanoid(root / "mybot")
+    for uri in ("package://mybot/small_humanoid.urdf", "package:///mybot/small_humanoid.urdf"):
+        path = write_small_humanoid(tmp_path / "spec", lambda s, uri=uri: s.update(urdf=uri, packages={"mybot": str(root / "mybot")}))
+        assert derive(path).urdf == (root / "mybot" / "small_humanoid.urdf").resolve()
+
+
+@pytest.mark.parametrize("change, field", [
+    (lambda s: s["feet"]["left"].update(link="no_such_link"), "feet.left.link"),
+    (lambda s: s["hands"]["right"].update(frame="r_grip", pose_in_link=None), "hands.right.frame"),
+    (lambda s: s["feet"]["right"].update(size=None), "feet.right.frame"),
+    (lambda s: s["effort_limits"].update(no_such_joint=10.0), "effort_limits.no_such_joint"),
+    (lambda s: s["acceleration_limits"].update(ghost_joint=1.0), "acceleration_limits.ghost_joint"),
+    (lambda s: s["hands"]["left"]["jaw"].update(joints=["l_jaw_gone"]), "hands.left.jaw.joints[0]"),
+    (lambda s: s.pop("upright"), "upright"),
+    (lambda s: s.update(urdf="missing.urdf"), "urdf"),
+])
+def test_bad_spec_files_name_the_field(tmp_path, change, field):
+    with pytest.raises(RobotSpecError) as err:
+        derive(write_small_humanoid(tmp_path, change))
+    assert str(err.value).startswith(field), str(err.value)
+
+
+def test_a_joint_without_an_effort_limit_needs_one_in_the_spec(tmp_path):
+    with pytest.raises(RobotSpecError, match=r"^effort_limits\.l_elbow: .*no effort limit"):
+        derive(write_small_humanoid(tmp_path, no_effort="l_elbow"))
+    derive(write_small_humanoid(tmp_path, lambda s: s["effort_limits"].update(l_elbow=80.0), no_effort="l_elbow"))
+
+
+def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_and_the_gate_agree(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+    from plan_checker import check_plan
+
+    from service.cli.main import cli
+
+    spec_path = write_small_humanoid(tmp_path / "robot")
+    scenario = {
+        "schema": "regrasp.scenario/1", "name": "small-humanoid-box", "robot": "robot/small_humanoid.yaml",
+        "stance": "upright", "object": {"shape": "box", "size": [0.05, 0.08, 0.10], "mass_kg": 1.0},
+        "start_pose": [0.38, -0.26, 0.80, 0, 0, 0, 1], "goal_pose": [0.38, -0.1, 0.80, 0, 0, 0, 1],
+        "tables": [{"name": "table", "pose": [0.5, 0, 0.375, 0, 0, 0, 1], "size": [0.4, 1.2, 0.75]}],
+        "threshold_m": 0.02, "hands": "right-right", "limits": {"time_s": 120, "max_iterations": 300}, "seed": 1,
+    }
+    sc_path = tmp_path / "scenario.yaml"
+    sc_path.write_text(yaml.safe_dump(scenario))
+    out = tmp_path / "plan.json"
+    res = CliRunner().invoke(cli, ["plan", str(sc_path), "--out", str(out), "--quiet"], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    plan = json.loads(out.read_text())
+    assert plan["status"] == "solved", plan["failure"]
+    assert plan["robot"]["name"] == "small_humanoid"
+    assert check_plan(plan, sample_every=5, robot_spec=str(spec_path)).errors == []
+    res = CliRunner().invoke(cli, ["robot", "check", str(spec_path)], catch_exceptions=False)
+    assert res.exit_code == 0 and "l_tcp" in res.output, res.output
+    # the gate finds the robot by name in the configured robot folders, with its own kinematics and limits
+    from robot_bridge.gate import SafetyGate
+
+    monkeypatch.setenv("REGRASP_ROBOT_DIRS", str(spec_path.parent))
+    verdict = SafetyGate().check(plan, offline=True)
+    assert verdict.passed, verdict.message
+    assert verdict.stats["effort"]["max_ratio"] == pytest.approx(max(p["effort_ratio"] for p in plan["trajectory"]),
+                                                                  abs=1e-9)

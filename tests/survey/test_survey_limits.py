@@ -1,0 +1,43 @@
+"""Effort and grip in the survey: a pose over a limit counts as unstable and in the row's over_limits."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from planner.regrasp.settings import PlannerSettings
+from planner.regrasp.task import Task
+from planner.scene.scenarios import load_scenario, parse_scenario
+from planner.survey.runner import run_survey
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def _scenario():
+    data = load_scenario(DATA / "small-box.yaml").model_dump(by_alias=True)
+    data["object"]["mass_kg"] = 6.0
+    return parse_scenario(data)
+
+
+def test_poses_over_a_limit_are_unstable_and_counted(hrp5p):
+    sc = _scenario()
+    weak = dataclasses.replace(hrp5p, spec=hrp5p.spec.model_copy(
+        update={"effort_limits": {**hrp5p.spec.effort_limits, "RWRP": 12.0}}))
+    with_limits, out = run_survey(sc, states=150, hands=["right-right"], workers=1, task=Task(sc, robot=weak))
+    row = with_limits["rows"][0]
+    assert row["over_limits"] is not None and row["over_limits"] > 0
+    assert row["unstable"] >= row["over_limits"]
+    # every recorded pose over a limit is recorded unstable
+    o = out[0]
+    task = Task(sc, robot=weak)
+    from planner.survey.limits import over_limits
+
+    flagged = [over_limits(task.limits, o.q[i:i + 1], o.holding[i:i + 1], o.object_pose[i:i + 1]) for i in range(len(o.q))]
+    assert not np.any(np.array(flagged, dtype=bool) & o.stable_flags)
+    assert sum(flagged) == row["over_limits"]
+    free, _ = run_survey(sc, states=150, hands=["right-right"], workers=1,
+                         task=Task(sc, PlannerSettings(limits=False), robot=weak))
+    assert free["rows"][0]["over_limits"] is None and free["limits"] == "off"
+    assert with_limits["limits"] == "effort and grip"
