@@ -53,21 +53,15 @@ class EffortSpec:
 
 
 def effort_spec(spec: dict[str, Any]) -> EffortSpec:
-    """The spec's hands and limits, from either spec layout (``arms`` with a gripper, or ``hands`` with jaws)."""
+    """The spec's hands (TCP frame, jaw joints, grip) and effort limits, from a ``regrasp.robot/1`` spec file."""
     grip = spec.get("grip")
     g = None if not grip else (float(grip["friction"]), float(grip["force_n"]), float(grip["patch_radius_m"]))
     hands: dict[str, HandLimits] = {}
     for side in ("left", "right"):
-        if "hands" in spec:
-            hand = spec["hands"][side]
-            jaw = hand.get("jaw")
-            jaws = tuple(jaw.get("joints", ())) if jaw else ()
-            hands[side] = HandLimits(tcp=hand["frame"], jaws=jaws, grip=g if jaws else None)
-        else:
-            arm = spec["arms"][side]
-            gripper = arm.get("gripper")
-            jaws = (gripper["joint"],) if gripper else ()
-            hands[side] = HandLimits(tcp=arm["tcp"], jaws=jaws, grip=g if jaws else None)
+        hand = spec["hands"][side]
+        jaw = hand.get("jaw")
+        jaws = tuple(jaw.get("joints", ())) if jaw else ()
+        hands[side] = HandLimits(tcp=hand["frame"], jaws=jaws, grip=g if jaws else None)
     return EffortSpec(hands=hands, effort_limits={k: float(v) for k, v in (spec.get("effort_limits") or {}).items()})
 
 

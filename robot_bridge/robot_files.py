@@ -1,14 +1,24 @@
 """Find a robot's URDF and spec file as DATA, without importing the planner.
 
 The safety gate is an independent channel: it reads the same files the planner
-ships (``NAME.urdf`` and ``NAME.yaml`` in the data-only package :mod:`robot_data`)
-but never runs the planner's code, so ``planner`` never enters ``sys.modules``.
+ships (``NAME.yaml`` spec files of the ``regrasp.robot/1`` format and their URDFs, in
+the data-only package :mod:`robot_data` or the folders of ``REGRASP_ROBOT_DIRS``) but
+never runs the planner's code, so ``planner`` never enters ``sys.modules``.
+
+Which URDF: the spec's own when it already has what the spec names (every sole and
+TCP frame, a box on each sole frame) and no mesh collision to be fitted, as the
+built-ins ``hrp5p`` and ``jvrc1``; the planner then uses it as it is. Otherwise the
+derived URDF the planner wrote to the cache folder. Either way the gate compares
+the file's SHA-256 with the plan's before it trusts it.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import re
+import site
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -18,8 +28,7 @@ import yaml
 
 import robot_data
 
-#: Acceleration limit groups of the spec file.
-_ACC_GROUPS = ("legs", "waist", "neck", "arms", "grippers")
+ROBOT_SCHEMA = "regrasp.robot/1"
 
 
 class RobotFilesError(ValueError):
@@ -51,28 +60,9 @@ class RobotFiles:
         return hashlib.sha256(self.urdf.read_bytes()).hexdigest()
 
     def acceleration_limit(self, joint: str) -> float:
-        """Acceleration limit (rad/s^2, m/s^2 for prismatic jaws) by the joint's group in the spec (per joint,
-        with a default, in a ``regrasp.robot/1`` spec file)."""
+        """Acceleration limit (rad/s^2, m/s^2 for prismatic jaws): the joint's own in the spec, else its default."""
         acc = self.spec["acceleration_limits"]
-        if self.spec.get("schema") == ROBOT_SCHEMA:
-            return float(acc.get(joint, acc.get("default", min(acc.values()))))
-        feet = self.spec.get("feet", {})
-        arms = self.spec.get("arms", {})
-        if any(joint in foot.get("chain", []) for foot in feet.values()):
-            return float(acc["legs"])
-        if joint in self.spec.get("waist", []):
-            return float(acc["waist"])
-        if joint in self.spec.get("neck", []):
-            return float(acc["neck"])
-        for arm in arms.values():
-            if joint == arm.get("gripper", {}).get("joint"):
-                return float(acc["grippers"])
-            if joint in arm.get("chain", []):
-                return float(acc["arms"])
-        return float(min(acc["legs"], acc["arms"]))
-
-
-ROBOT_SCHEMA = "regrasp.robot/1"
+        return float(acc.get(joint, acc.get("default", min(acc.values()))))
 
 
 def _spec_file(name: str) -> Path | None:
@@ -105,24 +95,54 @@ def robot_files(name: str) -> RobotFiles:
     return _robot_files(str(spec_path), name)
 
 
+def _own_urdf(ref: str, spec_dir: Path, packages: dict[str, str]) -> Path | None:
+    """The URDF file a spec names (relative to the spec, absolute, or ``package://``), or None if not found."""
+    m = re.match(r"^package://(/?)([^/]+)/(.*)$", ref)
+    if not m:
+        path = Path(ref).expanduser()
+        path = path if path.is_absolute() else spec_dir / path
+        return path.resolve() if path.is_file() else None
+    pkg, rest = m.group(2), m.group(3)
+    roots = [Path(packages[pkg]).expanduser() if Path(packages[pkg]).is_absolute() else spec_dir / packages[pkg]] \
+        if pkg in packages else []
+    roots += [Path(p) / pkg for p in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if p]
+    roots += [Path(p) / "cmeel.prefix" / "share" / pkg for p in site.getsitepackages()]
+    return next(((root / rest).resolve() for root in roots if (root / rest).is_file()), None)
+
+
+def _usable_as_is(urdf: Path, spec: dict[str, Any]) -> bool:
+    """Whether the planner plans with this URDF unchanged: it has every frame the spec's feet and hands name, a
+    collision box on each sole frame, and no mesh collision (which ``collision: auto`` replaces by boxes)."""
+    try:
+        root = ET.parse(urdf).getroot()
+    except (OSError, ET.ParseError):
+        return False
+    links = {el.attrib.get("name"): el for el in root.findall("link")}
+    for side in ("left", "right"):
+        sole = links.get(spec["feet"][side]["frame"])
+        if sole is None or sole.find("collision/geometry/box") is None:
+            return False
+        if spec["hands"][side]["frame"] not in links:
+            return False
+    return spec.get("collision", "auto") == "auto" and root.find("link/collision/geometry/mesh") is None
+
+
 @lru_cache(maxsize=None)
 def _robot_files(spec_file: str, name: str) -> RobotFiles:
-    data = robot_data_dir()
     spec_path = Path(spec_file)
     try:
         spec = yaml.safe_load(spec_path.read_text())
     except yaml.YAMLError as exc:
         raise RobotFilesError(f"robot spec {spec_path} is not valid YAML: {exc}") from exc
-    if isinstance(spec, dict) and spec.get("schema") == ROBOT_SCHEMA:
-        if "acceleration_limits" not in spec or not spec.get("hands"):
-            raise RobotFilesError(f"robot spec {spec_path} lacks 'acceleration_limits' or 'hands'")
-        return RobotFiles(name=name, urdf=_derived_urdf(name), spec=spec)
-    if not isinstance(spec, dict) or "urdf" not in spec or "acceleration_limits" not in spec:
-        raise RobotFilesError(f"robot spec {spec_path} lacks 'urdf' or 'acceleration_limits'")
-    missing = [g for g in _ACC_GROUPS if g not in spec["acceleration_limits"]]
-    if missing:
-        raise RobotFilesError(f"robot spec {spec_path}: acceleration_limits lacks {missing}")
-    urdf = (data / spec["urdf"]).resolve()
-    if not urdf.is_file():
-        raise RobotFilesError(f"URDF of robot {name!r} is missing at {urdf}; run `regrasp robot urdf {name}` once to generate it")
-    return RobotFiles(name=name, urdf=urdf, spec=spec)
+    if not isinstance(spec, dict) or spec.get("schema") != ROBOT_SCHEMA:
+        got = spec.get("schema") if isinstance(spec, dict) else None
+        raise RobotFilesError(f"robot spec {spec_path}: schema {got!r}, expected {ROBOT_SCHEMA!r}")
+    for key in ("urdf", "feet", "hands", "acceleration_limits"):
+        if not spec.get(key):
+            raise RobotFilesError(f"robot spec {spec_path} lacks {key!r}")
+    try:
+        own = _own_urdf(str(spec["urdf"]), spec_path.parent, spec.get("packages") or {})
+        as_is = own is not None and _usable_as_is(own, spec)
+    except (KeyError, TypeError, AttributeError) as exc:
+        raise RobotFilesError(f"robot spec {spec_path}: malformed feet or hands ({exc})") from exc
+    return RobotFiles(name=name, urdf=own if as_is else _derived_urdf(name), spec=spec)

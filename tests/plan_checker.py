@@ -31,6 +31,7 @@ class CheckReport:
 
 
 def _urdf_and_spec(robot_name: str):
+    """A built-in robot's URDF (its own: the built-ins need nothing derived) and its spec file (regrasp.robot/1)."""
     import robot_data
 
     data = robot_data.data_dir()
@@ -92,22 +93,8 @@ def _signed_margin(polygon: Polygon, x: float, y: float) -> float:
 
 
 def _acc_limits(spec: dict, names: list[str]) -> np.ndarray:
-    acc = spec["acceleration_limits"]
-    if spec.get("schema") == "regrasp.robot/1":  # per joint, with a default
-        return np.array([acc.get(n, acc.get("default")) for n in names], dtype=float)
-    out = []
-    for n in names:
-        if any(n in f["chain"] for f in spec["feet"].values()):
-            out.append(acc["legs"])
-        elif n in spec["waist"]:
-            out.append(acc["waist"])
-        elif n in spec.get("neck", []):
-            out.append(acc["neck"])
-        elif any(n == a["gripper"]["joint"] for a in spec["arms"].values()):
-            out.append(acc["grippers"])
-        else:
-            out.append(acc["arms"])
-    return np.array(out)
+    acc = spec["acceleration_limits"]  # regrasp.robot/1: per joint, with a default
+    return np.array([acc.get(n, acc.get("default")) for n in names], dtype=float)
 
 
 def _se3(pose) -> pin.SE3:
@@ -194,7 +181,7 @@ def check_plan(plan: dict, *, sample_every: int = 1, robot_spec: str | None = No
         rep.fail("the plan does not start and end at rest")
 
     coms = np.zeros((len(traj), 3))
-    tcp_names = {s: h["frame"] for s, h in spec["hands"].items()} if spec.get("hands") else {"left": "l_tcp", "right": "r_tcp"}
+    tcp_names = {s: h["frame"] for s, h in spec["hands"].items()}
     tcp_ids = {side: model.getFrameId(f) for side, f in tcp_names.items()}
     sole_ids = {f["frame"]: model.getFrameId(f["frame"]) for f in feet}
     rel: dict = {}
@@ -282,11 +269,7 @@ def check_plan(plan: dict, *, sample_every: int = 1, robot_spec: str | None = No
 
 def _effort_limits(urdf: str, spec: dict, names: list[str]) -> dict[str, float]:
     """Every non-jaw joint's effort limit: the spec's effort_limits over the URDF's <limit effort>."""
-    hands = spec.get("hands")
-    if hands:
-        jaws = {j for h in hands.values() if h.get("jaw") for j in h["jaw"].get("joints", [])}
-    else:
-        jaws = {a["gripper"]["joint"] for a in spec["arms"].values() if a.get("gripper")}
+    jaws = {j for h in spec["hands"].values() if h.get("jaw") for j in h["jaw"].get("joints", [])}
     efforts = {}
     for joint in ET.parse(urdf).getroot().iter("joint"):
         lim = joint.find("limit")
@@ -305,9 +288,7 @@ def _check_limits(rep: CheckReport, plan: dict, model, data, pinq, spec: dict, u
     obj = plan["object"]
     m, com_local = obj["mass_kg"], np.asarray(obj["com_local"])
     contact = [f["frame"] for f in plan["stance"]["feet"] if f["in_contact"]]
-    tcp = {"left": "l_tcp", "right": "r_tcp"}
-    if spec.get("hands"):
-        tcp = {s: h["frame"] for s, h in spec["hands"].items()}
+    tcp = {s: h["frame"] for s, h in spec["hands"].items()}
     grip = spec.get("grip")
     v0 = np.zeros(model.nv)
     for i in range(0, len(traj), every):

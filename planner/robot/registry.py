@@ -1,7 +1,9 @@
 """The robots this installation knows, by name.
 
-``hrp5p`` is the project's own generated model; ``jvrc1`` is derived from the
-``jvrc_description`` package. Unknown names get an error listing the valid ones.
+Every robot is a spec file (``regrasp.robot/1``, :mod:`planner.robot.spec_file`): the built-ins in
+:mod:`robot_data` (``hrp5p``, the project's own generated model; ``jvrc1``, derived from the
+``jvrc_description`` package; ``talos``, read from its installed package), then the files in the
+folders of ``REGRASP_ROBOT_DIRS``. Unknown names get an error listing the valid ones.
 """
 
 from __future__ import annotations
@@ -10,8 +12,6 @@ import hashlib
 import os
 from functools import lru_cache
 from pathlib import Path
-
-import yaml
 
 import robot_data
 from planner.errors import UnknownRobotError
@@ -58,29 +58,23 @@ def _spec_path(name: str) -> Path:
 
 @lru_cache(maxsize=None)
 def load_spec(name: str) -> RobotSpec:
-    """A registered robot's spec by name, or a spec file's by its path."""
+    """A registered robot's spec by name, or a spec file's by its path (every robot is a ``regrasp.robot/1`` file)."""
     from planner.robot.spec_file import is_spec_path
 
     if is_spec_path(name):
         return _derived(name).spec
     if not (DATA_DIR / f"{name}.yaml").is_file() and name in _registered_spec_files():
         return _derived(str(_registered_spec_files()[name])).spec
-    data = yaml.safe_load(_spec_path(name).read_text())
-    if isinstance(data, dict) and data.get("schema") == "regrasp.robot/1":  # a built-in as a spec file (talos)
-        spec = _derived(str(_spec_path(name))).spec
-        if spec.name != name:
-            raise ValueError(f"robot spec file {name}.yaml names itself {spec.name!r}")
-        return spec
-    spec = RobotSpec.model_validate(data)
+    spec = _derived(str(_spec_path(name))).spec
     if spec.name != name:
         raise ValueError(f"robot spec file {name}.yaml names itself {spec.name!r}")
     return spec
 
 
 def urdf_path(name: str) -> Path:
-    """Absolute path of the robot's URDF (generated on first use for derived models)."""
+    """Absolute path of the URDF the robot is planned with: its own, or the derived one in the cache folder."""
     spec = load_spec(name)
-    path = (DATA_DIR / spec.urdf).resolve()  # a spec file's derived URDF is absolute
+    path = Path(spec.urdf)
     if not path.is_file():
         raise FileNotFoundError(f"URDF of robot {name!r} is missing at {path}; reinstall the package")
     return path

@@ -3,6 +3,10 @@
 Feet, soles, TCPs, arm and leg chains, waist, gripper and acceleration limits are
 named here so that nothing downstream is specific to one model: the planner asks
 the spec for "the left arm chain", never for ``LSC``.
+
+A :class:`RobotSpec` is never read from a file as it is: it is what
+:func:`planner.robot.spec_file.derive` makes of a robot spec file (``regrasp.robot/1``)
+and its URDF, with the chains found in the URDF's tree and every limit per joint.
 """
 
 from __future__ import annotations
@@ -43,14 +47,6 @@ class UprightSpec(_Frozen):
     pelvis_height_m: float
 
 
-class AccelerationLimits(_Frozen):
-    legs: float
-    waist: float
-    neck: float
-    arms: float
-    grippers: float
-
-
 class GripSpec(_Frozen):
     """A jaw hand's grip (per hand): friction coefficient, squeeze force per jaw (N), contact patch radius (m)."""
 
@@ -70,9 +66,8 @@ class RobotSpec(_Frozen):
     neck: list[str] = Field(default_factory=list)
     upright: UprightSpec
     default_posture_rad: dict[str, float] = Field(default_factory=dict)
-    acceleration_limits: AccelerationLimits
-    #: joint -> rad/s^2 (m/s^2 for prismatic joints), over the group limits (spec files give them per joint)
-    acceleration_per_joint: dict[str, float] = Field(default_factory=dict)
+    #: joint -> rad/s^2 (m/s^2 for prismatic joints), every movable non-mimic joint of the URDF
+    acceleration_limits: dict[str, float]
     #: joint -> N*m (N for prismatic joints); overrides the URDF's <limit effort>
     effort_limits: dict[str, float] = Field(default_factory=dict)
     grip: GripSpec | None = None
@@ -80,22 +75,11 @@ class RobotSpec(_Frozen):
     license_notice: str | None = None
 
     def acceleration_limit(self, joint: str) -> float:
-        """Acceleration limit of a joint: its own, else the group it belongs to's."""
-        if joint in self.acceleration_per_joint:
-            return self.acceleration_per_joint[joint]
-        acc = self.acceleration_limits
-        if any(joint in f.chain for f in self.feet.values()):
-            return acc.legs
-        if joint in self.waist:
-            return acc.waist
-        if joint in self.neck:
-            return acc.neck
-        for arm in self.arms.values():
-            if joint == arm.gripper.joint:
-                return acc.grippers
-            if joint in arm.chain:
-                return acc.arms
-        return min(acc.legs, acc.arms)
+        """Acceleration limit of a joint (rad/s^2, m/s^2 for a prismatic joint)."""
+        try:
+            return self.acceleration_limits[joint]
+        except KeyError:
+            raise KeyError(f"robot {self.name!r} has no acceleration limit for joint {joint!r}") from None
 
     def sole_frames(self) -> dict[Side, str]:
         return {side: foot.frame for side, foot in self.feet.items()}

@@ -5,8 +5,10 @@ A spec file names the URDF (relative to the file, absolute, or ``package://NAME/
 the links that carry the feet and hands, the jaws (or a rigid hand), the upright posture, the
 acceleration and effort limits and the grip. :func:`derive` validates it against the URDF (every
 error names the field), derives what the planner needs (the leg, arm, waist and neck chains from
-the URDF's tree) and writes the derived URDF (the URDF plus the sole and TCP frames it lacks) to a
-cache folder, never beside the robot's own files: third-party models keep their licences.
+the URDF's tree) and writes the derived URDF (the URDF plus the sole and TCP frames it lacks, mesh
+collisions replaced by fitted boxes) to a cache folder, never beside the robot's own files: third-party
+models keep their licences. A URDF that needs nothing of that (it has every frame, the soles' boxes and
+no mesh collision, as the built-in ``hrp5p.urdf`` and ``jvrc1.urdf``) is used as it is, byte for byte.
 """
 
 from __future__ import annotations
@@ -26,7 +28,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from planner.errors import InputError
 from planner.robot.spec import (
-    AccelerationLimits,
     ArmSpec,
     FootSpec,
     GripperSpec,
@@ -55,6 +56,9 @@ class FootEntry(_Strict):
     link: str
     pose_in_link: list[float] | None = Field(None, min_length=7, max_length=7)
     size: list[float] | None = Field(None, min_length=2, max_length=2)
+    #: the leg's six joints in the order hip yaw, roll, pitch, knee, ankle pitch, ankle roll (the order the
+    #: stance IK lays its bent-knee start out in); default: the URDF's order from the root
+    chain: list[str] | None = Field(None, min_length=6, max_length=6)
 
 
 class JawEntry(_Strict):
@@ -101,10 +105,16 @@ class DerivedRobot:
     spec: RobotSpec
     source: Path
     urdf: Path
+    #: the URDF the planner loads: the derived one in the cache folder, or ``urdf`` itself when nothing is derived
     derived_urdf: Path
     created_frames: tuple[str, ...]
     limit_sources: dict[str, str] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+
+    @property
+    def urdf_as_is(self) -> bool:
+        """Whether the URDF needed nothing derived (frames, sole boxes, fitted collisions) and is used unchanged."""
+        return self.derived_urdf == self.urdf
 
 
 def is_spec_path(ref: str) -> bool:
@@ -198,6 +208,9 @@ class _Urdf:
             link = j.find("parent").attrib["link"]
         return out[::-1]
 
+    def has_mesh_collisions(self) -> bool:
+        return self.root.find("link/collision/geometry/mesh") is not None
+
     def effort(self, joint: str) -> float | None:
         lim = self.joints[joint].find("limit")
         if lim is None or "effort" not in lim.attrib:
@@ -244,12 +257,14 @@ def _sole_box(link_el: ET.Element, size: tuple[float, float]) -> None:
 
 
 def derive(path: str | Path) -> DerivedRobot:
-    """Validate a spec file against its URDF and write the derived URDF; errors name the field."""
+    """Validate a spec file against its URDF and write the derived URDF if the URDF needs one (else it is used as
+    it is); errors name the field."""
     path = Path(path).expanduser().resolve()
     rf = read_spec_file(path)
     urdf_file = resolve_urdf(rf.urdf, path.parent, rf.packages)
     urdf = _Urdf.parse(urdf_file)
     created: list[str] = []
+    sole_boxes_added: list[str] = []
     notes: list[str] = []
     for side in ("left", "right"):
         if side not in rf.feet:
@@ -273,11 +288,17 @@ def derive(path: str | Path) -> DerivedRobot:
                 if foot.size is None:
                     raise RobotSpecError(f"{where}.size: frame {foot.frame!r} carries no sole box; give the sole's size")
                 _sole_box(el, (foot.size[0], foot.size[1]))
+                sole_boxes_added.append(foot.frame)
                 notes.append(f"sole box {foot.size} added to {foot.frame}")
         chain = urdf.chain(foot.frame)
         if len(chain) != 6:
             raise RobotSpecError(f"{where}.link: {len(chain)} movable joints lead from the root to {foot.link!r} "
                                  f"({', '.join(chain)}); a leg needs 6")
+        if foot.chain is not None:
+            if sorted(foot.chain) != sorted(chain):
+                raise RobotSpecError(f"{where}.chain: the leg's joints in the URDF are {', '.join(chain)}; the chain "
+                                     f"must list these six in the IK's order, got {', '.join(foot.chain)}")
+            chain = list(foot.chain)
         feet[side] = FootSpec(frame=foot.frame, chain=chain)
     leg_joints = {j for f in feet.values() for j in f.chain}
     arm_paths: dict[str, list[str]] = {}
@@ -347,31 +368,34 @@ def derive(path: str | Path) -> DerivedRobot:
             limit_sources[joint] = "URDF <limit effort>"
         else:
             raise RobotSpecError(f"effort_limits.{joint}: the URDF's joint {joint!r} has no effort limit; give one")
-    default_acc = rf.acceleration_limits.get("default", min(rf.acceleration_limits.values()))
+    default_acc = rf.acceleration_limits.get("default")
+    acceleration = {j: float(rf.acceleration_limits.get(j, default_acc)) for j in movable}
     spec = RobotSpec(
         name=rf.name, urdf="", description=rf.description, root_link=urdf.root_link, feet=feet, arms=arms, waist=waist,
         neck=neck, upright=UprightSpec(foot_y_m=rf.upright.foot_y_m, pelvis_height_m=rf.upright.pelvis_height_m),
         default_posture_rad=rf.default_posture_rad,
-        acceleration_limits=AccelerationLimits(legs=default_acc, waist=default_acc, neck=default_acc, arms=default_acc,
-                                               grippers=default_acc),
-        acceleration_per_joint={k: v for k, v in rf.acceleration_limits.items() if k != "default"},
+        acceleration_limits=acceleration,
         effort_limits=rf.effort_limits, grip=rf.grip, limit_sources=rf.limit_sources, license_notice=rf.license_notice,
     )
+    if rf.collision != "auto":
+        raise RobotSpecError("collision: explicit primitives are not supported by this version; use auto")
+    if not created and not sole_boxes_added and not urdf.has_mesh_collisions():
+        # nothing to derive: the URDF itself, so plans carry its own SHA-256 and nothing is written
+        spec = spec.model_copy(update={"urdf": str(urdf_file)})
+        return DerivedRobot(spec=spec, source=path, urdf=urdf_file, derived_urdf=urdf_file, created_frames=(),
+                            limit_sources=limit_sources, notes=("collision: the URDF's primitives",))
     digest = hashlib.sha256(path.read_bytes() + b"\0" + urdf_file.read_bytes()).hexdigest()
     out_dir = cache_dir() / f"{rf.name}-{digest[:16]}"
     out_dir.mkdir(parents=True, exist_ok=True)
     derived = out_dir / f"{rf.name}.urdf"
-    if rf.collision == "auto":
-        if derived.is_file():  # fitted once per spec and URDF content
-            notes.append("collision: boxes fitted to the URDF's meshes (cached)")
-            text = derived.read_text()
-        else:
-            fitted = fit_mesh_collisions(urdf, urdf_file.parent, path.parent, rf.packages)
-            notes.append(f"collision: {fitted} boxes fitted to the URDF's meshes" if fitted else
-                         "collision: the URDF's primitives")
-            text = ET.tostring(urdf.root, encoding="unicode")
+    if derived.is_file():  # fitted once per spec and URDF content
+        notes.append("collision: boxes fitted to the URDF's meshes (cached)")
+        text = derived.read_text()
     else:
-        raise RobotSpecError("collision: explicit primitives are not supported by this version; use auto")
+        fitted = fit_mesh_collisions(urdf, urdf_file.parent, path.parent, rf.packages)
+        notes.append(f"collision: {fitted} boxes fitted to the URDF's meshes" if fitted else
+                     "collision: the URDF's primitives")
+        text = ET.tostring(urdf.root, encoding="unicode")
     if not derived.is_file() or derived.read_text() != text:
         tmp = derived.with_suffix(f".tmp{os.getpid()}")
         tmp.write_text(text)

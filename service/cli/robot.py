@@ -32,8 +32,8 @@ def list_robots() -> None:
 @robot.command("urdf")
 @click.argument("name")
 def urdf(name: str) -> None:
-    """Print the absolute path of NAME's URDF (loads in pinocchio with a free-flyer root); for a spec FILE, the
-    derived URDF (the spec's frames added)."""
+    """Print the absolute path of NAME's URDF (loads in pinocchio with a free-flyer root): the derived URDF (the
+    spec's frames added, mesh collisions fitted) when the robot's own needs that, else its own."""
     from planner.errors import InputError
     from planner.robot.registry import urdf_path
 
@@ -57,7 +57,10 @@ def check(spec_file: str) -> None:
     s = d.spec
     console.print(f"[bold]{s.name}[/]: valid", highlight=False)
     console.print(f"URDF {d.urdf}", highlight=False, soft_wrap=True)
-    console.print(f"derived URDF {d.derived_urdf}", highlight=False, soft_wrap=True)
+    if d.urdf_as_is:
+        console.print("derived URDF: none (the URDF is used as it is)", highlight=False)
+    else:
+        console.print(f"derived URDF {d.derived_urdf}", highlight=False, soft_wrap=True)
     console.print(f"frames created: {', '.join(d.created_frames) or 'none (all in the URDF)'}", highlight=False)
     for side, foot in s.feet.items():
         console.print(f"{side} leg ({foot.frame}): {', '.join(foot.chain)}", highlight=False)

@@ -36,7 +36,7 @@ def test_gate_torques_agree_with_the_planners(robot_name, stance_name, holding):
     files = robot_files(robot_name)
     model = load_urdf(str(files.urdf))
     hands = {"none": (), "left": ("left",), "both": ("left", "right")}[holding]
-    tcp = {s: files.spec["arms"][s]["tcp"] for s in ("left", "right")}
+    tcp = {s: files.spec["hands"][s]["frame"] for s in ("left", "right")}
     soles = [f.frame for f in stance.feet if f.in_contact]
     # the object's CoM from the gate's own frames
     _, frames = static_torques(model, robot.joint_names, Q, stance.base_pose, [()] * len(Q), np.zeros((len(Q), 3)),
@@ -93,7 +93,7 @@ def test_a_grip_whose_moment_is_too_large_is_vetoed():
     v = SafetyGate().check(plan, offline=True)
     assert not v.passed and v.check == "grip"
     # a rigid hand (no jaws) has no grip check
-    rigid = {**files.spec, "arms": {s: {**a, "gripper": None} for s, a in files.spec["arms"].items()}}
+    rigid = {**files.spec, "hands": {s: {**h, "jaw": None} for s, h in files.spec["hands"].items()}}
     figures = check_effort_and_grip(model, rigid, *args[2:])
     assert figures["max_grip_ratio"] == 0.0
 
@@ -135,3 +135,28 @@ def test_non_finite_torques_are_a_veto_not_a_pass():
         check_effort_and_grip(model, files.spec, tuple(model.joint_names), Q, np.array([0, 0, 0.8, 0, 0, 0, 1.0]),
                               np.full(n, 2), pose, np.zeros(3), 2.0, feet, 9.81)
     assert err.value.check == "effort" and err.value.point == 1 and "not finite" in err.value.message
+
+
+@pytest.mark.parametrize("robot_name", ["hrp5p", "jvrc1"])
+def test_the_gate_reads_the_built_in_spec_files_as_the_planner_does(robot_name, tmp_path, monkeypatch):
+    """The built-ins are regrasp.robot/1 files whose URDF needs nothing derived: the gate takes that URDF itself
+    (no derived URDF in the cache folder needed) and the same limits, TCPs and jaws as the planner."""
+    from planner.robot.model import load_robot
+    from robot_bridge.gate_effort import effort_spec
+    from robot_bridge.robot_files import _robot_files
+
+    monkeypatch.setenv("REGRASP_CACHE_DIR", str(tmp_path / "empty-cache"))
+    _robot_files.cache_clear()
+    files = robot_files(robot_name)
+    robot = load_robot(robot_name)
+    assert files.spec["schema"] == "regrasp.robot/1"
+    assert files.urdf == robot.urdf_path and files.urdf_sha256 == robot.urdf_sha256
+    assert [files.acceleration_limit(j) for j in robot.joint_names] == robot.acceleration_limit.tolist()
+    spec = effort_spec(files.spec)
+    assert {s: (h.tcp, h.jaws) for s, h in spec.hands.items()} == \
+        {s: (a.tcp, (a.gripper.joint,)) for s, a in robot.spec.arms.items()}
+    assert spec.effort_limits == robot.spec.effort_limits
+    grip = robot.spec.grip
+    assert all(h.grip == (None if grip is None else (grip.friction, grip.force_n, grip.patch_radius_m))
+               for h in spec.hands.values())
+    _robot_files.cache_clear()

@@ -49,6 +49,7 @@ def test_package_uris_resolve_with_and_without_a_host(tmp_path):
     (lambda s: s["effort_limits"].update(no_such_joint=10.0), "effort_limits.no_such_joint"),
     (lambda s: s["acceleration_limits"].update(ghost_joint=1.0), "acceleration_limits.ghost_joint"),
     (lambda s: s["hands"]["left"]["jaw"].update(joints=["l_jaw_gone"]), "hands.left.jaw.joints[0]"),
+    (lambda s: s["feet"]["left"].update(chain=["l_hip_y"] * 6), "feet.left.chain"),
     (lambda s: s.pop("upright"), "upright"),
     (lambda s: s.update(urdf="missing.urdf"), "urdf"),
 ])
@@ -56,6 +57,22 @@ def test_bad_spec_files_name_the_field(tmp_path, change, field):
     with pytest.raises(RobotSpecError) as err:
         derive(write_small_humanoid(tmp_path, change))
     assert str(err.value).startswith(field), str(err.value)
+
+
+def test_a_legs_chain_given_in_the_spec_sets_its_order(tmp_path):
+    order = ["l_hip_p", "l_hip_r", "l_hip_y", "l_knee", "l_ankle_r", "l_ankle_p"]
+    d = derive(write_small_humanoid(tmp_path, lambda s: s["feet"]["left"].update(chain=order)))
+    assert d.spec.feet["left"].chain == order
+    assert d.spec.feet["right"].chain == ["r_hip_y", "r_hip_r", "r_hip_p", "r_knee", "r_ankle_p", "r_ankle_r"]
+
+
+def test_a_urdf_with_every_frame_is_used_as_it_is(tmp_path):
+    """The derived URDF of a first derivation has every frame: a spec naming it derives nothing more."""
+    first = derive(write_small_humanoid(tmp_path / "a"))
+    assert not first.urdf_as_is
+    again = derive(write_small_humanoid(tmp_path / "b", lambda s: s.update(urdf=str(first.derived_urdf))))
+    assert again.urdf_as_is and again.created_frames == () and again.derived_urdf == first.derived_urdf
+    assert again.spec.feet == first.spec.feet and again.spec.arms == first.spec.arms
 
 
 def test_a_joint_without_an_effort_limit_needs_one_in_the_spec(tmp_path):
