@@ -35,8 +35,10 @@ def _normalised(value):
 
 def plan_fingerprint(name: str, workdir: Path) -> dict:
     out = workdir / f"{name}.json"
-    subprocess.run(["regrasp", "plan", "--scenario", name, "--out", str(out), "--quiet"], check=True,
-                   stdout=subprocess.DEVNULL, timeout=600)
+    done = subprocess.run(["regrasp", "plan", "--scenario", name, "--out", str(out), "--quiet"],
+                          stdout=subprocess.DEVNULL, timeout=600)
+    if done.returncode not in (0, 1):  # 1: the plan is infeasible, a result like any other (it is fingerprinted)
+        raise RuntimeError(f"regrasp plan --scenario {name} failed with exit code {done.returncode}")
     doc = json.loads(out.read_text())
     doc.pop("stats", None)
     canonical = json.dumps(_normalised(doc), sort_keys=True, separators=(",", ":"), allow_nan=False)
