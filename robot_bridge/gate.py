@@ -106,13 +106,15 @@ class SafetyGate:
         """
         raw = plan_json.encode() if isinstance(plan_json, str) else bytes(plan_json)
         t0 = time.perf_counter()
-        hashed: list[tuple[str, float]] = []  # hashlib releases the GIL: the hash runs while the bytes are decoded
-        hasher = threading.Thread(target=lambda: hashed.append(_sha256_timed(raw)), name="gate-hash", daemon=True)
-        hasher.start()
+        # The bytes are decoded in a thread while this one hashes them: hashlib releases the GIL while it hashes,
+        # msgspec holds it while it decodes, so the two overlap.
+        decoded: list[ExecutablePlan | None] = []
+        decoder = threading.Thread(target=lambda: decoded.append(decode_executable(raw)), name="gate-decode", daemon=True)
         t1 = time.perf_counter()
-        executable = decode_executable(raw)
-        hasher.join()
-        digest, hash_s = hashed[0]
+        decoder.start()
+        digest, hash_s = _sha256_timed(raw)
+        decoder.join()
+        executable = decoded[0] if decoded else None
         plan: Any = _Decoded(executable, raw) if executable is not None else None
         if plan is None:
             try:
