@@ -159,10 +159,10 @@ class Task:
         Most moves between the hanging home posture and a grasp above a table are blocked on the
         straight line by the table itself; home -> ready -> target usually is not, which spares a
         tree search. Found once per task: the collision-free posture closest to home whose hand clears
-        the highest table top in front of its shoulder, among a small grid of shoulder pitch x elbow pitch (the arm's first two
-        joints turning about the robot's lateral axis at home); for an arm without such a shoulder
-        joint (one that raises the arm forward by a yaw and a roll together), or when the grid has no
-        such posture, among arm IK solutions for the hand raised there.
+        the highest table top in front of its shoulder, among a small grid of shoulder pitch x elbow
+        pitch (the arm's first two joints turning about the robot's lateral axis at home); for an arm
+        without such a shoulder joint (one that raises the arm forward by a yaw and a roll together), or
+        when the grid has no such posture, among arm postures drawn from a fixed seed.
         """
         tops = [b.pose[2] + b.size[2] / 2 for b in self.scenario.tables] or [0.8]
         clearance = max(tops) + self.settings.ready_height_m
@@ -173,7 +173,7 @@ class Task:
         for candidates, moving in ((self._ready_grid, grid_joints), (self._ready_sampled, self.arm_only[side])):
             if moving is None:
                 continue
-            Q = candidates(side, clearance, front)
+            Q = candidates(side)
             if Q is None or not len(Q):
                 continue
             tcp_frame = self.robot.spec.arms[side].tcp
@@ -209,7 +209,7 @@ class Task:
             return None
         return self.robot.joint_index(chain[shoulder]), self.robot.joint_index(chain[elbow])
 
-    def _ready_grid(self, side: Side, clearance: float, front: float) -> np.ndarray | None:
+    def _ready_grid(self, side: Side) -> np.ndarray | None:
         """Home with the shoulder pitch in -0.3..-1.5 rad and the elbow pitch in -0.8..-2.2 rad (within limits)."""
         joints = self._pitch_joints(side)
         if joints is None:
@@ -224,7 +224,7 @@ class Task:
                 candidates.append(q)
         return np.array(candidates)
 
-    def _ready_sampled(self, side: Side, clearance: float, front: float) -> np.ndarray | None:
+    def _ready_sampled(self, side: Side) -> np.ndarray:
         """Home with the arm's joints drawn from a fixed seed: half around home (0.8 rad spread), half
         anywhere within the limits."""
         cols = self.arm_only[side]
