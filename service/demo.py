@@ -1,5 +1,9 @@
 """The end-to-end demo: the paper's scenario through the real service, gate and simulated robot.
 
+With another robot than the HRP-5P model the demo runs that robot's own version of the paper's upright
+task (a built-in ``ROBOT-upright`` scenario, such as ``talos-upright``), else the upright task with the
+robot swapped in.
+
 Every component runs for real on loopback: a simulated controller peer (zenoh), the HTTP
 service with its worker processes and SQLite job store, the safety gate and the MCAP audit.
 The demo users are the personas of ``regrasp serve --dev`` (service.auth.DEV_USERS): alice plans,
@@ -31,6 +35,8 @@ class DemoSettings(BaseModel):
     """What the demo runs and how long it waits (SI units)."""
 
     scenario: str = "upright"
+    robot: str | None = Field(None, description="registered robot the scenario runs with, over its own robot (None: "
+                              "the scenario's); the controller simulator plays that robot")
     survey_states: int | None = Field(400, ge=1, description="states per seed in the demo's survey (until: states, "
                                       "10 seeds), so the demo runs in a minute or two; None: the scenario's own estimator, "
                                       "seeds until the intervals are tight (minutes on a laptop)")
@@ -112,7 +118,9 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
     from robot_bridge.signing import generate_keys
 
     signing_key, trusted_key = generate_keys(data_dir / "keys")
+    robot = settings.robot or _robot_of(settings.scenario)
     env = dict(os.environ, REGRASP_TOKENS=json.dumps(tokens), REGRASP_BRIDGE_CONNECT=json.dumps([endpoint]),
+               REGRASP_BRIDGE_ROBOT_ID=robot,  # the service talks to the controller of the robot the plan is for
                REGRASP_BRIDGE_SIGNING_KEY=str(signing_key), REGRASP_BRIDGE_TRUSTED_KEY=str(trusted_key),
                REGRASP_DISPATCH_LOOKAHEAD_SEGMENTS=str(_lookahead_segments(settings.controller_speed)),
                # The simulated controller shares the machine's cores with planning workers; on a loaded
@@ -122,9 +130,9 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
                PYTHONUNBUFFERED="1")
     exe = [sys.executable, "-m", "service.cli.main"]
     with ExitStack() as stack:
-        say(f"starting the simulated controller (zenoh {endpoint}, {settings.controller_speed:g}x real time)")
-        sim = _start([*exe, "controller-sim", "--stance", _stance_of(settings.scenario), "--speed", str(settings.controller_speed),
-                      "--listen", endpoint], env, out / "controller-sim.log")
+        say(f"starting the simulated controller of {robot} (zenoh {endpoint}, {settings.controller_speed:g}x real time)")
+        sim = _start([*exe, "controller-sim", "--robot", robot, "--stance", _stance_of(settings.scenario),
+                      "--speed", str(settings.controller_speed), "--listen", endpoint], env, out / "controller-sim.log")
         stack.callback(_stop, sim)
         say(f"starting the service on http://127.0.0.1:{http_port} ({settings.workers} workers, SQLite in {data_dir})")
         srv = _start([*exe, "serve", "--host", "127.0.0.1", "--port", str(http_port), "--data-dir", str(data_dir),
@@ -140,8 +148,10 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
 
         budget = ({} if settings.survey_states is None else
                   {"until": "states", "states_per_seed": settings.survey_states, "seeds_min": 10, "seeds_max": 10})
-        say(f"alice submits the stability survey of scenario {settings.scenario!r} "
-            f"({'the scenario estimator' if not budget else str(settings.survey_states) + ' states per seed'})")
+        if settings.robot is not None:
+            budget["robot"] = settings.robot
+        say(f"alice submits the stability survey of scenario {settings.scenario!r} with {robot} "
+            f"({'the scenario estimator' if settings.survey_states is None else str(settings.survey_states) + ' states per seed'})")
         job = alice.submit("survey", {"scenario": settings.scenario, **budget})
         survey_job = alice.wait(job["id"], timeout=settings.job_timeout_s, on_event=ProgressReporter(say, "survey"))
         if survey_job["state"] != "succeeded":
@@ -150,6 +160,7 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
         (out / "survey.json").write_text(json.dumps(survey, indent=1))
         result.artefacts["survey"] = str(out / "survey.json")
         hands = survey["recommended"]
+        result.summary["robot"] = survey["robot"]["name"]
         result.summary["survey"] = {r["hands"]: r["ratio"] for r in survey["rows"]}
         result.summary["recommended"] = hands
         result.steps.append(("survey", f"recommended {hands}"))
@@ -164,7 +175,8 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
         (out / "plan.json").write_text(json.dumps(plan))
         result.artefacts["plan"] = str(out / "plan.json")
         result.summary.update(min_margin_m=plan["min_margin_m"], threshold_m=plan["threshold_m"],
-                              planning_time_s=plan["stats"].get("time_s"), duration_s=plan["trajectory"][-1]["t"])
+                              planning_time_s=plan["stats"].get("time_s"), duration_s=plan["trajectory"][-1]["t"],
+                              hands=plan["hands"], max_effort_ratio=max(p.get("effort_ratio") or 0.0 for p in plan["trajectory"]))
         result.steps.append(("plan", f"{plan['hands']}, min margin {plan['min_margin_m'] * 1000:.1f} mm"))
 
         say("alice tries to approve her own plan (refused: a planner is not an approver, and never of her own plan)")
@@ -270,6 +282,23 @@ def _lookahead_segments(speed: float) -> int:
 
     default = DispatchSettings.model_fields["lookahead_segments"].default
     return max(default, math.ceil(default * speed))
+
+
+def _robot_of(scenario: str) -> str:
+    from planner.scene.scenarios import load_scenario
+
+    return load_scenario(scenario).robot
+
+
+def default_scenario(robot: str) -> str:
+    """The demo's scenario for a robot: the paper's upright task, as the built-in scenario made for that robot
+    (``ROBOT-upright``) where there is one."""
+    from planner.scene.scenarios import builtin_names, load_builtin
+
+    own = f"{robot}-upright"
+    if own in builtin_names() and load_builtin(own).robot == robot:
+        return own
+    return "upright"
 
 
 def _stance_of(scenario: str) -> str:

@@ -51,3 +51,25 @@ def plan_job_id(stdout: str) -> str:
     """The plan job's id, from the demo's list of artefacts ("audit: .../service-data/audit/<job>.mcap")."""
     line = next(line for line in stdout.splitlines() if line.strip().startswith("audit:") and ".mcap" in line)
     return line.strip().rsplit("/", 1)[1].removesuffix(".mcap")
+
+
+@pytest.mark.host_pauses(limit_s=0.5, attempts=2)
+def test_the_demo_with_talos_runs_its_own_upright_task(tmp_path):
+    """`regrasp demo --robot talos`: TALOS's stances, then talos-upright (TALOS's version of the paper's task)
+    surveyed, planned, gated and played by the controller simulator of TALOS; about 30 s."""
+    pytest.importorskip("cmeel", reason="TALOS needs the example-robot-data package (the `talos` extra)")
+    out = tmp_path / "demo"
+    proc = subprocess.run([sys.executable, "-m", "service.cli.main", "demo", "--robot", "talos", "--out", str(out),
+                           "--survey-states", "100"], capture_output=True, text=True, timeout=600)
+    logs = "".join(f"\n--- {log.name}\n" + log.read_text()[-3000:] for log in sorted(out.glob("*.log")))
+    assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:] + logs
+    plan = json.loads((out / "plan.json").read_text())
+    survey = json.loads((out / "survey.json").read_text())
+    assert plan["robot"]["name"] == survey["robot"]["name"] == "talos" and plan["scenario"]["name"] == "talos-upright"
+    assert plan["status"] == "solved" and plan["hands"] == survey["recommended"]
+    assert check_plan(plan, sample_every=5, robot_spec="robot_data/talos.yaml").errors == []
+    assert '"robot_id": "talos"' in (out / "controller-sim.log").read_text()  # the simulator plays TALOS
+    assert "Scenario talos-upright with talos" in proc.stdout and "safety gate: passed" in proc.stdout
+    assert "execution finished: succeeded" in proc.stdout
+    plan_audit = out / "service-data" / "audit" / f"{plan_job_id(proc.stdout)}.mcap"
+    assert verify(plan_audit).exit_code == 0

@@ -7,7 +7,8 @@ by every floating pose. Per pose, pairs are further kept only when each hand app
 the robot's side of the object (its approach axis does not point back toward the robot by
 more than ``max_approach_angle_rad``), which prunes hopeless IK calls early.
 
-Floating poses: positions in front of the chest (offsets from the stance's pelvis) x
+Floating poses: positions in front of the chest (offsets from the stance's pelvis, moved with the
+robot's shoulders where they sit elsewhere than on the robot the offsets were chosen for) x
 "up" axes of the object (which object axis points up) x rolls about the vertical. The CoM,
 not the object frame, is put at each position, so heavy objects stay close to the body.
 """
@@ -36,6 +37,12 @@ class HandoverSettings(BaseModel):
         ((0.40, 0.0, 0.25), (0.35, 0.0, 0.35), (0.32, 0.0, 0.45)),
         description="CoM positions relative to the pelvis position (x forward, z up); heavy objects need "
         "them close (the CoM shift is mass x distance / total mass), and above the tables",
+    )
+    shoulders_m: tuple[float, float, float] = Field(
+        (0.087, 0.0, 0.542),
+        description="the shoulders' midpoint relative to the pelvis on the robot the positions were chosen for (the "
+        "HRP-5P model): on a robot whose shoulders sit elsewhere the positions move with its shoulders (the planner "
+        "passes the pelvis shifted by the difference, rounded to a micrometre)",
     )
     up_axes: tuple[tuple[float, float, float], ...] = Field(
         ((0, 0, 1), (0, 0, -1), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0)),

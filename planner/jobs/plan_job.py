@@ -119,8 +119,17 @@ def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]
         if failures and not ok:
             dominant = max(failures, key=failures.get)
             limited = {c: failures[c] for c in ("effort", "grip") if failures.get(c)}
+            over = None
             if limited:  # nodes the limits refused might have held the end: the limits decide (counts in the message)
                 dominant = max(limited, key=limited.get)
+            else:
+                over = _end_over_limits(planner, end)
+                if over is not None:  # the margin refused them first, but the limits refuse them too
+                    dominant = over[0]
+            if over is not None:
+                return dominant.upper(), (f"no grasp of the object at its {end} pose with the {hand} hand is valid, and the "
+                                          f"robot's limits refuse grasps there: {over[1]} (the validations: "
+                                          f"{dict(failures)})")
             if dominant in ("effort", "grip"):
                 what = ("a joint's static torque over its effort limit" if dominant == "effort"
                         else "the grip slipping (the object's weight or moment about the jaw's closing axis)")
@@ -131,6 +140,45 @@ def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]
                                            f"threshold with the {hand} hand ({dict(failures)})")
             return f"{end.upper()}_INVALID", f"the {end} pose cannot be grasped by the {hand} hand: {dict(failures)}"
     return res.failure_code or "NO_PATH", res.message or f"no valid plan; failures by cause: {dict(res.failures)}"
+
+
+def _end_over_limits(planner: HandConfigPlanner, end: str) -> tuple[str, str] | None:
+    """("effort" or "grip", what was found) when some of the grasps the arm reaches at the end's pose, held
+    with the jaw closed, are over the robot's limits, although the validations refused them for another
+    cause first (the CoM margin is checked before the limits); None when none is, none is reached, or the
+    limits are off."""
+    import numpy as np
+
+    from planner.regrasp.graph import PlacementNode
+    from planner.regrasp.probes import probe_grasps
+    from planner.stability.effort import effort_table
+
+    t = planner.task
+    if t.limits is None:
+        return None
+    pid, hand = (t.start_id, planner.start_hand) if end == "start" else (t.goal_id, planner.goal_hand)
+    T_obj = t.placements[pid]
+    nodes = [PlacementNode(pid, g, hand) for g, grasp in enumerate(t.grasps[hand]) if planner._cheap_ok(hand, T_obj, grasp)]
+    probes = probe_grasps(t, nodes)
+    reached = [n for n in nodes if probes[n].q is not None]
+    if not reached:
+        return None
+    Q = np.array([probes[n].q for n in reached])
+    Q[:, t.jaw[hand]] = [t.grasps[hand][n.grasp].jaw_value for n in reached]
+    res = t.limits.evaluate(Q, hand, object_pose=np.repeat(T_obj[None], len(reached), axis=0))
+    effort, grip = ~res.effort_ok, res.effort_ok & ~res.grip_ok
+    if not (effort.any() or grip.any()):
+        return None
+    if effort.sum() >= grip.sum():
+        table = effort_table(t.robot)
+        worst = np.abs(res.torque[effort]) / table.limit
+        joints = sorted({table.checked[k] for k in worst.argmax(axis=1)})
+        ratio = res.effort_ratio[effort]
+        return "effort", (f"{int(effort.sum())} of the {len(reached)} grasps the arm reaches there are over the effort "
+                          f"limits, ratio {ratio.min():.2f} to {ratio.max():.2f} ({', '.join(joints)})")
+    ratio = res.grip_ratio[grip]
+    return "grip", (f"{int(grip.sum())} of the {len(reached)} grasps the arm reaches there slip, grip ratio "
+                    f"{ratio.min():.2f} to {ratio.max():.2f}")
 
 
 def plan_scenario(

@@ -35,6 +35,12 @@ from planner.transforms import pose7_to_matrix
 from schemas.scenario import Scenario
 
 
+#: The ready posture's hand is at most this far sideways from its shoulder (in front of it, not out to the side).
+READY_LATERAL_M = 0.15
+#: Arm postures drawn for the ready posture of an arm the shoulder x elbow grid does not fit.
+READY_SAMPLES = 800
+
+
 class Task:
     """Everything one regrasp task needs, built once and reused across hand configurations."""
 
@@ -82,7 +88,6 @@ class Task:
             self.home[self.jaw[side]] = self.robot.upper[self.jaw[side]]  # jaws open at home
         self.active = {side: np.concatenate([self.robot.waist_indices(), self.robot.arm_indices(side)]) for side in ("left", "right")}
         self.arm_only = {side: self.robot.arm_indices(side) for side in ("left", "right")}
-        self.ready = {side: self._ready_posture(side) for side in ("left", "right")}
         self.shoulder, self.reach = {}, {}
         data = self.robot.create_data()
         pin.framesForwardKinematics(self.robot.pin_model, data, self.robot.to_pin_q(self.stance.base_pose, self.home))
@@ -93,6 +98,7 @@ class Task:
             tcp = data.oMf[self.robot.frame_id(self.robot.spec.arms[side].tcp)].translation
             links = [data.oMi[self.robot.pin_model.getJointId(j)].translation for j in chain[1:]] + [tcp]
             self.reach[side] = float(sum(np.linalg.norm(b - a) for a, b in zip(links[:-1], links[1:]))) + s.waist_reach_m
+        self.ready = {side: self._ready_posture(side) for side in ("left", "right")}
         t2 = time.perf_counter()
         self.placements, self.start_id, self.goal_id = self._placements()
         self._handover_cache: list[HandoverPose] | None = None
@@ -152,13 +158,63 @@ class Task:
 
         Most moves between the hanging home posture and a grasp above a table are blocked on the
         straight line by the table itself; home -> ready -> target usually is not, which spares a
-        tree search. Found once per task on a small grid of shoulder pitch x elbow pitch: the
-        collision-free posture closest to home whose hand clears the highest table top.
+        tree search. Found once per task: the collision-free posture closest to home whose hand clears
+        the highest table top in front of its shoulder, among a small grid of shoulder pitch x elbow
+        pitch (the arm's first two joints turning about the robot's lateral axis at home); for an arm
+        without such a shoulder joint (one that raises the arm forward by a yaw and a roll together), or
+        when the grid has no such posture, among arm postures drawn from a fixed seed.
         """
         tops = [b.pose[2] + b.size[2] / 2 for b in self.scenario.tables] or [0.8]
         clearance = max(tops) + self.settings.ready_height_m
+        # Raised, and still in front of the tables' near edges: the hand rises before it goes over a top.
+        edges = [b.pose[0] - b.size[0] / 2 for b in self.scenario.tables] or [np.inf]
+        front = min(edges) - 0.05
+        grid_joints = self._pitch_joints(side)
+        for candidates, moving in ((self._ready_grid, grid_joints), (self._ready_sampled, self.arm_only[side])):
+            if moving is None:
+                continue
+            Q = candidates(side)
+            if Q is None or not len(Q):
+                continue
+            tcp_frame = self.robot.spec.arms[side].tcp
+            _, frames = self.evaluator.kinematics(Q[0], list(moving)).com_and_frames(Q, (tcp_frame,))
+            tcp = frames[tcp_frame][1]
+            high = ((tcp[:, 2] >= clearance) & (tcp[:, 0] <= front)
+                    & (np.abs(tcp[:, 1] - self.shoulder[side][1]) <= READY_LATERAL_M))
+            if not high.any():
+                continue
+            free = ~self.world.check_batch(self.stance.base_pose, Q[high]).collides
+            if not free.any():
+                continue
+            ok = Q[high][free]
+            return ok[np.argmin(np.abs(ok - self.home).sum(axis=1))]
+        return None
+
+    def _pitch_joints(self, side: Side) -> tuple[int, int] | None:
+        """(shoulder, elbow) wire columns: the first of the arm's first three joints whose axis is the robot's
+        lateral one at home, and the next such joint after it within three; None when the arm has none."""
         chain = self.robot.spec.arms[side].chain
-        shoulder, elbow = self.robot.joint_index(chain[1]), self.robot.joint_index(chain[4])
+        model, data = self.robot.pin_model, self.robot.create_data()
+        pin.computeJointJacobians(model, data, self.robot.to_pin_q(self.stance.base_pose, self.home))
+        lateral = []
+        for name in chain:
+            jid = model.getJointId(name)
+            axis = pin.getJointJacobian(model, data, jid, pin.WORLD)[3:, model.joints[jid].idx_v]
+            lateral.append(abs(float(axis[1])) > 0.9)
+        shoulder = next((k for k in range(min(3, len(chain))) if lateral[k]), None)
+        if shoulder is None:
+            return None
+        elbow = next((k for k in range(shoulder + 1, min(shoulder + 4, len(chain))) if lateral[k]), None)
+        if elbow is None:
+            return None
+        return self.robot.joint_index(chain[shoulder]), self.robot.joint_index(chain[elbow])
+
+    def _ready_grid(self, side: Side) -> np.ndarray | None:
+        """Home with the shoulder pitch in -0.3..-1.5 rad and the elbow pitch in -0.8..-2.2 rad (within limits)."""
+        joints = self._pitch_joints(side)
+        if joints is None:
+            return None
+        shoulder, elbow = joints
         candidates = []
         for sp in np.linspace(-0.3, -1.5, 7):
             for ep in np.linspace(-0.8, -2.2, 8):
@@ -166,19 +222,19 @@ class Task:
                 q[shoulder] = np.clip(sp, self.robot.lower[shoulder], self.robot.upper[shoulder])
                 q[elbow] = np.clip(ep, self.robot.lower[elbow], self.robot.upper[elbow])
                 candidates.append(q)
-        Q = np.array(candidates)
-        _, frames = self.evaluator.kinematics(Q[0], [shoulder, elbow]).com_and_frames(Q, (self.robot.spec.arms[side].tcp,))
-        tcp = frames[self.robot.spec.arms[side].tcp][1]
-        # Raised, and still in front of the tables' near edges: the hand rises before it goes over a top.
-        edges = [b.pose[0] - b.size[0] / 2 for b in self.scenario.tables] or [np.inf]
-        high = (tcp[:, 2] >= clearance) & (tcp[:, 0] <= min(edges) - 0.05)
-        if not high.any():
-            return None
-        free = ~self.world.check_batch(self.stance.base_pose, Q[high]).collides
-        if not free.any():
-            return None
-        ok = Q[high][free]
-        return ok[np.argmin(np.abs(ok - self.home).sum(axis=1))]
+        return np.array(candidates)
+
+    def _ready_sampled(self, side: Side) -> np.ndarray:
+        """Home with the arm's joints drawn from a fixed seed: half around home (0.8 rad spread), half
+        anywhere within the limits."""
+        cols = self.arm_only[side]
+        rng = np.random.default_rng([self.seed, 3, HANDS_INDEX[side]])
+        n = READY_SAMPLES // 2
+        lo, hi = self.robot.lower[cols], self.robot.upper[cols]
+        Q = np.repeat(self.home[None], 2 * n, axis=0)
+        Q[:n, cols] = np.clip(self.home[cols] + rng.normal(0.0, 0.8, (n, len(cols))), lo, hi)
+        Q[n:, cols] = rng.uniform(lo, hi, (n, len(cols)))
+        return Q
 
     @property
     def handover_poses(self) -> list[HandoverPose]:
@@ -195,7 +251,7 @@ class Task:
         right = GraspSet(self.obj.content_hash, "right", tuple(self.grasps["right"]), True, 0.0)
         left = GraspSet(self.obj.content_hash, "left", tuple(self.grasps["left"]), True, 0.0)
         poses = handover_poses(self.obj, right, left, hand_geometry(self.robot, "right"), hand_geometry(self.robot, "left"),
-                               self.stance.base_pose[:3], self.settings.handover, world=self.world)
+                               self.handover_anchor(), self.settings.handover, world=self.world)
         keep = self.settings.handover_pairs_per_pose
         out = []
         for hp in poses[: self.settings.handover_poses]:
@@ -204,6 +260,15 @@ class Task:
                 pairs = pairs[np.linspace(0, len(pairs) - 1, keep).astype(int)]
             out.append(HandoverPose(hp.id, hp.T_world_obj, pairs))
         return out
+
+    def handover_anchor(self) -> np.ndarray:
+        """Where the handover positions are measured from: the stance's pelvis, moved by how far this robot's
+        shoulders' midpoint sits from where the positions' reference robot has it (``HandoverSettings.shoulders_m``;
+        rounded to a micrometre, so on the reference robot it is the pelvis exactly)."""
+        pelvis = self.stance.base_pose[:3]
+        mid = 0.5 * (self.shoulder["left"] + self.shoulder["right"])
+        shift = np.round(mid - pelvis - np.asarray(self.settings.handover.shoulders_m, dtype=float), 6)
+        return pelvis + shift
 
     def validations(self) -> dict:
         """What this copy of the task has worked out so far (for a worker process to hand back; see

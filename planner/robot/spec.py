@@ -73,6 +73,9 @@ class RobotSpec(_Frozen):
     grip: GripSpec | None = None
     limit_sources: str = ""
     license_notice: str | None = None
+    #: link pairs whose self-collision is never checked beyond the collision world's own rules (a spec
+    #: file's ``srdf`` ``<disable_collisions>`` and its ``disable_collisions``), each pair sorted
+    disabled_collisions: list[tuple[str, str]] = Field(default_factory=list)
 
     def acceleration_limit(self, joint: str) -> float:
         """Acceleration limit of a joint (rad/s^2, m/s^2 for a prismatic joint)."""

@@ -93,6 +93,13 @@ class RobotFile(_Strict):
     effort_limits: dict[str, float] = Field(default_factory=dict)
     grip: GripSpec | None = None
     collision: Literal["auto"] | dict = "auto"
+    #: the robot's SRDF (MoveIt's semantic description); its ``<disable_collisions>`` pairs are not checked
+    srdf: str | None = None
+    #: a ``<group_state>`` of the SRDF (e.g. ``half_sitting``) whose joint values start the default posture
+    #: (``default_posture_rad`` overrides them)
+    srdf_posture: str | None = None
+    #: more link pairs not checked for self-collision, [[link_a, link_b], ...]
+    disable_collisions: list[list[str]] = Field(default_factory=list)
     default_posture_rad: dict[str, float] = Field(default_factory=dict)
     limit_sources: str = ""
     license_notice: str | None = None
@@ -370,12 +377,15 @@ def derive(path: str | Path) -> DerivedRobot:
             raise RobotSpecError(f"effort_limits.{joint}: the URDF's joint {joint!r} has no effort limit; give one")
     default_acc = rf.acceleration_limits.get("default")
     acceleration = {j: float(rf.acceleration_limits.get(j, default_acc)) for j in movable}
+    disabled = _disabled_collisions(rf, path.parent, urdf, notes)
+    posture = {**_srdf_posture(rf, path.parent, movable, notes), **rf.default_posture_rad}
     spec = RobotSpec(
         name=rf.name, urdf="", description=rf.description, root_link=urdf.root_link, feet=feet, arms=arms, waist=waist,
         neck=neck, upright=UprightSpec(foot_y_m=rf.upright.foot_y_m, pelvis_height_m=rf.upright.pelvis_height_m),
-        default_posture_rad=rf.default_posture_rad,
+        default_posture_rad=posture,
         acceleration_limits=acceleration,
         effort_limits=rf.effort_limits, grip=rf.grip, limit_sources=rf.limit_sources, license_notice=rf.license_notice,
+        disabled_collisions=disabled,
     )
     if rf.collision != "auto":
         raise RobotSpecError("collision: explicit primitives are not supported by this version; use auto")
@@ -383,8 +393,9 @@ def derive(path: str | Path) -> DerivedRobot:
         # nothing to derive: the URDF itself, so plans carry its own SHA-256 and nothing is written
         spec = spec.model_copy(update={"urdf": str(urdf_file)})
         return DerivedRobot(spec=spec, source=path, urdf=urdf_file, derived_urdf=urdf_file, created_frames=(),
-                            limit_sources=limit_sources, notes=("collision: the URDF's primitives",))
-    digest = hashlib.sha256(path.read_bytes() + b"\0" + urdf_file.read_bytes()).hexdigest()
+                            limit_sources=limit_sources, notes=(*notes, "collision: the URDF's primitives"))
+    digest = hashlib.sha256(f"derived/{DERIVATION_VERSION}/".encode() + path.read_bytes() + b"\0"
+                            + urdf_file.read_bytes()).hexdigest()
     out_dir = cache_dir() / f"{rf.name}-{digest[:16]}"
     out_dir.mkdir(parents=True, exist_ok=True)
     derived = out_dir / f"{rf.name}.urdf"
@@ -403,6 +414,63 @@ def derive(path: str | Path) -> DerivedRobot:
     spec = spec.model_copy(update={"urdf": str(derived)})
     return DerivedRobot(spec=spec, source=path, urdf=urdf_file, derived_urdf=derived, created_frames=tuple(created),
                         limit_sources=limit_sources, notes=tuple(notes))
+
+
+def _srdf_root(rf: RobotFile, spec_dir: Path) -> tuple[Path, ET.Element]:
+    srdf = _resolve(rf.srdf, spec_dir, rf.packages, "srdf")
+    try:
+        return srdf, ET.parse(srdf).getroot()
+    except (OSError, ET.ParseError) as exc:
+        raise RobotSpecError(f"srdf: cannot read {srdf}: {exc}") from None
+
+
+def _srdf_posture(rf: RobotFile, spec_dir: Path, movable: list[str], notes: list[str]) -> dict[str, float]:
+    """The joint values of the SRDF's ``<group_state>`` named by ``srdf_posture`` (movable joints of the URDF;
+    a floating base's or another URDF variant's joints are left out)."""
+    if rf.srdf_posture is None:
+        return {}
+    if rf.srdf is None:
+        raise RobotSpecError("srdf_posture: names a group_state of the SRDF; give `srdf`")
+    srdf, root = _srdf_root(rf, spec_dir)
+    state = next((el for el in root.iter("group_state") if el.attrib.get("name") == rf.srdf_posture), None)
+    if state is None:
+        names = sorted({el.attrib.get("name", "") for el in root.iter("group_state")})
+        raise RobotSpecError(f"srdf_posture: {srdf.name} has no group_state {rf.srdf_posture!r}"
+                             + (f"; it has {', '.join(names)}" if names else ""))
+    out: dict[str, float] = {}
+    for el in state.iter("joint"):
+        name, value = el.attrib.get("name"), el.attrib.get("value", "").split()
+        if name in movable and len(value) == 1:
+            out[name] = float(value[0])
+    notes.append(f"srdf_posture: {len(out)} joint values of {rf.srdf_posture!r} start the default posture")
+    return out
+
+
+def _disabled_collisions(rf: RobotFile, spec_dir: Path, urdf: _Urdf, notes: list[str]) -> list[tuple[str, str]]:
+    """The link pairs the spec says not to check for self-collision: the SRDF's ``<disable_collisions>``
+    (MoveIt's collision matrix, computed on the robot's own meshes) and ``disable_collisions``, sorted."""
+    pairs: set[tuple[str, str]] = set()
+    if rf.srdf is not None:
+        srdf, root = _srdf_root(rf, spec_dir)
+        unknown = 0
+        for el in root.iter("disable_collisions"):
+            a, b = el.attrib.get("link1"), el.attrib.get("link2")
+            if a is None or b is None:
+                raise RobotSpecError(f"srdf: a <disable_collisions> of {srdf} lacks link1 or link2")
+            if a in urdf.links and b in urdf.links:
+                pairs.add((min(a, b), max(a, b)))
+            else:
+                unknown += 1
+        notes.append(f"srdf: {len(pairs)} link pairs not checked for self-collision"
+                     + (f" ({unknown} naming links the URDF lacks ignored)" if unknown else ""))
+    for k, pair in enumerate(rf.disable_collisions):
+        if len(pair) != 2:
+            raise RobotSpecError(f"disable_collisions[{k}]: a pair of two link names, got {pair}")
+        for link in pair:
+            if link not in urdf.links:
+                raise RobotSpecError(f"disable_collisions[{k}]: the URDF has no link {link!r}")
+        pairs.add((min(pair), max(pair)))
+    return sorted(pairs)
 
 
 def fit_mesh_collisions(urdf: _Urdf, urdf_dir: Path, spec_dir: Path, packages: dict[str, str]) -> int:
@@ -437,7 +505,7 @@ def fit_mesh_collisions(urdf: _Urdf, urdf_dir: Path, spec_dir: Path, packages: d
             T_col[:3, :3] = _rpy_matrix(rpy)
             T_col[:3, 3] = xyz
             link.remove(col)
-            for T_box, extents in _fit_boxes(np.asarray(mesh.vertices, dtype=float)):
+            for T_box, extents in _fit_boxes(np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces)):
                 T = T_col @ T_box
                 new = ET.SubElement(link, "collision")
                 ET.SubElement(new, "origin", {"xyz": " ".join(repr(float(v)) for v in T[:3, 3]),
@@ -449,29 +517,54 @@ def fit_mesh_collisions(urdf: _Urdf, urdf_dir: Path, spec_dir: Path, packages: d
 
 #: a mesh whose bounding box is longer than this on some side is covered by one box per occupied octant
 SPLIT_ABOVE_M = 0.15
+#: Bump when the derived URDF's making changes (the mesh fit), so old cache folders are not reused.
+DERIVATION_VERSION = 2
 
 
-def _fit_boxes(vertices: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Boxes (pose (4, 4), extents (3,)) covering a mesh's vertices: its oriented bounding box, or, for a
-    large mesh (a torso with its shoulder mounts), the oriented boxes of the vertices in each octant of
-    that box, which follow the shape much more closely."""
+def _fit_boxes(vertices: np.ndarray, faces: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Boxes (pose (4, 4), extents (3,)) covering a mesh: its oriented bounding box, or, for a large mesh
+    (a torso with its shoulder mounts), one box per octant of that box around the part of the surface in
+    that octant (the triangles clipped to it), which follows the shape much more closely. Clipping the
+    triangles, not only picking the vertices that fall in an octant, keeps every point of the surface
+    inside a box: a triangle spanning octants is covered piece by piece."""
     import trimesh
 
     T, extents = trimesh.bounds.oriented_bounds(vertices)
     T = np.linalg.inv(T)  # oriented_bounds gives the transform to the box frame
-    if extents.max() <= SPLIT_ABOVE_M or len(vertices) < 64:
+    if extents.max() <= SPLIT_ABOVE_M or len(vertices) < 64 or faces is None or len(faces) == 0:
         return [(T, extents)]
-    local = (vertices - T[:3, 3]) @ T[:3, :3]
+    R, centre = T[:3, :3], T[:3, 3]
     out = []
     for cell in range(8):
-        sel = np.ones(len(local), dtype=bool)
+        v, f = vertices, np.asarray(faces)
         for axis in range(3):
-            sel &= (local[:, axis] >= 0) if (cell >> axis) & 1 else (local[:, axis] < 0)
-        if sel.sum() < 8:
+            sign = 1.0 if (cell >> axis) & 1 else -1.0
+            v, f = trimesh.intersections.slice_faces_plane(v, f, sign * R[:, axis], centre)[:2]
+            if len(f) == 0:
+                break
+        if len(f) == 0:
             continue
-        Tc, ec = trimesh.bounds.oriented_bounds(vertices[sel])
-        out.append((np.linalg.inv(Tc), ec))
+        out.append(_box_around(np.asarray(v)[np.unique(f)], R, centre))
     return out
+
+
+def _box_around(points: np.ndarray, R: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The oriented bounding box of points, or, where they are too few or flat for one, their bounding box in
+    the frame (R, centre)."""
+    import trimesh
+
+    try:
+        Tc, ec = trimesh.bounds.oriented_bounds(points)
+        if np.all(np.isfinite(ec)) and ec.min() > 1e-6:
+            return np.linalg.inv(Tc), ec
+    except Exception:  # noqa: BLE001 - qhull refuses flat or tiny point sets
+        pass
+    local = (points - centre) @ R
+    lo, hi = local.min(axis=0), local.max(axis=0)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = centre + R @ ((lo + hi) / 2)
+    return T, np.maximum(hi - lo, 1e-4)
 
 
 def _rpy_matrix(rpy: list[float]) -> np.ndarray:

@@ -259,8 +259,9 @@ class CollisionWorld:
 
     def _disabled_self_pairs(self) -> set[tuple[str, str]]:
         """Link pairs never checked, as an SRDF would list them: geometric neighbours (a link and the
-        nearest ancestor that has geometry) and pairs touching in the default posture or in one of
-        the reference postures (computed once here)."""
+        nearest ancestor that has geometry), pairs touching in the default posture or in one of
+        the reference postures, pairs touching in nearly every sampled posture (computed once here), and
+        the pairs the robot's spec disables (its SRDF's ``<disable_collisions>``)."""
         gp = self._geometric_parent()
         disabled: set[tuple[str, str]] = set()
         for link, parent in gp.items():
@@ -286,6 +287,8 @@ class CollisionWorld:
         hits = self._pair_hits(Rw, pw, ia, ib, np.zeros(ia.size))
         for k in np.flatnonzero(hits.mean(axis=1) >= ALWAYS_IN_CONTACT_FRACTION):
             disabled.add(tuple(sorted((self.bodies[ia[k]].link, self.bodies[ib[k]].link))))  # type: ignore[arg-type]
+        # The robot's own collision matrix (its SRDF's, or pairs its spec file lists).
+        disabled.update((a, b) for a, b in robot.spec.disabled_collisions)
         return disabled
 
     def _build_pairs(self) -> None:

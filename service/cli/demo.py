@@ -5,6 +5,9 @@
 2. Runs the paper's scenario through the real service on loopback: the stability
    survey, the plan with the recommended hands, the two-person approval, the
    safety gate, the dispatch to the simulated controller, and the audit file.
+   With ``--robot ROBOT`` the scenario is ROBOT's own version of the upright task
+   (the built-in ``ROBOT-upright``, such as ``talos-upright``) where there is one,
+   else the upright task with ROBOT swapped in; the controller simulator plays ROBOT.
 """
 
 from __future__ import annotations
@@ -49,9 +52,13 @@ def stance_step(out: Path, robot_name: str, fmt: str = "png") -> list[dict]:
 @click.command()
 @click.option("--out", "out_dir", default="demo-out", show_default=True, type=click.Path(file_okay=False),
               help="Directory for the demo's artefacts.")
-@click.option("--robot", "robot_name", default="hrp5p", show_default=True)
+@click.option("--robot", "robot_name", default=None,
+              help="The robot (a registered name, `regrasp robot list`): its stances, and the scenario runs with it "
+                   "[default: the scenario's robot, hrp5p for upright].")
 @click.option("--stances-only", is_flag=True, help="Only the first step: solve and draw the stances.")
-@click.option("--scenario", default="upright", show_default=True, help="The scenario the demo plans and executes.")
+@click.option("--scenario", default=None,
+              help="The scenario the demo plans and executes [default: upright; with --robot ROBOT the built-in "
+                   "ROBOT-upright where there is one, such as talos-upright].")
 @click.option("--survey-states", default=400, show_default=True, type=click.IntRange(0, 1_000_000),
               help="States per seed in the demo's survey (until: states, 10 seeds); 0: the scenario's own estimator "
                    "(seeds until every interval is within +-0.02: minutes).")
@@ -59,9 +66,22 @@ def stance_step(out: Path, robot_name: str, fmt: str = "png") -> list[dict]:
               help="The simulated controller plays K times faster than real time.")
 @click.option("--format", "fmt", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
               help="Format of the figures.")
-def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, survey_states: int | None, speed: float,
-         fmt: str) -> None:
+def demo(out_dir: str, robot_name: str | None, stances_only: bool, scenario: str | None, survey_states: int | None,
+         speed: float, fmt: str) -> None:
     """Run the main job end to end on the embedded defaults and show its result."""
+    from planner.errors import InputError
+    from planner.scene.scenarios import load_scenario
+    from service.demo import default_scenario
+
+    try:
+        if scenario is None:
+            scenario = default_scenario(robot_name) if robot_name else "upright"
+        scenario_robot = load_scenario(scenario).robot
+    except InputError as exc:
+        fail(str(exc))
+    robot_name = robot_name or scenario_robot
+    # The scenario runs with the demo's robot: an override where the scenario names another one.
+    robot_override = robot_name if robot_name != scenario_robot else None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     console.rule(f"[bold]regrasp demo[/] -> {out.resolve()}")
@@ -89,8 +109,11 @@ def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, surve
     console.print("  compiling the planner's kernels (a machine's first run; later runs load them from cache) ...")
     console.print(f"  planner kernels ready in {warm_up(robot_name):.1f} s")
 
-    settings = DemoSettings(scenario=scenario, survey_states=survey_states or None, controller_speed=speed, figure_format=fmt)
-    console.print("[bold]2. The paper's scenario through the service, the gate and the simulated robot[/]")
+    settings = DemoSettings(scenario=scenario, robot=robot_override, survey_states=survey_states or None,
+                            controller_speed=speed, figure_format=fmt)
+    console.print(f"[bold]2. Scenario {scenario} with {robot_name}"
+                  + (f" (over the scenario's {scenario_robot})" if robot_override else "")
+                  + " through the service, the gate and the simulated robot[/]")
     t0 = time.perf_counter()
     try:
         res = run_demo(out, settings, say=lambda m: console.print(f"  [dim]{time.perf_counter() - t0:6.1f} s[/] {m}"))
@@ -99,9 +122,12 @@ def demo(out_dir: str, robot_name: str, stances_only: bool, scenario: str, surve
     s = res.summary
     table = Table("", "")
     table.add_row("scenario", scenario)
+    table.add_row("robot", s["robot"])
     table.add_row("R per configuration", ", ".join(f"{h} {r:.3f}" if r is not None else f"{h} n/a" for h, r in s["survey"].items()))
     table.add_row("recommended hands", str(s["recommended"]))
+    table.add_row("planned hands", str(s["hands"]))
     table.add_row("min margin / threshold", f"{s['min_margin_m'] * 1000:.1f} mm / {s['threshold_m'] * 1000:.0f} mm")
+    table.add_row("max effort ratio", f"{s['max_effort_ratio']:.2f} (static torque / limit, the worst joint)")
     table.add_row("planning time", f"{s['planning_time_s']:.1f} s")
     table.add_row("motion duration", f"{s['duration_s']:.1f} s (played {speed:g}x faster by the simulated controller)")
     table.add_row("execution", s["execution"])

@@ -89,7 +89,10 @@ def test_object_too_heavy_is_infeasible_within_its_time_limit(small_box):
     doc = plan_scenario(parse_scenario(data), PlanOptions())
     assert time.perf_counter() - t0 < 60 + 15
     assert doc["status"] == "infeasible"
-    assert doc["failure"]["code"] in ("NO_STABLE_GRASP", "COM_MARGIN")
+    # 60 kg slips out of the jaws (589 N against 2 x 0.6 x 400 N): the margin refuses those grasps first, and
+    # the limits decide the code, naming the margin's refusals in the message.
+    assert doc["failure"]["code"] == "GRIP", doc["failure"]
+    assert "slip" in doc["failure"]["message"] and "com_margin" in doc["failure"]["message"]
     assert doc["failure"]["counts"].get("com_margin", 0) > 0
 
 

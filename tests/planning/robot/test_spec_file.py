@@ -114,3 +114,47 @@ def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_and_the_gate
     assert verdict.passed, verdict.message
     assert verdict.stats["effort"]["max_ratio"] == pytest.approx(max(p["effort_ratio"] for p in plan["trajectory"]),
                                                                   abs=1e-9)
+
+
+SRDF = """<robot name="small_humanoid">
+  <group_state name="ready" group="all">
+    <joint name="root_joint" value="0 0 0.84 0 0 0 1"/>
+    <joint name="l_elbow" value="-0.7"/>
+    <joint name="r_elbow" value="-0.6"/>
+    <joint name="not_in_this_urdf" value="0.3"/>
+  </group_state>
+  <disable_collisions link1="l_arm3" link2="chest" reason="Never"/>
+  <disable_collisions link1="ghost_link" link2="chest" reason="Never"/>
+</robot>
+"""
+
+
+def test_an_srdf_gives_the_collision_matrix_and_the_default_posture(tmp_path):
+    def edit(spec):
+        spec.update(srdf="small_humanoid.srdf", srdf_posture="ready", disable_collisions=[["r_arm3", "chest"]])
+        spec["default_posture_rad"] = {"r_elbow": -0.4}  # over the SRDF's value
+
+    spec_path = write_small_humanoid(tmp_path / "robot", edit)
+    (spec_path.parent / "small_humanoid.srdf").write_text(SRDF)
+    d = derive(spec_path)
+    assert d.spec.disabled_collisions == [("chest", "l_arm3"), ("chest", "r_arm3")]  # the ghost link's pair left out
+    assert d.spec.default_posture_rad == {"l_elbow": -0.7, "r_elbow": -0.4}
+    assert any("1 naming links the URDF lacks" in n for n in d.notes)
+    from planner.robot.model import load_robot
+    from planner.scene.collision import CollisionWorld
+
+    assert {("chest", "l_arm3"), ("chest", "r_arm3")} <= CollisionWorld(load_robot(str(spec_path))).disabled
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    (lambda s: s.update(disable_collisions=[["l_arm3", "nope"]]), "disable_collisions[0]: the URDF has no link 'nope'"),
+    (lambda s: s.update(srdf_posture="ready"), "srdf_posture: names a group_state of the SRDF; give `srdf`"),
+    (lambda s: s.update(srdf="small_humanoid.srdf", srdf_posture="sitting"), "srdf_posture: small_humanoid.srdf has no "
+                                                                              "group_state 'sitting'; it has ready"),
+])
+def test_bad_srdf_fields_name_the_field(tmp_path, change, message):
+    spec_path = write_small_humanoid(tmp_path / "robot", change)
+    (spec_path.parent / "small_humanoid.srdf").write_text(SRDF)
+    with pytest.raises(RobotSpecError) as exc:
+        derive(spec_path)
+    assert message in str(exc.value)
