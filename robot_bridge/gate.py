@@ -69,7 +69,7 @@ class SafetyGate:
 
     def __init__(self, settings: GateSettings | None = None):
         self.settings = settings or GateSettings()
-        self._robots: dict[str, _Robot] = {}
+        self._robots: dict[tuple[str, str], _Robot] = {}
         self._fk: dict[tuple[str, tuple[str, ...]], BatchFK] = {}
 
     # ------------------------------------------------------------------ public
@@ -147,11 +147,14 @@ class SafetyGate:
         return ctx.verdict(True, None, "every check passed", None, time.perf_counter() - started)
 
     # ------------------------------------------------------------------ internals
-    def _robot(self, name: str) -> _Robot:
-        if name not in self._robots:
-            files = robot_files(name)
-            self._robots[name] = _Robot(files=files, model=load_urdf(str(files.urdf)), urdf_sha256=files.urdf_sha256)
-        return self._robots[name]
+    def _robot(self, name: str, urdf_sha256: str = "") -> _Robot:
+        """The robot a plan names, with the URDF of the plan's SHA-256 where the robot's is derived (several
+        derived URDFs of one robot can be in the cache)."""
+        files = robot_files(name, urdf_sha256)
+        key = (name, str(files.urdf))  # by file: a plan's made-up SHA-256 adds nothing here
+        if key not in self._robots:
+            self._robots[key] = _Robot(files=files, model=load_urdf(str(files.urdf)), urdf_sha256=files.urdf_sha256)
+        return self._robots[key]
 
     def _batch_fk(self, robot: _Robot, joint_names: tuple[str, ...]) -> BatchFK:
         key = (robot.files.name, joint_names)
@@ -163,7 +166,7 @@ class SafetyGate:
              threshold_m: float | None, now: datetime | None, offline: bool) -> None:
         s = self.settings
         p = _timed(ctx, "parse_s", _read, ctx, plan, s)
-        robot = self._robot(p.robot_name)
+        robot = self._robot(p.robot_name, p.urdf_sha256)
         if sorted(p.joint_names) != sorted(robot.model.joint_names) or len(set(p.joint_names)) != len(p.joint_names):
             raise Veto("structure", f"robot.joint_names do not match the URDF of {p.robot_name!r}: unknown "
                        f"{sorted(set(p.joint_names) - set(robot.model.joint_names))}, missing "

@@ -75,24 +75,30 @@ def _spec_file(name: str) -> Path | None:
     return None
 
 
-def _derived_urdf(name: str) -> Path:
-    """The derived URDF of a spec-file robot, as the planner wrote it to the cache folder (the newest one; the
-    gate compares its SHA-256 with the plan's before it trusts it)."""
+def _derived_urdf(name: str, urdf_sha256: str | None) -> Path:
+    """The derived URDF of a spec-file robot, as the planner wrote it to the cache folder: the one whose
+    SHA-256 is ``urdf_sha256`` (a plan's), else the newest. Several can be there (one per spec and URDF
+    content); the gate compares the SHA-256 with the plan's before it trusts the file either way."""
     env = os.environ.get("REGRASP_CACHE_DIR")
     cache = (Path(env).expanduser() if env else Path("~/.cache/hrp-regrasp").expanduser()) / "robots"
     found = sorted(cache.glob(f"{name}-*/{name}.urdf"), key=lambda p: p.stat().st_mtime)
     if not found:
         raise RobotFilesError(f"robot {name!r} has no derived URDF in {cache}; run `regrasp robot check` on its spec "
                               "file once")
+    if urdf_sha256:
+        for path in reversed(found):
+            if hashlib.sha256(path.read_bytes()).hexdigest() == urdf_sha256:
+                return path
     return found[-1]
 
 
-def robot_files(name: str) -> RobotFiles:
-    """The files of robot ``name``; an unknown name lists the valid ones."""
+def robot_files(name: str, urdf_sha256: str | None = None) -> RobotFiles:
+    """The files of robot ``name`` (for a derived URDF, the one of SHA-256 ``urdf_sha256`` when it is there);
+    an unknown name lists the valid ones."""
     spec_path = _spec_file(name)
     if spec_path is None:
         raise RobotFilesError(f"unknown robot {name!r}; valid robots: {', '.join(robot_names())}")
-    return _robot_files(str(spec_path), name)
+    return _robot_files(str(spec_path), name, urdf_sha256 or None)
 
 
 def _own_urdf(ref: str, spec_dir: Path, packages: dict[str, str]) -> Path | None:
@@ -127,8 +133,8 @@ def _usable_as_is(urdf: Path, spec: dict[str, Any]) -> bool:
     return spec.get("collision", "auto") == "auto" and root.find("link/collision/geometry/mesh") is None
 
 
-@lru_cache(maxsize=None)
-def _robot_files(spec_file: str, name: str) -> RobotFiles:
+@lru_cache(maxsize=64)
+def _robot_files(spec_file: str, name: str, urdf_sha256: str | None) -> RobotFiles:
     spec_path = Path(spec_file)
     try:
         spec = yaml.safe_load(spec_path.read_text())
@@ -145,4 +151,4 @@ def _robot_files(spec_file: str, name: str) -> RobotFiles:
         as_is = own is not None and _usable_as_is(own, spec)
     except (KeyError, TypeError, AttributeError) as exc:
         raise RobotFilesError(f"robot spec {spec_path}: malformed feet or hands ({exc})") from exc
-    return RobotFiles(name=name, urdf=own if as_is else _derived_urdf(name), spec=spec)
+    return RobotFiles(name=name, urdf=own if as_is else _derived_urdf(name, urdf_sha256), spec=spec)

@@ -57,7 +57,7 @@ def test_a_plan_over_a_joint_limit_is_vetoed_at_its_first_point_and_passes_with_
     files = robot_files("hrp5p")
     weak = RobotFiles(name="hrp5p", urdf=files.urdf,
                       spec={**files.spec, "effort_limits": {**files.spec["effort_limits"], "RSP": 60.0}})
-    monkeypatch.setattr(gate_module, "robot_files", lambda name: weak)
+    monkeypatch.setattr(gate_module, "robot_files", lambda name, urdf_sha256=None: weak)
     plan = build_plan({"RSP": -0.6}, duration_s=2.0, mass_kg=10.0, holding="right", threshold_m=0.0,
                       com_local=(0.0, 0.0, 0.0))
     v = SafetyGate().check(plan, offline=True)
@@ -160,3 +160,37 @@ def test_the_gate_reads_the_built_in_spec_files_as_the_planner_does(robot_name, 
     assert all(h.grip == (None if grip is None else (grip.friction, grip.force_n, grip.patch_radius_m))
                for h in spec.hands.values())
     _robot_files.cache_clear()
+
+
+def test_the_gate_takes_the_derived_urdf_of_the_plans_hash(tmp_path, monkeypatch):
+    """Two derived URDFs of one robot in the cache (two spec versions): the gate reads the one whose SHA-256
+    the plan names, whichever is newer; an unknown SHA-256 gets the newest (and the gate's hash check)."""
+    import hashlib
+    import os
+    import time
+
+    from robot_bridge import robot_files as rf
+
+    spec = tmp_path / "specs" / "twin.yaml"
+    spec.parent.mkdir()
+    spec.write_text("schema: regrasp.robot/1\nname: twin\nurdf: missing.urdf\nfeet: {left: {frame: l_sole}, right: "
+                    "{frame: r_sole}}\nhands: {left: {frame: l_tcp}, right: {frame: r_tcp}}\n"
+                    "acceleration_limits: {default: 1.0}\n")
+    cache = tmp_path / "cache"
+    paths = []
+    for k, text in enumerate(("<robot name='twin-a'/>", "<robot name='twin-b'/>")):
+        path = cache / "robots" / f"twin-{k:016d}" / "twin.urdf"
+        path.parent.mkdir(parents=True)
+        path.write_text(text)
+        os.utime(path, (time.time() + k, time.time() + k))  # the second is the newer
+        paths.append(path)
+    monkeypatch.setenv("REGRASP_CACHE_DIR", str(cache))
+    monkeypatch.setenv("REGRASP_ROBOT_DIRS", str(spec.parent))
+    rf._robot_files.cache_clear()
+    try:
+        older = hashlib.sha256(paths[0].read_bytes()).hexdigest()
+        assert rf.robot_files("twin", older).urdf == paths[0]
+        assert rf.robot_files("twin", "0" * 64).urdf == paths[1]
+        assert rf.robot_files("twin").urdf == paths[1]
+    finally:
+        rf._robot_files.cache_clear()
