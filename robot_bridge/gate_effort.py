@@ -21,18 +21,18 @@ from typing import Any
 
 import numpy as np
 
+from .gate_types import Veto
 from .urdf_kinematics import UrdfModel, quaternion_matrix
 
 _HOLDERS = {0: (), 1: ("left",), 2: ("right",), 3: ("left", "right")}  # the gate's holding index -> hands
 
 
-class EffortVeto(Exception):
-    """A point over an effort limit or a slipping grip: ``check`` ("effort" | "grip"), the point, the message."""
+class EffortVeto(Veto):
+    """A gate veto at a plan point over an effort limit or whose grip slips (``check`` "effort" | "grip");
+    ``point`` is the plan point, which the gate turns into its sample index."""
 
     def __init__(self, check: str, message: str, point: int):
-        super().__init__(message)
-        self.check = check
-        self.message = message
+        super().__init__(check, message)
         self.point = point
 
 
