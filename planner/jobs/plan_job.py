@@ -158,7 +158,7 @@ def _end_over_limits(planner: HandConfigPlanner, end: str) -> tuple[str, str] | 
         return None
     pid, hand = (t.start_id, planner.start_hand) if end == "start" else (t.goal_id, planner.goal_hand)
     T_obj = t.placements[pid]
-    nodes = [PlacementNode(pid, g, hand) for g, grasp in enumerate(t.grasps[hand]) if planner._cheap_ok(hand, T_obj, grasp)]
+    nodes = [PlacementNode(pid, g, hand) for g, grasp in enumerate(t.grasps[hand]) if planner.cheap_ok(hand, T_obj, grasp)]
     probes = probe_grasps(t, nodes)
     reached = [n for n in nodes if probes[n].q is not None]
     if not reached:

@@ -84,7 +84,7 @@ class HandConfigPlanner:
 
 
     # -- graph construction ---------------------------------------------------------------------
-    def _cheap_ok(self, side: Side, T_obj: np.ndarray, grasp: Grasp) -> bool:
+    def cheap_ok(self, side: Side, T_obj: np.ndarray, grasp: Grasp) -> bool:
         """Cheap filters before IK: the hand does not come from below the table top, and is in reach."""
         T_tcp = T_obj @ grasp.T_obj_tcp
         approach = T_tcp[:3, 2]
@@ -119,7 +119,7 @@ class HandConfigPlanner:
         for p, T in enumerate(t.placements):
             for side in sides:
                 for g, grasp in enumerate(t.grasps[side]):
-                    if self._cheap_ok(side, T, grasp):
+                    if self.cheap_ok(side, T, grasp):
                         nodes.append(PlacementNode(p, g, side))
         for end, pid, hand in (("start", t.start_id, self.start_hand), ("goal", t.goal_id, self.goal_hand)):
             if not any(n.placement == pid and n.hand == hand for n in nodes):
