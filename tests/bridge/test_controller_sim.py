@@ -114,13 +114,14 @@ class Peer:
         with self._lock:
             return [(at, js) for at, js in self.joints if at >= t]
 
-    def reply(self, after: float, status: str, job_id: str | None = None, timeout_s: float = REPLY_TIMEOUT_S
-              ) -> tuple[float, ExecStatus]:
-        """The first exec status ``status`` (for ``job_id`` if given) that arrived after ``after``."""
+    def reply(self, after: float, status: str, job_id: str | None = None, timeout_s: float = REPLY_TIMEOUT_S,
+              kind: str | None = None) -> tuple[float, ExecStatus]:
+        """The first exec status ``status`` (for ``job_id`` and answering a ``kind`` of command, if given) that
+        arrived after ``after``."""
         def find():
             with self._lock:
                 return next(((at, st) for at, st in self.exec if at >= after and st.status == status
-                             and (job_id is None or st.job_id == job_id)), None)
+                             and (job_id is None or st.job_id == job_id) and (kind is None or st.kind == kind)), None)
         return self.wait_for(find, f"exec status {status!r} for job {job_id}", timeout_s)
 
     def send(self, seg: TrajectorySegment) -> float:
@@ -282,7 +283,8 @@ def test_controller_holds_its_last_command_when_starved(sim):
     assert peer.wait_for(lambda: peer.beats and peer.beats[-1][1].state == "holding", "heartbeat says holding")
     # what arrives late is not played: the job is over, the robot stays where it is
     late = peer.send(segs[1])
-    at, st = peer.reply(late, "refused", segs[1].job_id)
+    # (the peer's heartbeats of the ended job are refused too, as they arrive: the segment's answer is the one)
+    at, st = peer.reply(late, "refused", segs[1].job_id, kind="trajectory")
     assert "was ended by this controller (starved)" in st.reason
     _assert_still(peer, first_last)
 
