@@ -18,6 +18,7 @@ import pytest
 import yaml
 from playwright.sync_api import expect
 
+from planner.jobs.request_names import registered_scenarios
 from tests.service.conftest import TOKEN as SERVICE_TOKENS
 from tests.service.conftest import (
     Server,
@@ -228,7 +229,8 @@ def test_a_stop_clicked_during_execution_aborts_the_job(page, live):
 def test_the_submit_form_lists_the_services_names_and_keeps_the_scenarios_values(page, live):
     login(page, live["url"], ALICE)
     page.click("#submit-box summary")
-    expect(page.locator("#submit-scenario option")).to_have_count(6, timeout=TIMEOUT_MS)
+    expect(page.locator("#submit-scenario option")).to_have_count(len(registered_scenarios()), timeout=TIMEOUT_MS)
+    assert sorted(page.locator("#submit-scenario option").all_inner_texts()) == sorted(registered_scenarios())
     assert page.locator("#submit-hands option").all_inner_texts()[1:] == ["auto", "left-left", "right-right", "left-right",
                                                                            "right-left"]
     page.select_option("#submit-scenario", "staggered")
@@ -249,7 +251,7 @@ def test_the_submit_form_lists_the_services_names_and_keeps_the_scenarios_values
     # A refused submission shows its error in the form, and no job panel.
     login(page, live["url"], ALICE)
     page.click("#submit-box summary")
-    expect(page.locator("#submit-scenario option")).to_have_count(6, timeout=TIMEOUT_MS)
+    expect(page.locator("#submit-scenario option")).to_have_count(len(registered_scenarios()), timeout=TIMEOUT_MS)
     page.fill("#submit-seed", str(2**64))
     page.click("#submit-form button[type=submit]")
     expect(page.locator("#submit-problem")).to_contain_text("422")
