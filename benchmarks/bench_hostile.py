@@ -32,6 +32,10 @@ from typing import Any, Callable
 import httpx
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from tests.service.conftest import free_port  # noqa: E402  (the service tests' helpers, one copy)
+from tests.service.conftest import inline_scenario as inline  # noqa: E402
 TOKEN = "bench-hostile-planner"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 #: An answer later than this is a hang (the server's body read timeout is 10 s).
@@ -42,23 +46,6 @@ PATHS = ["/etc/passwd", "../../etc/passwd", "tokens.json", "./x.yaml", "var/jobs
          "\u0000upright", "~/.ssh/id_rsa"]
 UNKNOWN = ["kneeling", "nao", "UPRIGHT", "upright ", "teapot"]
 WRONG_TYPES: list[Any] = ["1", True, 1.5, [], {}, None, 2**70, -1, "0.06", [1, 2], {"$ne": 1}]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def inline(**changes: Any) -> dict[str, Any]:
-    doc: dict[str, Any] = {
-        "schema": "regrasp.scenario/1", "name": "inline", "robot": "hrp5p", "stance": "upright",
-        "object": {"shape": "box", "size": [0.2, 0.2, 0.2], "mass_kg": 2.0},
-        "start_pose": [0.5, 0.0, 0.8, 0, 0, 0, 1], "goal_pose": [0.5, 0.2, 0.8, 0, 0, 0, 1],
-        "tables": [{"name": "t", "pose": [0.5, 0.0, 0.35, 0, 0, 0, 1], "size": [0.6, 1.0, 0.7]}],
-    }
-    doc.update(changes)
-    return doc
 
 
 def job(request: dict[str, Any], kind: str = "plan") -> bytes:

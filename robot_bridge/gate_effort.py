@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from .gate_types import Veto
-from .urdf_kinematics import UrdfModel, quaternion_matrix
+from .urdf_kinematics import UrdfModel, quaternion_matrix, rotate
 
 _HOLDERS = {0: (), 1: ("left",), 2: ("right",), 3: ("left", "right")}  # the gate's holding index -> hands
 
@@ -124,8 +124,8 @@ def static_torques(model: UrdfModel, joint_order: tuple[str, ...], Q: np.ndarray
         c = col[master]
         RA, pA = anchor_R[a_link], anchor_p[a_link]
         axis_rel = Rr_o @ j.axis
-        axis_w[j.name] = _apply(RA, axis_rel)
-        origin_w[j.name] = pA + _apply(RA, pr_o)
+        axis_w[j.name] = rotate(RA, axis_rel)
+        origin_w[j.name] = pA + rotate(RA, pr_o)
         if not moving[c]:
             v = float(Qt[c, 0]) * mult + off
             rel[j.child] = ((a_link, Rr_o, pr_o + axis_rel * v) if j.type == "prismatic"
@@ -141,11 +141,11 @@ def static_torques(model: UrdfModel, joint_order: tuple[str, ...], Q: np.ndarray
 
     def world_point(link: str, local: np.ndarray) -> np.ndarray:
         a_link, Rr, pr = rel[link]
-        return anchor_p[a_link] + _apply(anchor_R[a_link], pr + Rr @ local)
+        return anchor_p[a_link] + rotate(anchor_R[a_link], pr + Rr @ local)
 
     def world_frame(link: str) -> tuple[np.ndarray, np.ndarray]:
         a_link, Rr, pr = rel[link]
-        return _times_constant(anchor_R[a_link], Rr), anchor_p[a_link] + _apply(anchor_R[a_link], pr)
+        return _times_constant(anchor_R[a_link], Rr), anchor_p[a_link] + rotate(anchor_R[a_link], pr)
 
     # gravity: mass and first moment (sum of m c) per subtree; other forces: (F, M about the origin) per link
     mass = {name: link.mass for name, link in model.links.items() if link.mass > 0.0}
@@ -237,16 +237,6 @@ def _weight(c: np.ndarray, weight: float | np.ndarray) -> tuple[np.ndarray, np.n
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross products of vectors per column, a (3, m) x b (3, k) (m, k = 1 or N)."""
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def _apply(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotations R (3, 3, m) applied to one constant vector v (3,): (3, m) (zero terms skipped)."""
-    out = None
-    for k in range(3):
-        if v[k] != 0.0:
-            term = R[:, k] * v[k]
-            out = term if out is None else out + term
-    return np.zeros(R.shape[::2]) if out is None else out
 
 
 def _times_constant(R: np.ndarray, C: np.ndarray) -> np.ndarray:

@@ -228,8 +228,12 @@ def load_urdf(path: str) -> UrdfModel:
     return UrdfModel.from_file(path)
 
 
-def _apply(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """R (3, 3, N) times vectors v (3, N), (3, 1) or one constant vector (3,): (3, N)."""
+def rotate(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R (3, 3, N) times vectors v (3, N), (3, 1) or one constant vector (3,): (3, N). A constant vector's zero
+    components are skipped (adding their zero terms changes no finite value)."""
+    if np.ndim(v) == 1:
+        terms = [R[:, k] * v[k] for k in range(3) if v[k] != 0.0]
+        return sum(terms[1:], terms[0]) if terms else np.zeros(R.shape[::2])
     return R[:, 0] * v[0] + R[:, 1] * v[1] + R[:, 2] * v[2]
 
 
@@ -346,7 +350,7 @@ class BatchFK:
             if per_sample:  # one pose per state: this chunk's rotations
                 Rs = np.moveaxis(quaternion_matrix(base[start:stop, 3:]), 0, 2)
                 ps = base[start:stop, :3].T
-                world = lambda v, w: _apply(Rs, v) + w * ps  # noqa: E731
+                world = lambda v, w: rotate(Rs, v) + w * ps  # noqa: E731
             root_m = m_part.get(self.model.root, np.zeros((3, 1)))
             com[start:stop] = (world(root_m, self.total_mass) / self.total_mass).T
             root_p = p_part.get(self.model.root, {})

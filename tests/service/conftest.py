@@ -35,6 +35,10 @@ TOKENS = {
 }
 TOKEN = {entry["user"]: tok for tok, entry in TOKENS.items()}
 STARTUP_TIMEOUT_S = 60.0
+#: The states an execution ends in, as the dispatch tests wait for them.
+END_STATES = {"succeeded", "aborted", "rejected", "failed"}
+#: How long a spawned simulated controller may take to be heard (a first run compiles kernels).
+CONTROLLER_UP_TIMEOUT_S = 60.0
 
 
 def inline_scenario(**changes: Any) -> dict[str, Any]:

@@ -16,6 +16,8 @@ from typing import Iterator
 import pytest
 from conftest import (
     BRIDGE_WATCHDOG_S,
+    CONTROLLER_UP_TIMEOUT_S,
+    END_STATES,
     Server,
     free_port,
     job_events,
@@ -29,8 +31,6 @@ from conftest import (
 #: Executions on the simulated controller in wall-clock time (a 2 s watchdog, a 3 s zenoh lease): a failure
 #: while the VM's host paused the guest for 0.5 s or more measured the host, and the test runs again.
 pytestmark = pytest.mark.host_pauses(limit_s=0.5)
-END_STATES = {"succeeded", "aborted", "rejected", "failed"}
-CONTROLLER_UP_TIMEOUT_S = 60.0
 #: Beyond the bridge's watchdog, what a loaded machine may take to notice the loss and store the abort, s.
 LOSS_MARGIN_S = 3.0
 

@@ -19,6 +19,8 @@ import httpx
 import pytest
 from conftest import (
     BRIDGE_ROBOT_ID,
+    CONTROLLER_UP_TIMEOUT_S,
+    END_STATES,
     Server,
     free_port,
     job_events,
@@ -33,8 +35,6 @@ from mcap.reader import make_reader
 #: Executions in wall-clock time on the simulated controller (2 s watchdogs): a failure while the VM's host
 #: paused the guest for 0.5 s or more measured the host, and the test runs again.
 pytestmark = pytest.mark.host_pauses(limit_s=0.5)
-END_STATES = {"succeeded", "aborted", "rejected", "failed"}
-CONTROLLER_UP_TIMEOUT_S = 60.0
 AUDIT_TIMEOUT_S = 20.0
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
