@@ -333,6 +333,8 @@ def _check_limits(rep: CheckReport, plan: dict, model, data, pinq, spec: dict, u
         if limited and grip and m > 0:
             for side in hands:
                 share = G * m / len(hands)
+                if not spec["hands"][side].get("jaw"):
+                    continue  # a rigid hand has no grip check
                 T = data.oMf[model.getFrameId(tcp[side])]
                 moment = np.cross(oc - T.translation, [0.0, 0.0, -share])
                 about = abs(float(moment @ T.rotation[:, 1]))

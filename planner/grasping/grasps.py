@@ -237,7 +237,12 @@ def _candidate_frames(centre: np.ndarray, y: np.ndarray, settings: GraspSettings
 
 
 def compute_grasps(obj: ObjectModel, hand: HandGeometry, settings: GraspSettings) -> list[Grasp]:
-    """Plan the grasps (no cache); see the module docstring for the steps."""
+    """Plan the grasps (no cache); see the module docstring for the steps. A rigid hand's grasps are
+    surface contacts instead (:mod:`planner.grasping.contact_grasps`)."""
+    if not hand.has_jaw:
+        from planner.grasping.contact_grasps import compute_contact_grasps
+
+        return compute_contact_grasps(obj, hand, settings)
     pairs = antipodal_pairs(obj, hand, settings)
     obodies = object_bodies(obj)
     oposes = np.array([b.local for b in obodies])  # the object sits at its own frame
@@ -274,6 +279,10 @@ def cache_dir(explicit: str | Path | None = None) -> Path:
 def cache_key(obj: ObjectModel, hand: HandGeometry, settings: GraspSettings) -> str:
     h = hashlib.sha256()
     h.update(f"grasps/{GRASP_ALGORITHM_VERSION}/".encode())
+    if not hand.has_jaw:
+        from planner.grasping.contact_grasps import CONTACT_ALGORITHM_VERSION
+
+        h.update(f"contact/{CONTACT_ALGORITHM_VERSION}/".encode())
     h.update(obj.content_hash.encode())
     h.update(hand.signature())
     h.update(settings.key().encode())

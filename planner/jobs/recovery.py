@@ -92,14 +92,8 @@ def _measured_q(robot: Any, joint_names: list[str], q: list[float]) -> np.ndarra
 def _jaw_indices(robot: Any, holding: str) -> list[int]:
     """Columns of the jaw joints of the holding hands (kept as they are: a held object stays held)."""
     sides = {"none": (), "left": ("left",), "right": ("right",), "both": ("left", "right")}[holding]
-    out: list[int] = []
-    for side in sides:
-        hand = getattr(getattr(robot.spec, "hands", None), side, None)
-        jaw = getattr(hand, "jaw", None)
-        for name in getattr(jaw, "joints", None) or []:
-            if name in robot.joint_names:
-                out.append(robot.joint_index(name))
-    return out
+    grippers = [robot.spec.arms[side].gripper for side in sides]
+    return [robot.joint_index(g.joint) for g in grippers if g is not None]  # a rigid hand has no jaw
 
 
 def plan_recovery(robot_name: str, stance_name: str, joint_names: list[str], q: list[float], *, holding: str = "none",

@@ -71,7 +71,7 @@ class Task:
         self.world = CollisionWorld.from_scenario(
             self.robot, scenario, self.obj, reference_postures=[(self.stance.base_pose, self.stance.q)],
             moving_joints=[*self.robot.spec.waist, *[j for a in self.robot.spec.arms.values() for j in a.chain],
-                           *[a.gripper.joint for a in self.robot.spec.arms.values()]],
+                           *[a.gripper.joint for a in self.robot.spec.arms.values() if a.gripper is not None]],
         )
         #: static torques and grip, or None when the limits are switched off (``settings.limits``)
         self.limits: EffortEvaluator | None = (
@@ -83,7 +83,10 @@ class Task:
         self.ik_arm_only = IkSolver(self.robot, self.stance, s.ik.model_copy(update={"use_waist": False, "restarts": s.arm_only_restarts}),
                                     kinematics=self.world.kin)
         self.home = self.stance.q.copy()
-        self.jaw = {side: self.robot.joint_index(self.robot.spec.arms[side].gripper.joint) for side in ("left", "right")}
+        #: the columns of each hand's jaw joint: one, or none for a rigid hand (index arrays, so writing a
+        #: jaw value into a state is a no-op for a rigid hand)
+        self.jaw = {side: np.array([self.robot.joint_index(g.joint)] if (g := self.robot.spec.arms[side].gripper) else [],
+                                   dtype=int) for side in ("left", "right")}
         for side in ("left", "right"):
             self.home[self.jaw[side]] = self.robot.upper[self.jaw[side]]  # jaws open at home
         self.active = {side: np.concatenate([self.robot.waist_indices(), self.robot.arm_indices(side)]) for side in ("left", "right")}

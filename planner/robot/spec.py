@@ -39,7 +39,8 @@ class GripperSpec(_Frozen):
 class ArmSpec(_Frozen):
     chain: list[str]
     tcp: str
-    gripper: GripperSpec
+    #: the jaw; None for a rigid hand, which holds by attaching the object at its TCP
+    gripper: GripperSpec | None = None
 
 
 class UprightSpec(_Frozen):

@@ -321,8 +321,9 @@ def derive(path: str | Path) -> DerivedRobot:
             _add_frame(urdf, hand.frame, hand.link, hand.pose_in_link, where)
             created.append(hand.frame)
         if hand.jaw is None:
-            raise RobotSpecError(f"{where}.jaw: rigid hands (jaw: null) are not supported by this planner version; "
-                                 "give the jaw joints")
+            # a rigid hand: no joint opens or closes it, and a held object attaches at its TCP
+            arm_paths[side] = list(urdf.chain(hand.frame))
+            continue
         for k, joint in enumerate(hand.jaw.joints):
             if joint not in urdf.joints:
                 raise RobotSpecError(f"{where}.jaw.joints[{k}]: the URDF has no joint {joint!r}")
@@ -344,7 +345,7 @@ def derive(path: str | Path) -> DerivedRobot:
         arm_paths[side] = [j for j in urdf.chain(hand.frame) if j not in hand.jaw.joints]
     common = [a for a, b in zip(arm_paths["left"], arm_paths["right"]) if a == b]
     waist = [j for j in common if j not in leg_joints]
-    arms = {side: ArmSpec(chain=p[len(common):], tcp=rf.hands[side].frame, gripper=grippers[side])
+    arms = {side: ArmSpec(chain=p[len(common):], tcp=rf.hands[side].frame, gripper=grippers.get(side))
             for side, p in arm_paths.items()}
     for side, arm in arms.items():
         if len(arm.chain) < 6:

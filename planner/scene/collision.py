@@ -210,8 +210,10 @@ class CollisionWorld:
         self._fingers: dict[str, np.ndarray] = {}
         self._tcp: dict[str, str] = {}
         for side, arm in robot.spec.arms.items():
-            _, fj = hand_links(robot, side)
-            self._fingers[side] = np.array([i for i in range(self.n_robot) if bodies[i].joint in fj], dtype=int)
+            palm, fj = hand_links(robot, side)
+            # the bodies that touch a grasped object: the fingers of a jaw; a rigid hand touches with itself
+            touch = fj if arm.gripper is not None else palm
+            self._fingers[side] = np.array([i for i in range(self.n_robot) if bodies[i].joint in touch], dtype=int)
             self._tcp[side] = arm.tcp
         self.disabled = self._disabled_self_pairs()
         moving = np.ones(B, dtype=bool)

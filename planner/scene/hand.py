@@ -1,5 +1,7 @@
 """A hand's collision shapes in its TCP frame, at any jaw opening (grasp planning, handover poses
-and the collision checker's finger rules use them). Derived once per robot model."""
+and the collision checker's finger rules use them). Derived once per robot model.
+
+A rigid hand (no jaw) has one shape set and no fingers: its opening is always 0."""
 
 from __future__ import annotations
 
@@ -42,9 +44,13 @@ class HandGeometry:
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
     #: the jaw joint's value when closed (opening 0)
     closed_value: float = 0.0
+    #: False for a rigid hand: nothing opens, a held object attaches at the TCP
+    has_jaw: bool = True
 
     def jaw_value(self, opening_m: float) -> float:
-        """The jaw joint's value for an opening (m)."""
+        """The jaw joint's value for an opening (m); 0 for a rigid hand, which has no jaw joint."""
+        if not self.has_jaw:
+            return 0.0
         return float(opening_m) / self.opening_per_unit + self.closed_value
 
     def at_opening(self, opening_m: float) -> list[tuple[str, str, tuple[float, ...], np.ndarray]]:
@@ -59,6 +65,8 @@ class HandGeometry:
     def signature(self) -> bytes:
         """Bytes that identify the geometry (cache keys): shapes at the jaw closed and fully open."""
         parts = [f"{self.max_opening_m:.9f}/{self.opening_per_unit:.9f}".encode()]
+        if not self.has_jaw:
+            parts.append(b"rigid")
         if self.closed_value != 0.0:
             parts.append(f"{self.closed_value:.9f}".encode())
         full = [T for *_rest, T in self.at_opening(self.max_opening_m)]
@@ -75,6 +83,8 @@ def hand_links(robot: RobotModel, side: Side) -> tuple[set[int], set[int]]:
     model = robot.pin_model
     arm = robot.spec.arms[side]
     tcp_joint = int(model.frames[robot.frame_id(arm.tcp)].parentJoint)
+    if arm.gripper is None:
+        return {tcp_joint}, set()
     finger_joints = {int(model.getJointId(arm.gripper.joint))}
     for mimic, (master, _k, _b) in robot.mimic.items():
         if master == arm.gripper.joint:
@@ -89,9 +99,10 @@ def hand_geometry(robot: RobotModel, side: Side) -> HandGeometry:
         shapes, _poses = _hand_shape_poses(robot, side, 0.0)
         if not shapes:
             raise ValueError(f"robot {robot.name!r}: the {side} hand has no collision primitives")
-        arm = robot.spec.arms[side]
-        return HandGeometry(side, tuple(shapes), arm.gripper.max_opening_m, arm.gripper.opening_per_unit, robot,
-                            closed_value=arm.gripper.closed_value)
+        g = robot.spec.arms[side].gripper
+        if g is None:
+            return HandGeometry(side, tuple(shapes), 0.0, 1.0, robot, has_jaw=False)
+        return HandGeometry(side, tuple(shapes), g.max_opening_m, g.opening_per_unit, robot, closed_value=g.closed_value)
 
     return robot.derived(("hand_geometry", side), build)
 
@@ -109,7 +120,8 @@ def _hand_setup(robot: RobotModel, side: Side) -> tuple:
             jid = link_joint.get(prim.link)
             if jid is not None and jid in palm_joints | finger_joints:
                 prims.append((prim, int(model.getFrameId(prim.link)), jid in finger_joints))
-        return robot.frame_id(arm.tcp), robot.joint_index(arm.gripper.joint), tuple(prims), robot.default_q()
+        jaw = None if arm.gripper is None else robot.joint_index(arm.gripper.joint)
+        return robot.frame_id(arm.tcp), jaw, tuple(prims), robot.default_q()
 
     return robot.derived(("hand_setup", side), build)
 
@@ -120,7 +132,8 @@ def _hand_shape_poses(robot: RobotModel, side: Side, jaw_value: float) -> tuple[
     tcp_fid, jaw, prims, q0 = _hand_setup(robot, side)
     data = robot.create_data()
     q = q0.copy()
-    q[jaw] = jaw_value
+    if jaw is not None:
+        q[jaw] = jaw_value
     pin.forwardKinematics(model, data, robot.to_pin_q(np.array([0, 0, 0, 0, 0, 0, 1.0]), q))
     T_tcp_w = inverse(pin.updateFramePlacement(model, data, tcp_fid).homogeneous)
     shapes, poses = [], []

@@ -65,8 +65,9 @@ def check(spec_file: str) -> None:
     for side, foot in s.feet.items():
         console.print(f"{side} leg ({foot.frame}): {', '.join(foot.chain)}", highlight=False)
     for side, arm in s.arms.items():
-        console.print(f"{side} arm ({arm.tcp}): {', '.join(arm.chain)}; jaw {arm.gripper.joint} "
-                      f"0..{arm.gripper.max_opening_m * 1000:.1f} mm", highlight=False)
+        hand = ("rigid hand (the object attaches at the TCP)" if arm.gripper is None else
+                f"jaw {arm.gripper.joint} 0..{arm.gripper.max_opening_m * 1000:.1f} mm")
+        console.print(f"{side} arm ({arm.tcp}): {', '.join(arm.chain)}; {hand}", highlight=False)
     console.print(f"waist: {', '.join(s.waist) or '-'}; neck: {', '.join(s.neck) or '-'}", highlight=False)
     by_source: dict[str, list[str]] = {}
     for joint, source in d.limit_sources.items():

@@ -1,7 +1,8 @@
 """A small humanoid made up for the tests: its URDF (boxes, no sole or TCP frames) and a spec file for it.
 
 Pelvis, two 6-joint legs, a waist yaw, a chest with a head, two 6-joint arms, each hand a palm and two
-fingers on a prismatic jaw (the second finger a mimic). The spec creates the sole and TCP frames.
+fingers on a prismatic jaw (the second finger a mimic), or with ``rigid`` a flat pad fixed to the wrist
+(no jaw: the spec says ``jaw: null``). The spec creates the sole and TCP frames.
 """
 
 from __future__ import annotations
@@ -32,8 +33,8 @@ def _joint(name, parent, child, xyz, axis, lower=-2.0, upper=2.0, kind="revolute
             f'<origin xyz="{xyz}"/><axis xyz="{AXES[axis] if axis in AXES else axis}"/>{lim}{mim}</joint>')
 
 
-def small_humanoid_urdf(no_effort: str | None = None) -> str:
-    """The URDF text; ``no_effort``: a joint written without an effort limit."""
+def small_humanoid_urdf(no_effort: str | None = None, rigid: bool = False) -> str:
+    """The URDF text; ``no_effort``: a joint written without an effort limit; ``rigid``: pads for hands."""
     parts = ['<robot name="small_humanoid">', _box_link("pelvis", 8.0, (0.2, 0.3, 0.12), (0, 0, 0))]
 
     def J(*args, **kw):
@@ -77,6 +78,11 @@ def small_humanoid_urdf(no_effort: str | None = None) -> str:
             lo, hi = (-2.4, 0.0) if jn == "elbow" else (-2.0, 2.0)
             J(f"{side}_{jn}", parent, link, off, ax, lower=lo, upper=hi)
             parent = link
+        if rigid:
+            parts.append(_box_link(f"{side}_pad", 0.1, (0.06, 0.08, 0.02), (0, 0, -0.01)))  # face at z = -0.12
+            parts.append(f'<joint name="{side}_pad_fixed" type="fixed"><parent link="{side}_arm6"/>'
+                         f'<child link="{side}_pad"/><origin xyz="0 0 -0.10"/></joint>')
+            continue
         for finger, sign in (("a", 1.0), ("b", -1.0)):
             link = f"{side}_finger_{finger}"
             parts.append(_box_link(link, 0.05, (0.03, 0.01, 0.1), (0, 0.005 * sign, -0.1)))  # inner face at the jaw
@@ -106,11 +112,23 @@ SPEC = {
 }
 
 
-def write_small_humanoid(folder: Path, spec_changes=None, no_effort: str | None = None) -> Path:
-    """Write the URDF and a spec file (``spec_changes(spec)`` edits a copy first) to ``folder``; the spec's path."""
+def rigid_hands(spec: dict) -> None:
+    """Edit a copy of :data:`SPEC` for the URDF written with ``rigid``: no jaws, the TCP on each pad's face."""
+    for side, hand in spec["hands"].items():
+        hand.update(jaw=None, pose_in_link=[0, 0, -0.12, 1, 0, 0, 0])
+    spec.pop("grip")
+    for joint in ("l_jaw", "r_jaw"):
+        spec["default_posture_rad"].pop(joint)
+
+
+def write_small_humanoid(folder: Path, spec_changes=None, no_effort: str | None = None, rigid: bool = False) -> Path:
+    """Write the URDF and a spec file (``spec_changes(spec)`` edits a copy first) to ``folder``; the spec's path.
+    ``rigid``: the pad hands' URDF and spec (:func:`rigid_hands`)."""
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "small_humanoid.urdf").write_text(small_humanoid_urdf(no_effort))
+    (folder / "small_humanoid.urdf").write_text(small_humanoid_urdf(no_effort, rigid))
     spec = copy.deepcopy(SPEC)
+    if rigid:
+        rigid_hands(spec)
     if spec_changes is not None:
         spec_changes(spec)
     path = folder / "small_humanoid.yaml"

@@ -81,13 +81,14 @@ def test_a_joint_without_an_effort_limit_needs_one_in_the_spec(tmp_path):
     derive(write_small_humanoid(tmp_path, lambda s: s["effort_limits"].update(l_elbow=80.0), no_effort="l_elbow"))
 
 
-def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_and_the_gate_agree(tmp_path, monkeypatch):
+@pytest.mark.parametrize("rigid", [False, True], ids=["jaws", "rigid-hands"])
+def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_and_the_gate_agree(tmp_path, monkeypatch, rigid):
     from click.testing import CliRunner
     from plan_checker import check_plan
 
     from service.cli.main import cli
 
-    spec_path = write_small_humanoid(tmp_path / "robot")
+    spec_path = write_small_humanoid(tmp_path / "robot", rigid=rigid)
     scenario = {
         "schema": "regrasp.scenario/1", "name": "small-humanoid-box", "robot": "robot/small_humanoid.yaml",
         "stance": "upright", "object": {"shape": "box", "size": [0.05, 0.08, 0.10], "mass_kg": 1.0},
@@ -95,6 +96,13 @@ def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_and_the_gate
         "tables": [{"name": "table", "pose": [0.5, 0, 0.375, 0, 0, 0, 1], "size": [0.4, 1.2, 0.75]}],
         "threshold_m": 0.02, "hands": "right-right", "limits": {"time_s": 120, "max_iterations": 300}, "seed": 1,
     }
+    if rigid:
+        # a pad presses flat on one face, so fewer hand poses reach a small box than a jaw's: a wider box, nearer
+        # the arm's comfortable reach
+        scenario.update(object={"shape": "box", "size": [0.12, 0.16, 0.12], "mass_kg": 1.0},
+                        start_pose=[0.42, -0.3, 0.85, 0, 0, 0, 1], goal_pose=[0.42, -0.15, 0.85, 0, 0, 0, 1],
+                        tables=[{"name": "table", "pose": [0.52, 0, 0.395, 0, 0, 0, 1], "size": [0.52, 1.2, 0.79]}])
+        scenario["limits"]["max_iterations"] = 3000
     sc_path = tmp_path / "scenario.yaml"
     sc_path.write_text(yaml.safe_dump(scenario))
     out = tmp_path / "plan.json"
@@ -114,6 +122,12 @@ def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_and_the_gate
     assert verdict.passed, verdict.message
     assert verdict.stats["effort"]["max_ratio"] == pytest.approx(max(p["effort_ratio"] for p in plan["trajectory"]),
                                                                   abs=1e-9)
+    if rigid:
+        # the object attaches at the pad's TCP: it sits on the object's surface, and nothing opens or closes
+        assert "rigid hand" in res.output
+        assert not any("jaw" in name for name in plan["robot"]["joint_names"])
+        held = [p for p in plan["trajectory"] if p["holding"] == "right"]
+        assert held, "the object is never held"
 
 
 SRDF = """<robot name="small_humanoid">
