@@ -35,6 +35,7 @@ from planner.robot.spec import (
     RobotSpec,
     UprightSpec,
 )
+from planner.robot.spec_collision import parse_collision, write_link_shapes
 
 ROBOT_SCHEMA = "regrasp.robot/1"
 CACHE_ENV = "REGRASP_CACHE_DIR"
@@ -388,9 +389,14 @@ def derive(path: str | Path) -> DerivedRobot:
         effort_limits=rf.effort_limits, grip=rf.grip, limit_sources=rf.limit_sources, license_notice=rf.license_notice,
         disabled_collisions=disabled,
     )
-    if rf.collision != "auto":
-        raise RobotSpecError("collision: explicit primitives are not supported by this version; use auto")
-    if not created and not sole_boxes_added and not urdf.has_mesh_collisions():
+    shapes = parse_collision(rf.collision, RobotSpecError)
+    for link, link_shapes in (shapes or {}).items():
+        el = next((e for e in urdf.root.findall("link") if e.attrib["name"] == link), None)
+        if el is None:
+            raise RobotSpecError(f"collision.{link}: the URDF has no link {link!r}")
+        write_link_shapes(el, link_shapes, _pose_xyz_rpy)
+        notes.append(f"collision: {len(link_shapes)} shape(s) of the spec on {link}")
+    if not created and not sole_boxes_added and not shapes and not urdf.has_mesh_collisions():
         # nothing to derive: the URDF itself, so plans carry its own SHA-256 and nothing is written
         spec = spec.model_copy(update={"urdf": str(urdf_file)})
         return DerivedRobot(spec=spec, source=path, urdf=urdf_file, derived_urdf=urdf_file, created_frames=(),
