@@ -20,7 +20,7 @@ import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import yaml
@@ -93,7 +93,9 @@ class RobotFile(_Strict):
     acceleration_limits: dict[str, float]
     effort_limits: dict[str, float] = Field(default_factory=dict)
     grip: GripSpec | None = None
-    collision: Literal["auto"] | dict = "auto"
+    #: ``auto`` or shapes per link, read by :func:`planner.robot.spec_collision.parse_collision` (its errors
+    #: name the entry)
+    collision: Any = "auto"
     #: the robot's SRDF (MoveIt's semantic description); its ``<disable_collisions>`` pairs are not checked
     srdf: str | None = None
     #: a ``<group_state>`` of the SRDF (e.g. ``half_sitting``) whose joint values start the default posture

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import xml.etree.ElementTree as ET
 
+import numpy as np
 import pytest
 import yaml
 
@@ -172,3 +173,36 @@ def test_bad_srdf_fields_name_the_field(tmp_path, change, message):
     with pytest.raises(RobotSpecError) as exc:
         derive(spec_path)
     assert message in str(exc.value)
+
+
+def test_collision_shapes_in_the_spec_replace_those_links_collisions(tmp_path):
+    """A box, a sphere and a capsule (its cylinder and two end spheres) on two links; the other links keep theirs."""
+    from planner.robot.urdf_geometry import collision_primitives
+
+    shapes = {"l_arm6": [{"box": [0.04, 0.05, 0.06], "pose": [0, 0, -0.03, 0, 0, 0, 1]}, {"sphere": 0.02}],
+              "r_arm6": [{"capsule": [0.02, 0.1], "pose": [0, 0, -0.05, 0.7071068, 0, 0, 0.7071068]}]}
+    d = derive(write_small_humanoid(tmp_path, lambda s: s.update(collision=shapes)))
+    prims = collision_primitives(d.derived_urdf)
+    left = [(p.kind, p.dims) for p in prims if p.link == "l_arm6"]
+    assert left == [("box", (0.04, 0.05, 0.06)), ("sphere", (0.02,))]
+    right = [p for p in prims if p.link == "r_arm6"]
+    assert [(p.kind, p.dims) for p in right] == [("cylinder", (0.02, 0.1)), ("sphere", (0.02,)), ("sphere", (0.02,))]
+    # the capsule's axis is turned to the link's -y: its end spheres sit 0.05 m either side along y
+    ends = sorted(p.origin[:3, 3].round(6).tolist() for p in right[1:])
+    assert np.allclose(ends, [[0, -0.05, -0.05], [0, 0.05, -0.05]], atol=1e-6)
+    assert [p.kind for p in prims if p.link == "chest"] == ["box"]
+    assert any("shape(s) of the spec on l_arm6" in n for n in d.notes)
+
+
+@pytest.mark.parametrize("shapes, message", [
+    ({"l_armX": [{"sphere": 0.02}]}, "collision.l_armX: the URDF has no link 'l_armX'"),
+    ({"l_arm6": [{"sphere": 0.02, "box": [0.1, 0.1, 0.1]}]}, "collision.l_arm6[0]"),
+    ({"l_arm6": [{"box": [0.1, -0.1, 0.1]}]}, "collision.l_arm6[0]"),
+    ({"l_arm6": [{"sphere": 0.02, "pose": [0, 0, 0, 0, 0, 0, 0]}]}, "collision.l_arm6[0]"),
+    ({"l_arm6": {"sphere": 0.02}}, "collision.l_arm6: a list of shapes"),
+    ("boxes", "collision: `auto` or a mapping"),
+])
+def test_bad_collision_shapes_name_the_entry(tmp_path, shapes, message):
+    with pytest.raises(RobotSpecError) as err:
+        derive(write_small_humanoid(tmp_path, lambda s: s.update(collision=shapes)))
+    assert str(err.value).startswith(message), str(err.value)
