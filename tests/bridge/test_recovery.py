@@ -95,7 +95,7 @@ def test_a_held_object_counts_in_the_recovery_and_stays_held(gate):
     the hand, keeps the jaws as they are, and the gate (which recomputes the system CoM with the object) passes it."""
     from .plans import build_plan
 
-    aborted = build_plan({"RSP": -0.4}, duration_s=1.0, holding="right", mass_kg=3.0)
+    aborted = build_plan({"RSP": -0.4, "RJAW": -0.02}, duration_s=1.0, holding="right", mass_kg=3.0)
     at = len(aborted["trajectory"]) - 1
     names = aborted["robot"]["joint_names"]
     q1 = aborted["trajectory"][at]["q"]
@@ -103,6 +103,8 @@ def test_a_held_object_counts_in_the_recovery_and_stays_held(gate):
     plan = plan_recovery("hrp5p", "upright", names, q1, holding="right", obj=obj)
     assert plan["status"] == "solved", plan["failure"]
     assert {p["holding"] for p in plan["trajectory"]} == {"right"}
+    jaw = names.index("RJAW")
+    assert q1[jaw] == pytest.approx(0.021) and {p["q"][jaw] for p in plan["trajectory"]} == {q1[jaw]}  # the jaw stays closed
     assert plan["object"]["mass_kg"] == 3.0
     assert np.allclose(plan["trajectory"][0]["object_pose"][:3], obj["pose"][:3], atol=1e-9)
     assert not np.allclose(plan["trajectory"][-1]["object_pose"][:3], obj["pose"][:3], atol=1e-3)  # it moved along
