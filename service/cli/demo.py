@@ -76,7 +76,8 @@ def demo(out_dir: str, robot_name: str | None, stances_only: bool, scenario: str
     try:
         if scenario is None:
             scenario = default_scenario(robot_name) if robot_name else "upright"
-        scenario_robot = load_scenario(scenario).robot
+        loaded = load_scenario(scenario)
+        scenario_robot = loaded.robot
     except InputError as exc:
         fail(str(exc))
     robot_name = robot_name or scenario_robot
@@ -98,8 +99,13 @@ def demo(out_dir: str, robot_name: str | None, stances_only: bool, scenario: str
     for r in rows:
         if "picture" in r:
             console.print(f"  picture: {r['picture']}")
-    if any("error" in r for r in rows):
-        fail("some stances could not be solved", code=1)
+    task_stance = loaded.stance if isinstance(loaded.stance, str) else loaded.stance.name
+    unsolved = [r["stance"] for r in rows if "error" in r]
+    if task_stance in unsolved:
+        fail(f"the task's stance {task_stance} could not be solved for {robot_name}", code=1)
+    if unsolved:
+        console.print(f"  {', '.join(unsolved)}: beyond {robot_name} (above); the task stands {task_stance}",
+                      highlight=False)
     if stances_only:
         console.print(f"[green]done[/]: artefacts in {out.resolve()}")
         return

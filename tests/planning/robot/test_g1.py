@@ -96,3 +96,32 @@ def test_the_gate_passes_the_g1_upright_plan(g1_plan):
     assert verdict.passed, verdict.message
     assert verdict.stats["effort"]["max_ratio"] == pytest.approx(max(p["effort_ratio"] for p in g1_plan["trajectory"]),
                                                                   abs=1e-9)
+
+
+def test_the_demo_shows_the_stance_g1_cannot_take_and_goes_on(tmp_path):
+    """`regrasp demo --robot g1 --stances-only`: the crouch G1 cannot take is shown with its reason; the task's
+    own stance (upright) solves, so the demo does not stop there."""
+    from click.testing import CliRunner
+
+    from service.cli.main import cli
+
+    res = CliRunner().invoke(cli, ["demo", "--robot", "g1", "--out", str(tmp_path), "--stances-only"],
+                             catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    flat = " ".join(res.output.split())
+    assert "crouched: beyond g1 (above); the task stands upright" in flat and "r_sole" in flat
+    assert sorted(p.name for p in tmp_path.glob("stance-*.png")) == [
+        "stance-one-legged.png", "stance-staggered.png", "stance-upright.png"]
+
+
+def test_a_small_survey_of_g1_upright_counts_the_one_hand_configurations():
+    from planner.scene.scenarios import load_builtin
+    from planner.survey.estimator import Estimator
+    from planner.survey.runner import run_survey
+
+    est = Estimator(until="states", states_per_seed=100, seeds_min=2, seeds_max=2)
+    doc, _ = run_survey(load_builtin("g1-upright"), estimator=est, workers=1, keep_states=False)
+    rows = {r["hands"]: r for r in doc["rows"]}
+    assert doc["robot"]["name"] == "g1"
+    for hands in ("left-left", "right-right"):
+        assert rows[hands]["stable"] + rows[hands]["unstable"] == 200 and 0.0 < rows[hands]["ratio"] <= 1.0
