@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from planner.grasping.grasps import Grasp, GraspSettings, _perpendicular, sample_surface
+from planner.grasping.grasps import Grasp, GraspSettings, _perpendicular, sample_surface, thin_out
 from planner.scene.bodies import object_bodies, shapes_collide
 from planner.scene.hand import HandGeometry, hand_bodies
 from planner.scene.objects import ObjectModel
@@ -47,16 +47,7 @@ def surface_contacts(obj: ObjectModel, settings: GraspSettings) -> list[tuple[np
     com_d = np.linalg.norm(obj.com_local - pts, axis=1)
     order = np.lexsort((np.round(pts[:, 2], 6), np.round(pts[:, 1], 6), np.round(pts[:, 0], 6), np.round(com_d, 6),
                         np.round(off_line, 6)))
-    kept: list[int] = []
-    cos_dup = np.cos(settings.dedupe_angle_rad)
-    for i in order:
-        if kept:
-            dup = (np.linalg.norm(pts[kept] - pts[i], axis=1) < settings.dedupe_position_m) & (inward[kept] @ inward[i] > cos_dup)
-            if dup.any():
-                continue
-        kept.append(int(i))
-        if len(kept) >= settings.max_pairs:
-            break
+    kept = thin_out(order, pts, inward, settings, signed_axes=True)
     return [(pts[i], inward[i], float(com_d[i])) for i in kept]
 
 

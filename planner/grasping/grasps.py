@@ -205,18 +205,27 @@ def antipodal_pairs(obj: ObjectModel, hand: HandGeometry, settings: GraspSetting
     centre, axis, width, com_d = centre[near], axis[near], width[near], com_d[near]
     # deterministic order: closest to the CoM first, ties by position
     order = np.lexsort((np.round(centre[:, 2], 6), np.round(centre[:, 1], 6), np.round(centre[:, 0], 6), np.round(com_d, 6)))
+    kept = thin_out(order, centre, axis, settings, signed_axes=False)
+    return [(centre[i], axis[i], float(width[i])) for i in kept]
+
+
+def thin_out(order: np.ndarray, points: np.ndarray, axes: np.ndarray, settings: GraspSettings, *,
+             signed_axes: bool) -> list[int]:
+    """The indices, in ``order``, of the points kept when each one closer than ``dedupe_position_m`` to a kept one
+    with an axis within ``dedupe_angle_rad`` of its axis is dropped, at most ``max_pairs``. ``signed_axes``: a
+    contact's approach and its reverse differ (else a closing axis and its reverse are the same)."""
     kept: list[int] = []
     cos_dup = np.cos(settings.dedupe_angle_rad)
     for i in order:
         if kept:
-            kc, ka = centre[kept], axis[kept]
-            dup = (np.linalg.norm(kc - centre[i], axis=1) < settings.dedupe_position_m) & (np.abs(ka @ axis[i]) > cos_dup)
-            if dup.any():
+            align = axes[kept] @ axes[i]
+            near = np.linalg.norm(points[kept] - points[i], axis=1) < settings.dedupe_position_m
+            if (near & ((align if signed_axes else np.abs(align)) > cos_dup)).any():
                 continue
         kept.append(int(i))
         if len(kept) >= settings.max_pairs:
             break
-    return [(centre[i], axis[i], float(width[i])) for i in kept]
+    return kept
 
 
 def _candidate_frames(centre: np.ndarray, y: np.ndarray, settings: GraspSettings) -> list[np.ndarray]:

@@ -9,6 +9,8 @@ import pytest
 
 pytest.importorskip("cmeel", reason="G1 needs the example-robot-data package (the `talos` extra)")
 
+from .robot_checks import assert_the_gate_passes, small_survey
+
 SPEC = "robot_data/g1.yaml"
 
 
@@ -90,12 +92,7 @@ def test_g1_upright_plans_and_the_independent_checker_agrees(g1_plan):
 
 
 def test_the_gate_passes_the_g1_upright_plan(g1_plan):
-    from robot_bridge.gate import SafetyGate
-
-    verdict = SafetyGate().check(g1_plan, offline=True)
-    assert verdict.passed, verdict.message
-    assert verdict.stats["effort"]["max_ratio"] == pytest.approx(max(p["effort_ratio"] for p in g1_plan["trajectory"]),
-                                                                  abs=1e-9)
+    assert_the_gate_passes(g1_plan)
 
 
 def test_the_demo_shows_the_stance_g1_cannot_take_and_goes_on(tmp_path):
@@ -115,13 +112,7 @@ def test_the_demo_shows_the_stance_g1_cannot_take_and_goes_on(tmp_path):
 
 
 def test_a_small_survey_of_g1_upright_counts_the_one_hand_configurations():
-    from planner.scene.scenarios import load_builtin
-    from planner.survey.estimator import Estimator
-    from planner.survey.runner import run_survey
-
-    est = Estimator(until="states", states_per_seed=100, seeds_min=2, seeds_max=2)
-    doc, _ = run_survey(load_builtin("g1-upright"), estimator=est, workers=1, keep_states=False)
-    rows = {r["hands"]: r for r in doc["rows"]}
+    doc, rows = small_survey("g1-upright")
     assert doc["robot"]["name"] == "g1"
     for hands in ("left-left", "right-right"):
         assert rows[hands]["stable"] + rows[hands]["unstable"] == 200 and 0.0 < rows[hands]["ratio"] <= 1.0

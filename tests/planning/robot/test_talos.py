@@ -11,6 +11,8 @@ import pytest
 
 pytest.importorskip("cmeel", reason="TALOS needs the example-robot-data package (the `talos` extra)")
 
+from .robot_checks import assert_the_gate_passes, small_survey
+
 SPEC = "robot_data/talos.yaml"
 
 
@@ -119,12 +121,7 @@ def test_talos_upright_plans_and_the_independent_checker_agrees(talos_plan):
 
 
 def test_the_gate_passes_the_talos_upright_plan(talos_plan):
-    from robot_bridge.gate import SafetyGate
-
-    verdict = SafetyGate().check(talos_plan, offline=True)
-    assert verdict.passed, verdict.message
-    assert verdict.stats["effort"]["max_ratio"] == pytest.approx(max(p["effort_ratio"] for p in talos_plan["trajectory"]),
-                                                                  abs=1e-9)
+    assert_the_gate_passes(talos_plan)
 
 
 def test_the_papers_8_kg_upright_task_is_beyond_talos_wrists():
@@ -139,13 +136,7 @@ def test_the_papers_8_kg_upright_task_is_beyond_talos_wrists():
 
 
 def test_a_small_survey_of_talos_upright_has_the_four_hand_configurations():
-    from planner.scene.scenarios import load_builtin
-    from planner.survey.estimator import Estimator
-    from planner.survey.runner import run_survey
-
-    est = Estimator(until="states", states_per_seed=100, seeds_min=2, seeds_max=2)
-    doc, _ = run_survey(load_builtin("talos-upright"), estimator=est, workers=1, keep_states=False)
-    rows = {r["hands"]: r for r in doc["rows"]}
+    doc, rows = small_survey("talos-upright")
     assert doc["robot"]["name"] == "talos" and set(rows) == {"left-left", "right-right", "left-right", "right-left"}
     for hands in ("left-left", "right-right"):  # one arm carries it across; the handovers find no key poses
         assert 0.0 < rows[hands]["ratio"] <= 1.0 and rows[hands]["seeds"] == 2

@@ -1,0 +1,27 @@
+"""Checks every robot's tests make of a plan and a survey: the gate passes the plan with the planner's own largest
+effort ratio, and a small survey of a built-in task has its rows."""
+
+from __future__ import annotations
+
+import pytest
+
+
+def assert_the_gate_passes(plan: dict) -> None:
+    """The safety gate (its own kinematics and limits) passes ``plan`` and finds the plan's largest effort ratio."""
+    from robot_bridge.gate import SafetyGate
+
+    verdict = SafetyGate().check(plan, offline=True)
+    assert verdict.passed, verdict.message
+    assert verdict.stats["effort"]["max_ratio"] == pytest.approx(max(p["effort_ratio"] for p in plan["trajectory"]),
+                                                                  abs=1e-9)
+
+
+def small_survey(scenario: str) -> tuple[dict, dict]:
+    """A survey of the built-in ``scenario``, two seeds of 100 states: (the document, its rows by hands)."""
+    from planner.scene.scenarios import load_builtin
+    from planner.survey.estimator import Estimator
+    from planner.survey.runner import run_survey
+
+    est = Estimator(until="states", states_per_seed=100, seeds_min=2, seeds_max=2)
+    doc, _ = run_survey(load_builtin(scenario), estimator=est, workers=1, keep_states=False)
+    return doc, {r["hands"]: r for r in doc["rows"]}
