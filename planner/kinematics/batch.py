@@ -125,6 +125,12 @@ class BatchKinematics:
         return self._com_from(Rs, ps), {f: self.frame(Rs, ps, f) for f in frames}
 
 
+def select_states(Rs: list, ps: list, rows: np.ndarray) -> tuple[list, list]:
+    """The states ``rows`` of a :meth:`BatchKinematics.forward` result, as such a result (one block each)."""
+    R, p = frames_block(Rs)[..., rows], frames_block(ps)[..., rows]
+    return [None, *R[1:]], [None, *p[1:]]
+
+
 def frames_block(frames: list) -> np.ndarray:
     """The ``(njoints, ...)`` block whose views a :meth:`BatchKinematics.forward` list holds."""
     base = frames[1].base

@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from planner.kinematics.batch import select_states
 from planner.scene.collision import CollisionWorld
 from planner.stability.effort import EffortEvaluator
 from planner.stability.evaluator import HoldSpec, StateEvaluator
@@ -46,15 +47,20 @@ class StateChecker:
             batch = self.evaluator.evaluate(Q, hold, active=active)
             self.counters["com_states"] += len(Q)
             ok = batch.stable.copy() if self.constrained else np.ones(len(Q), dtype=bool)
-            if self.limits is not None and ok.any():
-                idx = np.flatnonzero(ok)
-                ok[idx] = self._limit_causes(Q[idx], hold) == 0
             if ok.any():
                 idx = np.flatnonzero(ok)
-                res = self.world.check_batch(self.base_pose, Q[idx], held=held,
-                                             free_object_pose=None if held else free_object, grasping=grasping)
-                self.counters["collision_states"] += len(idx)
-                ok[idx] = ~res.collides
+                Rs, ps = self.world.kin.forward(self.base_pose, Q[idx])  # one FK for the limits and the collisions
+                if self.limits is not None:
+                    within = self._limit_causes(Q[idx], hold, (Rs, ps)) == 0
+                    ok[idx] = within
+                    if not within.all():
+                        idx = idx[within]
+                        Rs, ps = select_states(Rs, ps, np.flatnonzero(within))
+                if idx.size:
+                    res = self.world.check_forward(Rs, ps, held=held, free_object_pose=None if held else free_object,
+                                                   grasping=grasping)
+                    self.counters["collision_states"] += len(idx)
+                    ok[idx] = ~res.collides
             return ok, batch.margin
 
         return check
@@ -76,33 +82,40 @@ class StateChecker:
         margins = batch.margin.reshape(groups, k).min(axis=1)
         unstable = ~batch.stable.reshape(groups, k).all(axis=1) if self.constrained else np.zeros(groups, dtype=bool)
         causes: list[str | None] = ["com_margin" if u else None for u in unstable]
-        if self.limits is not None and (~unstable).any():
-            groups_in = np.flatnonzero(~unstable)
-            rows = (groups_in[:, None] * k + np.arange(k)).ravel()
-            codes = self._limit_causes(Q[rows], hold).reshape(-1, k)
+        groups_in = np.flatnonzero(~unstable)
+        if not groups_in.size:
+            return causes, margins
+        rows_in = (groups_in[:, None] * k + np.arange(k)).ravel()
+        frames = self.world.kin.forward(self.base_pose, Q[rows_in])  # one FK for the limits and the collisions
+        check = groups_in
+        if self.limits is not None:
+            codes = self._limit_causes(Q[rows_in], hold, frames).reshape(-1, k)
             for g, row_codes in zip(groups_in, codes):
                 bad = row_codes[row_codes > 0]
                 if bad.size:  # the first failing state's cause
                     causes[g] = _LIMIT_CAUSE[int(bad[0])]
-                    unstable[g] = True
-        check = np.flatnonzero(~unstable)
+            within = ~(codes > 0).any(axis=1)
+            check = groups_in[within]
+            if not within.all():
+                frames = select_states(*frames, np.flatnonzero(np.repeat(within, k)))
         if check.size:
             rows = (check[:, None] * k + np.arange(k)).ravel()
             held = [(hold.tcp_side, hold.T_obj_tcp)] if hold is not None else []
             if free_object is not None and np.ndim(free_object) == 3:
                 free_object = free_object[rows]
-            res = self.world.check_batch(self.base_pose, Q[rows], held=held,
-                                         free_object_pose=None if held else free_object, grasping=grasping)
+            res = self.world.check_forward(*frames, held=held, free_object_pose=None if held else free_object,
+                                           grasping=grasping)
             self.counters["collision_states"] += len(rows)
             for g in check[res.collides.reshape(-1, k).any(axis=1)]:
                 causes[g] = "collision"
         return causes, margins
 
 
-    def _limit_causes(self, Q: np.ndarray, hold: HoldSpec | None) -> np.ndarray:
-        """Per state 0 (within the limits), 1 (a joint over its effort limit) or 2 (the grip slips)."""
+    def _limit_causes(self, Q: np.ndarray, hold: HoldSpec | None, frames: tuple[list, list]) -> np.ndarray:
+        """Per state 0 (within the limits), 1 (a joint over its effort limit) or 2 (the grip slips); ``frames``:
+        the states' forward kinematics at the stance."""
         holding = "none" if hold is None else hold.side
-        res = self.limits.evaluate(Q, holding, T_tcp_obj=None if hold is None else hold.T_tcp_obj)
+        res = self.limits.evaluate(Q, holding, T_tcp_obj=None if hold is None else hold.T_tcp_obj, frames=frames)
         self.counters["limit_states"] += len(Q)
         return np.where(~res.effort_ok, 1, np.where(~res.grip_ok, 2, 0))
 

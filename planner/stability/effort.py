@@ -185,12 +185,14 @@ class EffortEvaluator:
         self._wrench_map = min_norm_wrench_map(self.contact_point)
 
     def evaluate(self, Q: np.ndarray, holding: Holding, object_pose: np.ndarray | None = None,
-                 T_tcp_obj: np.ndarray | None = None) -> LimitBatch:
+                 T_tcp_obj: np.ndarray | None = None, frames: tuple[list, list] | None = None) -> LimitBatch:
         """Torques and grip of states Q (N, n) while ``holding``; the object's world poses (N, 4, 4), or
-        its pose in the holding TCP frame (``T_tcp_obj``, left hand's TCP while both hold)."""
+        its pose in the holding TCP frame (``T_tcp_obj``, left hand's TCP while both hold). ``frames``: the
+        states' :meth:`BatchKinematics.forward` at the stance's base pose, when the caller has it (the
+        state checker computes it once for this check and the collision check)."""
         Q = np.atleast_2d(np.asarray(Q, dtype=float))
         n = len(Q)
-        Rs, ps = self.kin.forward(self.base_pose, Q)
+        Rs, ps = frames if frames is not None else self.kin.forward(self.base_pose, Q)
         R, p = frames_block(Rs), frames_block(ps)
         sides = _SIDES_OF[holding]
         m_o = self.object_mass if sides else 0.0
