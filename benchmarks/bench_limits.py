@@ -55,7 +55,8 @@ def per_state(robot_name: str, batch: int, repeats: int = 200) -> tuple[float, f
 
 #: Fixed hands per scenario (a plan with ``hands: auto`` would first need the task's survey).
 PLAN_HANDS = {"upright": "left-left", "staggered": "left-left", "crouched": "right-right", "one-legged": "left-left",
-              "talos-upright": "right-right", "drill-handover": "right-left", "drill-upright": "right-right"}
+              "talos-upright": "right-right", "g1-upright": "right-right", "drill-handover": "right-left",
+              "drill-upright": "right-right"}
 
 
 class _LimitClock:
