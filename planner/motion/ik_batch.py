@@ -57,6 +57,8 @@ class _Chain:
     tree: TreeSpec  # slot 0: the frame before the moving joints (given); then the moving joints to the TCP's
     step_slots: np.ndarray  # the slots of the joints IK moves, in the order of the active columns
     step_axes: np.ndarray  # their rotation axes (index of the frame's column)
+    tcp_R0: np.ndarray  # the TCP's placement in the last slot's frame
+    tcp_p0: np.ndarray
 
 
 class BatchIk:
@@ -69,8 +71,14 @@ class BatchIk:
         self._chains: dict[tuple, _Chain] = {}
 
     def _chain(self, side: str, active: np.ndarray) -> _Chain:
-        """The chain to ``side``'s TCP; every joint from the first active one on must be a plain revolute
-        joint, and every active joint on the chain."""
+        """The chain to ``side``'s TCP; every joint from the first active one on must be a revolute joint
+        (about a frame axis or any axis), and every active joint on the chain.
+
+        The compiled descent turns about a frame axis. A joint about another unit axis ``a`` is given to it
+        as one about z in a frame turned by a fixed rotation C (C z = a) appended to its placement, and C's
+        inverse is prepended to what hangs from it (the next joint's placement, or the TCP's): the same
+        TCP poses and world joint axes, and for a robot whose joints all turn about frame axes nothing
+        changes."""
         key = (side, active.tobytes())
         if key not in self._chains:
             by_jid = {s.jid: s for s in self.kin._steps}
@@ -87,15 +95,33 @@ class BatchIk:
             moved = set(active.tolist())
             first = next(i for i, st in enumerate(chain) if st.q_col in moved)
             moving = chain[first:]
-            odd = [self.robot.joint_names[st.q_col] for st in moving if st.kind != "R" or st.mult != 1.0 or st.offset != 0.0]
+            odd = [self.robot.joint_names[st.q_col] for st in moving
+                   if st.kind not in ("R", "RU") or st.mult != 1.0 or st.offset != 0.0]
             if odd:
-                raise ValueError(f"batch IK supports plain revolute joints only, not {', '.join(odd)}")
+                raise ValueError(f"batch IK supports revolute joints only, not {', '.join(odd)}")
             slot = {st.jid: k + 1 for k, st in enumerate(moving)}
             slot[moving[0].parent] = 0
-            tree = tree_from_rows([ROOT_SLOT, *(st.slot(slot[st.parent]) for st in moving)])
+            rows = [st.slot(slot[st.parent]) for st in moving]
+            axes = [st.axis_index for st in moving]
+            _, tcp_R0, tcp_p0 = self.kin._frames[self.robot.spec.arms[side].tcp]
+            tcp_R0, tcp_p0 = np.array(tcp_R0, dtype=float), np.array(tcp_p0, dtype=float)
+            for k, st in enumerate(moving):
+                if st.kind != "RU":
+                    continue
+                C = _frame_with_z(np.asarray(st.axis, dtype=float))
+                rows[k] = {**rows[k], "R0": _rot(rows[k]["R0"]) @ C, "kind": "R", "axis_index": 2}
+                axes[k] = 2
+                if k + 1 < len(rows):
+                    rows[k + 1] = {**rows[k + 1], "R0": C.T @ _rot(rows[k + 1]["R0"]),
+                                   "p0": C.T @ np.asarray(rows[k + 1]["p0"], dtype=float)}
+                else:
+                    tcp_R0, tcp_p0 = C.T @ tcp_R0, C.T @ tcp_p0
+            tree = tree_from_rows([ROOT_SLOT, *rows])
+            axis_of = {st.jid: a for st, a in zip(moving, axes)}
             steps = [by_col[c] for c in active]
             self._chains[key] = _Chain(moving[0].parent, tree, np.array([slot[st.jid] for st in steps]),
-                                       np.array([st.axis_index for st in steps]))
+                                       np.array([axis_of[st.jid] for st in steps]), np.ascontiguousarray(tcp_R0),
+                                       np.ascontiguousarray(tcp_p0))
         return self._chains[key]
 
     def _parent_frame(self, chain: _Chain, base_pose: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -138,12 +164,25 @@ class BatchIk:
         R = np.empty((t.size, 3, 3, 1))
         p = np.empty((t.size, 3, 1))
         R[0], p[0] = parent
-        _, tcp_R0, tcp_p0 = self.kin._frames[self.robot.spec.arms[side].tcp]
         ok = np.zeros(n, dtype=bool)
         its = np.zeros(n, dtype=np.int64)
         pos_err, rot_err = np.empty(n), np.empty(n)
         descend(np.ascontiguousarray(targets, dtype=float), Q, np.asarray(active, dtype=np.int64), lo, hi,
-                np.asarray(rest_q, dtype=float)[active], t.parent, t.R0, t.p0, t.axis_index, t.col, chain.step_slots, chain.step_axes, np.ascontiguousarray(tcp_R0), np.ascontiguousarray(tcp_p0),
+                np.asarray(rest_q, dtype=float)[active], t.parent, t.R0, t.p0, t.axis_index, t.col, chain.step_slots, chain.step_axes, chain.tcp_R0, chain.tcp_p0,
                 s.pos_tol_m, s.rot_tol_rad, s.max_iterations, s.damping**2, s.nullspace_gain, s.max_step_rad,
                 STALL_IMPROVEMENT, STALL_ITERATIONS, LIMIT_EPS, LIMIT_PASSES, R, p, ok, its, pos_err, rot_err)
         return BatchIkResult(Q, ok, its, pos_err, rot_err)
+
+
+def _rot(R0: np.ndarray | None) -> np.ndarray:
+    """A slot's fixed rotation (None: the identity)."""
+    return np.eye(3) if R0 is None else np.asarray(R0, dtype=float)
+
+
+def _frame_with_z(axis: np.ndarray) -> np.ndarray:
+    """A rotation whose z column is the unit ``axis`` (its x column chosen deterministically)."""
+    z = axis / np.linalg.norm(axis)
+    e = np.eye(3)[int(np.argmin(np.abs(z)))]
+    x = np.cross(e, z)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])

@@ -154,12 +154,18 @@ def solve_stance(robot: RobotModel, stance: str | StanceDef) -> Stance:
         chain = _leg_for_frame(robot, foot.frame)
         idx = robot.joint_indices(chain)
         leg_idx += idx.tolist()
-        # Start from a bent knee so the solver never sits on the straight-leg singularity.
-        q[idx] = np.clip(np.array([0, 0, -0.4, 0.8, -0.4, 0]), robot.lower[idx], robot.upper[idx])
+        # Start from a bent knee so the solver never sits on the straight-leg singularity; a knee that bends
+        # the other way (its flexion negative, as iCub's) bends the start the other way.
+        bent = np.array([0, 0, -0.4, 0.8, -0.4, 0])
+        if robot.upper[idx[3]] < 0.8 <= -robot.lower[idx[3]]:
+            bent = -bent
+        q[idx] = np.clip(bent, robot.lower[idx], robot.upper[idx])
     targets = [(f.frame, pin.XYZQUATToSE3(np.array(f.pose))) for f in sdef.feet]
 
+    facing = base_orientation(robot)
+
     def solve_at(off: np.ndarray) -> np.ndarray:
-        base = np.array([off[0], off[1], height, 0.0, 0.0, 0.0, 1.0])
+        base = np.array([off[0], off[1], height, *facing])
         for frame, target in targets:
             residual = _solve_leg(robot, data, base, q, frame, target)
             if residual > 1e-3:
@@ -195,6 +201,25 @@ def solve_stance(robot: RobotModel, stance: str | StanceDef) -> Stance:
         name=sdef.name, definition=sdef, base_pose=base, q=q, feet=tuple(sdef.feet), polygon=polygon,
         robot_com=com, leg_indices=np.array(sorted(set(leg_idx)), dtype=int),
     )
+
+
+def base_orientation(robot: RobotModel) -> tuple[float, float, float, float]:
+    """The root's world orientation (quaternion x, y, z, w) that makes the robot face the world's +x: a yaw
+    turning the soles' x axes (their forward, at the default posture) onto +x. The identity for a robot whose
+    root frame faces forward (x ahead, as most URDFs have it); a half turn for one whose root faces backward
+    (iCub's)."""
+
+    def build() -> tuple[float, float, float, float]:
+        data = robot.create_data()
+        pin.framesForwardKinematics(robot.pin_model, data, robot.to_pin_q(np.array([0, 0, 0, 0, 0, 0, 1.0]),
+                                                                          robot.default_q()))
+        ahead = sum(data.oMf[robot.frame_id(robot.spec.feet[side].frame)].rotation[:2, 0] for side in ("left", "right"))
+        yaw = float(np.arctan2(ahead[1], ahead[0]))
+        if abs(yaw) < 1e-9:
+            return (0.0, 0.0, 0.0, 1.0)
+        return (0.0, 0.0, float(np.sin(-yaw / 2)), float(np.cos(-yaw / 2)))
+
+    return robot.derived(("base_orientation",), build)
 
 
 def polygon_centroid(vertices: np.ndarray) -> np.ndarray:
