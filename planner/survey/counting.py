@@ -136,24 +136,31 @@ class CountedExploration:
 
 
 class _Counted:
-    """The counted poses so far, in chunks (concatenated once at the end)."""
+    """The counted poses so far, in chunks (concatenated once at the end, when the object poses
+    are also turned into 7-vectors, all at once)."""
 
     def __init__(self) -> None:
         self.parts: list[tuple] = []
         self.n = 0
 
-    def add(self, leg: int, label: str, Q: np.ndarray, pose7: np.ndarray | None, stable: np.ndarray,
+    def add(self, leg: int, label: str, Q: np.ndarray, object_pose: np.ndarray | None, stable: np.ndarray,
             margin: np.ndarray, com: np.ndarray) -> None:
+        """Counted poses ``Q`` (k, n) of one leg, with their (k, 4, 4) object poses (None: nothing held)."""
         if len(Q):
-            pose = pose7 if pose7 is not None else np.full((len(Q), 7), np.nan)
-            self.parts.append((np.full(len(Q), leg, np.int32), np.full(len(Q), label, dtype="U5"), Q, pose, stable, margin, com))
+            held = np.full(len(Q), object_pose is not None)
+            T = object_pose if object_pose is not None else np.zeros((len(Q), 4, 4))
+            self.parts.append((np.full(len(Q), leg, np.int32), np.full(len(Q), label, dtype="U5"), Q, T, held, stable,
+                               margin, com))
             self.n += len(Q)
 
     def arrays(self, nq: int) -> tuple:
         if not self.parts:
             return (np.zeros((0, nq)), np.zeros(0, np.int32), np.zeros(0, "U5"), np.zeros((0, 7)), np.zeros(0, bool),
                     np.zeros(0), np.zeros((0, 3)))
-        leg, lab, Q, pose, st, m, com = (np.concatenate([p[k] for p in self.parts]) for k in range(7))
+        leg, lab, Q, T, held, st, m, com = (np.concatenate([p[k] for p in self.parts]) for k in range(8))
+        pose = np.full((len(Q), 7), np.nan)
+        if held.any():
+            pose[held] = matrices_to_pose7(T[held])
         return Q, leg, lab, pose, st.astype(bool), m, com
 
 
@@ -302,8 +309,8 @@ class _Leg:
         keep = np.array([k for k in counted if k < end_at], dtype=int)
         if keep.size:
             st = batch.stable[keep]
-            pose7 = matrices_to_pose7(batch.object_pose[keep]) if batch.object_pose is not None else None
-            rec.add(self.index, self.label, Q[keep], pose7, st, batch.margin[keep], batch.com[keep])
+            rec.add(self.index, self.label, Q[keep], None if batch.object_pose is None else batch.object_pose[keep], st,
+                    batch.margin[keep], batch.com[keep])
             self.count.stable += int(st.sum())
             self.count.unstable += int((~st).sum())
         self.count.nodes = sum(t.size for t in self.trees)
