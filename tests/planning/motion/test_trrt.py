@@ -180,7 +180,9 @@ def test_plan_is_valid_or_a_named_failure(robot, upright, evaluator, hold_right,
 @hsettings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 10_000), size=st.integers(1, 300), dim=st.integers(1, 14), copies=st.integers(0, 5))
 def test_the_nearest_node_is_the_first_of_the_closest(seed, size, dim, copies):
-    """The compiled nearest-node search agrees with a brute-force argmin, ties (repeated nodes) going to the first."""
+    """The compiled nearest-node search picks numpy's argmin of the squared distances, ties (repeated nodes)
+    going to the first, and sums each distance as numpy does, to the bit."""
+    from planner.compiled.nearest_kernels import _numpy_sum
     from planner.motion.trrt import _Tree
 
     rng = np.random.default_rng(seed)
@@ -191,6 +193,7 @@ def test_the_nearest_node_is_the_first_of_the_closest(seed, size, dim, copies):
     for x in nodes[1:]:
         tree.add(x, 0, 0.0)
     for q in list(rng.uniform(-2, 2, (5, dim))) + [nodes[rng.integers(0, size)]]:
-        d = np.sqrt(((nodes - q) ** 2).sum(axis=1))
+        d2 = ((nodes - q) ** 2).sum(axis=1)
         i, dist = tree.nearest(q)
-        assert i == int(np.flatnonzero(d == d.min())[0]) and dist == pytest.approx(d.min(), abs=1e-12)
+        assert i == int(np.argmin(d2)) == int(np.flatnonzero(d2 == d2.min())[0]) and dist == np.sqrt(d2.min())
+        assert all(_numpy_sum((row - q) ** 2) == s for row, s in zip(nodes, d2))
