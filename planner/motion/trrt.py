@@ -42,6 +42,7 @@ from planner.motion.edge_checks import (
     coarse_mask,
     split_all,
 )
+from planner.compiled.nearest_kernels import nearest_index
 from planner.motion.interpolation import edge_states
 
 ShouldStop = Callable[[], bool]
@@ -116,9 +117,9 @@ class _Tree:
         return i
 
     def nearest(self, q: np.ndarray) -> tuple[int, float]:
-        d2 = ((self.nodes[: self.size] - q) ** 2).sum(axis=1)
-        i = int(np.argmin(d2))
-        return i, float(math.sqrt(d2[i]))
+        """The nearest node (the first of equally near ones) and its distance."""
+        i = nearest_index(self.nodes, self.size, q)
+        return i, float(math.sqrt(((self.nodes[i] - q) ** 2).sum()))
 
     def branch(self, i: int) -> list[int]:
         out = []

@@ -10,9 +10,12 @@ How a leg is explored: a tree grows from the leg's start (the pick's lift pose, 
 pose) and, taking turns with it, one from the leg's goal (``bidirectional``, as the planner's
 own T-RRT does: a goal reached only through a narrow approach, such as a handover in front of
 the chest, is found from its side); a share ``goal_bias`` of each tree's samples aims at the
-other's root. Each round steers ``batch_size`` samples from the trees as they stand; the new
-poses are evaluated in one batch, then judged one by one in a fixed order:
+other tree, at one of its nodes drawn at random (``goal_aim``). Each round steers ``batch_size``
+samples from the trees as they stand; the new poses are evaluated in one batch, then judged one
+by one in a fixed order:
 
+* a pose the leg already sampled (the same nearest node steered towards the same aim gives the
+  same pose) is not sampled again: it is neither counted nor judged a second time;
 * an unstable pose is counted and not grown from (the constrained planner discards it);
 * a stable pose must pass the T-RRT transition test (cost = -margin) and have a valid edge
   (every interpolated check collision-free and stable) to join the tree;
@@ -32,7 +35,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, Literal, Sequence
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -66,8 +69,13 @@ class CountingSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     batch_size: int = Field(16, ge=1, description="samples steered per round (judged one by one, in order)")
-    goal_bias: float = Field(0.3, ge=0, le=1, description="share of samples aimed at the other tree's root (the goal); "
-                             "0.3: with 0.1, 1-2 seeds in 256 grew trees of 10,000-20,000 states that outweighed the rest")
+    goal_bias: float = Field(0.3, ge=0, lt=1, description="share of samples aimed at the other tree (the goal); below 1, "
+                             "so that uniform samples always give the trees new poses to grow to")
+    goal_aim: Literal["tree", "root"] = Field(
+        "tree", description="tree: a goal-biased sample aims at a node of the other tree drawn at random; root: at the "
+        "other tree's root. Aiming at the root, a tree whose nearest node cannot reach the root re-steers the same pose "
+        "with every goal-biased sample; upright, about 1 seed in 8 of the dual-arm rows then reached the 20,000-state leg "
+        "cap, and those seeds' R outweighed the rest. Aiming at the tree, the largest of 256 upright seeds counted 892")
     bidirectional: bool = Field(True, description="a second tree grows from the goal; the leg ends when the trees meet")
     step_rad: float = Field(0.3, gt=0, description="largest extension (Euclidean, active joints)")
     time_limit_s: float = Field(600.0, gt=0, description="safety net per seed; seeded runs end on their caps")
@@ -86,6 +94,8 @@ class LegCount:
     invalid_edges: int = 0
     transition_rejects: int = 0
     goal_tests: int = 0
+    #: steered poses the leg had already sampled (neither counted nor judged again)
+    repeats: int = 0
 
     @property
     def counted(self) -> int:
@@ -126,24 +136,31 @@ class CountedExploration:
 
 
 class _Counted:
-    """The counted poses so far, in chunks (concatenated once at the end)."""
+    """The counted poses so far, in chunks (concatenated once at the end, when the object poses
+    are also turned into 7-vectors, all at once)."""
 
     def __init__(self) -> None:
         self.parts: list[tuple] = []
         self.n = 0
 
-    def add(self, leg: int, label: str, Q: np.ndarray, pose7: np.ndarray | None, stable: np.ndarray,
+    def add(self, leg: int, label: str, Q: np.ndarray, object_pose: np.ndarray | None, stable: np.ndarray,
             margin: np.ndarray, com: np.ndarray) -> None:
+        """Counted poses ``Q`` (k, n) of one leg, with their (k, 4, 4) object poses (None: nothing held)."""
         if len(Q):
-            pose = pose7 if pose7 is not None else np.full((len(Q), 7), np.nan)
-            self.parts.append((np.full(len(Q), leg, np.int32), np.full(len(Q), label, dtype="U5"), Q, pose, stable, margin, com))
+            held = np.full(len(Q), object_pose is not None)
+            T = object_pose if object_pose is not None else np.zeros((len(Q), 4, 4))
+            self.parts.append((np.full(len(Q), leg, np.int32), np.full(len(Q), label, dtype="U5"), Q, T, held, stable,
+                               margin, com))
             self.n += len(Q)
 
     def arrays(self, nq: int) -> tuple:
         if not self.parts:
             return (np.zeros((0, nq)), np.zeros(0, np.int32), np.zeros(0, "U5"), np.zeros((0, 7)), np.zeros(0, bool),
                     np.zeros(0), np.zeros((0, 3)))
-        leg, lab, Q, pose, st, m, com = (np.concatenate([p[k] for p in self.parts]) for k in range(7))
+        leg, lab, Q, T, held, st, m, com = (np.concatenate([p[k] for p in self.parts]) for k in range(8))
+        pose = np.full((len(Q), 7), np.nan)
+        if held.any():
+            pose[held] = matrices_to_pose7(T[held])
         return Q, leg, lab, pose, st.astype(bool), m, com
 
 
@@ -166,6 +183,7 @@ class _Leg:
         self.turn = 0
         self.goal = goal[self.active]
         self.count = LegCount()
+        self.sampled: set[bytes] = set()  # every pose this leg steered to, by its exact values
         self.label = leg.hold.label if leg.hold is not None else "none"
 
     def free(self, Q: np.ndarray) -> np.ndarray:
@@ -185,22 +203,40 @@ class _Leg:
         """Samples steered from the trees as they stand: (tree, nearest node, new pose, distance to the sample).
 
         With one tree, the goal-biased samples aim at the goal; with two, the trees take turns and
-        each aims its goal-biased samples at the other's root."""
+        each aims its goal-biased samples at the other tree (``goal_aim``). A pose this leg already
+        sampled is left out (``repeats``)."""
         s = self.search
         out = []
         for _ in range(self.settings.batch_size):
             ti = self.turn if self.settings.bidirectional else 0
             self.turn ^= 1
             tree = self.trees[ti]
-            aim = self.goal if ti == 0 else self.trees[0].nodes[0]
-            target = aim if rng.random() < self.settings.goal_bias else rng.uniform(s.lo, s.hi)
+            if rng.random() < self.settings.goal_bias:
+                target = self._aim(ti, rng)
+            else:
+                target = rng.uniform(s.lo, s.hi)
             near, dist = tree.nearest(target)
             if dist < 1e-12:
                 continue
             x = tree.nodes[near]
-            new = target if dist <= self.settings.step_rad else x + (target - x) * (self.settings.step_rad / dist)
-            out.append((ti, near, np.clip(new, s.lo, s.hi), dist))
+            new = np.clip(target if dist <= self.settings.step_rad else x + (target - x) * (self.settings.step_rad / dist),
+                          s.lo, s.hi)
+            key = new.tobytes()
+            if key in self.sampled:
+                self.count.repeats += 1
+                continue
+            self.sampled.add(key)
+            out.append((ti, near, new, dist))
         return out
+
+    def _aim(self, ti: int, rng: np.random.Generator) -> np.ndarray:
+        """Where tree ``ti``'s goal-biased sample aims: the goal, or the other tree (its root or a random node)."""
+        if not self.settings.bidirectional:
+            return self.goal
+        other = self.trees[ti ^ 1]
+        if self.settings.goal_aim == "root" or other.size == 1:
+            return other.nodes[0]
+        return other.nodes[int(rng.integers(other.size))]
 
     def round(self, rng: np.random.Generator, rec: _Counted, cap: int | None, stop_at_goal: bool) -> bool:
         """One round; returns True when the leg is over (goal reached or cap)."""
@@ -273,8 +309,8 @@ class _Leg:
         keep = np.array([k for k in counted if k < end_at], dtype=int)
         if keep.size:
             st = batch.stable[keep]
-            pose7 = matrices_to_pose7(batch.object_pose[keep]) if batch.object_pose is not None else None
-            rec.add(self.index, self.label, Q[keep], pose7, st, batch.margin[keep], batch.com[keep])
+            rec.add(self.index, self.label, Q[keep], None if batch.object_pose is None else batch.object_pose[keep], st,
+                    batch.margin[keep], batch.com[keep])
             self.count.stable += int(st.sum())
             self.count.unstable += int((~st).sum())
         self.count.nodes = sum(t.size for t in self.trees)

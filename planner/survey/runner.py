@@ -150,8 +150,8 @@ def _outcome(r: RowWork, estimator: Estimator, keep_states: bool) -> ConfigOutco
                  evaluated=sum(c.stable + c.unstable for c in counts),
                  solved_seeds=sum(c.solved for c in counts), statuses=sorted({c.status for c in counts}),
                  rejected={"collision": sum(leg["collisions"] for c in counts for leg in c.legs), "joint_limits": 0},
-                 legs_per_seed=[[{k: leg[k] for k in ("counted", "stable", "unstable", "solved", "nodes")} for leg in c.legs]
-                                for c in counts])
+                 legs_per_seed=[[{k: leg[k] for k in ("counted", "stable", "unstable", "solved", "nodes", "repeats")}
+                                 for leg in c.legs] for c in counts])
     out = ConfigOutcome(r.hands, v.stable if v else 0, v.unstable if v else 0, r.reason, stats,
                         interval=list(v.interval) if v and v.interval else None, converged=bool(v and v.converged),
                         per_seed=[c.entry() for c in counts],

@@ -71,6 +71,71 @@ def test_each_sampled_pose_is_counted_once_and_edge_checks_are_not():
     assert count.nodes - 1 <= count.stable
 
 
+def wall(Q):
+    """A wall across the straight line between the legs' ends below: |x| < 0.1 and y < 0.6 collides."""
+    Q = np.atleast_2d(Q)
+    return ~((np.abs(Q[:, 0]) < 0.1) & (Q[:, 1] < 0.6))
+
+
+@pytest.mark.parametrize("aim", ["tree", "root"])
+def test_a_pose_steered_to_again_is_not_counted_again(aim):
+    """Behind a wall, a tree's nearest node steered towards the same aim gives the same pose again: the leg
+    counts each distinct pose once and reports the repeats it left out."""
+    from planner.survey.counting import CountingSettings
+
+    repeats = 0
+    for seed in range(5):
+        ex = explore_counted([ExploreLeg(np.array([-0.5, -0.6]), np.array([0.4, -0.6]), None, np.array([0, 1]), wall)],
+                             Toy(), np.random.default_rng(seed), leg_cap_states=3000,
+                             settings=CountingSettings(step_rad=0.1, goal_aim=aim))
+        assert ex.solved and len(ex.q) == ex.legs[0].counted
+        assert len(np.unique(ex.q, axis=0)) == len(ex.q)
+        repeats += ex.legs[0].repeats
+    assert repeats > 0
+
+
+def test_goal_biased_samples_aimed_at_the_other_tree_repeat_less_than_aimed_at_its_root():
+    """The goal-biased samples aim at a random node of the other tree: behind the wall they find new poses
+    where aiming at the root re-steers the same one (on the same 10 seeds, under 60 % of the repeats)."""
+    from planner.survey.counting import CountingSettings
+
+    def repeats(aim):
+        return sum(explore_counted([ExploreLeg(np.array([-0.5, -0.6]), np.array([0.4, -0.6]), None, np.array([0, 1]), wall)],
+                                   Toy(), np.random.default_rng(seed), leg_cap_states=3000,
+                                   settings=CountingSettings(step_rad=0.1, goal_aim=aim)).legs[0].repeats
+                   for seed in range(10))
+
+    assert repeats("tree") < 0.6 * repeats("root")
+
+
+def test_goal_biased_samples_aim_at_nodes_of_the_other_tree():
+    """With two grown trees, every goal-biased sample steers its tree's nearest node straight towards a
+    node of the other tree, and the aims spread over that tree's nodes (not its root alone). The same
+    nearest node aimed at the same node again gives the same pose: proposed once, the rest are repeats."""
+    from planner.motion.trrt import TrrtSettings
+    from planner.survey.counting import CountingSettings, _Leg
+
+    run = _Leg(0, leg([-0.8, -0.8], [0.4, 0.4]), Toy(), TrrtSettings(), CountingSettings(goal_bias=0.99, batch_size=400))
+    rng = np.random.default_rng(11)
+    for ti, centre in ((0, [-0.8, -0.8]), (1, [0.4, 0.4])):
+        for x in rng.uniform(-0.15, 0.15, (20, 2)) + centre:
+            run.trees[ti].add(x, 0, 0.1)
+    aims = []
+    proposals = run.propose(rng)
+    for ti, near, new, _ in proposals:
+        x, other = run.trees[ti].nodes[near], run.trees[ti ^ 1]
+        step = (new - x) / np.linalg.norm(new - x)
+        to = other.nodes[: other.size] - x
+        cos = to @ step / np.linalg.norm(to, axis=1)
+        aimed = np.flatnonzero(cos > 1 - 1e-9)
+        if aimed.size:
+            aims.append((ti, int(aimed[0])))
+    # 400 samples, each distinct pose proposed once (the rest are repeats), nearly all aimed at a node
+    assert len(proposals) + run.count.repeats == 400
+    assert len(aims) >= 0.9 * len(proposals)
+    assert all(len({a for t, a in aims if t == ti}) >= 15 for ti in (0, 1))
+
+
 def test_no_straight_line_shortcut_even_when_the_goal_is_one_step_away():
     """Start and goal 0.2 apart (under one 0.3 step): the leg still counts the poses its tree grew to reach it."""
     ex = explore_counted([leg([0.0, 0.0], [0.2, 0.0])], Toy(), np.random.default_rng(1))

@@ -175,3 +175,25 @@ def test_plan_is_valid_or_a_named_failure(robot, upright, evaluator, hold_right,
             assert independent.margin(q, hold_right) >= 0.03 - 1e-12
     else:
         assert res.reason and res.path is None
+
+
+@hsettings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), size=st.integers(1, 300), dim=st.integers(1, 14), copies=st.integers(0, 5))
+def test_the_nearest_node_is_the_first_of_the_closest(seed, size, dim, copies):
+    """The compiled nearest-node search picks numpy's argmin of the squared distances, ties (repeated nodes)
+    going to the first, and sums each distance as numpy does, to the bit."""
+    from planner.compiled.nearest_kernels import _numpy_sum
+    from planner.motion.trrt import _Tree
+
+    rng = np.random.default_rng(seed)
+    nodes = rng.uniform(-2, 2, (size, dim))
+    if copies and size > 1:
+        nodes[rng.integers(1, size, copies)] = nodes[rng.integers(0, size)]
+    tree = _Tree(nodes[0], 0.0, capacity=4)
+    for x in nodes[1:]:
+        tree.add(x, 0, 0.0)
+    for q in list(rng.uniform(-2, 2, (5, dim))) + [nodes[rng.integers(0, size)]]:
+        d2 = ((nodes - q) ** 2).sum(axis=1)
+        i, dist = tree.nearest(q)
+        assert i == int(np.argmin(d2)) == int(np.flatnonzero(d2 == d2.min())[0]) and dist == np.sqrt(d2.min())
+        assert all(_numpy_sum((row - q) ** 2) == s for row, s in zip(nodes, d2))
