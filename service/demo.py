@@ -37,9 +37,9 @@ class DemoSettings(BaseModel):
     scenario: str = "upright"
     robot: str | None = Field(None, description="registered robot the scenario runs with, over its own robot (None: "
                               "the scenario's); the controller simulator plays that robot")
-    survey_states: int | None = Field(400, ge=1, description="states per seed in the demo's survey (until: states, "
-                                      "10 seeds), so the demo runs in a minute or two; None: the scenario's own estimator, "
-                                      "seeds until the intervals are tight (minutes on a laptop)")
+    survey_states: int | None = Field(None, ge=1, description="None: the scenario's own estimator (seeds until the "
+                                      "intervals are tight), the answer `regrasp survey` and `hands: auto` give; N: N "
+                                      "states per seed over 10 seeds instead, a quicker look")
     controller_speed: float = Field(10.0, gt=0, description="the simulated controller plays K times faster than real time")
     workers: int = Field(2, ge=1)
     watchdog_timeout_s: float = Field(3.0, gt=0, le=5.0, description="bridge watchdog for the simulated controller "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import subprocess
 import sys
 
@@ -16,7 +17,7 @@ from service.audit.verify import verify
 @pytest.mark.host_pauses(limit_s=0.5, attempts=2)
 def test_demo_runs_end_to_end(tmp_path):
     out = tmp_path / "demo"
-    proc = subprocess.run([sys.executable, "-m", "service.cli.main", "demo", "--out", str(out), "--survey-states", "100"],
+    proc = subprocess.run([sys.executable, "-m", "service.cli.main", "demo", "--out", str(out)],
                           capture_output=True, text=True, timeout=900)
     logs = "".join(f"\n--- {log.name}\n" + log.read_text()[-3000:] for log in sorted(out.glob("*.log")))
     assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:] + logs
@@ -27,6 +28,17 @@ def test_demo_runs_end_to_end(tmp_path):
     assert plan["status"] == "solved" and plan["hands"] == survey["recommended"]
     assert check_plan(plan, sample_every=5).errors == []
     assert {r["hands"] for r in survey["rows"]} == {"left-left", "right-right", "left-right", "right-left"}
+    # One answer per task: the demo surveys with the task's own estimator, so `regrasp survey` (its own cache
+    # folder: computed again here) gives the same rows and recommendation.
+    alone = subprocess.run([sys.executable, "-m", "service.cli.main", "survey", "--scenario", "upright", "--json"],
+                           capture_output=True, text=True, timeout=900,
+                           env={**os.environ, "REGRASP_SURVEY_CACHE_DIR": str(tmp_path / "survey-cache")})
+    assert alone.returncode == 0, alone.stderr[-2000:]
+    own = json.loads(alone.stdout)
+    assert own["estimator"] == survey["estimator"] and own["estimator"]["until"] == "solved"
+    assert own["recommended"] == survey["recommended"] and own["indistinguishable"] == survey["indistinguishable"]
+    assert [(r["hands"], r["stable"], r["unstable"], r["seeds"]) for r in own["rows"]] == [
+        (r["hands"], r["stable"], r["unstable"], r["seeds"]) for r in survey["rows"]]
     # The audit files (the survey's and the plan's) are where the service wrote them, once: no copy beside them.
     audits = list(out.rglob("*.mcap"))
     assert len(audits) == 2 and {a.parent for a in audits} == {out / "service-data" / "audit"}

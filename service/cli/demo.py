@@ -59,9 +59,10 @@ def stance_step(out: Path, robot_name: str, fmt: str = "png") -> list[dict]:
 @click.option("--scenario", default=None,
               help="The scenario the demo plans and executes [default: upright; with --robot ROBOT the built-in "
                    "ROBOT-upright where there is one, such as talos-upright].")
-@click.option("--survey-states", default=400, show_default=True, type=click.IntRange(0, 1_000_000),
-              help="States per seed in the demo's survey (until: states, 10 seeds); 0: the scenario's own estimator "
-                   "(seeds until every interval is within +-0.02: minutes).")
+@click.option("--survey-states", default=0, show_default=True, type=click.IntRange(0, 1_000_000),
+              help="0: the demo surveys with the scenario's own estimator (seeds until every interval is within "
+                   "+-0.02), so it recommends what `regrasp survey` and `hands: auto` do; N: N states per seed over "
+                   "10 seeds instead (a quicker look, whose recommendation may differ).")
 @click.option("--speed", default=10.0, show_default=True, type=click.FloatRange(min=0.1),
               help="The simulated controller plays K times faster than real time.")
 @click.option("--format", "fmt", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
