@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from planner.grasping.grasps import Grasp, GraspSettings, _perpendicular, sample_surface, thin_out
+from planner.grasping.grasp_model import Grasp, GraspSettings, perpendicular, sample_surface, thin_out
 from planner.scene.bodies import object_bodies, shapes_collide
 from planner.scene.hand import HandGeometry, hand_bodies
 from planner.scene.objects import ObjectModel
@@ -53,7 +53,7 @@ def surface_contacts(obj: ObjectModel, settings: GraspSettings) -> list[tuple[np
 
 def _contact_frames(point: np.ndarray, z: np.ndarray, rotations: int) -> np.ndarray:
     """(rotations, 4, 4) TCP frames at ``point`` with z along ``z``, x turned about it."""
-    u = _perpendicular(z)
+    u = perpendicular(z)
     w = np.cross(z, u)
     out = np.repeat(np.eye(4)[None], rotations, axis=0)
     for k in range(rotations):

@@ -77,7 +77,9 @@ def test_the_routes_serve_the_urdf_and_its_meshes_by_name_and_index(server, tmp_
             assert c.get(bad).status_code in (404, 422)
         assert c.get("/v1/robots/hrp5p/urdf").status_code == 200  # a built-in: primitives only
         missing = c.get("/v1/robots/nobot/urdf")
-        assert missing.status_code == 404 and "valid robots: hrp5p, jvrc1" in missing.json()["detail"]
+        from planner.robot.registry import robot_names
+
+        assert missing.status_code == 404 and f"valid robots: {', '.join(robot_names())}" in missing.json()["detail"]
         assert c.get("/v1/meshes/carrier_px").text.lstrip().startswith(("v ", "#", "o ", "g "))
         assert c.get("/v1/meshes/teapot").status_code == 404
     assert httpx.get(url + "/v1/robots/hrp5p/urdf").status_code == 401  # a token is needed
