@@ -205,14 +205,14 @@ def solve_stance(robot: RobotModel, stance: str | StanceDef) -> Stance:
 
 def base_orientation(robot: RobotModel) -> tuple[float, float, float, float]:
     """The root's world orientation (quaternion x, y, z, w) that makes the robot face the world's +x: a yaw
-    turning the soles' x axes (their forward, at the default posture) onto +x. The identity for a robot whose
-    root frame faces forward (x ahead, as most URDFs have it); a half turn for one whose root faces backward
-    (iCub's)."""
+    turning the soles' x axes (their forward, with every joint at zero, so feet a default posture turns out do
+    not turn the robot) onto +x. The identity for a robot whose root frame faces forward (x ahead, as most URDFs
+    have it); a half turn for one whose root faces backward (iCub's)."""
 
     def build() -> tuple[float, float, float, float]:
         data = robot.create_data()
-        pin.framesForwardKinematics(robot.pin_model, data, robot.to_pin_q(np.array([0, 0, 0, 0, 0, 0, 1.0]),
-                                                                          robot.default_q()))
+        neutral = np.clip(np.zeros(robot.nq), robot.lower, robot.upper)
+        pin.framesForwardKinematics(robot.pin_model, data, robot.to_pin_q(np.array([0, 0, 0, 0, 0, 0, 1.0]), neutral))
         ahead = sum(data.oMf[robot.frame_id(robot.spec.feet[side].frame)].rotation[:2, 0] for side in ("left", "right"))
         yaw = float(np.arctan2(ahead[1], ahead[0]))
         if abs(yaw) < 1e-9:
