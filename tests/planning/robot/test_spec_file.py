@@ -83,16 +83,10 @@ def test_a_joint_without_an_effort_limit_needs_one_in_the_spec(tmp_path):
     derive(write_small_humanoid(tmp_path, lambda s: s["effort_limits"].update(l_elbow=80.0), no_effort="l_elbow"))
 
 
-@pytest.mark.parametrize("rigid", [False, True], ids=["jaws", "rigid-hands"])
-def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_and_the_gate_agree(tmp_path, monkeypatch, rigid):
-    from click.testing import CliRunner
-    from plan_checker import check_plan
-
-    from service.cli.main import cli
-
-    spec_path = write_small_humanoid(tmp_path / "robot", rigid=rigid)
+def _box_task(robot: str, rigid: bool = False) -> dict:
+    """The made-up robot's pick-and-place (a scenario document naming ``robot``)."""
     scenario = {
-        "schema": "regrasp.scenario/1", "name": "small-humanoid-box", "robot": "robot/small_humanoid.yaml",
+        "schema": "regrasp.scenario/1", "name": "small-humanoid-box", "robot": robot,
         "stance": "upright", "object": {"shape": "box", "size": [0.05, 0.08, 0.10], "mass_kg": 1.0},
         "start_pose": [0.38, -0.26, 0.80, 0, 0, 0, 1], "goal_pose": [0.38, -0.1, 0.80, 0, 0, 0, 1],
         "tables": [{"name": "table", "pose": [0.5, 0, 0.375, 0, 0, 0, 1], "size": [0.4, 1.2, 0.75]}],
@@ -105,6 +99,18 @@ def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_and_the_gate
                         start_pose=[0.42, -0.3, 0.85, 0, 0, 0, 1], goal_pose=[0.42, -0.15, 0.85, 0, 0, 0, 1],
                         tables=[{"name": "table", "pose": [0.52, 0, 0.395, 0, 0, 0, 1], "size": [0.52, 1.2, 0.79]}])
         scenario["limits"]["max_iterations"] = 3000
+    return scenario
+
+
+@pytest.mark.parametrize("rigid", [False, True], ids=["jaws", "rigid-hands"])
+def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_and_the_gate_agree(tmp_path, monkeypatch, rigid):
+    from click.testing import CliRunner
+    from plan_checker import check_plan
+
+    from service.cli.main import cli
+
+    spec_path = write_small_humanoid(tmp_path / "robot", rigid=rigid)
+    scenario = _box_task("robot/small_humanoid.yaml", rigid)
     sc_path = tmp_path / "scenario.yaml"
     sc_path.write_text(yaml.safe_dump(scenario))
     out = tmp_path / "plan.json"
@@ -125,6 +131,50 @@ def test_the_made_up_robot_plans_end_to_end_by_path_and_the_checker_and_the_gate
         assert not any("jaw" in name for name in plan["robot"]["joint_names"])
         held = [p for p in plan["trajectory"] if p["holding"] == "right"]
         assert held, "the object is never held"
+
+
+def test_a_spec_file_is_taken_by_path_on_the_command_line_and_by_name_from_the_service_folders(tmp_path, monkeypatch):
+    """`--robot FILE` over a scenario's own robot, `robot urdf FILE` and `robot info FILE --json`; the service's
+    workers take the robot by its name from `REGRASP_ROBOT_DIRS` (the same plan) and refuse its path."""
+    import hashlib
+
+    from click.testing import CliRunner
+
+    from planner.errors import InputError
+    from planner.jobs.entry import run_plan
+    from service.cli.main import cli
+
+    spec_path = write_small_humanoid(tmp_path / "robot")
+    sc_path = tmp_path / "scenario.yaml"
+    sc_path.write_text(yaml.safe_dump(_box_task("hrp5p")))
+    out = tmp_path / "plan.json"
+    res = CliRunner().invoke(cli, ["plan", str(sc_path), "--robot", str(spec_path), "--out", str(out), "--quiet"],
+                             catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    plan = json.loads(out.read_text())
+    assert plan["status"] == "solved" and plan["robot"]["name"] == "small_humanoid"
+    res = CliRunner().invoke(cli, ["robot", "urdf", str(spec_path)], catch_exceptions=False)
+    assert res.exit_code == 0
+    urdf = res.output.strip()
+    assert hashlib.sha256(open(urdf, "rb").read()).hexdigest() == plan["robot"]["urdf_sha256"]
+    res = CliRunner().invoke(cli, ["robot", "info", str(spec_path), "--json"], catch_exceptions=False)
+    info = json.loads(res.output)
+    assert info["name"] == "small_humanoid" and info["urdf_sha256"] == plan["robot"]["urdf_sha256"]
+    assert info["joint_names"] == plan["robot"]["joint_names"]
+
+    class Ctx:
+        def progress(self, fraction: float, message: str) -> None:
+            pass
+
+        def cancelled(self) -> bool:
+            return False
+
+    monkeypatch.setenv("REGRASP_ROBOT_DIRS", str(spec_path.parent))
+    by_name = run_plan({"scenario": _box_task("small_humanoid")}, Ctx())
+    assert by_name["status"] == "solved" and by_name["robot"] == plan["robot"]
+    assert [p["q"] for p in by_name["trajectory"]] == [p["q"] for p in plan["trajectory"]]
+    with pytest.raises(InputError):
+        run_plan({"scenario": _box_task(str(spec_path))}, Ctx())
 
 
 SRDF = """<robot name="small_humanoid">
