@@ -169,12 +169,19 @@ def test_a_spec_file_is_taken_by_path_on_the_command_line_and_by_name_from_the_s
         def cancelled(self) -> bool:
             return False
 
+    from planner.jobs.request_names import registered_robots
+
     monkeypatch.setenv("REGRASP_ROBOT_DIRS", str(spec_path.parent))
-    by_name = run_plan({"scenario": _box_task("small_humanoid")}, Ctx())
-    assert by_name["status"] == "solved" and by_name["robot"] == plan["robot"]
-    assert [p["q"] for p in by_name["trajectory"]] == [p["q"] for p in plan["trajectory"]]
-    with pytest.raises(InputError):
-        run_plan({"scenario": _box_task(str(spec_path))}, Ctx())
+    registered_robots.cache_clear()  # a service reads its robot folders once, at start
+    try:
+        by_name = run_plan({"scenario": _box_task("small_humanoid")}, Ctx())
+        assert by_name["status"] == "solved" and by_name["robot"] == plan["robot"]
+        assert [p["q"] for p in by_name["trajectory"]] == [p["q"] for p in plan["trajectory"]]
+        with pytest.raises(InputError):
+            run_plan({"scenario": _box_task(str(spec_path))}, Ctx())
+    finally:
+        monkeypatch.delenv("REGRASP_ROBOT_DIRS")
+        registered_robots.cache_clear()
 
 
 SRDF = """<robot name="small_humanoid">
