@@ -176,6 +176,15 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return pts @ T[:3, :3].T + T[:3, 3]
 
 
+def frame_from_z(z: np.ndarray) -> np.ndarray:
+    """A right-handed rotation whose z column is the unit vector ``z``, its x column chosen deterministically
+    (perpendicular to z and to the world axis z is least along)."""
+    e = np.eye(3)[int(np.argmin(np.abs(z)))]
+    x = np.cross(e, z)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
 def frame_from_z_y(z_axis: np.ndarray, y_hint: np.ndarray) -> np.ndarray:
     """Right-handed rotation whose z column is ``z_axis`` and y column is ``y_hint`` made orthogonal to it."""
     z = np.asarray(z_axis, dtype=float)

@@ -15,10 +15,12 @@ import numpy as np
 from planner.compiled.jit import njit
 
 
-def nearest_index(nodes: np.ndarray, size: int, q: np.ndarray) -> int:
+def nearest_node(nodes: np.ndarray, size: int, q: np.ndarray) -> tuple[int, float]:
     """The index of the first of ``nodes[:size]`` (size, d) float64 at the least Euclidean distance from
-    ``q`` (d,) float64: the same index as ``argmin(((nodes[:size] - q) ** 2).sum(axis=1))``, to the bit."""
-    return _nearest(nodes, size, q)
+    ``q`` (d,) float64, and that squared distance: the same index as
+    ``argmin(((nodes[:size] - q) ** 2).sum(axis=1))``, and the same sum, to the bit."""
+    i, d2 = _nearest(nodes, size, q)
+    return int(i), float(d2)
 
 
 @njit(cache=True, nogil=True)
@@ -33,7 +35,7 @@ def _nearest(nodes, size, q):  # pragma: no cover - compiled
         if d < best_d:
             best_d = d
             best = i
-    return best
+    return best, best_d
 
 
 @njit(cache=True, nogil=True)

@@ -25,7 +25,7 @@ from planner.scene.bodies import shapes_collide
 from planner.scene.collision import CollisionWorld
 from planner.scene.hand import HandGeometry, hand_bodies
 from planner.scene.objects import ObjectModel
-from planner.transforms import rot_z
+from planner.transforms import frame_from_z, rot_z
 
 
 class HandoverSettings(BaseModel):
@@ -92,12 +92,8 @@ def compatible_pairs(right: GraspSet, left: GraspSet, hand_r: HandGeometry, hand
 
 def _up_rotation(axis: np.ndarray) -> np.ndarray:
     """A rotation taking the object's ``axis`` to world +z (deterministic about z)."""
-    z = np.asarray(axis, float) / np.linalg.norm(axis)
-    e = np.eye(3)[int(np.argmin(np.abs(z)))]
-    x = np.cross(e, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return np.vstack([x, y, z])  # rows: world axes in object coordinates -> maps object vectors to world
+    # rows: world axes in object coordinates -> maps object vectors to world
+    return frame_from_z(np.asarray(axis, float) / np.linalg.norm(axis)).T.copy()
 
 
 def floating_poses(obj: ObjectModel, pelvis_position: np.ndarray, settings: HandoverSettings | None = None) -> list[np.ndarray]:

@@ -164,7 +164,7 @@ def _end_over_limits(planner: HandConfigPlanner, end: str) -> tuple[str, str] | 
     if not reached:
         return None
     Q = np.array([probes[n].q for n in reached])
-    Q[:, t.jaw[hand]] = np.array([t.grasps[hand][n.grasp].jaw_value for n in reached])[:, None]
+    t.put_jaw(Q, hand, [t.grasps[hand][n.grasp].jaw_value for n in reached])
     res = t.limits.evaluate(Q, hand, object_pose=np.repeat(T_obj[None], len(reached), axis=0))
     effort, grip = ~res.effort_ok, res.effort_ok & ~res.grip_ok
     if not (effort.any() or grip.any()):

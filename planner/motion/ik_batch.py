@@ -31,6 +31,7 @@ from planner.motion.ik_rules import (
     active_columns,
 )
 from planner.robot.model import RobotModel
+from planner.transforms import frame_from_z
 
 
 @dataclass(frozen=True)
@@ -108,7 +109,7 @@ class BatchIk:
             for k, st in enumerate(moving):
                 if st.kind != "RU":
                     continue
-                C = _frame_with_z(np.asarray(st.axis, dtype=float))
+                C = frame_from_z(np.asarray(st.axis, dtype=float) / np.linalg.norm(st.axis))
                 rows[k] = {**rows[k], "R0": _rot(rows[k]["R0"]) @ C, "kind": "R", "axis_index": 2}
                 axes[k] = 2
                 if k + 1 < len(rows):
@@ -177,12 +178,3 @@ class BatchIk:
 def _rot(R0: np.ndarray | None) -> np.ndarray:
     """A slot's fixed rotation (None: the identity)."""
     return np.eye(3) if R0 is None else np.asarray(R0, dtype=float)
-
-
-def _frame_with_z(axis: np.ndarray) -> np.ndarray:
-    """A rotation whose z column is the unit ``axis`` (its x column chosen deterministically)."""
-    z = axis / np.linalg.norm(axis)
-    e = np.eye(3)[int(np.argmin(np.abs(z)))]
-    x = np.cross(e, z)
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(z, x), z])

@@ -42,7 +42,7 @@ from planner.motion.edge_checks import (
     coarse_mask,
     split_all,
 )
-from planner.compiled.nearest_kernels import nearest_index
+from planner.compiled.nearest_kernels import nearest_node
 from planner.motion.interpolation import edge_states
 
 ShouldStop = Callable[[], bool]
@@ -118,8 +118,8 @@ class _Tree:
 
     def nearest(self, q: np.ndarray) -> tuple[int, float]:
         """The nearest node (the first of equally near ones) and its distance."""
-        i = nearest_index(self.nodes, self.size, q)
-        return i, float(math.sqrt(((self.nodes[i] - q) ** 2).sum()))
+        i, d2 = nearest_node(self.nodes, self.size, q)
+        return i, math.sqrt(d2)
 
     def branch(self, i: int) -> list[int]:
         out = []

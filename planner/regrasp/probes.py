@@ -77,7 +77,7 @@ def _record_probes(task: Task, side: Side, nodes: list[PlacementNode], T_obj: np
     margin of holding the object at the grasp; cache the verdicts the validation would reach first."""
     grasps = task.grasps[side]
     Q = res.q.copy()
-    Q[:, task.jaw[side]] = np.array([grasps[n.grasp].jaw_value for n in nodes])[:, None]
+    task.put_jaw(Q, side, [grasps[n.grasp].jaw_value for n in nodes])
     robot_com = task.evaluator.evaluate(Q, active=[*moving, *task.jaw[side]]).robot_com
     held = task.evaluator.with_object(robot_com, T_obj)  # the object stays where it rests
     task.counters["com_states"] += len(nodes)
@@ -101,7 +101,7 @@ def _probe_jaw_closing(task: Task, side: Side, nodes: list[PlacementNode], grasp
     q_open = np.array([task.grasp_probes[n].q for n in nodes])
     q_open[:, jaw] = task.robot.upper[jaw]
     q_closed = q_open.copy()
-    q_closed[:, jaw] = np.array([grasps[n.grasp].jaw_value for n in nodes])[:, None]
+    task.put_jaw(q_closed, side, [grasps[n.grasp].jaw_value for n in nodes])
     s = np.linspace(0.0, 1.0, 3)[None, :, None]  # :func:`planner.motion.interpolation.interpolate` with three states, per node
     Q = (q_open[:, None] * (1 - s) + q_closed[:, None] * s).reshape(-1, task.robot.nq)
     T_obj = np.repeat(np.array([task.placements[n.placement] for n in nodes]), 3, axis=0)
@@ -133,7 +133,7 @@ def probe_givers(task: Task, nodes: list[HandoverNode]) -> None:
         if not ok.size:
             continue
         Q = res.q[ok]
-        Q[:, task.jaw[side]] = np.array([grasps[mine[k][1]].jaw_value for k in ok])[:, None]
+        task.put_jaw(Q, side, [grasps[mine[k][1]].jaw_value for k in ok])
         tcp = task.robot.spec.arms[side].tcp
         robot_com, frames = task.world.kin.com_and_frames(task.stance.base_pose, Q, [tcp])
         R, p = frames[tcp]

@@ -84,7 +84,7 @@ class Task:
                                     kinematics=self.world.kin)
         self.home = self.stance.q.copy()
         #: the columns of each hand's jaw joint: one, or none for a rigid hand (index arrays, so writing a
-        #: jaw value into a state is a no-op for a rigid hand)
+        #: jaw value into a state is a no-op for a rigid hand; :meth:`put_jaw`)
         self.jaw = {side: np.array([self.robot.joint_index(g.joint)] if (g := self.robot.spec.arms[side].gripper) else [],
                                    dtype=int) for side in ("left", "right")}
         for side in ("left", "right"):
@@ -173,13 +173,11 @@ class Task:
         edges = [b.pose[0] - b.size[0] / 2 for b in self.scenario.tables] or [np.inf]
         front = min(edges) - 0.05
         grid_joints = self._pitch_joints(side)
-        for candidates, moving in ((self._ready_grid, grid_joints), (self._ready_sampled, self.arm_only[side])):
-            if moving is None:
-                continue
-            Q = candidates(side)
-            if Q is None or not len(Q):
-                continue
-            tcp_frame = self.robot.spec.arms[side].tcp
+        tries = [] if grid_joints is None else [(lambda: self._ready_grid(grid_joints), grid_joints)]
+        tries.append((lambda: self._ready_sampled(side), self.arm_only[side]))
+        tcp_frame = self.robot.spec.arms[side].tcp
+        for candidates, moving in tries:
+            Q = candidates()
             _, frames = self.evaluator.kinematics(Q[0], list(moving)).com_and_frames(Q, (tcp_frame,))
             tcp = frames[tcp_frame][1]
             high = ((tcp[:, 2] >= clearance) & (tcp[:, 0] <= front)
@@ -212,11 +210,9 @@ class Task:
             return None
         return self.robot.joint_index(chain[shoulder]), self.robot.joint_index(chain[elbow])
 
-    def _ready_grid(self, side: Side) -> np.ndarray | None:
-        """Home with the shoulder pitch in -0.3..-1.5 rad and the elbow pitch in -0.8..-2.2 rad (within limits)."""
-        joints = self._pitch_joints(side)
-        if joints is None:
-            return None
+    def _ready_grid(self, joints: tuple[int, int]) -> np.ndarray:
+        """Home with the shoulder pitch (``joints[0]``) in -0.3..-1.5 rad and the elbow pitch (``joints[1]``) in
+        -0.8..-2.2 rad (within limits)."""
         shoulder, elbow = joints
         candidates = []
         for sp in np.linspace(-0.3, -1.5, 7):
@@ -263,6 +259,10 @@ class Task:
                 pairs = pairs[np.linspace(0, len(pairs) - 1, keep).astype(int)]
             out.append(HandoverPose(hp.id, hp.T_world_obj, pairs))
         return out
+
+    def put_jaw(self, Q: np.ndarray, side: Side, values) -> None:
+        """Write one jaw value per state into the rows of ``Q`` (nothing for a rigid hand)."""
+        Q[:, self.jaw[side]] = np.asarray(values, dtype=float)[:, None]
 
     def handover_anchor(self) -> np.ndarray:
         """Where the handover positions are measured from: the stance's pelvis, moved by how far this robot's

@@ -18,7 +18,7 @@ import xml.etree.ElementTree as ET
 from typing import Callable
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
 
 class CollisionShape(BaseModel):
@@ -70,14 +70,14 @@ def parse_collision(value: object, error: Callable[[str], Exception]) -> LinkSha
     return out
 
 
-def write_link_shapes(link_el: ET.Element, shapes: list[CollisionShape], xyz_rpy: Callable) -> None:
-    """Replace ``link_el``'s collision elements with ``shapes`` (``xyz_rpy(pose7)`` gives the origin strings)."""
+def write_link_shapes(link_el: ET.Element, shapes: list[CollisionShape]) -> None:
+    """Replace ``link_el``'s collision elements with ``shapes``."""
     for old in link_el.findall("collision"):
         link_el.remove(old)
     for shape in shapes:
         for kind, dims, pose in _urdf_primitives(shape):
             col = ET.SubElement(link_el, "collision")
-            xyz, rpy = xyz_rpy(list(pose))
+            xyz, rpy = urdf_origin(list(pose))
             ET.SubElement(col, "origin", {"xyz": xyz, "rpy": rpy})
             geo = ET.SubElement(col, "geometry")
             if kind == "box":
@@ -86,6 +86,20 @@ def write_link_shapes(link_el: ET.Element, shapes: list[CollisionShape], xyz_rpy
                 ET.SubElement(geo, "sphere", {"radius": repr(float(dims[0]))})
             else:
                 ET.SubElement(geo, "cylinder", {"radius": repr(float(dims[0])), "length": repr(float(dims[1]))})
+
+
+def urdf_origin(pose: list[float]) -> tuple[str, str]:
+    """A pose ``[x, y, z, qx, qy, qz, qw]`` as a URDF ``<origin>``'s ``xyz`` and ``rpy`` attribute strings; a zero
+    quaternion raises ValueError."""
+    x, y, z, qx, qy, qz, qw = pose
+    n = float(np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw))
+    if n < 1e-9:
+        raise ValueError("zero quaternion")
+    qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
+    roll = np.arctan2(2 * (qw * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
+    pitch = np.arcsin(np.clip(2 * (qw * qy - qz * qx), -1.0, 1.0))
+    yaw = np.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+    return f"{x!r} {y!r} {z!r}", f"{float(roll)!r} {float(pitch)!r} {float(yaw)!r}"
 
 
 def _urdf_primitives(shape: CollisionShape) -> list[tuple[str, tuple[float, ...], tuple[float, ...]]]:

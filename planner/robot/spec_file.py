@@ -35,7 +35,7 @@ from planner.robot.spec import (
     RobotSpec,
     UprightSpec,
 )
-from planner.robot.spec_collision import parse_collision, write_link_shapes
+from planner.robot.spec_collision import parse_collision, urdf_origin, write_link_shapes
 
 ROBOT_SCHEMA = "regrasp.robot/1"
 CACHE_ENV = "REGRASP_CACHE_DIR"
@@ -218,6 +218,10 @@ class _Urdf:
             link = j.find("parent").attrib["link"]
         return out[::-1]
 
+    def link(self, name: str) -> ET.Element | None:
+        """The ``<link>`` element of that name, or None."""
+        return next((e for e in self.root.findall("link") if e.attrib["name"] == name), None)
+
     def has_mesh_collisions(self) -> bool:
         return self.root.find("link/collision/geometry/mesh") is not None
 
@@ -229,22 +233,10 @@ class _Urdf:
         return v if v > 0 else None
 
 
-def _pose_xyz_rpy(pose: list[float]) -> tuple[str, str]:
-    x, y, z, qx, qy, qz, qw = pose
-    n = float(np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw))
-    if n < 1e-9:
-        raise ValueError("zero quaternion")
-    qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
-    roll = np.arctan2(2 * (qw * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
-    pitch = np.arcsin(np.clip(2 * (qw * qy - qz * qx), -1.0, 1.0))
-    yaw = np.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
-    return f"{x!r} {y!r} {z!r}", f"{float(roll)!r} {float(pitch)!r} {float(yaw)!r}"
-
-
 def _add_frame(urdf: _Urdf, frame: str, link: str, pose: list[float], field_name: str,
                box: tuple[float, float] | None = None) -> None:
     try:
-        xyz, rpy = _pose_xyz_rpy(pose)
+        xyz, rpy = urdf_origin(pose)
     except ValueError:
         raise RobotSpecError(f"{field_name}.pose_in_link: the quaternion is zero") from None
     j = ET.SubElement(urdf.root, "joint", {"name": f"{frame}_frame_joint", "type": "fixed"})
@@ -293,7 +285,7 @@ def derive(path: str | Path) -> DerivedRobot:
             _add_frame(urdf, foot.frame, foot.link, foot.pose_in_link, where, box=(foot.size[0], foot.size[1]))
             created.append(foot.frame)
         else:
-            el = next(e for e in urdf.root.findall("link") if e.attrib["name"] == foot.frame)
+            el = urdf.link(foot.frame)
             if el.find("collision/geometry/box") is None:
                 if foot.size is None:
                     raise RobotSpecError(f"{where}.size: frame {foot.frame!r} carries no sole box; give the sole's size")
@@ -381,8 +373,9 @@ def derive(path: str | Path) -> DerivedRobot:
             raise RobotSpecError(f"effort_limits.{joint}: the URDF's joint {joint!r} has no effort limit; give one")
     default_acc = rf.acceleration_limits.get("default")
     acceleration = {j: float(rf.acceleration_limits.get(j, default_acc)) for j in movable}
-    disabled = _disabled_collisions(rf, path.parent, urdf, notes)
-    posture = {**_srdf_posture(rf, path.parent, movable, notes), **rf.default_posture_rad}
+    srdf = _srdf_root(rf, path.parent) if rf.srdf is not None else None
+    disabled = _disabled_collisions(rf, srdf, urdf, notes)
+    posture = {**_srdf_posture(rf, srdf, movable, notes), **rf.default_posture_rad}
     spec = RobotSpec(
         name=rf.name, urdf="", description=rf.description, root_link=urdf.root_link, feet=feet, arms=arms, waist=waist,
         neck=neck, upright=UprightSpec(foot_y_m=rf.upright.foot_y_m, pelvis_height_m=rf.upright.pelvis_height_m),
@@ -393,10 +386,10 @@ def derive(path: str | Path) -> DerivedRobot:
     )
     shapes = parse_collision(rf.collision, RobotSpecError)
     for link, link_shapes in (shapes or {}).items():
-        el = next((e for e in urdf.root.findall("link") if e.attrib["name"] == link), None)
+        el = urdf.link(link)
         if el is None:
             raise RobotSpecError(f"collision.{link}: the URDF has no link {link!r}")
-        write_link_shapes(el, link_shapes, _pose_xyz_rpy)
+        write_link_shapes(el, link_shapes)
         notes.append(f"collision: {len(link_shapes)} shape(s) of the spec on {link}")
     if not created and not sole_boxes_added and not shapes and not urdf.has_mesh_collisions():
         # nothing to derive: the URDF itself, so plans carry its own SHA-256 and nothing is written
@@ -426,6 +419,7 @@ def derive(path: str | Path) -> DerivedRobot:
 
 
 def _srdf_root(rf: RobotFile, spec_dir: Path) -> tuple[Path, ET.Element]:
+    """The spec's SRDF file and its parsed root (read once per derivation)."""
     srdf = _resolve(rf.srdf, spec_dir, rf.packages, "srdf")
     try:
         return srdf, ET.parse(srdf).getroot()
@@ -433,14 +427,15 @@ def _srdf_root(rf: RobotFile, spec_dir: Path) -> tuple[Path, ET.Element]:
         raise RobotSpecError(f"srdf: cannot read {srdf}: {exc}") from None
 
 
-def _srdf_posture(rf: RobotFile, spec_dir: Path, movable: list[str], notes: list[str]) -> dict[str, float]:
+def _srdf_posture(rf: RobotFile, srdf_file: tuple[Path, ET.Element] | None, movable: list[str],
+                  notes: list[str]) -> dict[str, float]:
     """The joint values of the SRDF's ``<group_state>`` named by ``srdf_posture`` (movable joints of the URDF;
     a floating base's or another URDF variant's joints are left out)."""
     if rf.srdf_posture is None:
         return {}
-    if rf.srdf is None:
+    if srdf_file is None:
         raise RobotSpecError("srdf_posture: names a group_state of the SRDF; give `srdf`")
-    srdf, root = _srdf_root(rf, spec_dir)
+    srdf, root = srdf_file
     state = next((el for el in root.iter("group_state") if el.attrib.get("name") == rf.srdf_posture), None)
     if state is None:
         names = sorted({el.attrib.get("name", "") for el in root.iter("group_state")})
@@ -455,12 +450,13 @@ def _srdf_posture(rf: RobotFile, spec_dir: Path, movable: list[str], notes: list
     return out
 
 
-def _disabled_collisions(rf: RobotFile, spec_dir: Path, urdf: _Urdf, notes: list[str]) -> list[tuple[str, str]]:
+def _disabled_collisions(rf: RobotFile, srdf_file: tuple[Path, ET.Element] | None, urdf: _Urdf,
+                         notes: list[str]) -> list[tuple[str, str]]:
     """The link pairs the spec says not to check for self-collision: the SRDF's ``<disable_collisions>``
     (MoveIt's collision matrix, computed on the robot's own meshes) and ``disable_collisions``, sorted."""
     pairs: set[tuple[str, str]] = set()
-    if rf.srdf is not None:
-        srdf, root = _srdf_root(rf, spec_dir)
+    if srdf_file is not None:
+        srdf, root = srdf_file
         unknown = 0
         for el in root.iter("disable_collisions"):
             a, b = el.attrib.get("link1"), el.attrib.get("link2")

@@ -44,7 +44,7 @@ from planner.scene.bodies import (
     object_bodies,
     set_fcl_transform,
 )
-from planner.scene.hand import hand_links
+from planner.scene.hand import contact_joints
 from planner.scene.objects import ObjectModel
 from planner.transforms import inverse
 
@@ -206,14 +206,12 @@ class CollisionWorld:
         self._uniq_joints, self._joint_slot = np.unique(self._robot_joints, return_inverse=True)
         self._env_slice = slice(self.n_robot, self.n_robot + self.n_env)
         self._obj_slice = slice(self.n_robot + self.n_env, B)
-        # finger bodies per side
-        self._fingers: dict[str, np.ndarray] = {}
+        # per side, the robot bodies that may touch an object the hand grasps or holds (hand.contact_joints)
+        self._touching: dict[str, np.ndarray] = {}
         self._tcp: dict[str, str] = {}
         for side, arm in robot.spec.arms.items():
-            palm, fj = hand_links(robot, side)
-            # the bodies that touch a grasped object: the fingers of a jaw; a rigid hand touches with itself
-            touch = fj if arm.gripper is not None else palm
-            self._fingers[side] = np.array([i for i in range(self.n_robot) if bodies[i].joint in touch], dtype=int)
+            touch = contact_joints(robot, side)
+            self._touching[side] = np.array([i for i in range(self.n_robot) if bodies[i].joint in touch], dtype=int)
             self._tcp[side] = arm.tcp
         self.disabled = self._disabled_self_pairs()
         moving = np.ones(B, dtype=bool)
@@ -401,7 +399,7 @@ class CollisionWorld:
         if object_present:
             excluded = set()
             for side in (*held_sides, *((grasping,) if grasping else ())):
-                excluded |= set(self._fingers[side].tolist())
+                excluded |= set(self._touching[side].tolist())
             orr, oo = self._obj_pairs
             keep = np.array([r not in excluded for r in orr], dtype=bool)
             groups.append(("object", orr[keep], oo[keep]))

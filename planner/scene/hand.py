@@ -44,8 +44,11 @@ class HandGeometry:
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
     #: the jaw joint's value when closed (opening 0)
     closed_value: float = 0.0
-    #: False for a rigid hand: nothing opens, a held object attaches at the TCP
-    has_jaw: bool = True
+
+    @property
+    def has_jaw(self) -> bool:
+        """False for a rigid hand (its opening is 0): nothing opens, a held object attaches at the TCP."""
+        return self.max_opening_m > 0.0
 
     def jaw_value(self, opening_m: float) -> float:
         """The jaw joint's value for an opening (m); 0 for a rigid hand, which has no jaw joint."""
@@ -92,6 +95,13 @@ def hand_links(robot: RobotModel, side: Side) -> tuple[set[int], set[int]]:
     return {tcp_joint}, finger_joints
 
 
+def contact_joints(robot: RobotModel, side: Side) -> set[int]:
+    """Pinocchio joint ids whose bodies may touch an object the hand grasps or holds: a jaw's fingers; a rigid
+    hand touches it with itself."""
+    palm, fingers = hand_links(robot, side)
+    return fingers if robot.spec.arms[side].gripper is not None else palm
+
+
 def hand_geometry(robot: RobotModel, side: Side) -> HandGeometry:
     """The hand of ``side`` in its TCP frame (see :class:`HandGeometry`), derived once per robot model."""
 
@@ -101,7 +111,7 @@ def hand_geometry(robot: RobotModel, side: Side) -> HandGeometry:
             raise ValueError(f"robot {robot.name!r}: the {side} hand has no collision primitives")
         g = robot.spec.arms[side].gripper
         if g is None:
-            return HandGeometry(side, tuple(shapes), 0.0, 1.0, robot, has_jaw=False)
+            return HandGeometry(side, tuple(shapes), 0.0, 1.0, robot)
         return HandGeometry(side, tuple(shapes), g.max_opening_m, g.opening_per_unit, robot, closed_value=g.closed_value)
 
     return robot.derived(("hand_geometry", side), build)

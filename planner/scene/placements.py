@@ -29,7 +29,7 @@ from planner.stability.support_polygon import (
     SupportPolygon,
     convex_hull_ccw,
 )
-from planner.transforms import matrix_to_pose7, pose7_to_matrix, rot_z, rotation_angle
+from planner.transforms import frame_from_z, matrix_to_pose7, pose7_to_matrix, rot_z, rotation_angle
 
 #: Facet normals closer than this are one facet (the hull of a mesh has split coplanar faces).
 _COPLANAR_COS = 1.0 - 1e-9
@@ -101,13 +101,8 @@ def _signed_distance(points: np.ndarray, p: np.ndarray) -> float | None:
 
 def _down_frame(n: np.ndarray) -> np.ndarray:
     """Rotation taking the object's unit vector ``n`` to world -z, with a deterministic yaw."""
-    z = -np.asarray(n, float)
-    e = np.eye(3)[int(np.argmin(np.abs(z)))]
-    x = np.cross(e, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
     # rows: the object's vectors expressed in the contact frame
-    return np.vstack([x, y, z])
+    return frame_from_z(-np.asarray(n, float)).T.copy()
 
 
 def reference_poses(obj: ObjectModel, settings: PlacementSettings | None = None) -> list[ReferencePose]:
