@@ -215,6 +215,9 @@ def handover_failures(sc) -> dict[str, Any]:
     causes = Counter(f"{v.cause or 'valid'}: {v.detail}" if v.detail else (v.cause or "valid")
                      for k, v in task.node_cache.items() if isinstance(k, HandoverNode))
     out["handover_validations"] = dict(causes.most_common())
+    # Key postures that failed the margin and were replaced by a stable one with the hands in place.
+    out["stable_postures"] = {"asked": int(task.counters["stable_postures"]),
+                              "found": int(task.counters["stable_postures_found"])}
     return out
 
 
@@ -487,13 +490,18 @@ def render(res: Results) -> str:
     lines += ["", "## Crouched handovers", "",
               "Handover poses are offsets from the stance's pelvis, so the crouched robot hands over lower. Why the "
               "dual-arm configurations find a key path or not (handover node validations by cause):", "",
-              "| task | pelvis height | handover CoM heights | left-right | right-left | handover validations |",
-              "|---|---|---|---|---|---|"]
+              "| task | pelvis height | handover CoM heights | left-right | right-left | stable postures found | "
+              "handover validations |",
+              "|---|---|---|---|---|---|---|"]
     for name, h in res.handovers.items():
+        steadied = h.get("stable_postures") or {"asked": 0, "found": 0}
         lines.append(f"| {name} ({h['object_mass_kg']:g} kg) | {h['pelvis_height_m']:.2f} m | "
                      f"{', '.join(f'{z:.2f}' for z in h['handover_com_heights_m'])} m | {_short_reason(h['left-right'])} | "
-                     f"{_short_reason(h['right-left'])} | "
+                     f"{_short_reason(h['right-left'])} | {steadied['found']} of {steadied['asked']} | "
                      + "; ".join(f"{k}: {n}" for k, n in h["handover_validations"].items()) + " |")
+    lines += ["", "A key posture that fails the margin is replaced by the nearest one with the hands in place that "
+              "keeps it (the waist leaning back; docs/motion.md, *Stable key postures*); *stable postures found* counts "
+              "those replacements for the two dual-arm configurations' key paths."]
     lines += ["", "## Planning time with and without the constraint", "",
               "| stance | with the threshold | at 0 mm | ratio |", "|---|---|---|---|"]
     for stance in STANCES:

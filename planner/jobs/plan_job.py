@@ -119,14 +119,13 @@ def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]
         if failures and not ok:
             dominant = max(failures, key=failures.get)
             limited = {c: failures[c] for c in ("effort", "grip") if failures.get(c)}
-            over = None
+            # which joints (or the grip) the limits refuse there, to name them
+            over = _end_over_limits(planner, end)
             if limited:  # nodes the limits refused might have held the end: the limits decide (counts in the message)
                 dominant = max(limited, key=limited.get)
-            else:
-                over = _end_over_limits(planner, end)
-                if over is not None:  # the margin refused them first, but the limits refuse them too
-                    dominant = over[0]
-            if over is not None:
+            elif over is not None:  # the margin refused them first, but the limits refuse them too
+                dominant = over[0]
+            if over is not None and over[0] == dominant:
                 return dominant.upper(), (f"no grasp of the object at its {end} pose with the {hand} hand is valid, and the "
                                           f"robot's limits refuse grasps there: {over[1]} (the validations: "
                                           f"{dict(failures)})")

@@ -6,6 +6,9 @@ are collision-free and keep the CoM margin. A handover node (a floating pose and
 is valid when the giver can hold the object there, the taker can approach and close its jaw,
 and the giver can release and retreat, each move collision-free and stable. Cheapest decisive
 checks first; a failure names its cause (ik, collision, com_margin) and where it happened.
+A key posture that fails the CoM margin is first replaced by the nearest one that keeps the hands
+where they are and the margin (:meth:`Task.stable_posture`: the waist leans back, the arm
+re-poses); only when there is none does the node fail the margin.
 Each node draws from its own generator, so a verdict does not depend on the search order.
 """
 
@@ -16,7 +19,7 @@ import numpy as np
 from planner.motion.ik import key_pose_targets
 from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
 from planner.regrasp.plan_assembly import MotionPiece
-from planner.regrasp.probes import probe_grasps_with_waist
+from planner.regrasp.probes import probe_grasps_with_waist, steady_giver
 from planner.regrasp.results import HandoverPoses, KeyPoses
 from planner.regrasp.settings import HANDS_INDEX
 from planner.regrasp.task import Task
@@ -49,7 +52,12 @@ def validate_placement(task: Task, node: PlacementNode, rng: np.random.Generator
     T_obj_tcp = inverse(T_obj) @ t.tcp(q_closed, side)
     hold = HoldSpec(side, T_obj_tcp)
     if t.constrained and not t.evaluator.evaluate_one(q_closed, hold).stable:
-        return Validation(False, "com_margin", "holding the object at the grasp pose")
+        q_stable = t.stable_posture(q_closed, (side,), T_obj)
+        if q_stable is None:
+            return Validation(False, "com_margin", "holding the object at the grasp pose")
+        q_closed = q_stable
+        q_grasp = q_stable.copy()
+        q_grasp[t.jaw[side]] = t.robot.upper[t.jaw[side]]
     cause, m2 = t.checker.classify(t.line(q_grasp, q_closed, 3), None, T_obj, grasping=side)
     if cause:
         return Validation(False, cause, "closing the jaw", margin_m=m2)
@@ -57,6 +65,10 @@ def validate_placement(task: Task, node: PlacementNode, rng: np.random.Generator
     if q_lift is None:
         return Validation(False, "ik", "lift pose out of reach")
     q_lift[t.jaw[side]] = grasp.jaw_value
+    if t.constrained and not t.evaluator.evaluate_one(q_lift, hold).stable:
+        q_lift = t.stable_posture(q_lift, (side,), t.tcp(q_lift, side) @ hold.T_tcp_obj)
+        if q_lift is None:
+            return Validation(False, "com_margin", "holding the object at the lift pose")
     cause, m3 = t.checker.classify(t.line(q_closed, q_lift), hold, None)
     if cause:
         return Validation(False, cause, "lift", margin_m=m3)
@@ -73,7 +85,7 @@ def validate_placement(task: Task, node: PlacementNode, rng: np.random.Generator
 
 
 def validate_handover(task: Task, node: HandoverNode, rng: np.random.Generator) -> Validation:
-    t, s = task, task.settings
+    t = task
     giver, taker = node.giver, node.taker
     gg, tg = t.grasps[giver][node.giver_grasp], t.grasps[taker][node.taker_grasp]
     T_obj = t.handover_poses[node.pose].T_world_obj
@@ -90,8 +102,7 @@ def validate_handover(task: Task, node: HandoverNode, rng: np.random.Generator) 
         checked = None
         if q_g is not None:
             q_g[t.jaw[giver]] = gg.jaw_value
-            hold = HoldSpec(giver, inverse(T_obj) @ t.tcp(q_g, giver))
-            checked = (q_g, hold, *t.checker.classify(q_g, hold, None))
+            checked = steady_giver(t, giver, q_g, HoldSpec(giver, inverse(T_obj) @ t.tcp(q_g, giver)), T_obj)
         t.giver_at[giver_key] = checked
     checked = t.giver_at[giver_key]
     q_both = None
@@ -118,8 +129,33 @@ def validate_handover(task: Task, node: HandoverNode, rng: np.random.Generator) 
         if cause:
             return Validation(False, cause, "giver at the handover pose", margin_m=m0)
     q_both[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
-    # The giver at the handover pose with the taker arm still at home.
-    q_giver_at = q_g
+    v = _exchange(t, node, q_g, hold_g, m0, q_both, rng)
+    if v.ok or (v.cause, v.detail) != ("com_margin", "taker approach"):
+        return v
+    # The taker's arm reaching out costs the margin the giver kept: the nearest posture of the waist and
+    # both arms with both hands where they are and the margin kept, and the giver's part again from it.
+    q_stable = t.stable_posture(q_both, (giver, taker), T_obj)
+    if q_stable is None:
+        return v
+    q_g = q_stable.copy()
+    q_g[t.arm_only[taker]] = t.home[t.arm_only[taker]]
+    cause, m0 = t.checker.classify(q_g, hold_g, None)
+    if cause:
+        return Validation(False, cause, "giver at the handover pose, steadied for the exchange", margin_m=m0)
+    return _exchange(t, node, q_g, hold_g, m0, q_stable, rng)
+
+
+def _exchange(t: Task, node: HandoverNode, q_giver_at: np.ndarray, hold_g: HoldSpec, m0: float, q_both: np.ndarray,
+              rng: np.random.Generator) -> Validation:
+    """A handover from the giver at the handover pose (``q_giver_at``, holding as ``hold_g``, margin ``m0``)
+    to both hands on the object (``q_both``, the taker's jaw open): the taker's approach and closing, the
+    exchange, the giver's retreat, each move checked."""
+    s = t.settings
+    giver, taker = node.giver, node.taker
+    gg, tg = t.grasps[giver][node.giver_grasp], t.grasps[taker][node.taker_grasp]
+    T_obj = t.handover_poses[node.pose].T_world_obj
+    T_g = T_obj @ gg.T_obj_tcp
+    T_t = T_obj @ tg.T_obj_tcp
     G_g = hold_g.T_obj_tcp
     T_pre_t = key_pose_targets(T_t, approach_m=s.pregrasp_m)["pregrasp"]
     q_taker_pre = t.solve_ik(taker, T_pre_t, q_both, rng, arm_only=True)

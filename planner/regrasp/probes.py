@@ -82,11 +82,22 @@ def _record_probes(task: Task, side: Side, nodes: list[PlacementNode], T_obj: np
     held = task.evaluator.with_object(robot_com, T_obj)  # the object stays where it rests
     task.counters["com_states"] += len(nodes)
     for k, n in enumerate(nodes):
-        task.grasp_probes[n] = GraspProbe(res.q[k] if res.ok[k] else None, float(held.margin[k]) if res.ok[k] else None)
+        q, margin = (res.q[k], float(held.margin[k])) if res.ok[k] else (None, None)
         if res.ok[k] and not held.stable[k] and task.constrained:
-            # Exactly what the node's validation would find first, from the same state.
-            task.node_cache.setdefault(n, Validation(False, "com_margin", "holding the object at the grasp pose"))
+            # Exactly what the node's validation would find first, from the same state: the nearest
+            # posture that holds the object there with the margin kept, or the node fails the margin.
+            q_stable = task.stable_posture(Q[k], (side,), T_obj[k])
+            if q_stable is None:
+                task.node_cache.setdefault(n, Validation(False, "com_margin", "holding the object at the grasp pose"))
+            else:
+                q, margin = q_stable, task.evaluator.evaluate_one(q_stable, _hold_at(task, side, q_stable, T_obj[k])).margin
+        task.grasp_probes[n] = GraspProbe(q, margin)
     _probe_jaw_closing(task, side, [n for k, n in enumerate(nodes) if res.ok[k] and n not in task.node_cache], grasps)
+
+
+def _hold_at(task: Task, side: Side, q: np.ndarray, T_obj: np.ndarray) -> HoldSpec:
+    """``side`` holding the object at ``T_obj`` from posture ``q``."""
+    return HoldSpec(side, inverse(T_obj) @ task.tcp(q, side))
 
 
 def _probe_jaw_closing(task: Task, side: Side, nodes: list[PlacementNode], grasps: list[Grasp]) -> None:
@@ -145,10 +156,23 @@ def probe_givers(task: Task, nodes: list[HandoverNode]) -> None:
         task.counters["com_states"] += len(ok)
         task.counters["collision_states"] += len(ok)
         for row, k in enumerate(ok):
-            cause = ("com_margin" if task.constrained and not held.stable[row]
-                     else "collision" if collides[row] else None)
             hold = HoldSpec(side, inverse(T_obj[k]) @ T_tcp[row])
-            task.giver_at[mine[k]] = (Q[row], hold, cause, float(held.margin[row]))
+            if task.constrained and not held.stable[row]:
+                task.giver_at[mine[k]] = steady_giver(task, side, Q[row], hold, T_obj[k])
+            else:
+                task.giver_at[mine[k]] = (Q[row], hold, "collision" if collides[row] else None, float(held.margin[row]))
+
+
+def steady_giver(task: Task, side: Side, q: np.ndarray, hold: HoldSpec, T_obj: np.ndarray) -> tuple:
+    """The giver holding the object at a handover pose, checked: ``(q, hold, cause, margin)``. Where the
+    posture fails the margin, the nearest posture that keeps the hand there and the margin (the waist
+    leaning back) is checked instead."""
+    cause, margin = task.checker.classify(q, hold, None)
+    if cause == "com_margin":
+        q_stable = task.stable_posture(q, (side,), T_obj)
+        if q_stable is not None:
+            q, (cause, margin) = q_stable, task.checker.classify(q_stable, hold, None)
+    return q, hold, cause, margin
 
 
 def _batch_arm_ik(task: Task, side: Side, targets: np.ndarray, seeds: list) -> BatchIkResult:

@@ -64,4 +64,10 @@ class PlannerSettings(BaseModel):
                          "section 3); off reproduces the paper, which had neither")
     planning_buffer_m: float = Field(
         1e-3, ge=0, description="plan to threshold + this, so small IK residuals never bring a point below the threshold")
+    stable_postures: bool = Field(
+        True, description="before a key pose is removed for the CoM margin, look for the nearest posture with the hands "
+        "in the same place that keeps it (the waist leaning back, the arm re-posed; planner/motion/stable_posture.py)")
+    stable_posture_slack_m: float = Field(
+        2e-3, ge=0, description="such a posture keeps the planning threshold plus this, so the moves into and out of it keep "
+        "the threshold too")
 

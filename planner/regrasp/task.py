@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
+from typing import Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -18,6 +19,7 @@ from planner.grasping.grasps import Grasp, GraspSet, plan_grasps
 from planner.grasping.handover import HandoverPose, handover_poses
 from planner.motion.ik import IkSolver
 from planner.motion.interpolation import interpolate
+from planner.motion.stable_posture import PostureProblem, stable_posture
 from planner.regrasp.graph import HOP_KINDS, HandoverNode, PlacementNode
 from planner.regrasp.results import GraspProbe
 from planner.regrasp.settings import HANDS_INDEX, PlannerSettings, Side
@@ -323,6 +325,25 @@ class Task:
             self.counters["ik_solves"] += 1
             res = self.ik.solve_arm(side, target, seed, rng, rest_q=self.home)
         return res.q
+
+    def stable_posture(self, q: np.ndarray, sides: Sequence[Side], T_obj: np.ndarray | None) -> np.ndarray | None:
+        """The posture nearest ``q`` that keeps the TCPs of ``sides`` where ``q`` has them and the CoM
+        margin of holding the object at ``T_obj`` (None: nothing held) at the planning threshold, moving
+        the waist and the arms of ``sides``; None when there is none, or when the task is unconstrained or
+        stable postures are off (:mod:`planner.motion.stable_posture`)."""
+        if not (self.constrained and self.settings.stable_postures):
+            return None
+        self.counters["stable_postures"] += 1
+        held = T_obj is not None and self.obj.mass_kg > 0.0
+        problem = PostureProblem(self.robot, self.stance.base_pose, self.stance.polygon,
+                                 self.obj.mass_kg if held else 0.0,
+                                 T_obj[:3, :3] @ self.obj.com_local + T_obj[:3, 3] if held else None)
+        hands = {self.robot.spec.arms[s].tcp: self.tcp(q, s) for s in sides}
+        columns = np.unique(np.concatenate([self.active[s] for s in sides]))
+        out = stable_posture(problem, q, columns, hands, self.evaluator.threshold_m + self.settings.stable_posture_slack_m)
+        if out is not None:
+            self.counters["stable_postures_found"] += 1
+        return out
 
     def line(self, a: np.ndarray, b: np.ndarray, n: int | None = None) -> np.ndarray:
         """``n`` states from a to b, both included (default: the approach samples)."""

@@ -243,25 +243,36 @@ def test_the_estimator_defaults_to_the_scenario_s_and_the_old_count_reads_as_unt
         run_survey(scenario, states=0, workers=1, task=task)
 
 
-def test_grasp_probes_bound_the_validated_margin_and_prefill_only_certain_failures(scenario):
+@pytest.mark.parametrize("stable_postures", [False, True], ids=["ik-postures", "stable-postures"])
+def test_grasp_probes_bound_the_validated_margin_and_prefill_only_certain_failures(scenario, stable_postures):
     """The search weighs placement nodes by a batched probe (IK at the grasp pose, margin holding the
     object there) before validating any. The probe must be optimistic (the node's validated margin is
     never larger: its lift starts from that very state), and a node it marks as failing on the margin
-    must be one its own validation rejects for that reason."""
+    must be one its own validation rejects for that reason. With stable postures, a probe that finds the
+    held object unstable looks for the posture with the hand in place that keeps the margin: every probe
+    left with a posture then keeps the planning threshold, and the ones that found none are marked."""
     from planner.regrasp.graph import PlacementNode
     from planner.regrasp.hand_config_planner import HandConfigPlanner
+    from planner.regrasp.settings import PlannerSettings
     from planner.regrasp.task import Task
-    probe_task = Task(scenario)
+    settings = PlannerSettings(stable_postures=stable_postures)
+    probe_task = Task(scenario, settings)
     planner = HandConfigPlanner(probe_task, "right-right")
     nodes = [n for n in planner.graph_spec().placement_nodes if isinstance(n, PlacementNode)][:40]
     margins = np.array([m for m in (p.margin_m for p in probe_grasps(probe_task, nodes).values()) if m is not None])
     assert len(margins) >= 10  # many grasps of a spec are beyond the arm alone (from below, behind)
     # A threshold between the probed margins: some nodes are stable at their grasp, some are not.
     threshold = float(np.median(margins)) - probe_task.settings.planning_buffer_m
-    task = Task(scenario, threshold_m=threshold)
+    task = Task(scenario, settings, threshold_m=threshold)
     probes = probe_grasps(task, nodes)
     prefilled = {n: task.node_cache[n] for n in nodes if n in task.node_cache}
-    assert any(v.cause == "com_margin" for v in prefilled.values()), "no node was marked as failing on the margin"
+    if stable_postures:
+        assert task.counters["stable_postures_found"] > 0
+        for n in nodes:
+            if probes[n].q is not None and n not in prefilled:
+                assert probes[n].margin_m >= task.evaluator.threshold_m - 1e-9
+    else:
+        assert any(v.cause == "com_margin" for v in prefilled.values()), "no node was marked as failing on the margin"
     planner = HandConfigPlanner(task, "right-right")
     validated_ok = 0
     for node in nodes[:24]:

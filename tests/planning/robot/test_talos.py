@@ -125,8 +125,8 @@ def test_the_gate_passes_the_talos_upright_plan(talos_plan):
 
 
 def test_the_papers_8_kg_upright_task_is_beyond_talos_wrists():
-    """8 kg at TALOS's TCP: the wrists (8 N*m) refuse every grasp but the straight-down ones, which the CoM
-    margin refuses: EFFORT, naming the wrist joint."""
+    """8 kg at TALOS's TCP: the wrists (8 N*m) refuse most grasps the arm reaches (the rest the CoM margin, the
+    grip or collisions refuse): EFFORT, naming the wrist joint."""
     from planner.jobs.plan_job import PlanOptions, plan_scenario
     from planner.scene.scenarios import load_builtin
 
