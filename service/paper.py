@@ -166,13 +166,18 @@ CAUSES: dict[str, tuple[str, str]] = {
                                         "over the centre of the new polygon (com_over: support-centre)"),
     "staggered-right-hand-endings-least-stable": ("the pelvis placement", "the staggered stance with the CoM re-centred "
                                                   "(com_over: support-centre)"),
-    "crouched-all-stable": ("the object's mass", "the crouched task with 8 kg (the paper's analysis) instead of 15 kg"),
+    "crouched-all-stable": ("the object's mass", "the crouched task with 8 kg (the paper's analysis) instead of 15 kg, "
+                            "then lighter still (a mass sweep)"),
     "one-legged-left-left-most-stable": ("the threshold", "the one-legged task at 20 mm instead of 30 mm"),
     "one-legged-right-hand-endings-less-stable": ("the threshold", "the one-legged task at 20 mm instead of 30 mm"),
     "threshold-changes-motion": ("the object's mass", "the crouched task's plans with 8 kg (the paper's analysis) "
                                  "instead of 15 kg, the other stances as they are"),
     "crouched-most-stable-stance": ("the threshold", "the upright task in the upright and crouched stances at 30 mm"),
 }
+
+
+#: The crouched task's lighter objects after the 8 kg cause run: where R = 1 everywhere would hold, if anywhere.
+SWEEP_MASSES_KG = (4.0, 1.0)
 
 
 def _variant_scenario(cause_id: str):
@@ -283,6 +288,13 @@ def run_causes(res: Results, settings: PaperSettings, progress: Callable[[str], 
                 ok, ev = judge_ordering(t["rows"], hi, lo)
             else:
                 ok, ev = judge_all_stable(t["rows"])
+                # Lighter still: the mass at which the claim would hold, if any (the same task otherwise).
+                run["sweep"] = []
+                for mass in SWEEP_MASSES_KG:
+                    lighter = _survey(_scenario("crouched", object={"mass_kg": mass}), settings)
+                    held, why = judge_all_stable(lighter["rows"])
+                    run["sweep"].append({"mass_kg": mass, "verdict": "reproduced" if held else "not reproduced",
+                                         "evidence": why})
         elif cid == "upright-left-no-removal":
             doc = _plan("upright", "left-left", 0.04, settings.plan_iterations)
             run["plan"] = _plan_summary(doc)
@@ -530,6 +542,8 @@ def render(res: Results) -> str:
             r = c["cause_run"]
             lines.append(f"  - Cause: {c['cause']}. Run: {r['change']}: the claim is then **{r['verdict']}** "
                          f"({r['evidence']}).")
+            for step in r.get("sweep") or []:
+                lines.append(f"    - {step['mass_kg']:g} kg: **{step['verdict']}** ({step['evidence']}).")
     lines += ["", "## The paper's own inconsistencies, and the reading we follow", ""]
     for issue, reading in INCONSISTENCIES:
         lines.append(f"- {issue} {reading}")

@@ -108,6 +108,25 @@ def test_the_crouched_handovers_show_why_they_fail_or_plan(report):
     for name, v in h.items():
         assert sum(v["handover_validations"].values()) > 0
         assert f"| {name} ({v['object_mass_kg']:g} kg) |" in md
+        assert f"| {v['stable_postures']['found']} of {v['stable_postures']['asked']} |" in md
+    # With 15 kg the IK's postures fail the margin at the table; the stable postures (the waist leaning back,
+    # the hands in place) give both dual-arm configurations a key path.
+    assert h["crouched"]["left-right"] == h["crouched"]["right-left"] == "key path found"
+    assert h["crouched"]["stable_postures"]["found"] > 0
+
+
+def test_a_claim_the_mass_decides_shows_a_mass_sweep(report):
+    from service.paper import SWEEP_MASSES_KG
+
+    md, data, _ = report
+    claim = next(c for c in data["claims"] if c["id"] == "crouched-all-stable")
+    if claim["verdict"] == "reproduced":
+        pytest.skip("crouched-all-stable is reproduced at 15 kg in this run: no cause run")
+    sweep = claim["cause_run"]["sweep"]
+    assert [step["mass_kg"] for step in sweep] == list(SWEEP_MASSES_KG)
+    for step in sweep:
+        assert step["verdict"] in ("reproduced", "not reproduced")
+        assert f"    - {step['mass_kg']:g} kg: **{step['verdict']}** ({step['evidence']})." in md
 
 
 def test_drill_and_planning_time_tables_match_the_json(report):
