@@ -88,8 +88,15 @@ def test_comparison_matrix_and_claims_match_the_json(report):
             # A cause, and a run that changes that one thing, judged again.
             assert claim["cause"] and claim["cause_run"]["verdict"] in ("reproduced", "not reproduced")
             assert f"Cause: {claim['cause']}." in md
+            # Every cause tried is shown; the one named is the first that reproduces the claim, if any does.
+            tried = [claim["cause_run"], *claim["other_cause_runs"]]
+            assert claim["cause_run"]["cause"] == claim["cause"]
+            if claim["cause_run"]["verdict"] == "not reproduced":
+                assert all(r["verdict"] == "not reproduced" for r in tried)
+            for other in claim["other_cause_runs"]:
+                assert f"  - Also tried: {other['cause']}. Run: {other['change']}: the claim is then **{other['verdict']}**" in md
         else:
-            assert claim["cause"] is None
+            assert claim["cause"] is None and claim["other_cause_runs"] == []
     for stance in STANCES:
         p = data["plans"][stance]
         assert p["constrained"]["threshold_m"] > 0 and p["unconstrained"]["threshold_m"] == 0.0
