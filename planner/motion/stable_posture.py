@@ -50,6 +50,8 @@ class PostureProblem:
     #: the held object's mass (kg) and its CoM in the world (m), fixed while the hands hold still
     object_mass_kg: float = 0.0
     object_com_world: np.ndarray | None = None
+    #: pinocchio scratch for the solve (one per caller; made per solve when None)
+    data: pin.Data | None = None
 
 
 def stable_posture(problem: PostureProblem, q0: np.ndarray, columns: Sequence[int], hands: Mapping[str, np.ndarray],
@@ -58,7 +60,7 @@ def stable_posture(problem: PostureProblem, q0: np.ndarray, columns: Sequence[in
     world pose (4, 4)) where it is asked to be and the system CoM at least ``threshold_m`` inside the
     polygon; None when the solver finds none within the limits."""
     robot, model = problem.robot, problem.robot.pin_model
-    data = robot.create_data()
+    data = problem.data if problem.data is not None else robot.create_data()
     cols = np.asarray(columns, dtype=int)
     vcols = np.array([model.idx_vs[model.getJointId(robot.joint_names[i])] for i in cols])
     fids = [robot.frame_id(f) for f in hands]
@@ -77,9 +79,9 @@ def stable_posture(problem: PostureProblem, q0: np.ndarray, columns: Sequence[in
             q = q0.copy()
             q[cols] = x
             qp = robot.to_pin_q(problem.base_pose, q)
-            com = pin.centerOfMass(model, data, qp, False)
-            J_com = pin.jacobianCenterOfMass(model, data, qp, False)[:2, vcols]
-            pin.computeJointJacobians(model, data, qp)
+            pin.computeJointJacobians(model, data, qp)  # one forward pass for the CoM and the hands
+            J_com = pin.jacobianCenterOfMass(model, data, False)[:2, vcols]  # also sets data.com[0]
+            com = data.com[0]
             pin.updateFramePlacements(model, data)
             errs, jacs = [], []
             for fid, target in zip(fids, targets):

@@ -85,6 +85,8 @@ class Task:
         self.ik_arm_only = IkSolver(self.robot, self.stance, s.ik.model_copy(update={"use_waist": False, "restarts": s.arm_only_restarts}),
                                     kinematics=self.world.kin)
         self.home = self.stance.q.copy()
+        #: pinocchio scratch of :meth:`stable_posture` (this task's own)
+        self._posture_data = self.robot.create_data()
         #: the columns of each hand's jaw joint: one, or none for a rigid hand (index arrays, so writing a
         #: jaw value into a state is a no-op for a rigid hand; :meth:`put_jaw`)
         self.jaw = {side: np.array([self.robot.joint_index(g.joint)] if (g := self.robot.spec.arms[side].gripper) else [],
@@ -337,7 +339,8 @@ class Task:
         held = T_obj is not None and self.obj.mass_kg > 0.0
         problem = PostureProblem(self.robot, self.stance.base_pose, self.stance.polygon,
                                  self.obj.mass_kg if held else 0.0,
-                                 T_obj[:3, :3] @ self.obj.com_local + T_obj[:3, 3] if held else None)
+                                 T_obj[:3, :3] @ self.obj.com_local + T_obj[:3, 3] if held else None,
+                                 data=self._posture_data)
         hands = {self.robot.spec.arms[s].tcp: self.tcp(q, s) for s in sides}
         columns = np.unique(np.concatenate([self.active[s] for s in sides]))
         out = stable_posture(problem, q, columns, hands, self.evaluator.threshold_m + self.settings.stable_posture_slack_m)
