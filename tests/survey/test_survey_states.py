@@ -334,6 +334,25 @@ def _png_size(path: Path) -> tuple[int, int]:
     return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
 
 
+def test_the_convergence_plot_is_r_seed_by_seed_ending_at_the_row(run):
+    """``--plot`` draws R against the states counted so far with its interval (docs/survey.md): the series is
+    recomputed seed by seed from ``per_seed`` with the estimator's own seeded bootstrap, so its states grow seed
+    by seed and its last point is the row's pooled ratio and 95 % interval (unstable states included here, so
+    the interval is the bootstrap's, not the rule of three)."""
+    from service.convergence_plot import convergence_series
+
+    png = run.plots / "survey-one-legged-convergence.png"
+    w, h = _png_size(png)
+    assert w >= 400 and h >= 300 and png.stat().st_size > 10_000
+    for row in run.doc["rows"]:
+        assert row["unstable"] > 0
+        series = convergence_series(row, int(run.doc["seed"]))
+        assert np.array_equal(series["states"], np.cumsum([p["stable"] + p["unstable"] for p in row["per_seed"]]))
+        assert series["ratio"][-1] == pytest.approx(row["ratio"])
+        assert [series["lo"][-1], series["hi"][-1]] == pytest.approx(row["ratio_ci95"])
+        assert np.all(series["lo"] <= series["ratio"] + 1e-12) and np.all(series["ratio"] <= series["hi"] + 1e-12)
+
+
 def test_the_plots_are_real_pictures(run, tmp_path):
     import matplotlib.image as mpimg
 
