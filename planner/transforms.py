@@ -176,12 +176,18 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return pts @ T[:3, :3].T + T[:3, 3]
 
 
+def perpendicular(v: np.ndarray) -> np.ndarray:
+    """A unit vector perpendicular to ``v`` and to the world axis ``v`` is least along, chosen deterministically
+    (``v`` x that axis)."""
+    e = np.eye(3)[int(np.argmin(np.abs(v)))]
+    u = np.cross(v, e)
+    return u / np.linalg.norm(u)
+
+
 def frame_from_z(z: np.ndarray) -> np.ndarray:
     """A right-handed rotation whose z column is the unit vector ``z``, its x column chosen deterministically
-    (perpendicular to z and to the world axis z is least along)."""
-    e = np.eye(3)[int(np.argmin(np.abs(z)))]
-    x = np.cross(e, z)
-    x /= np.linalg.norm(x)
+    (the reverse of :func:`perpendicular`, to the bit)."""
+    x = -perpendicular(z)
     return np.column_stack([x, np.cross(z, x), z])
 
 

@@ -24,10 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from planner.grasping.grasp_model import Grasp, GraspSettings, perpendicular, sample_surface, thin_out
+from planner.grasping.grasp_model import Grasp, GraspSettings, sample_surface, thin_out
 from planner.scene.bodies import object_bodies, shapes_collide
 from planner.scene.hand import HandGeometry, hand_bodies
 from planner.scene.objects import ObjectModel
+from planner.transforms import perpendicular
 
 #: Bump when the recipe changes, so old cache files are not reused.
 CONTACT_ALGORITHM_VERSION = 1

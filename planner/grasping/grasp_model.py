@@ -64,13 +64,6 @@ def sample_surface(mesh: trimesh.Trimesh, count: int, rng: np.random.Generator) 
     return pts, np.asarray(mesh.face_normals)[faces]
 
 
-def perpendicular(y: np.ndarray) -> np.ndarray:
-    """A unit vector perpendicular to ``y``, chosen deterministically."""
-    e = np.eye(3)[int(np.argmin(np.abs(y)))]
-    u = np.cross(y, e)
-    return u / np.linalg.norm(u)
-
-
 def thin_out(order: np.ndarray, points: np.ndarray, axes: np.ndarray, settings: GraspSettings, *,
              signed_axes: bool) -> list[int]:
     """The indices, in ``order``, of the points kept when each one closer than ``dedupe_position_m`` to a kept one

@@ -33,12 +33,13 @@ import numpy as np
 import trimesh
 
 from planner.grasping.contact_grasps import CONTACT_ALGORITHM_VERSION, compute_contact_grasps
-from planner.grasping.grasp_model import Grasp, GraspSettings, perpendicular, sample_surface, thin_out
+from planner.grasping.grasp_model import Grasp, GraspSettings, sample_surface, thin_out
 from planner.robot.model import RobotModel
 from planner.robot.spec import Side
 from planner.scene.bodies import object_bodies, shapes_collide
 from planner.scene.hand import HandGeometry, hand_bodies, hand_geometry
 from planner.scene.objects import ObjectModel
+from planner.transforms import perpendicular
 
 CACHE_ENV = "REGRASP_CACHE_DIR"
 DEFAULT_CACHE_DIR = Path("~/.cache/hrp-regrasp")

@@ -35,6 +35,7 @@ from typing import Callable, Literal, Sequence
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from planner.compiled.nearest_kernels import nearest_node
 from planner.motion.edge_checks import (
     Validity,
     all_valid,
@@ -42,7 +43,6 @@ from planner.motion.edge_checks import (
     coarse_mask,
     split_all,
 )
-from planner.compiled.nearest_kernels import nearest_node
 from planner.motion.interpolation import edge_states
 
 ShouldStop = Callable[[], bool]

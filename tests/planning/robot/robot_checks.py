@@ -1,9 +1,17 @@
-"""Checks every robot's tests make of a plan and a survey: the gate passes the plan with the planner's own largest
-effort ratio, and a small survey of a built-in task has its rows."""
+"""What every robot's tests make and check of a plan and a survey: a built-in task planned, the gate passing the
+plan with the planner's own largest effort ratio, and a small survey of a built-in task with its rows."""
 
 from __future__ import annotations
 
 import pytest
+
+
+def builtin_plan(scenario: str, hands: str) -> dict:
+    """The plan of the built-in ``scenario`` with ``hands``, with the planner's default settings."""
+    from planner.jobs.plan_job import PlanOptions, plan_scenario
+    from planner.scene.scenarios import load_builtin
+
+    return plan_scenario(load_builtin(scenario), PlanOptions(hands=hands))
 
 
 def assert_the_gate_passes(plan: dict) -> None:

@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("cmeel", reason="G1 needs the example-robot-data package (the `talos` extra)")
 
-from .robot_checks import assert_the_gate_passes, small_survey
+from .robot_checks import assert_the_gate_passes, builtin_plan, small_survey
 
 SPEC = "robot_data/g1.yaml"
 
@@ -75,10 +75,7 @@ def test_the_stances_g1s_legs_reach(g1):
 
 @pytest.fixture(scope="module")
 def g1_plan():
-    from planner.jobs.plan_job import PlanOptions, plan_scenario
-    from planner.scene.scenarios import load_builtin
-
-    return plan_scenario(load_builtin("g1-upright"), PlanOptions(hands="left-left"))
+    return builtin_plan("g1-upright", "left-left")
 
 
 def test_g1_upright_plans_and_the_independent_checker_agrees(g1_plan):

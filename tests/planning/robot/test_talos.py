@@ -11,7 +11,7 @@ import pytest
 
 pytest.importorskip("cmeel", reason="TALOS needs the example-robot-data package (the `talos` extra)")
 
-from .robot_checks import assert_the_gate_passes, small_survey
+from .robot_checks import assert_the_gate_passes, builtin_plan, small_survey
 
 SPEC = "robot_data/talos.yaml"
 
@@ -102,10 +102,7 @@ def test_the_srdf_collision_matrix_and_posture_are_read(talos):
 
 @pytest.fixture(scope="module")
 def talos_plan():
-    from planner.jobs.plan_job import PlanOptions, plan_scenario
-    from planner.scene.scenarios import load_builtin
-
-    return plan_scenario(load_builtin("talos-upright"), PlanOptions(hands="left-left"))
+    return builtin_plan("talos-upright", "left-left")
 
 
 def test_talos_upright_plans_and_the_independent_checker_agrees(talos_plan):
