@@ -2,7 +2,7 @@
 
 Builds a plan of ``--seconds`` (default 60 s at 5 ms, many joints moving, the object held)
 and writes its audit file as the service does: the job's events in a real SQLite store,
-turned into records by the service's audit pump code (``service.job_audit.records_for_event``)
+turned into records by the service's audit pump code (``service.audit.pump.records_for_event``)
 and written by ``AuditWriter`` at the events' times: request, planning, the plan (its stored
 canonical text), approval, the gate's verdict, dispatch, every 0.25 s segment sent and
 acknowledged, the robot state echoed every 0.1 s, the end. Prints the file size, MB per
@@ -29,7 +29,7 @@ from mcap.reader import make_reader  # noqa: E402
 
 from schemas.plan import canonical_json  # noqa: E402
 from service.audit import AuditSettings, AuditWriter, verify  # noqa: E402
-from service.job_audit import records_for_event  # noqa: E402
+from service.audit.pump import records_for_event  # noqa: E402
 from service.store import JobStore, make_engine, migrate  # noqa: E402
 from tests.bridge.plans import build_plan  # noqa: E402  (a realistic plan made with the planner)
 

@@ -16,11 +16,11 @@ from .api import docs as docs_api
 from .api import jobs as jobs_api
 from .api import risk as risk_api
 from .api import system as system_api
-from .auth import TokenStore
-from .bridge import Bridge
+from .api.auth import TokenStore
+from .api.problems import RequestBodyGuard, install_problem_handlers
 from .context import Service
-from .problems import RequestBodyGuard, install_problem_handlers
-from .provenance import code_version
+from .execution.bridge import Bridge
+from .jobs.provenance import code_version
 from .settings import ServiceSettings
 
 log = logging.getLogger("regrasp.api")

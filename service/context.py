@@ -7,13 +7,13 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
-from .auth import TokenStore
-from .bridge import Bridge, make_bridge
-from .execution import Executions
-from .job_audit import AuditProcess
-from .metrics import Metrics
-from .owners import LiveOwners
-from .runner import Runner
+from .api.auth import TokenStore
+from .api.metrics import Metrics
+from .audit.pump import AuditProcess
+from .execution.bridge import Bridge, make_bridge
+from .execution.dispatch import Executions
+from .jobs.owners import LiveOwners
+from .jobs.runner import Runner
 from .settings import ServiceSettings
 from .store import JobStore, make_engine, migrate
 

@@ -6,7 +6,7 @@ robot swapped in.
 
 Every component runs for real on loopback: a simulated controller peer (zenoh), the HTTP
 service with its worker processes and SQLite job store, the safety gate and the MCAP audit.
-The demo users are the personas of ``regrasp serve --dev`` (service.auth.DEV_USERS): alice plans,
+The demo users are the personas of ``regrasp serve --dev`` (service.api.auth.DEV_USERS): alice plans,
 carol approves, bob operates the robot (he may also approve). Each step is printed as it runs,
 including the planning progress and the execution's progress as the controller reports it.
 Every file is written once: the audit file stays where the service wrote it.
@@ -107,7 +107,7 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
     if data_dir.exists():
         shutil.rmtree(data_dir)
     result = DemoResult(ok=False)
-    from service.auth import DEV_USERS, make_dev_tokens
+    from service.api.auth import DEV_USERS, make_dev_tokens
 
     tokens = make_dev_tokens()  # the same users and roles as `regrasp serve --dev`
     tok = {v["user"]: k for k, v in tokens.items()}

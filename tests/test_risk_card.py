@@ -17,7 +17,7 @@ import yaml
 
 from robot_bridge.gate import SafetyGate
 from schemas.plan import canonical_json
-from service.risk import compare_with_unconstrained, risk_card, safe_risk_card
+from service.jobs.risk import compare_with_unconstrained, risk_card, safe_risk_card
 
 ROOT = Path(__file__).resolve().parent
 SCENARIO = yaml.safe_load((ROOT / "data" / "small-box.yaml").read_text())
@@ -98,8 +98,8 @@ def test_the_comparison_with_the_0_mm_plan(plans):
 
 def test_the_api_serves_the_stored_card_the_dispatch_verdict_and_the_0_mm_comparison(plans, tmp_path):
     from service.app import create_app
-    from service.bridge import NoBridge
-    from service.results import package
+    from service.execution.bridge import NoBridge
+    from service.jobs.results import package
     from service.settings import ServiceSettings
     from tests.console.conftest import serve
 

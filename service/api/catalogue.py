@@ -24,9 +24,9 @@ from fastapi.responses import Response
 
 from schemas.common import StrictModel
 
-from ..auth import Principal
-from ..problems import ProblemError
+from .auth import Principal
 from .deps import principal, problems
+from .problems import ProblemError
 
 router = APIRouter(tags=["catalogue"])
 

@@ -11,9 +11,9 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from schemas.jobs import Problem
 
-from ..auth import Principal, hash_token
 from ..context import Service
-from ..problems import PROBLEM_MEDIA_TYPE, ProblemError
+from .auth import Principal, hash_token
+from .problems import PROBLEM_MEDIA_TYPE, ProblemError
 
 auth_log = logging.getLogger("regrasp.auth")
 #: The authenticated caller's address, for the log lines of the route that serves it.

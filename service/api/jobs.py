@@ -31,13 +31,13 @@ from schemas.jobs import (
 )
 from schemas.scenario import Scenario
 
-from ..auth import Principal
 from ..context import Service
-from ..execution import RobotBusy
-from ..problems import PROBLEM_TYPE_BASE, ProblemError, clean_message
-from ..provenance import provenance
+from ..execution.dispatch import RobotBusy
+from ..jobs.provenance import provenance
 from ..store.repo import Conflict, IdempotencyMismatch, QueueFull, UserQueueFull
+from .auth import Principal
 from .deps import principal, problems, require, service
+from .problems import PROBLEM_TYPE_BASE, ProblemError, clean_message
 from .views import job_view
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
@@ -423,7 +423,7 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
     if row["state"] != "approved":
         raise ProblemError(409, f"job {job_id} is {row['state']}; only an approved plan can be dispatched")
     text = svc.store.result_text(job_id)
-    # The stored text is the plan's canonical JSON (service.results), so its hash is the plan's hash.
+    # The stored text is the plan's canonical JSON (service.jobs.results), so its hash is the plan's hash.
     if text is None or hashlib.sha256(text.encode("utf-8")).hexdigest() != row["approved_sha256"]:
         raise ProblemError(409, f"the stored plan of job {job_id} no longer matches the approved hash "
                                 f"{row['approved_sha256']}; it cannot be dispatched")

@@ -1,6 +1,6 @@
 """``GET /v1/jobs/{id}/risk``: the plan's risk card, the gate's verdict at dispatch, the 0 mm comparison.
 
-The card (service.risk) is made in the worker when the plan is made and stored with the job's
+The card (service.jobs.risk) is made in the worker when the plan is made and stored with the job's
 ``planned`` event; a job planned without one (another handler, an older service) gets it on
 the first request, stored then as a ``note`` event, so it is computed once per plan.
 """
@@ -15,11 +15,11 @@ from fastapi.concurrency import run_in_threadpool
 
 from schemas.common import OpenModel
 
-from ..auth import Principal
 from ..context import Service
-from ..problems import ProblemError
-from ..risk import compare_with_unconstrained, safe_risk_card
+from ..jobs.risk import compare_with_unconstrained, safe_risk_card
+from .auth import Principal
 from .deps import principal, problems, service
+from .problems import ProblemError
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 #: Events read per query while looking for the card and the gate's verdict.

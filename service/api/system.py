@@ -15,11 +15,11 @@ from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from schemas.common import StrictModel
 from schemas.jobs import Health
 
-from ..auth import Principal
 from ..context import Service
-from ..problems import ProblemError
-from ..provenance import code_version
+from ..jobs.provenance import code_version
+from .auth import Principal
 from .deps import client_address, principal, problems, service
+from .problems import ProblemError
 
 router = APIRouter(tags=["system"])
 log = logging.getLogger("regrasp.api")

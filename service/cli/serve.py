@@ -55,7 +55,7 @@ def serve(host: str | None, port: int | None, data_dir: Path | None, database_ur
 
     from robot_bridge.process_tuning import freeze_startup_objects
     from service.app import create_app
-    from service.auth import TokenStore, is_loopback, make_dev_tokens
+    from service.api.auth import TokenStore, is_loopback, make_dev_tokens
 
     settings = _settings_from_flags(config, host=host, port=port, data_dir=data_dir, database_url=database_url,
                                     workers=workers, executor=executor, ray_address=ray_address,

@@ -28,7 +28,7 @@ def worker(data_dir: Path | None, database_url: str | None, workers: int | None,
     import logging
 
     from service.executors import make_executor
-    from service.runner import Runner
+    from service.jobs.runner import Runner
     from service.store import JobStore, make_engine, migrate
 
     settings = _settings_from_flags(config, data_dir=data_dir, database_url=database_url, workers=workers,

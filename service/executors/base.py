@@ -21,7 +21,7 @@ class ExecEvent:
 
 
 def outcome_event(job_id: str, tag: str, value: Any) -> ExecEvent:
-    """The event of a job's outcome as a worker reports it (service.worker_process.JobHandlers.run)."""
+    """The event of a job's outcome as a worker reports it (service.jobs.worker_process.JobHandlers.run)."""
     if tag == "done":
         return ExecEvent(job_id, "done", result=value)
     if tag == "canceled":

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
+from ..jobs.worker_process import worker_main
 from ..settings import ServiceSettings
-from ..worker_process import worker_main
 from .base import ExecEvent, crashed_event, outcome_event
 
 

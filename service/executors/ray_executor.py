@@ -46,7 +46,7 @@ class _JobActorImpl:
     """
 
     def __init__(self, handlers: dict[str, str], robot: str | None, nice: int = 0) -> None:
-        from ..worker_process import JobHandlers, lower_priority
+        from ..jobs.worker_process import JobHandlers, lower_priority
 
         lower_priority(nice)
         self.jobs = JobHandlers(handlers, robot)

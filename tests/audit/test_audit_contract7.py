@@ -19,7 +19,7 @@ from mcap.reader import make_reader
 
 from schemas.plan import canonical_json
 from service.audit import AuditSettings, AuditWriter, ExitCode, verify
-from service.job_audit import JobAuditor
+from service.audit.pump import JobAuditor
 from service.store import JobStore, make_engine, migrate
 
 from .conftest import tiny_plan, write_sample

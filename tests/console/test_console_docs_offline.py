@@ -25,7 +25,7 @@ TOKENS = {"docs-token-viewer": {"user": "vera", "roles": []}}
 @pytest.fixture(scope="module")
 def docs_server(tmp_path_factory: pytest.TempPathFactory):
     from service.app import create_app
-    from service.bridge import NoBridge
+    from service.execution.bridge import NoBridge
     from service.settings import ServiceSettings
 
     settings = ServiceSettings(data_dir=tmp_path_factory.mktemp("docs"), workers=1, tokens=TOKENS, preload_robot=False)

@@ -54,7 +54,7 @@ class ScriptedBridge:
     def execute(self, plan: dict[str, Any], *, job_id: str, approved_sha256: str, approval_expires_at: Any,
                 threshold_m: float, on_event: Callable[[str, dict[str, Any]], None],
                 stop_event: threading.Event):
-        from service.bridge import Outcome
+        from service.execution.bridge import Outcome
 
         on_event("gate_verdict", {"passed": True, "threshold_m": threshold_m})
         steps = self.steps

@@ -48,7 +48,7 @@ def test_mesh_references_become_routes_and_the_rest_is_left_out(tmp_path):
 @pytest.fixture()
 def server(tmp_path, monkeypatch):
     from service.app import create_app
-    from service.bridge import NoBridge
+    from service.execution.bridge import NoBridge
     from service.settings import ServiceSettings
 
     built = RobotModelFiles("meshbot", _urdf(tmp_path / "robot"))

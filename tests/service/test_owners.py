@@ -6,7 +6,7 @@ import os
 import subprocess
 import sys
 
-from service.owners import LiveOwners, make_owner_id
+from service.jobs.owners import LiveOwners, make_owner_id
 from service.store.repo import this_host
 
 

@@ -1,6 +1,6 @@
 """The worker never loads a file a request names, and its errors quote neither files nor class names.
 
-These run the worker's own entry points (planner.jobs.entry through service.worker_process) in
+These run the worker's own entry points (planner.jobs.entry through service.jobs.worker_process) in
 this process, on requests that reach the worker without the API's checks (an older API
 replica, a row written by hand): the worker checks every name again itself.
 """
@@ -20,7 +20,7 @@ from planner.jobs.request_names import (
     looks_like_path,
     resolve_request,
 )
-from service.worker_process import INTERNAL_ERROR_MESSAGE, JobHandlers, failure_of
+from service.jobs.worker_process import INTERNAL_ERROR_MESSAGE, JobHandlers, failure_of
 
 SECRET = "db-password-hunter2-and-a-full-admin-token"
 

@@ -11,7 +11,7 @@ from conftest import TOKEN, Server, cancel_latency_s, wait_state
 
 from schemas.plan import plan_sha256
 from service.client import ServiceClient, ServiceError, parse_sse
-from service.worker_process import INTERNAL_ERROR_MESSAGE
+from service.jobs.worker_process import INTERNAL_ERROR_MESSAGE
 
 
 def submit(c: httpx.Client, scenario: str, kind: str = "plan", **request: object) -> dict:

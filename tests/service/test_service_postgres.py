@@ -24,7 +24,7 @@ from conftest import ROOT, Server, schema_drift, service_env, wait_state
 pgserver = pytest.importorskip("pgserver", reason="pgserver (test extra) bundles the PostgreSQL server these tests use")
 pytest.importorskip("psycopg", reason="psycopg (test extra) is the PostgreSQL driver")
 
-from service.provenance import provenance  # noqa: E402
+from service.jobs.provenance import provenance  # noqa: E402
 from service.store import JobStore, make_engine, migrate  # noqa: E402
 
 

@@ -12,9 +12,9 @@ import pytest
 import sqlalchemy as sa
 from conftest import schema_drift
 
-from service.auth import TokenStore, hash_token, is_loopback, make_dev_tokens
-from service.metrics import DURATION_BUCKETS
-from service.provenance import provenance
+from service.api.auth import TokenStore, hash_token, is_loopback, make_dev_tokens
+from service.api.metrics import DURATION_BUCKETS
+from service.jobs.provenance import provenance
 from service.settings import ServiceSettings, load_settings
 from service.store import JobStore, make_engine, migrate
 

@@ -132,8 +132,8 @@ def test_store_errors_while_serving_answer_503_problems(tmp_path: Path) -> None:
     from fastapi.testclient import TestClient
 
     from service.app import create_app
-    from service.auth import TokenStore
-    from service.bridge import NoBridge
+    from service.api.auth import TokenStore
+    from service.execution.bridge import NoBridge
     from service.settings import ServiceSettings
 
     settings = ServiceSettings(data_dir=tmp_path, workers=0, audit=False)

@@ -14,11 +14,11 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from .executors.base import ExecEvent, Executor
+from ..executors.base import ExecEvent, Executor
+from ..settings import ServiceSettings
+from ..store.repo import JobStore
 from .owners import LiveOwners, make_owner_id
 from .provenance import code_version, library_versions, robot_sha256
-from .settings import ServiceSettings
-from .store.repo import JobStore
 
 log = logging.getLogger("regrasp.runner")
 
@@ -164,7 +164,7 @@ class Runner:
             self._finish_result(run, ev.result)
 
     def _finish_result(self, run: _Running, packaged: Any) -> None:
-        """Store a result packaged by the worker (service.results.package): canonical text, hash, summary."""
+        """Store a result packaged by the worker (service.jobs.results.package): canonical text, hash, summary."""
         if not isinstance(packaged, dict) or "text" not in packaged:
             msg = "the executor returned a result that was not packaged"
             self._finish(run, "failed", msg, error={"code": "INVALID_RESULT", "message": msg})

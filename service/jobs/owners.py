@@ -12,7 +12,7 @@ import os
 import threading
 import uuid
 
-from .store.repo import this_host
+from ..store.repo import this_host
 
 
 def make_owner_id() -> str:

@@ -61,7 +61,7 @@ def failure_of(exc: BaseException) -> dict[str, Any]:
     name or a traceback (which can quote code and data); those are logged.
     """
     if isinstance(exc, ValidationError):
-        from .problems import clean_message
+        from ..api.problems import clean_message
 
         lines = [f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {clean_message(e['msg'])}" for e in exc.errors()[:10]]
         return {"code": "INVALID_REQUEST", "message": "the request is invalid: " + "; ".join(lines)}

@@ -20,7 +20,7 @@ from typing import Any
 
 import yaml
 
-from .settings import ServiceSettings, TokenEntry
+from ..settings import ServiceSettings, TokenEntry
 
 log = logging.getLogger("regrasp.auth")
 

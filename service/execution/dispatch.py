@@ -17,10 +17,10 @@ import time
 from datetime import datetime, timedelta
 from typing import Any
 
+from ..jobs.owners import LiveOwners, make_owner_id
+from ..settings import ServiceSettings
+from ..store.repo import JobStore
 from .bridge import Bridge
-from .owners import LiveOwners, make_owner_id
-from .settings import ServiceSettings
-from .store.repo import JobStore
 
 log = logging.getLogger("regrasp.execution")
 

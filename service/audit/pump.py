@@ -31,11 +31,12 @@ import sqlalchemy as sa
 
 from schemas.jobs import TERMINAL_STATES
 
-from .audit import AuditWriter, verify
-from .audit.encoding import RawJson
-from .audit.topics import KIND_CONTINUED
-from .store.repo import JobStore
-from .store.tables import job_events, jobs
+from ..store.repo import JobStore
+from ..store.tables import job_events, jobs
+from .encoding import RawJson
+from .topics import KIND_CONTINUED
+from .verify import verify
+from .writer import AuditWriter
 
 log = logging.getLogger("regrasp.audit")
 
@@ -242,7 +243,7 @@ def _audit_process_main(database_url: str, audit_dir: str, parent_pid: int, stop
     import os
     import signal
 
-    from .store import make_engine
+    from ..store import make_engine
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
