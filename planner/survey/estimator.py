@@ -9,7 +9,7 @@ resamples from a generator seeded by the survey's seed and the row): resampling 
 the strong correlation between the poses of one tree. A row with no unstable pose at all has
 [1 - 3/(C + U), 1] (the "rule of three": a bootstrap cannot show an interval there).
 
-Seeds may run in parallel (forked workers, one seed per job) and still give the same answer as
+Seeds may run in parallel (on a seed map: forked workers or a Ray cluster, one seed per job) and still give the same answer as
 in one process: every seed draws from its own generator, and a row is judged on its seeds in
 order, so seeds that ran beyond its convergence are dropped.
 """
@@ -17,7 +17,7 @@ order, so seeds that ran beyond its convergence are dropped.
 from __future__ import annotations
 
 import time
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
 from typing import Any, Callable, Literal
 
@@ -33,6 +33,7 @@ from planner.survey.counting import (
     ExploreLeg,
     explore_counted,
 )
+from planner.survey.seed_map import ForkedSeeds, SeedFn, SeedMap
 from schemas.common import HAND_CONFIGS
 
 #: Bootstrap resamples of the seeds per interval.
@@ -192,24 +193,16 @@ class RowWork:
     verdict: Judgement | None = None
 
 
-#: What the forked seed workers read (set by the parent just before the pool forks, cleared after).
-_FORK_STATE: dict[str, Any] = {}
-
-
-def _seed_job(args: tuple) -> SeedCount:
-    hands, seed, keep = args
-    rows: dict[str, RowWork] = _FORK_STATE["rows"]
-    return explore_seed(rows[hands].legs, _FORK_STATE["evaluator"], hands, seed, _FORK_STATE["estimator"],
-                        settings=_FORK_STATE["settings"], trrt=_FORK_STATE["trrt"], keep_states=keep)
-
-
 def run_rows(rows: list[RowWork], evaluator, estimator: Estimator, seed: int, *, workers: int = 1,
              settings: CountingSettings | None = None, trrt: TrrtSettings | None = None,
              should_stop: Callable[[], bool] = lambda: False, progress: Callable[[float, str], None] = lambda f, m: None,
-             keep_states: bool = False, can_fork: bool = False) -> None:
+             keep_states: bool = False, can_fork: bool = False, seed_map: SeedMap | None = None,
+             seed_fn: SeedFn | None = None) -> None:
     """Run each row's seeds until it converged or reached ``seeds_max``; fills ``counts`` and ``verdict``.
 
-    In forked workers when ``can_fork`` and ``workers`` > 1, else in this process; the verdicts are the same.
+    On ``seed_map`` when given (``seed_fn``, a pure per-seed function, is what it runs; by default
+    :func:`explore_seed` on the rows' legs), else in forked workers when ``can_fork`` and ``workers`` > 1,
+    else in this process; the verdicts are the same.
     """
     live = [r for r in rows if r.legs]
     for r in rows:
@@ -228,7 +221,7 @@ def run_rows(rows: list[RowWork], evaluator, estimator: Estimator, seed: int, *,
         return False
 
     total = max(1, len(live))
-    if workers <= 1 or not can_fork or not live:
+    if seed_map is None and (workers <= 1 or not can_fork) or not live:
         for i, r in enumerate(live):
             done = False
             while not done:
@@ -243,54 +236,54 @@ def run_rows(rows: list[RowWork], evaluator, estimator: Estimator, seed: int, *,
                 progress((i + min(len(r.counts) / max(estimator.seeds_min, 1), 0.99)) / total,
                          f"{r.hands}: {len(r.counts)} seeds")
         return
-    import multiprocessing as mp
+    by_hands = {r.hands: r for r in live}
 
-    _FORK_STATE.update(rows={r.hands: r for r in live}, evaluator=evaluator, estimator=estimator,
-                       settings=settings, trrt=trrt)
+    def in_process(hands: str, sd: int, keep: bool) -> SeedCount:
+        return explore_seed(by_hands[hands].legs, evaluator, hands, sd, estimator, settings=settings, trrt=trrt,
+                            keep_states=keep)
+
+    seed_map = seed_map or ForkedSeeds(workers)
+    session = seed_map.open(seed_fn or in_process)
+    canceled = True
     try:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork")) as pool:
-            results: dict[str, dict[int, SeedCount]] = {r.hands: {} for r in live}
-            issued: dict[str, int] = {r.hands: 0 for r in live}
-            open_rows = list(live)
-            pending: dict[Future, tuple[str, int]] = {}
+        results: dict[str, dict[int, SeedCount]] = {r.hands: {} for r in live}
+        issued: dict[str, int] = {r.hands: 0 for r in live}
+        open_rows = list(live)
+        pending: dict[Future, tuple[str, int]] = {}
 
-            def top_up() -> None:
-                # Round-robin over the open rows, seeds in order, a few jobs ahead per worker.
-                while len(pending) < workers * LOOKAHEAD_PER_WORKER:
-                    candidates = [r for r in open_rows if issued[r.hands] < estimator.seeds_max]
-                    if not candidates:
-                        return
-                    r = min(candidates, key=lambda r: (issued[r.hands], rows.index(r)))
-                    sd = seed + issued[r.hands]
-                    issued[r.hands] += 1
-                    pending[pool.submit(_seed_job, (r.hands, sd, keep_states))] = (r.hands, sd)
+        def top_up() -> None:
+            # Round-robin over the open rows, seeds in order, a few jobs ahead per slot.
+            while len(pending) < seed_map.slots * LOOKAHEAD_PER_WORKER:
+                candidates = [r for r in open_rows if issued[r.hands] < estimator.seeds_max]
+                if not candidates:
+                    return
+                r = min(candidates, key=lambda r: (issued[r.hands], rows.index(r)))
+                sd = seed + issued[r.hands]
+                issued[r.hands] += 1
+                pending[session.submit(r.hands, sd, keep_states)] = (r.hands, sd)
 
+        top_up()
+        while open_rows:
+            finished, _ = wait(list(pending), timeout=0.2, return_when=FIRST_COMPLETED)
+            if should_stop():
+                raise Canceled()
+            for f in finished:
+                hands, sd = pending.pop(f)
+                results[hands][sd] = f.result()
+            for r in list(open_rows):
+                got = results[r.hands]
+                while seed + len(r.counts) in got:
+                    r.counts.append(got.pop(seed + len(r.counts)))
+                    if settle(r):
+                        open_rows.remove(r)
+                        break
+                progress(sum(min(len(x.counts) / max(estimator.seeds_min, 1), 1.0) for x in live) / total * 0.99,
+                         f"{sum(len(x.counts) for x in live)} seeds judged")
+            for f, (hands, _) in list(pending.items()):
+                if all(r.hands != hands for r in open_rows):
+                    session.cancel(f)
+                    del pending[f]
             top_up()
-            while open_rows:
-                finished, _ = wait(list(pending), timeout=0.2, return_when=FIRST_COMPLETED)
-                if should_stop():
-                    procs = list((getattr(pool, "_processes", None) or {}).values())
-                    pool.shutdown(wait=False, cancel_futures=True)
-                    for proc in procs:
-                        proc.kill()
-                    raise Canceled()
-                for f in finished:
-                    hands, sd = pending.pop(f)
-                    results[hands][sd] = f.result()
-                for r in list(open_rows):
-                    got = results[r.hands]
-                    while seed + len(r.counts) in got:
-                        r.counts.append(got.pop(seed + len(r.counts)))
-                        if settle(r):
-                            open_rows.remove(r)
-                            break
-                    progress(sum(min(len(x.counts) / max(estimator.seeds_min, 1), 1.0) for x in live) / total * 0.99,
-                             f"{sum(len(x.counts) for x in live)} seeds judged")
-                for f, (hands, _) in list(pending.items()):
-                    if all(r.hands != hands for r in open_rows) and f.cancel():
-                        del pending[f]
-                top_up()
-            for f in pending:
-                f.cancel()
+        canceled = False
     finally:
-        _FORK_STATE.clear()
+        session.close(cancel=canceled)

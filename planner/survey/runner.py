@@ -29,7 +29,8 @@ from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
 from planner.survey import limits as survey_limits
 from planner.survey.counting import CountingSettings, ExploreLeg
-from planner.survey.estimator import Estimator, RowWork, run_rows
+from planner.survey.estimator import Estimator, RowWork, SeedCount, explore_seed, run_rows
+from planner.survey.seed_map import SeedMap
 from planner.termination import Termination
 from schemas.common import HAND_CONFIGS
 from schemas.scenario import Scenario
@@ -120,6 +121,41 @@ def estimator_of(scenario: Scenario, states: int | None = None) -> Estimator:
     return est
 
 
+def _leg_collisions(task: Task, leg: ExploreLeg) -> ExploreLeg:
+    """The leg with this task's collision check for what it holds (the held object differs per leg)."""
+    held = [(leg.hold.tcp_side, leg.hold.T_obj_tcp)]
+
+    def free(Q: np.ndarray) -> np.ndarray:
+        return ~task.world.check_batch(task.stance.base_pose, Q, held=held).collides
+
+    return ExploreLeg(leg.start, leg.goal, leg.hold, leg.active, free)
+
+
+class RemoteSeeds:
+    """The survey's per-seed function for a seed map on other machines: picklable, it carries the
+    scenario and the legs (not the built task) and builds the task once per worker process that runs it."""
+
+    def __init__(self, task: Task, rows: list[RowWork], estimator: Estimator, counting: CountingSettings | None,
+                 trrt: TrrtSettings, threshold_m: float) -> None:
+        self.scenario, self.settings = task.scenario, task.settings
+        self.task_threshold_m, self.threshold_m, self.seed = task.threshold_m, threshold_m, task.seed
+        self.legs = {r.hands: [ExploreLeg(g.start, g.goal, g.hold, g.active) for g in r.legs] for r in rows if r.legs}
+        self.estimator, self.counting, self.trrt = estimator, counting, trrt
+        self._built: tuple[Any, dict[str, list[ExploreLeg]]] | None = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        return dict(self.__dict__, _built=None)
+
+    def __call__(self, hands: str, seed: int, keep_states: bool) -> SeedCount:
+        if self._built is None:
+            task = Task(self.scenario, self.settings, threshold_m=self.task_threshold_m, seed=self.seed)
+            evaluator = survey_limits.limited(task, task.evaluator.with_threshold(self.threshold_m))
+            self._built = evaluator, {h: [_leg_collisions(task, g) for g in legs] for h, legs in self.legs.items()}
+        evaluator, legs = self._built
+        return explore_seed(legs[hands], evaluator, hands, seed, self.estimator, settings=self.counting,
+                            trrt=self.trrt, keep_states=keep_states)
+
+
 def _row_work(task: Task, hands: str, should_stop: Callable[[], bool]) -> RowWork:
     """A configuration's legs (from its key-pose path), with this task's collision checks."""
     t0 = time.perf_counter()
@@ -128,14 +164,7 @@ def _row_work(task: Task, hands: str, should_stop: Callable[[], bool]) -> RowWor
     stats = {"key_poses_s": time.perf_counter() - t0}
     if path is None:
         return RowWork(hands, None, f"no feasible grasp or key poses: {reason}", stats)
-    legs = []
-    for leg in _legs(planner, path):
-        held = [(leg.hold.tcp_side, leg.hold.T_obj_tcp)]
-
-        def free(Q: np.ndarray, held=held) -> np.ndarray:
-            return ~task.world.check_batch(task.stance.base_pose, Q, held=held).collides
-
-        legs.append(ExploreLeg(leg.start, leg.goal, leg.hold, leg.active, free))
+    legs = [_leg_collisions(task, leg) for leg in _legs(planner, path)]
     if not legs:
         return RowWork(hands, None, "the key-pose path carries the object nowhere", stats)
     stats["path"] = [_node_label(n) for n in path]
@@ -186,11 +215,14 @@ def run_survey(
     keep_states: bool = True,
     no_limits: bool = False,
     counting: CountingSettings | None = None,
+    seed_map: SeedMap | None = None,
 ) -> tuple[dict[str, Any], list[ConfigOutcome]]:
     """The survey document (docs/contract.md section 4) and the per-configuration outcomes (with states).
 
     ``estimator`` defaults to the scenario's ``survey:`` field; ``states`` switches it to a fixed
-    number of states per seed. Seeds start at ``seed`` (default: the scenario's)."""
+    number of states per seed. Seeds start at ``seed`` (default: the scenario's). ``seed_map`` runs
+    the seeds elsewhere (a Ray cluster: :class:`RemoteSeeds` is what it runs); by default they run in
+    ``workers`` forked processes where forking is safe, else in this process."""
     t0 = time.perf_counter()
     est = estimator or estimator_of(scenario, states)
     if estimator is not None and states is not None:
@@ -221,10 +253,12 @@ def run_survey(
         n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
         progress(0.05, f"exploring {len(configs)} hand configurations ({est.until})")
         # A pose over an effort or grip limit counts as unstable (planner.survey.limits).
+        trrt = TrrtSettings(margin_cost=task.constrained)
         run_rows(rows, survey_limits.limited(task, task.evaluator.with_threshold(threshold)), est, first_seed, workers=n_workers,
-                 settings=counting, trrt=TrrtSettings(margin_cost=task.constrained), should_stop=should_stop,
+                 settings=counting, trrt=trrt, should_stop=should_stop,
                  progress=lambda f, m: progress(0.05 + 0.9 * f, m), keep_states=keep_states,
-                 can_fork=pool_may_fork())
+                 can_fork=pool_may_fork(), seed_map=seed_map,
+                 seed_fn=None if seed_map is None else RemoteSeeds(task, rows, est, counting, trrt, threshold))
     outcomes = [_outcome(r, est, keep_states) for r in rows]
     survey_rows = [SurveyRow(hands=o.hands, stable=o.stable, unstable=o.unstable, ratio=o.ratio, reason=o.reason,
                              ratio_ci95=o.interval, seeds=len(o.per_seed), converged=o.converged, per_seed=o.per_seed,

@@ -67,7 +67,7 @@ def _mutable_module_globals(tree: ast.Module) -> list[str]:
 
 #: Module-level containers that are not scratch data, each with the reason.
 ALLOWED_GLOBALS = {
-    "planner.survey.estimator._FORK_STATE": "what a forked seed worker inherits from its parent: filled just before "
+    "planner.survey.seed_map._FORK_STATE": "what a forked seed worker inherits from its parent: filled just before "
                                             "the pool forks, read-only in the workers, cleared after",
 }
 
