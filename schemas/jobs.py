@@ -225,6 +225,13 @@ class ReasonBody(StrictModel):
     reason: str | None = Field(None, max_length=2000)
 
 
+class RejectBody(StrictModel):
+    """Body of ``POST /v1/jobs/{id}/reject``: why the plan is declined (required; stored and audited)."""
+
+    reason: str = Field(min_length=1, max_length=2000, pattern=r"\S",
+                        description="why the plan is declined, in words (kept with the job and in its audit file)")
+
+
 class JobEvent(StrictModel):
     """One entry of a job's event stream (SSE ``data``)."""
 

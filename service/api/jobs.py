@@ -28,6 +28,7 @@ from schemas.jobs import (
     JobState,
     JobSubmit,
     ReasonBody,
+    RejectBody,
 )
 from schemas.scenario import Scenario
 
@@ -392,17 +393,20 @@ def approve(job_id: str, body: ApproveBody | None = Body(None), p: Principal = D
     return _job_response(svc, svc.store.get(job_id) or row)
 
 
-@router.post("/{job_id}/reject", response_model=Job, summary="Reject a planned or approved job",
+@router.post("/{job_id}/reject", response_model=Job, summary="Reject a planned or approved job, saying why",
+             openapi_extra={"requestBody": {"required": True}},
              responses=problems(400, 401, 403, 404, 409, 413, 422))
-def reject(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Depends(principal),
+def reject(job_id: str, body: RejectBody | None = Body(None), p: Principal = Depends(principal),
            svc: Service = Depends(service)) -> Response:
     require("approver", p, "rejecting a plan")
+    if body is None:
+        raise ProblemError(422, 'a rejection needs a reason: send {"reason": "why the plan is declined"}')
     row = _load(svc, job_id)
     if row["submitter"] == p.user:
         raise ProblemError(403, f"two-person rule: {p.user} submitted job {job_id} and cannot review it")
     if row["state"] not in ("planned", "approved"):
         raise ProblemError(409, f"job {job_id} is {row['state']}; only a planned or approved job can be rejected")
-    reason = (body.reason if body else None) or "no reason given"
+    reason = body.reason.strip()
     ok = svc.store.transition(job_id, ["planned", "approved"], "rejected", message=f"rejected by {p.user}: {reason}",
                               error={"code": "REJECTED", "message": f"rejected by {p.user}: {reason}"},
                               data={"by": p.user, "reason": reason})
@@ -412,7 +416,8 @@ def reject(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Dep
 
 
 @router.post("/{job_id}/dispatch", status_code=202, response_model=Job,
-             summary="Send an approved plan to the robot (through the safety gate)",
+             summary="Send an approved plan to the robot (through the safety gate); answers with the job's summary, "
+                     "no plan body",
              responses=problems(400, 401, 403, 404, 409, 413, 422))
 def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> Response:
     require("operator", p, "dispatching a plan")
@@ -444,7 +449,9 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
                                 "(stop it or wait for it to end)") from None
     if not began:
         raise ProblemError(409, f"job {job_id} changed state before dispatch (approval expired or acted on); reload it")
-    return _job_response(svc, svc.store.get(job_id) or row, 202)
+    # The job's summary only: the plan (megabytes) is already with the client that approved it.
+    return Response(job_view(svc.store.get(job_id) or row).model_dump_json(exclude={"result"}), status_code=202,
+                    media_type="application/json")
 
 
 @router.post("/{job_id}/stop", status_code=202, response_model=Job, summary="Stop an execution now",

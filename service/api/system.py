@@ -60,6 +60,7 @@ def me(p: Principal = Depends(principal)) -> Identity:
 
 
 @router.get("/metrics", summary="Prometheus metrics (bearer token)", response_class=Response,
+            openapi_extra={"security": [{"HTTPBearer": []}]},
             responses={**problems(401), 200: {"content": {CONTENT_TYPE_LATEST.split(";")[0]: {"schema": {"type": "string"}}},
                              "description": "Prometheus text format"}})
 async def metrics(request: Request, svc: Service = Depends(service)) -> Response:

@@ -149,6 +149,11 @@ def test_approval_two_person_rule_hash_binding_and_expiry(server: Server, alice:
         time.sleep(3.3)  # the test server's approval TTL is 3 s
         expired = dave.get(f"/v1/jobs/{job['id']}").json()
         assert expired["state"] == "planned" and expired["approval"] is None
+        for body in (None, {}, {"reason": ""}, {"reason": "   "}):  # a rejection says why
+            r = carol.post(f"/v1/jobs/{job['id']}/reject", json=body)
+            assert r.status_code == 422 and "reason" in r.json()["detail"], (body, r.text)
+            assert "errors.pydantic.dev" not in r.text
+        assert dave.get(f"/v1/jobs/{job['id']}").json()["state"] == "planned"
         r = carol.post(f"/v1/jobs/{job['id']}/reject", json={"reason": "not today"})
         assert r.status_code == 200 and r.json()["state"] == "rejected"
         assert "not today" in r.json()["error"]["message"]
@@ -193,6 +198,11 @@ def test_list_health_metrics_console_audit(server: Server, alice: httpx.Client) 
     health = httpx.get(server.url + "/healthz").json()
     assert health["status"] == "ok" and health["workers"] == 2 and health["database"] == "sqlite"
     assert httpx.get(server.url + "/metrics").status_code == 401  # behind a token
+    doc = httpx.get(server.url + "/openapi.json").json()  # ... and the OpenAPI document says so
+    schemes = doc["components"]["securitySchemes"]
+    assert [next(iter(s)) for s in doc["paths"]["/metrics"]["get"]["security"]] == ["HTTPBearer"]
+    assert schemes["HTTPBearer"]["scheme"] == "bearer"
+    assert doc["paths"]["/v1/jobs/{job_id}/reject"]["post"]["requestBody"]["required"] is True
     metrics = alice.get("/metrics").text
     assert "regrasp_queue_depth" in metrics and "regrasp_job_duration_seconds_bucket" in metrics
     assert 'regrasp_jobs{kind="survey",state="succeeded"}' in metrics

@@ -75,6 +75,7 @@ def test_dispatch_executes_to_success(rig: tuple[Server, int], sim: None) -> Non
     with srv.client("bob") as bob:
         r = bob.post(f"/v1/jobs/{job_id}/dispatch")
         assert r.status_code == 202 and r.json()["state"] in ("dispatching", "executing"), r.text
+        assert "result" not in r.json() and len(r.content) < 8000  # the job's summary, not the plan
         done = wait_state(bob, job_id, END_STATES, timeout=30)
         assert done["state"] == "succeeded", (done["message"], done["error"])
         history = bob.get(f"/v1/jobs/{job_id}/events", params={"follow": "false"}).text
