@@ -85,13 +85,26 @@ def page(browser):
         context.close()
 
 
-@pytest.fixture()
-def fake_server() -> Iterator[tuple[str, object]]:
-    from .fake_api import create_app
+@pytest.fixture(scope="session")
+def real_openapi_doc() -> dict:
+    """The real service's OpenAPI document, which the fake is held to."""
+    from .openapi_check import real_openapi
 
-    app = create_app()
+    return real_openapi()
+
+
+@pytest.fixture()
+def fake_server(real_openapi_doc) -> Iterator[tuple[str, object]]:
+    """The fake API; every exchange with it is checked against the real OpenAPI document, and the test
+    fails if one does not match (the fake must not drift from the API it stands for)."""
+    from .fake_api import create_app
+    from .openapi_check import ContractCheck
+
+    check = ContractCheck(real_openapi_doc)
+    app = create_app(check)
     with serve(app) as url:
         yield url, app.state.store
+    assert not check.violations, "the fake API drifted from the real one:\n" + "\n".join(check.violations[:20])
 
 
 def screenshot(page, name: str) -> Path:

@@ -27,6 +27,8 @@ from fastapi import FastAPI, Request
 from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 
+from .openapi_check import DEVIATION_HEADER, ContractCheck, install
+
 CONSOLE_DIR = Path(__file__).resolve().parents[2] / "service" / "console"
 TOKENS = {
     "planner-token-alice": ("alice", {"planner"}),
@@ -114,6 +116,8 @@ class FakeJobs:
         self.execution_step_s = EXECUTION_STEP_S
         #: Running executions: job id -> (thread, stop event); a stop wakes the thread at once.
         self.executions: dict[str, tuple[threading.Thread, threading.Event]] = {}
+        #: Rejections received: job id, by whom, the reason given.
+        self.rejections: list[dict[str, str]] = []
         plan = self.add("plan", "alice", state="planned")
         self._new("survey", "alice", state="succeeded", result=synthetic_survey(), progress=1.0)
         self.plan_id = plan["id"]
@@ -212,15 +216,18 @@ class FakeJobs:
 
 
 def problem(status: int, detail: str) -> JSONResponse:
-    titles = {401: "Unauthorized", 403: "Forbidden", 404: "Not Found", 409: "Conflict"}
+    titles = {401: "Unauthorized", 403: "Forbidden", 404: "Not Found", 409: "Conflict", 422: "Unprocessable Entity"}
     return JSONResponse({"type": "about:blank", "title": titles.get(status, "Error"), "status": status,
                          "detail": detail}, status_code=status, media_type="application/problem+json")
 
 
-def create_app() -> FastAPI:
+def create_app(check: ContractCheck | None = None) -> FastAPI:
+    """The fake; with ``check``, every exchange is validated against the real API's OpenAPI document."""
     app = FastAPI()
     store = FakeJobs()
     app.state.store = store
+    if check is not None:
+        install(app, check)
 
     def who(request: Request) -> tuple[str, set[str]] | JSONResponse:
         auth = request.headers.get("authorization", "")
@@ -240,12 +247,14 @@ def create_app() -> FastAPI:
 
     @app.get("/healthz")
     def healthz() -> dict:
-        return {"status": "ok", "controller_alive": True}
+        return {"status": "ok", "database": "memory", "executor": "fake", "workers": 0, "queue_depth": 0,
+                "controller_alive": True, "version": "fake"}
 
     @app.get("/v1/me")
     def me(request: Request) -> Any:
         if not store.me_enabled:
-            return JSONResponse({"detail": "Not Found"}, status_code=404)
+            return JSONResponse({"detail": "Not Found"}, status_code=404,
+                                headers={DEVIATION_HEADER: "a service without /v1/me"})
         p = who(request)
         if isinstance(p, JSONResponse):
             return p
@@ -290,7 +299,7 @@ def create_app() -> FastAPI:
             return p
         scenario = {"robot": "hrp5p", "hands": "auto", "seed": 1, "time_limit_s": 60.0, "object_shape": "box",
                     "object_mass_kg": 8.0}
-        return {"kinds": ["plan", "survey"], "stances": ["upright", "staggered", "crouched", "one-legged"],
+        return {"kinds": ["plan", "survey"], "meshes": [], "stances": ["upright", "staggered", "crouched", "one-legged"],
                 "hands": ["auto", "left-left", "right-right", "left-right", "right-left"], "robots": ["hrp5p", "jvrc1"],
                 "scenarios": [{**scenario, "name": "upright", "stance": "upright", "threshold_m": 0.06},
                               {**scenario, "name": "staggered", "stance": "staggered", "threshold_m": 0.03}]}
@@ -382,13 +391,20 @@ def create_app() -> FastAPI:
             return dict(job)
 
     @app.post("/v1/jobs/{job_id}/reject")
-    def reject(job_id: str, request: Request) -> Any:
+    async def reject(job_id: str, request: Request) -> Any:
+        body = await request.json() if await request.body() else {}
         with store.lock:
             found = action(job_id, request, "approver", {"planned"})
             if isinstance(found, JSONResponse):
                 return found
-            store.set_state(found[0], "rejected", f"rejected by {found[1][0]}")
-            return dict(found[0])
+            reason = str(body.get("reason") or "").strip()
+            if not reason:
+                return problem(422, 'a rejection needs a reason: send {"reason": "why the plan is declined"}')
+            job = found[0]
+            job["error"] = {"code": "REJECTED", "message": f"rejected by {found[1][0]}: {reason}"}
+            store.rejections.append({"job_id": job_id, "by": found[1][0], "reason": reason})
+            store.set_state(job, "rejected", f"rejected by {found[1][0]}: {reason}")
+            return dict(job)
 
     @app.post("/v1/jobs/{job_id}/dispatch")
     def dispatch(job_id: str, request: Request) -> Any:
@@ -398,7 +414,7 @@ def create_app() -> FastAPI:
                 return found
             store.set_state(found[0], "dispatching", "the gate passed the plan")
             store.execute(job_id)
-            return dict(found[0])
+            return JSONResponse(view(found[0], False), status_code=202)  # the job's summary, no plan body
 
     @app.post("/v1/jobs/{job_id}/stop")
     def stop(job_id: str, request: Request) -> Any:
@@ -410,7 +426,7 @@ def create_app() -> FastAPI:
             execution = store.executions.get(job_id)
             if execution is not None:
                 execution[1].set()
-            return dict(found[0])
+            return JSONResponse(dict(found[0]), status_code=202)
 
     @app.post("/v1/jobs/{job_id}/cancel")
     def cancel(job_id: str, request: Request) -> Any:
@@ -422,6 +438,6 @@ def create_app() -> FastAPI:
             if job["submitter"] != p[0] and "admin" not in p[1]:
                 return problem(403, f"only the submitter ({job['submitter']}) or an admin can cancel job {job_id}")
             store.set_state(job, "canceled", f"canceled by {p[0]}")
-            return dict(job)
+            return JSONResponse(dict(job), status_code=202)
 
     return app
