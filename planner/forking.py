@@ -12,16 +12,16 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import threading
-import weakref
 
-#: Threads their owner declared lock-free (:func:`declare_fork_benign`).
-_benign: "weakref.WeakSet[threading.Thread]" = weakref.WeakSet()
+#: The attribute that marks a thread declared lock-free (:func:`declare_fork_benign`). The mark is kept on
+#: the thread itself, so it goes when the thread goes and no module keeps a registry of threads.
+_BENIGN_MARK = "_regrasp_fork_benign"
 
 
 def declare_fork_benign(thread: threading.Thread) -> None:
     """Declare a thread that only sleeps and makes system calls (no locks, no allocation while another
     thread forks), such as a service worker's parent watch: it does not make forking unsafe."""
-    _benign.add(thread)
+    setattr(thread, _BENIGN_MARK, True)
 
 
 def fork_is_safe() -> bool:
@@ -29,7 +29,7 @@ def fork_is_safe() -> bool:
     if "fork" not in mp.get_all_start_methods():
         return False
     others = [t for t in threading.enumerate() if t is not threading.current_thread()]
-    return all(t in _benign for t in others)
+    return all(getattr(t, _BENIGN_MARK, False) for t in others)
 
 
 def pool_may_fork() -> bool:

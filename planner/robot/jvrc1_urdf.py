@@ -96,7 +96,7 @@ def _origin(elem: ET.Element | None) -> tuple[np.ndarray, np.ndarray]:
     return rpy_to_matrix(*rpy), xyz
 
 
-@lru_cache(maxsize=None)
+@lru_cache(maxsize=64)
 def _load_vertices_faces(path: Path) -> tuple[np.ndarray, np.ndarray]:
     try:
         import collada  # noqa: F401  (trimesh's Collada reader needs it)

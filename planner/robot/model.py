@@ -11,6 +11,7 @@ when the pinocchio configuration is built.
 
 from __future__ import annotations
 
+import threading
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -25,6 +26,37 @@ from planner.errors import UnknownNameError
 T = TypeVar("T")
 from planner.robot.registry import load_spec, urdf_path, urdf_sha256
 from planner.robot.spec import RobotSpec, Side
+
+
+class DerivedTables:
+    """The tables derived from one robot model, each built once.
+
+    Threads share a model, so a table is built under a lock (re-entrant: one table's build may ask
+    for another) and then only read. Pickled without the lock, as its tables.
+    """
+
+    def __init__(self) -> None:
+        self._tables: dict[Any, Any] = {}
+        self._lock = threading.RLock()
+
+    def get(self, key: Any, build: Callable[[], T]) -> T:
+        """The table under ``key``, built by ``build()`` the first time any thread asks."""
+        try:
+            return self._tables[key]
+        except KeyError:
+            pass
+        with self._lock:
+            if key not in self._tables:
+                self._tables[key] = build()
+            return self._tables[key]
+
+    def __getstate__(self) -> dict[Any, Any]:
+        with self._lock:
+            return dict(self._tables)
+
+    def __setstate__(self, tables: dict[Any, Any]) -> None:
+        self._tables = dict(tables)
+        self._lock = threading.RLock()
 
 
 @dataclass(frozen=True)
@@ -47,7 +79,7 @@ class RobotModel:
     q_offset: np.ndarray = field(repr=False)
     mimic: dict[str, tuple[str, float, float]] = field(default_factory=dict, repr=False)
     #: Tables derived from this model once and read-only after (see :meth:`derived`).
-    _derived: dict[Any, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
+    _derived: DerivedTables = field(default_factory=DerivedTables, init=False, repr=False, compare=False)
 
     def derived(self, key: Any, build: Callable[[], T]) -> T:
         """The table ``build()`` derives from this model, built on first use and kept with the model.
@@ -56,11 +88,7 @@ class RobotModel:
         kernels, a hand's collision shapes): the pinocchio Model/Data split, with the derived
         tables on the model side. Scratch buffers never go here; each computation owns its own.
         """
-        try:
-            return self._derived[key]
-        except KeyError:
-            value = self._derived[key] = build()
-            return value
+        return self._derived.get(key, build)
 
     @property
     def nq(self) -> int:
@@ -128,9 +156,9 @@ def _parse_mimics(path: Path) -> dict[str, tuple[str, float, float]]:
     return mimics
 
 
-@lru_cache(maxsize=None)
+@lru_cache(maxsize=16)
 def load_robot(name: str = "hrp5p") -> RobotModel:
-    """Load a robot by name, once per process (cached)."""
+    """Load a robot by name, once per process (a bounded cache: a process plans for a few robots)."""
     spec = load_spec(name)
     path = urdf_path(name)
     model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer())

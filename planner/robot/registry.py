@@ -56,7 +56,7 @@ def _spec_path(name: str) -> Path:
     return path
 
 
-@lru_cache(maxsize=None)
+@lru_cache(maxsize=64)
 def load_spec(name: str) -> RobotSpec:
     """A registered robot's spec by name, or a spec file's by its path (every robot is a ``regrasp.robot/1`` file)."""
     from planner.robot.spec_file import is_spec_path
@@ -80,6 +80,6 @@ def urdf_path(name: str) -> Path:
     return path
 
 
-@lru_cache(maxsize=None)
+@lru_cache(maxsize=64)
 def urdf_sha256(name: str) -> str:
     return hashlib.sha256(urdf_path(name).read_bytes()).hexdigest()

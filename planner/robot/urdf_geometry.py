@@ -50,7 +50,7 @@ def _origin(elem: ET.Element | None) -> np.ndarray:
     return T
 
 
-@lru_cache(maxsize=None)
+@lru_cache(maxsize=16)
 def collision_primitives(urdf: Path) -> tuple[Primitive, ...]:
     """Every primitive collision shape of the URDF (mesh collisions are skipped)."""
     out: list[Primitive] = []

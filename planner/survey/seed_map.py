@@ -18,8 +18,15 @@ from typing import Any, Callable, Protocol
 #: pure (depends on its arguments only).
 SeedFn = Callable[[str, int, bool], Any]
 
-#: What a forked seed worker inherits from its parent: set just before the pool forks, cleared after.
-_FORK_STATE: dict[str, Any] = {}
+#: The per-seed function of this process when it is a forked seed worker: set once by its pool's
+#: initializer, from the pool's own arguments (inherited through the fork, not pickled). A parent never
+#: sets it, so two surveys in threads of one process each hand their pool its own function.
+_WORKER_FN: SeedFn | None = None
+
+
+def _start_seed_worker(fn: SeedFn) -> None:
+    global _WORKER_FN
+    _WORKER_FN = fn
 
 
 class SeedSession(Protocol):
@@ -46,17 +53,14 @@ class SeedMap(Protocol):
 
 def _forked_seed(args: tuple) -> Any:
     hands, seed, keep = args
-    return _FORK_STATE["fn"](hands, seed, keep)
+    assert _WORKER_FN is not None, "a seed runs only in a worker started by _start_seed_worker"
+    return _WORKER_FN(hands, seed, keep)
 
 
 class _ForkedSession:
     def __init__(self, fn: SeedFn, workers: int) -> None:
-        _FORK_STATE["fn"] = fn
-        try:
-            self._pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork"))
-        except BaseException:
-            _FORK_STATE.clear()
-            raise
+        self._pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork"),
+                                         initializer=_start_seed_worker, initargs=(fn,))
 
     def submit(self, hands: str, seed: int, keep_states: bool) -> Future:
         return self._pool.submit(_forked_seed, (hands, seed, keep_states))
@@ -65,18 +69,15 @@ class _ForkedSession:
         future.cancel()
 
     def close(self, cancel: bool) -> None:
-        try:
-            if cancel:
-                procs = list((getattr(self._pool, "_processes", None) or {}).values())
-                self._pool.shutdown(wait=False, cancel_futures=True)
-                for proc in procs:
-                    proc.kill()
-                for proc in procs:
-                    proc.join(timeout=1.0)
-            else:
-                self._pool.shutdown(wait=True, cancel_futures=True)
-        finally:
-            _FORK_STATE.clear()
+        if cancel:
+            procs = list((getattr(self._pool, "_processes", None) or {}).values())
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            for proc in procs:
+                proc.kill()
+            for proc in procs:
+                proc.join(timeout=1.0)
+        else:
+            self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 class ForkedSeeds:
