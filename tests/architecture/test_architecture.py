@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from tests.architecture.import_graph import (
     PACKAGES,
-    ROOT,
     cycles,
     import_graph,
     project_modules,
@@ -98,15 +97,3 @@ def bounded(x): return x
 """
     found = sorted(entry.split(":")[0] for entry in module_state(source))
     assert found == ["CACHE", "COUNT", "FILLED", "HOLDER", "LOCAL", "SEEN", "WATCHED", "g", "h"]
-
-
-#: At most this many modules and packages at the top of service/: the rest is grouped by concept.
-MAX_SERVICE_TOP_LEVEL = 14
-
-
-def test_service_top_level_stays_small() -> None:
-    service = ROOT / "service"
-    entries = sorted([p.name for p in service.glob("*.py")]
-                     + [p.name + "/" for p in service.iterdir() if (p / "__init__.py").is_file()])
-    assert len(entries) <= MAX_SERVICE_TOP_LEVEL, (
-        f"service/ has {len(entries)} top-level modules and packages (at most {MAX_SERVICE_TOP_LEVEL}): {entries}")
