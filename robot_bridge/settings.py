@@ -106,4 +106,5 @@ class Keys:
         self.joints = f"{base}/state/joints"
         self.exec = f"{base}/state/exec"
         self.heartbeat = f"{base}/state/heartbeat"
+        self.balance = f"{base}/state/balance"
         self.alive = f"{base}/alive/controller"

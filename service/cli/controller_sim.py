@@ -77,11 +77,8 @@ def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str
     """Run a simulated controller that speaks the bridge protocol until interrupted."""
     from pydantic import ValidationError
 
-    from robot_bridge.controller_sim import (
-        ControllerSimSettings,
-        limits_from_urdf,
-        run_controller,
-    )
+    from robot_bridge.controller_process import run_controller
+    from robot_bridge.controller_settings import ControllerSimSettings, limits_from_urdf
     from robot_bridge.robot_files import RobotFilesError, robot_files
     from robot_bridge.settings import BridgeSettings
 

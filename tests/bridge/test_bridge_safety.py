@@ -225,7 +225,8 @@ def _send_raw(peer: Peer, payload: bytes) -> float:
     return sent
 
 
-@pytest.mark.parametrize("case", ["unsigned", "wrongly signed", "expired", "out of sequence", "tampered"])
+@pytest.mark.parametrize("case", ["unsigned", "wrongly signed", "expired", "expires too late", "out of sequence",
+                                  "tampered"])
 def test_a_rogue_command_is_refused_and_moves_nothing(guarded, case):
     ctl, peer, rogue = guarded
     q0, Q, segs = _move(peer)
@@ -234,12 +235,14 @@ def test_a_rogue_command_is_refused_and_moves_nothing(guarded, case):
         "unsigned": lambda: _wire(None, seg),
         "wrongly signed": lambda: _wire(rogue.signer, seg),
         "expired": lambda: _wire(peer.signer, seg, expires_at=time.time() - 2.0),
+        # signed with the real key, valid for an hour: a leaked command must not stay playable that long
+        "expires too late": lambda: _wire(peer.signer, seg, expires_at=time.time() + 3600.0),
         "out of sequence": lambda: _wire(peer.signer, segs[1]),
         # signed, then one number changed on the way
         "tampered": lambda: _wire(peer.signer, seg).replace(b'"segment_count":2', b'"segment_count":3'),
     }[case]()
     words = {"unsigned": ["unsigned"], "wrongly signed": ["does not verify"], "expired": ["expired"],
-             "out of sequence": ["out of sequence"], "tampered": ["does not verify"]}[case]
+             "expires too late": ["expires_at too far ahead", "10 s allowed"], "out of sequence": ["out of sequence"], "tampered": ["does not verify"]}[case]
     _refused(peer, _send_raw(rogue, payload), seg.job_id, q0, *words)
 
 

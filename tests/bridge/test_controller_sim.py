@@ -528,7 +528,8 @@ def test_controller_process_freezes_its_startup_objects_and_shortens_the_switch_
     script = f"""
 import gc, json, sys, threading
 import numpy as np
-from robot_bridge.controller_sim import ControllerSimSettings, JointLimits, run_controller
+from robot_bridge.controller_process import run_controller
+from robot_bridge.controller_sim import ControllerSimSettings, JointLimits
 from robot_bridge.settings import BridgeSettings
 stop = threading.Event()
 def ready(ctl):
