@@ -311,7 +311,7 @@ def _stance_of(scenario: str) -> str:
 def _plots(out: Path, plan: dict, survey: dict, result: DemoResult, fmt: str = "png") -> None:
     import numpy as np
 
-    from service.plots import (
+    from experiments.plots import (
         describe,
         holding_events,
         plot_com_trace,

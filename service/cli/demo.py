@@ -30,7 +30,7 @@ def stance_step(out: Path, robot_name: str, fmt: str = "png") -> list[dict]:
         sole_size,
         solve_stance,
     )
-    from service.plots import plot_stance
+    from experiments.plots import plot_stance
 
     robot = load_robot(robot_name)
     rows = []

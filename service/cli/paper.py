@@ -21,7 +21,7 @@ def paper(out_dir: str, quick: bool, no_limits: bool, workers: int | None) -> No
     """Run every simulation of the paper's section IV with our model and write the report."""
     from dataclasses import replace
 
-    from service.paper import PaperSettings, run
+    from experiments.paper import PaperSettings, run
 
     settings = PaperSettings.quick_run() if quick else PaperSettings.full()
     settings = replace(settings, no_limits=True)  # the paper's tables had no effort or grip limits

@@ -69,7 +69,7 @@ def plot_plan(plan: dict, path: Path, compare: dict | None = None) -> list[Path]
     over time with the pick and place moments marked; the format follows the path's suffix."""
     import numpy as np
 
-    from service.plots import (
+    from experiments.plots import (
         describe,
         holding_events,
         plot_com_trace,
@@ -157,7 +157,7 @@ def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, soluti
     Path(out_path).write_text(json.dumps(doc, allow_nan=False))
     figures: list[Path] = []
     if plot_path:
-        from service.plots import with_format
+        from experiments.plots import with_format
 
         target = with_format(plot_path, fmt or (None if Path(plot_path).suffix else "png"))
         target.parent.mkdir(parents=True, exist_ok=True)

@@ -67,7 +67,7 @@ def write_scatter_csv(path: Path, hands: np.ndarray, xy: np.ndarray, stable: np.
 
 def plot_title(doc: dict, scenario: str | None) -> str:
     """What a survey figure's title names: scenario, stance, threshold, states per configuration."""
-    from service.plots import describe
+    from experiments.plots import describe
 
     states = (doc.get("stats") or {}).get("states_per_configuration")
     return describe(scenario, doc["stance"]["name"], doc["threshold_m"], states=states) + (" per configuration" if states else "")
@@ -75,7 +75,7 @@ def plot_title(doc: dict, scenario: str | None) -> str:
 
 def bars_figure(doc: dict, path: Path, scenario: str | None = None) -> Path:
     """The bar chart of R that ``--plot`` writes for a survey document (the recommended row marked)."""
-    from service.plots import plot_survey_bars
+    from experiments.plots import plot_survey_bars
 
     return plot_survey_bars(path, title=f"stable ratio R per hand configuration\n{plot_title(doc, scenario)}",
                             rows=doc["rows"], recommended=doc.get("recommended"),
@@ -86,8 +86,8 @@ def _plots(doc: dict, outcomes, directory: Path, prefix: str, fmt: str = "png", 
     """The bar chart of R; where states were evaluated, the CoM scatter (coloured by configuration) and its CSV data."""
     import numpy as np
 
-    from service.convergence_plot import plot_convergence
-    from service.plots import plot_survey_scatter
+    from experiments.convergence_plot import plot_convergence
+    from experiments.plots import plot_survey_scatter
 
     directory.mkdir(parents=True, exist_ok=True)
     title = plot_title(doc, scenario)

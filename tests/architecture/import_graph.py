@@ -10,7 +10,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("schemas", "robot_data", "planner", "robot_bridge", "service")
+PACKAGES = ("schemas", "robot_data", "planner", "robot_bridge", "experiments", "service")
 
 
 def module_name(path: Path) -> str:

@@ -1,8 +1,10 @@
 """The architecture the tree promises: no import cycles, dependencies pointing one way
-(schemas <- robot_data <- planner <- robot_bridge <- service), no module-level state outside
+(schemas <- robot_data <- planner <- robot_bridge <- experiments <- service), no module-level state outside
 an allow-list with reasons, and a service grouped by concept."""
 
 from __future__ import annotations
+
+import ast
 
 from tests.architecture.import_graph import (
     PACKAGES,
@@ -39,6 +41,43 @@ def test_dependencies_point_one_way() -> None:
 def test_robot_data_is_data_only() -> None:
     graph = import_graph()
     assert not any(deps for module, deps in graph.items() if module.split(".")[0] == "robot_data")
+
+
+def _function_level_imports(tree: ast.Module) -> list[str]:
+    """The modules imported inside a function or method (a dependency the module's head does not show)."""
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for inner in ast.walk(node):
+                if isinstance(inner, ast.Import):
+                    found += [a.name for a in inner.names]
+                elif isinstance(inner, ast.ImportFrom):
+                    found.append("." * inner.level + (inner.module or ""))
+    return found
+
+
+def test_experiments_show_their_dependencies_at_the_top() -> None:
+    """The paper's reproduction, its claims, ablations and figures: no lazy import reaching into the planner."""
+    lazy = {module: found for module, path in project_modules().items() if module.split(".")[0] == "experiments"
+            and (found := _function_level_imports(ast.parse(path.read_text())))}
+    assert not lazy, f"function-level imports in experiments/: {lazy}"
+
+
+def test_the_service_holds_no_paper_reproduction() -> None:
+    """The reproduction and its figures live in experiments/; the service only calls them (``regrasp paper``
+    is a command of the service's CLI)."""
+    kept = [module for module in project_modules() if module.split(".")[0] == "service"
+            and not module.startswith("service.cli.")
+            and module.rpartition(".")[2] in {"paper", "paper_claims", "claims", "plots", "convergence_plot"}]
+    assert not kept, kept
+    graph = import_graph()
+    assert not any(dep.split(".")[0] == "service" for m, deps in graph.items() if m.split(".")[0] == "experiments"
+                   for dep in deps)
+
+
+def test_lazy_import_detector_sees_one() -> None:
+    tree = ast.parse("import os\ndef f():\n    from planner.regrasp import task\n    import numpy\n")
+    assert _function_level_imports(tree) == ["planner.regrasp", "numpy"]
 
 
 #: Module-level run-time state that is allowed, each with the reason.

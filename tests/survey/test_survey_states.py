@@ -339,7 +339,7 @@ def test_the_convergence_plot_is_r_seed_by_seed_ending_at_the_row(run):
     recomputed seed by seed from ``per_seed`` with the estimator's own seeded bootstrap, so its states grow seed
     by seed and its last point is the row's pooled ratio and 95 % interval (unstable states included here, so
     the interval is the bootstrap's, not the rule of three)."""
-    from service.convergence_plot import convergence_series
+    from experiments.convergence_plot import convergence_series
 
     png = run.plots / "survey-one-legged-convergence.png"
     w, h = _png_size(png)
@@ -385,7 +385,7 @@ def test_the_scatter_draws_its_csv_data_with_the_unstable_states_marked(run, tmp
     import matplotlib.image as mpimg
 
     from service.cli.survey import plot_title
-    from service.plots import plot_survey_scatter
+    from experiments.plots import plot_survey_scatter
 
     with open(run.plots / "survey-one-legged-scatter.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))

@@ -7,8 +7,8 @@ import json
 import pytest
 from click.testing import CliRunner
 
+from experiments.tables import INCONSISTENCIES, PAPER_TABLES, STANCES
 from service.cli.main import cli
-from service.paper import INCONSISTENCIES, PAPER_TABLES, STANCES
 
 HANDS = ("left-left", "right-right", "left-right", "right-left")
 #: The quick run plans and surveys every stance for real: minutes, not the suite's 5-minute default.
@@ -72,7 +72,7 @@ def test_table_numbers_match_the_json(report):
 
 def test_comparison_matrix_and_claims_match_the_json(report):
     md, data, _ = report
-    from service.paper_claims import CLAIM_TEXT
+    from experiments.claims import CLAIM_TEXT
 
     matrix = {r[0]: r[1:] for r in _table_rows(md, "## Stance comparison")[1:]}
     for stance in STANCES:
@@ -123,7 +123,7 @@ def test_the_crouched_handovers_show_why_they_fail_or_plan(report):
 
 
 def test_a_claim_the_mass_decides_shows_a_mass_sweep(report):
-    from service.paper import SWEEP_MASSES_KG
+    from experiments.causes import SWEEP_MASSES_KG
 
     md, data, _ = report
     claim = next(c for c in data["claims"] if c["id"] == "crouched-all-stable")

@@ -16,13 +16,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from planner.survey.estimator import bootstrap_rng, ratio_interval  # noqa: E402
+
 COLOURS = {"left-left": "tab:blue", "right-right": "tab:red", "left-right": "tab:green", "right-left": "tab:orange"}
 
 
 def convergence_series(row: dict[str, Any], first_seed: int) -> dict[str, np.ndarray]:
     """After each seed: states counted so far, pooled R, and the 95 % interval's bounds."""
-    from planner.survey.estimator import bootstrap_rng, ratio_interval
-
     per_seed = row.get("per_seed") or []
     c = np.array([p["stable"] for p in per_seed], dtype=float)
     u = np.array([p["unstable"] for p in per_seed], dtype=float)

@@ -17,6 +17,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Polygon as MplPolygon  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
+from shapely.geometry import Polygon  # noqa: E402
 
 #: The figure formats the commands write (``--format``).
 FORMATS = ("png", "svg", "pdf")
@@ -73,8 +75,6 @@ def _save(fig, ax, path: Path, title: str, *, legend: bool = True, grid: bool = 
 
 def shrink_polygon(vertices: np.ndarray, distance: float) -> np.ndarray | None:
     """The polygon shrunk inward by ``distance`` (the region where margin >= distance), or None if empty."""
-    from shapely.geometry import Polygon
-
     shrunk = Polygon(vertices).buffer(-distance, join_style="mitre")
     if shrunk.is_empty or shrunk.area <= 0:
         return None
@@ -92,8 +92,6 @@ def _draw_polygon(ax, vertices: np.ndarray, threshold_m: float | None) -> None:
 
 
 def _sole_outline(pose: Sequence[float], length: float, width: float) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
     R = Rotation.from_quat(pose[3:]).as_matrix()
     hx, hy = length / 2, width / 2
     local = np.array([[hx, hy, 0], [-hx, hy, 0], [-hx, -hy, 0], [hx, -hy, 0]])

@@ -11,6 +11,8 @@ from __future__ import annotations
 import statistics
 from typing import Any
 
+from experiments.tables import STANCES
+
 #: The paper's claims: id -> text.
 CLAIM_TEXT: dict[str, str] = {
     "upright-left-hand-most-stable": "Upright: the left-hand configurations (left-left, left-right) are more stable than "
@@ -139,3 +141,23 @@ def judge_no_removal(plan: dict[str, Any]) -> tuple[bool, str]:
 
 def _mm(v: float | None) -> str:
     return "n/a" if v is None else f"{v * 1000:.1f} mm"
+
+
+def evaluate_claims(res: Any) -> list[dict[str, Any]]:
+    """Each claim's strict verdict on this run's tables, plans and comparison (no cause runs yet)."""
+    out = []
+    for cid, text in CLAIM_TEXT.items():
+        if cid in ORDERINGS:
+            stance, hi, lo = ORDERINGS[cid]
+            ok, ev = judge_ordering(res.tables[stance]["rows"], hi, lo)
+        elif cid == "crouched-all-stable":
+            ok, ev = judge_all_stable(res.tables["crouched"]["rows"])
+        elif cid == "upright-left-no-removal":
+            ok, ev = judge_no_removal(res.plans["upright-left-left"]["constrained"])
+        elif cid == "threshold-changes-motion":
+            ok, ev = judge_threshold_motion({s: res.plans[s] for s in STANCES})
+        else:
+            ok, ev = judge_best_stance({s: c["rows"] for s, c in res.comparison.items()})
+        out.append({"id": cid, "text": text, "verdict": "reproduced" if ok else "not reproduced", "evidence": ev,
+                    "cause": None, "cause_run": None, "other_cause_runs": []})
+    return out

@@ -1,8 +1,8 @@
-"""The paper report's claim checker (service/paper_claims.py): strict verdicts on survey rows."""
+"""The paper report's claim checker (experiments/claims.py): strict verdicts on survey rows."""
 
 from __future__ import annotations
 
-from service.paper_claims import (
+from experiments.claims import (
     judge_all_stable,
     judge_best_stance,
     judge_no_removal,

@@ -1,0 +1,128 @@
+"""The report's runs: a survey and a plan of a (possibly changed) built-in scenario, with the report's
+sample sizes, and the summaries the report keeps of them."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from experiments.tables import PAPER_TABLES
+from planner.jobs.plan_job import PlanOptions, plan_scenario
+from planner.scene.scenarios import resolve_scenario, with_overrides
+from planner.survey.runner import run_survey
+
+
+@dataclass(frozen=True)
+class PaperSettings:
+    """Sample sizes: the survey estimator of the tables, the plans' iteration cap."""
+
+    estimator: dict[str, Any]
+    plan_iterations: int
+    workers: int | None = None
+    #: the tables and plans without effort and grip limits, as the paper had none (always so for the reproduction)
+    no_limits: bool = True
+    quick: bool = False
+    #: beside the reproduction, the tables' surveys and the stances' plans again with the limits on
+    limits_section: bool = True
+
+    @classmethod
+    def full(cls) -> "PaperSettings":
+        # The survey's own default estimator (docs/contract.md section 4), as `regrasp survey` and `hands: auto` run it.
+        return cls(estimator={"until": "solved", "ci_half_width": 0.02, "seeds_min": 10, "seeds_max": 256,
+                              "leg_cap_states": 20000}, plan_iterations=600)
+
+    @classmethod
+    def quick_run(cls) -> "PaperSettings":
+        return cls(estimator={"until": "states", "states_per_seed": 150, "seeds_min": 3, "seeds_max": 3,
+                              "leg_cap_states": 150}, plan_iterations=300, quick=True)
+
+    def document(self) -> dict[str, Any]:
+        return {"estimator": dict(self.estimator), "plan_iterations": self.plan_iterations, "workers": self.workers,
+                "no_limits": self.no_limits, "quick": self.quick,
+                "limits_section": self.limits_section}
+
+
+@dataclass
+class Results:
+    """Everything one report run computed, in the order it ran."""
+
+    settings: PaperSettings
+    tables: dict[str, Any] = field(default_factory=dict)
+    comparison: dict[str, Any] = field(default_factory=dict)
+    plans: dict[str, Any] = field(default_factory=dict)
+    drills: dict[str, Any] = field(default_factory=dict)
+    claims: list[dict[str, Any]] = field(default_factory=list)
+    cause_runs: dict[str, Any] = field(default_factory=dict)
+    handovers: dict[str, Any] = field(default_factory=dict)
+    limits: dict[str, Any] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+    figures: dict[str, str] = field(default_factory=dict)
+
+
+def scenario(name: str, stance: Any = None, **changes: Any):
+
+    sc = resolve_scenario(name, stance=stance)
+    if changes.get("object"):
+        sc = sc.model_copy(update={"object": sc.object.model_copy(update=changes.pop("object"))})
+    return sc.model_copy(update=changes) if changes else sc
+
+
+def survey(sc, settings: PaperSettings, no_limits: bool | None = None) -> dict[str, Any]:
+    """A survey with the report's estimator: its rows (docs/contract.md section 4) and what it ran with
+    (without the limits unless ``no_limits`` is False)."""
+
+    t0 = time.perf_counter()
+    sc = with_overrides(sc, survey=settings.estimator)
+    doc, _ = run_survey(sc, workers=settings.workers, keep_states=False,
+                        no_limits=settings.no_limits if no_limits is None else no_limits)
+    return {"rows": doc["rows"], "recommended": doc["recommended"], "indistinguishable": doc["indistinguishable"],
+            "estimator": doc["estimator"], "seed": doc["seed"], "threshold_m": doc["threshold_m"], "object": doc["object"],
+            "stance": doc["stance"]["name"], "time_s": time.perf_counter() - t0, "doc": doc}
+
+
+def table(stance: str, settings: PaperSettings) -> dict[str, Any]:
+    t = survey(scenario(stance), settings)
+    t["paper"] = [{"hands": h, "stable": c, "unstable": u, "ratio": r} for h, (c, u, r) in PAPER_TABLES[stance].items()]
+    return t
+
+
+def plan(scenario: Any, hands: str | None, threshold_m: float | None, iterations: int, stance: str | None = None,
+          estimator: dict[str, Any] | None = None, limits: bool = False) -> dict[str, Any]:
+    """A plan of a scenario (a name or a Scenario); ``hands: auto`` surveys with ``estimator`` (the report's).
+    Without effort and grip limits, as the paper, unless ``limits``."""
+
+    sc = scenario if not isinstance(scenario, str) else resolve_scenario(scenario, stance=stance)
+    if estimator:
+        sc = with_overrides(sc, survey=estimator)
+    sc = sc.model_copy(update={"limits": sc.limits.model_copy(update={"max_iterations": iterations})})
+    t0 = time.perf_counter()
+    doc = plan_scenario(sc, PlanOptions(hands=hands, threshold_m=threshold_m, limits=limits))
+    doc.setdefault("stats", {})["wall_s"] = time.perf_counter() - t0
+    return doc
+
+
+def com_trace(doc: dict) -> np.ndarray:
+    return np.array([p["com"][:2] for p in doc.get("trajectory", [])]).reshape(-1, 2)
+
+
+def plan_summary(doc: dict) -> dict[str, Any]:
+    traj = doc.get("trajectory", [])
+    st = doc.get("stats", {})
+    return {"status": doc["status"], "hands": doc.get("hands"), "threshold_m": doc["threshold_m"],
+            "min_margin_m": doc.get("min_margin_m"), "duration_s": traj[-1]["t"] if traj else None,
+            "planning_time_s": st.get("time_s"), "failure": (doc.get("failure") or {}).get("code"), "points": len(traj),
+            "failures": st.get("failures") if doc["status"] == "solved" else (doc.get("failure") or {}).get("counts")}
+
+
+def plan_pair(scenario: Any, hands: str, settings: PaperSettings, threshold_m: float | None = None) -> tuple[dict, dict, dict]:
+    constrained = plan(scenario, hands, threshold_m, settings.plan_iterations)
+    free = plan(scenario, hands, 0.0, settings.plan_iterations)
+    differ = (constrained["status"] == "solved" and free["status"] == "solved"
+              and [p["q"] for p in constrained["trajectory"]] != [p["q"] for p in free["trajectory"]])
+    thr = constrained["threshold_m"]
+    breaks = free["status"] == "solved" and free["min_margin_m"] < thr - 1e-4
+    return ({"constrained": plan_summary(constrained), "unconstrained": plan_summary(free), "plans_differ": differ,
+             "unconstrained_breaks_threshold": breaks}, constrained, free)
