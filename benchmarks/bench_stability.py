@@ -11,7 +11,8 @@ import time
 import numpy as np
 
 from planner.kinematics.batch import BatchKinematics
-from planner.robot.model import center_of_mass, load_robot
+from planner.robot.model import load_robot
+from planner.stability.robot_com import robot_com as center_of_mass
 from planner.stability.stances import solve_stance
 
 

@@ -14,9 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.compiled.tree_kernels import ROOT_SLOT, tree_from_rows, walk, weighted_sum
+from planner.compiled.tree_kernels import ROOT_SLOT, tree_from_rows, walk
 from planner.kinematics.joint_table import affine, joint_table
 from planner.robot.model import RobotModel
+from planner.stability.robot_com import BodyMasses, robot_com_batch
 from planner.transforms import quat_to_matrix
 
 
@@ -74,9 +75,9 @@ class BatchKinematics:
         # The tree by joint id; id 1 (the floating base) is filled by forward(), id 0 (the universe) unused.
         self._tree = tree_from_rows([ROOT_SLOT, ROOT_SLOT, *(s.slot(s.parent) for s in steps)])
         massive = [(1, self._root_mass, self._root_lever)] + [(s.jid, s.mass, s.lever) for s in steps if s.mass > 0]
-        self._mass_slots = np.array([m[0] for m in massive], dtype=np.int64)
-        self._slot_mass = np.array([m[1] for m in massive])
-        self._slot_lever = np.array([m[2] for m in massive]).reshape(-1, 3)
+        self.masses = BodyMasses(slots=np.array([m[0] for m in massive], dtype=np.int64), mass=np.array([m[1] for m in massive]),
+                                 lever=np.array([m[2] for m in massive]).reshape(-1, 3), base_moment=np.zeros(3),
+                                 total_mass=self.total_mass)
         self._frames = {name: (jid, np.array(pl.rotation), np.array(pl.translation)) for name, (jid, pl) in table.frames.items()}
 
     def forward(self, base_pose: np.ndarray, Q: np.ndarray) -> tuple[list, list]:
@@ -108,7 +109,7 @@ class BatchKinematics:
 
     def _com_from(self, Rs: list, ps: list) -> np.ndarray:
         R, p = frames_block(Rs), frames_block(ps)
-        return weighted_sum(R, p, self._mass_slots, self._slot_mass, self._slot_lever, np.zeros(3), self.total_mass)
+        return robot_com_batch(R, p, self.masses)
 
     def frame(self, Rs: list, ps: list, name: str) -> tuple[np.ndarray, np.ndarray]:
         """World (R (N, 3, 3), p (N, 3)) of a named frame from a ``forward`` result."""

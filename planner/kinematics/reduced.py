@@ -17,9 +17,10 @@ from typing import Sequence
 import numpy as np
 import pinocchio as pin
 
-from planner.compiled.tree_kernels import tree_spec, walk, weighted_sum
+from planner.compiled.tree_kernels import tree_spec, walk
 from planner.kinematics.joint_table import affine, joint_table
 from planner.robot.model import RobotModel
+from planner.stability.robot_com import BodyMasses, fold_masses, robot_com_batch
 
 _I3 = np.eye(3)
 
@@ -93,38 +94,33 @@ class ReducedKinematics:
             ))
             anchor[jid] = len(steps_raw) - 1
 
-        fixed_mass, fixed_moment = 0.0, np.zeros(3)
+        bodies = []
         for jid in range(1, table.njoints):
             m, lever = rows[jid].mass, rows[jid].lever
             if m <= 0.0:
                 continue
             c_world = oMi[jid].act(lever)
             a = anchor[jid]
-            if a < 0:
-                fixed_mass += m
-                fixed_moment += m * c_world
-            else:
-                s = steps_raw[a]
-                s["mass"] += m
-                s["moment"] += m * oMi[s["jid"]].actInv(c_world)
-        self.total_mass = float(fixed_mass + sum(s["mass"] for s in steps_raw))
-        self._fixed_moment = fixed_moment
+            bodies.append((a, m, c_world if a < 0 else oMi[steps_raw[a]["jid"]].actInv(c_world)))
+        slot_mass, slot_lever, fixed_mass, fixed_moment = fold_masses(bodies, len(steps_raw))
+        self.total_mass = float(fixed_mass + sum(slot_mass.tolist()))
         self._steps = [
             _Step(
                 jid=s["jid"], anchor=s["anchor"], R_rel=s["R_rel"], p_rel=s["p_rel"], kind=s["kind"],
                 axis_index=s["axis_index"], axis=s["axis"], col=s["col"], mult=s["mult"], offset=s["offset"],
-                mass=s["mass"], lever=s["moment"] / s["mass"] if s["mass"] > 0 else np.zeros(3),
+                mass=float(slot_mass[k]), lever=slot_lever[k],
             )
-            for s in steps_raw
+            for k, s in enumerate(steps_raw)
         ]
         steps = self._steps
         self._tree = tree_spec(parent=[s.anchor for s in steps], R0=[s.R_rel for s in steps], p0=[s.p_rel for s in steps],
                                kind=[s.kind for s in steps], axis_index=[max(s.axis_index, 0) for s in steps],
                                axis=[s.axis for s in steps], col=[s.col for s in steps], mult=[s.mult for s in steps],
                                offset=[s.offset for s in steps])
-        self._mass_slots = np.array([k for k, s in enumerate(steps) if s.mass > 0.0], dtype=np.int64)
-        self._slot_mass = np.array([steps[k].mass for k in self._mass_slots], dtype=float)
-        self._slot_lever = np.array([steps[k].lever for k in self._mass_slots], dtype=float).reshape(-1, 3)
+        slots = np.array([k for k, s in enumerate(steps) if s.mass > 0.0], dtype=np.int64)
+        self.masses = BodyMasses(slots=slots, mass=np.array([steps[k].mass for k in slots], dtype=float),
+                                 lever=np.array([steps[k].lever for k in slots], dtype=float).reshape(-1, 3),
+                                 base_moment=fixed_moment, total_mass=self.total_mass)
         self._frames: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
         for name in frames:
             if name not in table.frames:
@@ -148,7 +144,7 @@ class ReducedKinematics:
         return R, p
 
     def _com(self, Rs: np.ndarray, ps: np.ndarray) -> np.ndarray:
-        return weighted_sum(Rs, ps, self._mass_slots, self._slot_mass, self._slot_lever, self._fixed_moment, self.total_mass)
+        return robot_com_batch(Rs, ps, self.masses)
 
     def _frame(self, Rs: list[np.ndarray], ps: list[np.ndarray], name: str, n: int) -> tuple[np.ndarray, np.ndarray]:
         a, R0, p0 = self._frames[name]

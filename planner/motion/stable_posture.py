@@ -14,7 +14,7 @@ the IK's posture) subject to
 - the joint limits.
 
 The held object's CoM does not move while the hands stay put, so only the robot's CoM varies;
-pinocchio gives it and its Jacobian, and SciPy's SLSQP solves the small problem (0.7 ms for a
+planner/stability gives it and its Jacobian (pinocchio), and SciPy's SLSQP solves the small problem (0.7 ms for a
 posture found on a 2-core machine, an arm and the waist; a refusal runs to the iteration cap).
 Leg joints are not moved: they hold the stance.
 """
@@ -29,6 +29,8 @@ import pinocchio as pin
 from scipy.optimize import minimize
 
 from planner.robot.model import RobotModel
+from planner.stability.com import system_com_xy_fixed_object
+from planner.stability.robot_com import robot_com_jacobian
 from planner.stability.support_polygon import SupportPolygon
 
 #: SLSQP iterations at most. The postures found converge in 5-15; one with none runs to the cap, so the cap
@@ -66,9 +68,7 @@ def stable_posture(problem: PostureProblem, q0: np.ndarray, columns: Sequence[in
     fids = [robot.frame_id(f) for f in hands]
     targets = [pin.SE3(T[:3, :3], T[:3, 3]) for T in hands.values()]
     m_r, m_o = float(robot.total_mass), float(problem.object_mass_kg)
-    share = m_r / (m_r + m_o)
-    held = np.zeros(2) if problem.object_com_world is None or m_o == 0.0 else np.asarray(problem.object_com_world)[:2]
-    normals, offsets = problem.polygon.normals, problem.polygon.offsets
+    polygon = problem.polygon
     x0 = q0[cols].astype(float)
     memo: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
 
@@ -79,23 +79,21 @@ def stable_posture(problem: PostureProblem, q0: np.ndarray, columns: Sequence[in
             q = q0.copy()
             q[cols] = x
             qp = robot.to_pin_q(problem.base_pose, q)
-            pin.computeJointJacobians(model, data, qp)  # one forward pass for the CoM and the hands
-            J_com = pin.jacobianCenterOfMass(model, data, False)[:2, vcols]  # also sets data.com[0]
-            com = data.com[0]
+            com, J_com = robot_com_jacobian(robot, data, qp)  # one forward pass for the CoM and the hands
             pin.updateFramePlacements(model, data)
             errs, jacs = [], []
             for fid, target in zip(fids, targets):
                 errs.append(pin.log6(data.oMf[fid].actInv(target)).vector)
                 jacs.append(pin.getFrameJacobian(model, data, fid, pin.LOCAL)[:, vcols])
-            system = share * com[:2] + (1.0 - share) * held
+            system, J_system = system_com_xy_fixed_object(com, J_com[:2, vcols], m_r, problem.object_com_world, m_o)
             memo.clear()
-            memo[key] = (system, share * J_com, np.concatenate(errs), np.vstack(jacs))
+            memo[key] = (system, J_system, np.concatenate(errs), np.vstack(jacs))
         return memo[key]
 
     constraints = [
         # log6 of (current^-1 target) is the twist that takes the TCP to its target; d(error)/dq ~ -J.
         {"type": "eq", "fun": lambda x: at(x)[2], "jac": lambda x: -at(x)[3]},
-        {"type": "ineq", "fun": lambda x: normals @ at(x)[0] - offsets - threshold_m, "jac": lambda x: normals @ at(x)[1]},
+        {"type": "ineq", "fun": lambda x: polygon.edge_distances(at(x)[0]) - threshold_m, "jac": lambda x: polygon.normals @ at(x)[1]},
     ]
     res = minimize(lambda x: 0.5 * float(np.sum((x - x0) ** 2)), x0, jac=lambda x: x - x0, method="SLSQP",
                    bounds=list(zip(robot.lower[cols], robot.upper[cols])), constraints=constraints,
@@ -104,7 +102,7 @@ def stable_posture(problem: PostureProblem, q0: np.ndarray, columns: Sequence[in
     system, _, err, _ = at(x)
     err = err.reshape(-1, 6)
     if (np.linalg.norm(err[:, :3], axis=1).max() > HAND_POS_TOL_M or np.linalg.norm(err[:, 3:], axis=1).max() > HAND_ROT_TOL_RAD
-            or (normals @ system - offsets).min() < threshold_m - 1e-6):
+            or polygon.edge_distances(system).min() < threshold_m - 1e-6):
         return None
     q = q0.copy()
     q[cols] = x

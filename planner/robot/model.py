@@ -205,11 +205,6 @@ def load_robot(name: str = "hrp5p") -> RobotModel:
     )
 
 
-def center_of_mass(robot: RobotModel, data: pin.Data, base_pose: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Robot CoM in the world (pinocchio), one state."""
-    return pin.centerOfMass(robot.pin_model, data, robot.to_pin_q(base_pose, q), False).copy()
-
-
 def frame_poses(
     robot: RobotModel, data: pin.Data, base_pose: np.ndarray, q: np.ndarray, frames: list[str]
 ) -> list[pin.SE3]:

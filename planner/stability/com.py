@@ -24,3 +24,12 @@ def system_com(robot_com: np.ndarray, robot_mass: float, object_com: np.ndarray 
     if object_com is None or object_mass == 0.0:
         return np.asarray(robot_com, dtype=float)
     return (robot_mass * np.asarray(robot_com) + object_mass * np.asarray(object_com)) / (robot_mass + object_mass)
+
+
+def system_com_xy_fixed_object(robot_com_xy: np.ndarray, robot_jacobian_xy: np.ndarray, robot_mass: float,
+                               object_com_xy: np.ndarray | None, object_mass: float) -> tuple[np.ndarray, np.ndarray]:
+    """Equation 1 on the ground plane with the held object's CoM fixed (the hands hold still): the system
+    CoM (2,) and its Jacobian from the robot's (2, k); ``object_com_xy = None`` when nothing is held."""
+    share = robot_mass / (robot_mass + object_mass)
+    held = np.zeros(2) if object_com_xy is None or object_mass == 0.0 else np.asarray(object_com_xy)[:2]
+    return share * robot_com_xy[:2] + (1.0 - share) * held, share * robot_jacobian_xy

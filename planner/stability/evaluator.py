@@ -25,6 +25,7 @@ import pinocchio as pin
 from planner.kinematics.reduced import ReducedKinematics
 from planner.robot.model import RobotModel
 from planner.stability.com import object_com_world, system_com
+from planner.stability.robot_com import robot_com_pin
 from planner.stability.stances import Stance
 from planner.transforms import inverse
 
@@ -227,7 +228,7 @@ class StateEvaluator:
         poses = None if hold is None else np.empty((n, 4, 4))
         fid = None if hold is None else self._tcp_fid[hold.tcp_side]
         for i in range(n):
-            robot_com[i] = pin.centerOfMass(model, data, self.robot.to_pin_q(self.base_pose, Q[i]), False)
+            robot_com[i] = robot_com_pin(self.robot, data, self.robot.to_pin_q(self.base_pose, Q[i]))
             if poses is not None:
                 poses[i] = pin.updateFramePlacement(model, data, fid).homogeneous
         if poses is not None:
@@ -238,7 +239,7 @@ class StateEvaluator:
         """One state through pinocchio directly (no batch set-up cost)."""
         q = np.asarray(q, dtype=float)
         model, data = self.robot.pin_model, self._data
-        robot_com = np.array(pin.centerOfMass(model, data, self.robot.to_pin_q(self.base_pose, q), False))
+        robot_com = np.array(robot_com_pin(self.robot, data, self.robot.to_pin_q(self.base_pose, q)))
         object_pose = None
         com = robot_com
         if hold is not None:

@@ -18,7 +18,8 @@ import yaml
 from pydantic import ValidationError
 
 from planner.errors import StanceError
-from planner.robot.model import RobotModel, UnknownNameError, center_of_mass
+from planner.robot.model import RobotModel, UnknownNameError
+from planner.stability.robot_com import robot_com
 from planner.stability.support_polygon import SupportPolygon, support_polygon
 from schemas.stance import SUPPORT_CENTRE, FootPlacement, StanceDef, StanceResult
 
@@ -188,7 +189,7 @@ def solve_stance(robot: RobotModel, stance: str | StanceDef) -> Stance:
         else:
             goal = next(np.array(f.pose[:2]) for f in sdef.feet if f.frame == sdef.com_over)
         for _ in range(50):
-            com = center_of_mass(robot, data, base, q)
+            com = robot_com(robot, data, base, q)
             delta = goal - com[:2]
             if np.linalg.norm(delta) < COM_OVER_TOL_M:
                 break
@@ -196,7 +197,7 @@ def solve_stance(robot: RobotModel, stance: str | StanceDef) -> Stance:
             base = solve_at(offset)
         else:
             raise StanceError(f"stance {sdef.name!r}: could not bring the CoM above {sdef.com_over}")
-    com = center_of_mass(robot, data, base, q)
+    com = robot_com(robot, data, base, q)
     return Stance(
         name=sdef.name, definition=sdef, base_pose=base, q=q, feet=tuple(sdef.feet), polygon=polygon,
         robot_com=com, leg_indices=np.array(sorted(set(leg_idx)), dtype=int),

@@ -104,6 +104,11 @@ class SupportPolygon:
             out[outside] = -np.sqrt(((q[:, None, :] - closest) ** 2).sum(-1)).min(axis=1)
         return out
 
+    def edge_distances(self, point: np.ndarray) -> np.ndarray:
+        """Signed distance of one (x, y) point to each edge's line, inside positive (E,): the margin is
+        their minimum while the point is inside (linear in the point, for solvers)."""
+        return self.normals @ point - self.offsets
+
     def margin_one(self, x: float, y: float) -> float:
         """Signed distance of one point, in plain Python (no array overhead)."""
         m = math.inf

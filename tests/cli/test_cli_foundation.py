@@ -94,7 +94,8 @@ def test_demo_stance_step_prints_the_recomputed_com_and_margin(tmp_path, demo_st
     import numpy as np
     from shapely.geometry import Point, Polygon
 
-    from planner.robot.model import center_of_mass, load_robot
+    from planner.robot.model import load_robot
+    from planner.stability.robot_com import robot_com as center_of_mass
     from planner.stability.stances import solve_stance
     from service.cli.demo import stance_step
 

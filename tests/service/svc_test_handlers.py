@@ -116,7 +116,8 @@ def stand(request: dict[str, Any], ctx: Any, duration_s: float = STAND_DURATION_
 
     ``bad_joint`` puts one joint past its URDF limit from the middle on: the gate must veto it.
     """
-    from planner.robot.model import center_of_mass, load_robot
+    from planner.robot.model import load_robot
+    from planner.stability.robot_com import robot_com as center_of_mass
     from planner.robot.registry import urdf_sha256
     from planner.stability.stances import solve_stance
 

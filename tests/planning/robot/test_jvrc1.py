@@ -13,7 +13,8 @@ from click.testing import CliRunner
 
 from planner.kinematics.batch import BatchKinematics
 from planner.robot import jvrc1_urdf
-from planner.robot.model import center_of_mass, frame_poses, load_robot
+from planner.robot.model import frame_poses, load_robot
+from planner.stability.robot_com import robot_com as center_of_mass
 from planner.robot.registry import robot_names, urdf_path
 from planner.robot.urdf_geometry import collision_primitives
 from planner.stability.stances import (

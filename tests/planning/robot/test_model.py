@@ -9,9 +9,9 @@ import pytest
 from planner.kinematics.batch import BatchKinematics
 from planner.robot import hrp5p_urdf
 from planner.robot.info import standing_height
+from planner.stability.robot_com import robot_com as center_of_mass
 from planner.robot.model import (
     UnknownNameError,
-    center_of_mass,
     frame_poses,
     load_robot,
 )

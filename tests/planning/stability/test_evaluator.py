@@ -102,7 +102,8 @@ def test_heavier_object_moves_com_towards_object_com_as_eq1(robot, upright, hold
 
 def test_second_model_with_mimic_fingers():
     """Nothing is specific to one model: JVRC-1 (finger mimic joints with multipliers) is exact too."""
-    from planner.robot.model import center_of_mass, load_robot
+    from planner.robot.model import load_robot
+    from planner.stability.robot_com import robot_com as center_of_mass
     from planner.stability.stances import solve_stance
 
     robot = load_robot("jvrc1")

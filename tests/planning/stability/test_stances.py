@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.robot.model import UnknownNameError, center_of_mass, frame_poses
+from planner.robot.model import UnknownNameError, frame_poses
+from planner.stability.robot_com import robot_com as center_of_mass
 from planner.stability.stances import StanceError, load_stance_file, solve_stance
 from schemas.stance import StanceDef
 
