@@ -19,10 +19,12 @@ def survey_overrides(request: dict[str, Any]) -> dict[str, Any] | None:
 
 
 def survey_job(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
-    """The survey of the request (docs/contract.md section 5), computed once per resolved scenario."""
+    """The survey of the request (docs/contract.md section 5), computed once per resolved scenario.
+
+    A context with a ``seed_map`` (the Ray executor's) runs the seeds there, across the cluster."""
     scenario = resolve_scenario(request["scenario"], stance=request.get("stance"), threshold_m=request.get("threshold_m"),
                                 seed=request.get("seed"), time_limit_s=request.get("time_limit_s"),
                                 survey=survey_overrides(request))
     return SurveyCache.default().get_or_run(
         scenario, lambda: run_survey(scenario, should_stop=lambda: bool(ctx.cancelled()), progress=ctx.progress,
-                                     keep_states=False)[0])
+                                     keep_states=False, seed_map=getattr(ctx, "seed_map", None))[0])

@@ -124,6 +124,19 @@ def stance_matrix(docs: list[dict]) -> Table:
     return matrix
 
 
+def _ray_seeds(address: str):  # type: ignore[no-untyped-def]
+    """The seed map of the Ray cluster at ``address``, or exit 2 saying why there is none."""
+    try:
+        from service.executors.ray_seeds import RaySeeds, connect
+
+        connect(address)
+        return RaySeeds()
+    except ImportError:
+        fail("--ray-address needs Ray: pip install 'hrp-regrasp[ray]'")
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        fail(f"cannot join the Ray cluster at {address}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
+
+
 @click.command()
 @click.argument("scenario_file", required=False)
 @click.option("--scenario", "scenario_name", help="A built-in scenario name.")
@@ -140,6 +153,8 @@ def stance_matrix(docs: list[dict]) -> Table:
               "limit or slipping in the grip is then not counted unstable.")
 @click.option("--robot", "robot_ref", help="Override the scenario's robot: a name (`regrasp robot list`) or a robot spec file.")
 @click.option("--workers", type=click.IntRange(1, 64), help="Worker processes (default: one per core).")
+@click.option("--ray-address", help="An existing Ray cluster (host:port, or auto): the seeds run there as tasks "
+              "spread over its nodes (RAY_AUTH_MODE=token when the cluster uses token auth).")
 @click.option("--json", "as_json", is_flag=True, help="Print the survey document as JSON.")
 @click.option("--states-out", type=click.Path(dir_okay=False), help="Write every evaluated state to an .npz file.")
 @click.option("--all-stances", is_flag=True, help="Run the task in the four built-in stances: a stance x hands matrix of R.")
@@ -148,7 +163,7 @@ def stance_matrix(docs: list[dict]) -> Table:
 @click.option("--format", "fmt", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
               help="Format of the --plot figures.")
 def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci_half_width, seeds_min, seeds_max, seed,
-           no_limits, robot_ref, workers, as_json, states_out, all_stances, plot_dir, fmt) -> None:
+           no_limits, robot_ref, workers, ray_address, as_json, states_out, all_stances, plot_dir, fmt) -> None:
     """Count stable (C) and unstable (U) explored states per hand configuration; R = C / (C + U)."""
     from planner.errors import InputError
     from planner.scene.scenarios import resolve_scenario
@@ -180,6 +195,7 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci
     if all_stances and states_out:
         fail("--states-out writes the states of one stance; use it without --all-stances")
     stance_list = BUILTIN_STANCES if all_stances else (stance,)
+    seed_map = _ray_seeds(ray_address) if ray_address else None
     docs = []
     names: list[str] = []
     try:
@@ -193,11 +209,12 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci
 
             def job(p, sc=sc, want_states=want_states, cache=cache):
                 if want_states:  # the states are not cached: run, and store the answer for the task
-                    doc, outcomes = run_survey(sc, workers=workers, progress=p, no_limits=no_limits)
+                    doc, outcomes = run_survey(sc, workers=workers, progress=p, no_limits=no_limits, seed_map=seed_map)
                     cache.put(cache.key_for(sc, limits=not no_limits), doc)
                     return doc, outcomes
                 return cache.get_or_run(sc, lambda: run_survey(sc, workers=workers, progress=p, keep_states=False,
-                                                               no_limits=no_limits)[0], limits=not no_limits), []
+                                                               no_limits=no_limits, seed_map=seed_map)[0],
+                                        limits=not no_limits), []
 
             doc, outcomes = run_with_progress(label, job)
             doc["stats"]["no_limits"] = no_limits
@@ -207,6 +224,12 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci
         fail(str(exc))
     except ValueError as exc:
         fail(str(exc))
+    if seed_map is not None and seed_map.placements:
+        from collections import Counter
+
+        per_node = Counter(node for _, _, node in seed_map.placements)
+        info(f"Ray: {len(seed_map.placements)} seeds ran on {len(per_node)} node(s): "
+             + ", ".join(f"{node} ({n})" for node, n in sorted(per_node.items())), highlight=False, soft_wrap=True)
     if not all_stances:
         reasons = {row.get("reason") for row in docs[0][0]["rows"]}
         if len(reasons) == 1 and "inradius" in (next(iter(reasons)) or ""):

@@ -38,6 +38,16 @@ class _ActorContext:
     def cancelled(self) -> bool:
         return self._job_id in self._actor.canceled
 
+    @property
+    def seed_map(self):  # type: ignore[no-untyped-def]
+        """On a cluster (``ray_address``), a survey's seeds run as tasks across its nodes
+        (service.executors.ray_seeds); a local instance's CPUs are the actors' own, so they run here."""
+        if not self._actor.fan_out:
+            return None
+        from .ray_seeds import RaySeeds
+
+        return RaySeeds()
+
 
 class _JobActorImpl:
     """Body of the Ray actor (wrapped with ``ray.remote`` lazily, so importing this module needs no Ray).
@@ -45,10 +55,11 @@ class _JobActorImpl:
     Cancels name the job, so a cancel that reaches the actor before its job starts still counts.
     """
 
-    def __init__(self, handlers: dict[str, str], robot: str | None, nice: int = 0) -> None:
+    def __init__(self, handlers: dict[str, str], robot: str | None, nice: int = 0, fan_out: bool = False) -> None:
         from ..jobs.worker_process import JobHandlers, lower_priority
 
         lower_priority(nice)
+        self.fan_out = fan_out
         self.jobs = JobHandlers(handlers, robot)
         self.canceled: set[str] = set()
         self.lock = threading.Lock()
@@ -125,7 +136,8 @@ class RayExecutor:
 
     def _spawn(self, slot: _Slot) -> None:
         robot = self.settings.robot if self.settings.preload_robot else None
-        slot.actor = self._actor_cls.remote(dict(self.settings.handlers), robot, self.settings.worker_nice)
+        slot.actor = self._actor_cls.remote(dict(self.settings.handlers), robot, self.settings.worker_nice,
+                                            bool(self.settings.ray_address))
         slot.ready_ref = slot.actor.ready.remote()
         slot.ready, slot.job_id, slot.run_ref, slot.progress_ref, slot.kill_at = False, None, None, None, None
         slot.last_seq, slot.pid = 0, None
