@@ -27,6 +27,8 @@ class PaperSettings:
     quick: bool = False
     #: beside the reproduction, the tables' surveys and the stances' plans again with the limits on
     limits_section: bool = True
+    #: where the surveys' seeds run (a planner.survey.seed_map.SeedMap, e.g. a Ray cluster's); None: on this machine
+    seed_map: Any = field(default=None, compare=False, repr=False)
 
     @classmethod
     def full(cls) -> "PaperSettings":
@@ -76,7 +78,7 @@ def survey(sc, settings: PaperSettings, no_limits: bool | None = None) -> dict[s
 
     t0 = time.perf_counter()
     sc = with_overrides(sc, survey=settings.estimator)
-    doc, _ = run_survey(sc, workers=settings.workers, keep_states=False,
+    doc, _ = run_survey(sc, workers=settings.workers, keep_states=False, seed_map=settings.seed_map,
                         no_limits=settings.no_limits if no_limits is None else no_limits)
     return {"rows": doc["rows"], "recommended": doc["recommended"], "indistinguishable": doc["indistinguishable"],
             "estimator": doc["estimator"], "seed": doc["seed"], "threshold_m": doc["threshold_m"], "object": doc["object"],

@@ -17,7 +17,9 @@ from .common import console
 @click.option("--no-limits", is_flag=True, help="Leave out the section that runs the surveys and plans again with effort "
               "and grip checked (the reproduction is always without them, as the paper had none).")
 @click.option("--workers", type=click.IntRange(1, 64), help="Worker processes per survey (default: one per core).")
-def paper(out_dir: str, quick: bool, no_limits: bool, workers: int | None) -> None:
+@click.option("--ray-address", help="An existing Ray cluster (host:port, or auto): every survey's seeds run there as "
+              "tasks spread over its nodes.")
+def paper(out_dir: str, quick: bool, no_limits: bool, workers: int | None, ray_address: str | None) -> None:
     """Run every simulation of the paper's section IV with our model and write the report."""
     from dataclasses import replace
 
@@ -29,6 +31,10 @@ def paper(out_dir: str, quick: bool, no_limits: bool, workers: int | None) -> No
         settings = replace(settings, limits_section=False)
     if workers:
         settings = replace(settings, workers=workers)
+    if ray_address:
+        from .survey import ray_seed_map
+
+        settings = replace(settings, seed_map=ray_seed_map(ray_address))
     t0 = time.perf_counter()
     res = run(Path(out_dir), settings, progress=lambda m: console.print(f"[dim]{time.perf_counter() - t0:6.1f} s[/] {m}"))
     console.print(f"report: {Path(out_dir, 'report.md').resolve()} (numbers in report.json)")

@@ -124,7 +124,7 @@ def stance_matrix(docs: list[dict]) -> Table:
     return matrix
 
 
-def _ray_seeds(address: str):  # type: ignore[no-untyped-def]
+def ray_seed_map(address: str):  # type: ignore[no-untyped-def]
     """The seed map of the Ray cluster at ``address``, or exit 2 saying why there is none."""
     try:
         from service.executors.ray_seeds import RaySeeds, connect
@@ -195,7 +195,7 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci
     if all_stances and states_out:
         fail("--states-out writes the states of one stance; use it without --all-stances")
     stance_list = BUILTIN_STANCES if all_stances else (stance,)
-    seed_map = _ray_seeds(ray_address) if ray_address else None
+    seed_map = ray_seed_map(ray_address) if ray_address else None
     docs = []
     names: list[str] = []
     try:

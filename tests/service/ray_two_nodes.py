@@ -1,6 +1,6 @@
 """Two Ray nodes on this machine on loopback only, as a process of its own (a test helper).
 
-``python -m tests.cluster.two_nodes TEMP_DIR CPUS_PER_NODE`` starts a head and a second node, both
+``python tests/service/ray_two_nodes.py TEMP_DIR CPUS_PER_NODE`` starts a head and a second node, both
 with node address 127.0.0.1 and Ray's files under TEMP_DIR, and prints one JSON line: the cluster's
 address and its two node ids. Then it answers one command per line on stdin: ``cpus`` prints the
 CPUs free now (``{"CPU": x}``); end of input stops both nodes (only the processes this helper started).
