@@ -89,7 +89,9 @@ class BoxDef(StrictModel):
 
 
 class Limits(StrictModel):
-    time_s: Finite = Field(60.0, gt=0, le=3600, description="safety net; seeded runs stop on max_iterations")
+    time_s: Finite | None = Field(None, gt=0, le=3600, description="the user's own time budget, s (none by default): when "
+                                  "it ends a run, the result is TIMEOUT and says how far it got; seeded runs otherwise "
+                                  "stop on max_iterations, so a seed decides the result, not the machine's load")
     max_iterations: int = Field(2000, ge=1, le=1_000_000)
 
 

@@ -215,13 +215,18 @@ def plan_scenario(
                            stats={"time_s": time.perf_counter() - t_start})
     hands_choice = scenario.hands
     survey_doc = None
-    # The time limit covers everything after the request is read: the survey of `auto`, screening
-    # the start and goal, the searches and their motions all stop once it has passed.
-    termination = Termination(scenario.limits.max_iterations, scenario.limits.time_s, should_stop, started=started)
+    # A user's time limit (none by default) covers everything after the request is read: the survey of
+    # `auto`, screening the start and goal, the searches and their motions all stop once it has passed.
+    # Without one, the iteration caps alone end the run, so the seed decides the result.
+    termination = Termination.of_limits(scenario.limits, should_stop, started=started)
 
     def timed_out(results: list) -> dict[str, Any]:
-        return _infeasible(task, scenario, "TIMEOUT", f"no valid plan within the time limit of {scenario.limits.time_s:g} s",
-                           _failure_counts(results), stats={"time_s": time.perf_counter() - t_start})
+        tried = ", ".join(f"{r.hands}: {r.stats.get('search_iterations', 0)} search iterations ({r.status})"
+                          for r, _ in results) or "no hand configuration's search had ended"
+        return _infeasible(task, scenario, "TIMEOUT", f"no valid plan within {termination.budget_text()}; how far it got: "
+                           f"{tried}", _failure_counts(results), stats={"time_s": time.perf_counter() - t_start,
+                                                                        "reached": {r.hands: r.stats.get("search_iterations", 0)
+                                                                                    for r, _ in results}})
 
     if hands_choice == "auto":
         progress(0.05, "surveying hand configurations (auto)")
@@ -233,7 +238,7 @@ def plan_scenario(
             if should_stop():
                 raise
             return _infeasible(task, scenario, "TIMEOUT",
-                               f"the time limit of {scenario.limits.time_s:g} s ended the survey that hands: auto needs "
+                               f"{termination.budget_text()} ended the survey that hands: auto needs "
                                f"(the task's survey is not cached yet): run `regrasp survey` on this scenario once "
                                f"(its answer is cached for every later plan), or choose the hands",
                                stats={"time_s": time.perf_counter() - t_start})
@@ -243,7 +248,7 @@ def plan_scenario(
     solved: list[tuple[PlannerResult, HandConfigPlanner]] = []
     ran_out = False
     for k, hands in enumerate(order):
-        planner = HandConfigPlanner(task, hands)
+        planner = HandConfigPlanner(task, hands, termination)
         base = 0.1 + 0.8 * k / len(order)
         span = 0.8 / len(order)
 
@@ -255,7 +260,7 @@ def plan_scenario(
             ran_out = True
             break
         try:
-            res = planner.plan(termination, on_iteration=on_iter, solutions=options.solutions)
+            res = planner.plan(on_iteration=on_iter, solutions=options.solutions)
         except Canceled:
             if should_stop():
                 raise

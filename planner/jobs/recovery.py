@@ -37,6 +37,7 @@ from planner.motion.timing import MARGIN_TOLERANCE_M, TimingSettings, time_path
 from planner.motion.trrt import TrrtSettings, plan_motion
 from planner.regrasp.plan_assembly import MotionPiece, assemble, trajectory_points
 from planner.stability.evaluator import HoldSpec, StateEvaluator
+from planner.termination import Termination
 from planner.transforms import pose7_to_matrix
 from schemas.plan import PLAN_SCHEMA
 
@@ -54,7 +55,7 @@ class RecoverySettings(BaseModel):
     threshold_m: float = Field(DEFAULT_THRESHOLD_M, ge=0, le=0.5, description="CoM margin kept where it can be")
     seed: int = Field(0, ge=0, description="seed of the T-RRT search (a numpy Generator per job)")
     line_resolution_rad: float = Field(0.01, gt=0, description="largest per-joint change between checked states")
-    trrt: TrrtSettings = Field(default_factory=lambda: TrrtSettings(max_iterations=400, time_limit_s=30.0))
+    trrt: TrrtSettings = Field(default_factory=lambda: TrrtSettings(max_iterations=400))
     timing: TimingSettings = Field(default_factory=TimingSettings)
     check_self_collision: bool = True
 
@@ -166,7 +167,7 @@ def plan_recovery(robot_name: str, stance_name: str, joint_names: list[str], q: 
         active = np.setdiff1d(np.arange(robot.nq), np.concatenate([stance.leg_indices, jaws]).astype(int))
         active = np.union1d(active, moving)
         res = plan_motion(q0, goal, active, valid, robot.lower, robot.upper, np.random.default_rng(s.seed), s.trrt,
-                          should_stop)
+                          Termination(s.trrt.max_iterations, canceled=should_stop or (lambda: False)))
         stats["recovery"]["path"] = f"T-RRT ({res.status})"
         stats["recovery"]["trrt"] = res.stats
         if res.path is None:

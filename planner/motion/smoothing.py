@@ -23,7 +23,7 @@ from planner.motion.edge_checks import (
     coarse_mask,
 )
 from planner.motion.interpolation import edge_states
-from planner.motion.trrt import ShouldStop
+from planner.termination import Termination
 
 #: Straight-line skips tried per waypoint in the final pass (farthest first).
 MAX_SKIP_TRIES = 8
@@ -65,16 +65,19 @@ def shortcut(
     validity: Validity,
     rng: np.random.Generator,
     settings: SmoothingSettings | None = None,
-    should_stop: ShouldStop | None = None,
+    termination: Termination | None = None,
 ) -> SmoothResult:
-    """Shorten ``path`` (K, n) with random valid shortcuts; returns the new path (endpoints unchanged)."""
+    """Shorten ``path`` (K, n) with random valid shortcuts; returns the new path (endpoints unchanged).
+
+    ``settings.iterations`` shortcuts are drawn; ``termination`` (the motion's) ends the smoothing
+    early on a cancel or past the user's deadline, keeping the path shortened so far."""
     s = settings or SmoothingSettings()
     P = np.asarray(path, dtype=float).copy()
     before = path_length(P)
     tried = accepted = 0
     drawn = 0
     while drawn < s.iterations:
-        if len(P) < 3 or (should_stop is not None and should_stop()):
+        if len(P) < 3 or (termination is not None and termination.should_stop()):
             break
         cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
         total = cum[-1]

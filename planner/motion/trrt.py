@@ -16,8 +16,9 @@ node tries a straight connection to the nearest node of the other tree. The
 search is batched for speed: each round extends ``batch_size`` samples from the
 trees as they stand, checks every new edge's states in one validity call, then
 applies the transition tests one by one in a fixed order, so a seed gives the
-same result on any machine. Rounds stop on an iteration cap; a time limit is only
-a safety net; ``should_stop()`` is polled every round (cancel within milliseconds).
+same result on any machine. One :class:`~planner.termination.Termination` says when to stop:
+rounds stop on its iteration cap; its deadline (the user's own time budget, none by default)
+and its cancel predicate are polled every round (cancel within milliseconds).
 
 :func:`plan_motion` returns a path between two configurations; every state on it (nodes and
 the edge states at ``edge_resolution_rad``) passed the caller's validity callback (collision +
@@ -30,7 +31,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Literal, Sequence
+from typing import Literal, Sequence
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -44,8 +45,7 @@ from planner.motion.edge_checks import (
     split_all,
 )
 from planner.motion.interpolation import edge_states
-
-ShouldStop = Callable[[], bool]
+from planner.termination import Termination
 
 
 class TrrtSettings(BaseModel):
@@ -53,8 +53,8 @@ class TrrtSettings(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    max_iterations: int = Field(2000, ge=1, description="rounds of batch_size extensions (the deterministic cap)")
-    time_limit_s: float = Field(60.0, gt=0, description="safety net only; seeded runs stop on the iteration cap")
+    max_iterations: int = Field(2000, ge=1, description="rounds of batch_size extensions per motion (the deterministic "
+                                "cap; the motion's Termination carries it)")
     batch_size: int = Field(8, ge=1, description="extensions checked together per round (planning)")
     explore_batch_size: int = Field(64, ge=1, description="extensions checked together per round (exploration)")
     step_rad: float = Field(0.3, gt=0, description="largest extension (Euclidean, active joints)")
@@ -347,7 +347,7 @@ def plan_motion(
     upper: np.ndarray,
     rng: np.random.Generator,
     settings: TrrtSettings | None = None,
-    should_stop: ShouldStop | None = None,
+    termination: Termination | None = None,
 ) -> MotionResult:
     """T-RRT path from ``start`` to ``goal`` (full wire configurations) moving only ``active`` columns.
 
@@ -355,9 +355,11 @@ def plan_motion(
     threshold, supplied by the caller) and returns their margins, which drive the
     cost. Joints outside ``active`` keep the start's values (start and goal must
     agree on them). The path's consecutive waypoints are joined by straight
-    segments whose states were all checked at ``edge_resolution_rad``.
+    segments whose states were all checked at ``edge_resolution_rad``. ``termination`` caps the
+    rounds (default: ``settings.max_iterations``, no deadline, no cancel).
     """
     s = settings or TrrtSettings()
+    termination = termination or Termination(s.max_iterations)
     t0 = time.perf_counter()
     start = np.asarray(start, dtype=float)
     goal = np.asarray(goal, dtype=float)
@@ -382,12 +384,12 @@ def plan_motion(
     _try_connect_direct(search, check, lazy=True)
     status = "iteration_cap"
     while search.connected is None:
-        if should_stop is not None and should_stop():
+        if termination.canceled():
             status = "canceled"
             break
-        if search.stats["rounds"] >= s.max_iterations:
+        if search.stats["rounds"] >= termination.max_iterations:
             break
-        if time.perf_counter() - t0 > s.time_limit_s:
+        if termination.past_deadline():
             status = "timeout"
             break
         search.stats["rounds"] += 1
@@ -397,7 +399,8 @@ def plan_motion(
     stats = dict(search.stats, nodes=[t.size for t in search.trees], states_checked=n_checked[0],
                  temperature=[t.temperature for t in search.trees], time_s=time.perf_counter() - t0)
     if search.connected is None:
-        reasons = {"iteration_cap": f"no path within {s.max_iterations} rounds", "canceled": "canceled", "timeout": f"time limit {s.time_limit_s} s reached"}
+        reasons = {"iteration_cap": f"no path within {termination.max_iterations} rounds", "canceled": "canceled",
+                   "timeout": f"{termination.budget_text()} reached after {search.stats['rounds']} rounds"}
         return MotionResult(status, None, None, reasons[status], stats)
     return MotionResult("solved", search.path(), search.path_margins(), None, stats)
 

@@ -56,7 +56,9 @@ from planner.termination import Termination
 class HandConfigPlanner:
     """Plans one hand configuration of a task: graph, lazy validation, motions."""
 
-    def __init__(self, task: Task, hands: str):
+    def __init__(self, task: Task, hands: str, termination: Termination | None = None):
+        """``termination`` (default: the scenario's ``limits``) caps each search's iterations; its deadline
+        (the user's budget, none by default) and cancel cover the whole planner, motions and smoothing included."""
         if hands not in HANDS_OF:
             raise ValueError(f"unknown hands {hands!r}; valid: {', '.join(HANDS_OF)}")
         self.task = task
@@ -65,7 +67,8 @@ class HandConfigPlanner:
         self.keyposes: dict[PlacementNode, KeyPoses] = {}
         self.handovers: dict[HandoverNode, HandoverPoses] = {}
         #: The motions of this configuration's hops (shares keyposes and handovers with this planner).
-        self.motions = MotionValidator(task, self.keyposes, self.handovers)
+        self.termination = termination or Termination.of_limits(task.scenario.limits)
+        self.motions = MotionValidator(task, self.keyposes, self.handovers, self.termination)
         self._validated: dict = {}
         # Why start and goal nodes failed, to tell "the start is out of reach" from "no path".
         self.start_failures: Counter = Counter()
@@ -164,21 +167,20 @@ class HandConfigPlanner:
         return v
 
     # -- search and assembly ----------------------------------------------------------------------------
-    def plan(self, termination: Termination, *, on_iteration: Callable[[int, dict], None] | None = None,
-             solutions: int = 1) -> PlannerResult:
+    def plan(self, *, on_iteration: Callable[[int, dict], None] | None = None, solutions: int = 1) -> PlannerResult:
         """The best plan of this hand configuration, and up to ``solutions - 1`` next-best ones.
 
-        ``termination`` caps each search's iterations; its deadline covers the whole call (a search
-        past it ends ``TIMEOUT``); a cancel, or the deadline inside a motion, raises :class:`Canceled`.
+        The planner's termination caps each search's iterations; its deadline covers the whole call (a
+        search past it ends ``TIMEOUT``); a cancel, or the deadline inside a motion, raises :class:`Canceled`.
         """
         t0 = time.perf_counter()
-        self.motions.should_stop = termination.should_stop
+        termination = self.termination
         spec = self.graph_spec()
         if self.end_problems:  # an end no hand pose can reach: no search can succeed
             end = "start" if "start" in self.end_problems else "goal"
             return PlannerResult("infeasible", self.hands, failure_code=f"{end.upper()}_INVALID", message=self.end_problems[end],
                                  failures={"ik": len(self.end_problems)}, stats={"time_s": time.perf_counter() - t0})
-        spec = self.screen(spec, termination)
+        spec = self.screen(spec)
         weights = self.task.settings.weights
         if not self.task.constrained:  # the unconstrained planner: no margin cost either
             weights = dataclasses.replace(weights, margin=0.0)
@@ -248,7 +250,7 @@ class HandConfigPlanner:
         if len(todo) < 2:
             return
         t0 = time.perf_counter()
-        results, error = share_with_child(todo, self._hop_work, self.motions.should_stop)
+        results, error = share_with_child(todo, self._hop_work, self.termination.should_stop)
         for k, res in results.items():
             b = todo[k][1]
             if res.handover is not None and not self.handovers[b].motions_planned:
@@ -281,7 +283,7 @@ class HandConfigPlanner:
             self.stage_s["motions_s"] = self.stage_s.get("motions_s", 0.0) + time.perf_counter() - t0
         return self._edges[key]
 
-    def screen(self, spec: GraphSpec, termination: Termination, want: int | None = None) -> GraphSpec:
+    def screen(self, spec: GraphSpec, want: int | None = None) -> GraphSpec:
         """Validate start and goal nodes up front, in grasp order (closest to the object's CoM first),
         until a few are valid.
 
@@ -297,7 +299,7 @@ class HandConfigPlanner:
             for n in cands:
                 if found >= (want or t.settings.screen_valid):
                     break
-                if termination.should_stop():
+                if self.termination.should_stop():
                     raise Canceled()
                 v = self.validate_node(n)
                 if v.ok:

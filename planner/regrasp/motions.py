@@ -10,8 +10,6 @@ polygon (:mod:`planner.motion.timing`). Every state on the way is checked by the
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 
 from planner.motion.smoothing import shortcut
@@ -23,6 +21,7 @@ from planner.regrasp.results import HandoverPoses, KeyPoses
 from planner.regrasp.settings import Side
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
+from planner.termination import Termination
 
 
 class MotionValidator:
@@ -33,11 +32,12 @@ class MotionValidator:
     """
 
     def __init__(self, task: Task, keyposes: dict[PlacementNode, KeyPoses], handovers: dict[HandoverNode, HandoverPoses],
-                 should_stop: Callable[[], bool] = lambda: False):
+                 termination: Termination):
         self.task = task
         self.keyposes = keyposes
         self.handovers = handovers
-        self.should_stop = should_stop
+        #: the plan's termination; each motion takes its deadline and cancel with the T-RRT's own iteration cap
+        self.termination = termination
 
     def motion(self, qa: np.ndarray, qb: np.ndarray, active: np.ndarray, hold: HoldSpec | None,
                 free_object: np.ndarray | None, grasping: str | None, rng: np.random.Generator) -> np.ndarray | None:
@@ -48,16 +48,16 @@ class MotionValidator:
         if via is not None:
             return via
         trrt = s.trrt.model_copy(update={"margin_cost": t.constrained})
+        termination = self.termination.with_iterations(trrt.max_iterations)
         for _ in range(s.motion_attempts):
-            res = plan_motion(qa, qb, active, validity, t.robot.lower, t.robot.upper, rng, trrt,
-                              should_stop=self.should_stop)
+            res = plan_motion(qa, qb, active, validity, t.robot.lower, t.robot.upper, rng, trrt, termination)
             if res.ok:
                 break
         else:
             return None
         path = res.path
         if len(path) > 2:
-            path = shortcut(path, validity, rng, s.smoothing, should_stop=self.should_stop).path
+            path = shortcut(path, validity, rng, s.smoothing, termination).path
         return path
 
     def _via_ready(self, qa: np.ndarray, qb: np.ndarray, active: np.ndarray, validity,

@@ -78,7 +78,6 @@ class CountingSettings(BaseModel):
         "cap, and those seeds' R outweighed the rest. Aiming at the tree, the largest of 256 upright seeds counted 892")
     bidirectional: bool = Field(True, description="a second tree grows from the goal; the leg ends when the trees meet")
     step_rad: float = Field(0.3, gt=0, description="largest extension (Euclidean, active joints)")
-    time_limit_s: float = Field(600.0, gt=0, description="safety net per seed; seeded runs end on their caps")
 
 
 @dataclass
@@ -108,7 +107,7 @@ class CountedExploration:
 
     ``q`` (N, n), ``leg`` (N,), ``holding`` (N,) str, ``object_pose`` (N, 7) (NaN when nothing
     is held), ``stable`` (N,) bool, ``margin`` (N,), ``com`` (N, 3). ``status`` is ``done``,
-    ``leg_cap`` (some leg hit its cap), ``timeout`` or ``canceled``.
+    ``leg_cap`` (some leg hit its cap) or ``canceled``: the caps end a seed, never the clock.
     """
 
     q: np.ndarray
@@ -353,8 +352,6 @@ def explore_counted(
     def interrupted() -> str | None:
         if should_stop is not None and should_stop():
             return "canceled"
-        if time.perf_counter() - t0 > s.time_limit_s:
-            return "timeout"
         return None
 
     if budget is None:

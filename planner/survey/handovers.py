@@ -13,7 +13,7 @@ from typing import Any
 from planner.regrasp.graph import HandoverNode
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.task import Task
-from planner.survey.runner import key_path
+from planner.survey.runner import key_path, key_pose_termination
 from schemas.scenario import Scenario
 
 #: The configurations that hand the object over.
@@ -29,7 +29,7 @@ def handover_diagnosis(scenario: Scenario) -> dict[str, Any]:
                                                                          + (h.T_world_obj[:3, :3] @ task.obj.com_local)[2]), 3)
                                                              for h in task.handover_poses})}
     for hands in DUAL_ARM:
-        path, reason = key_path(HandConfigPlanner(task, hands), lambda: False)
+        path, reason = key_path(HandConfigPlanner(task, hands, key_pose_termination(task, lambda: False)))
         out[hands] = "key path found" if path is not None else reason
     causes = Counter(f"{v.cause or 'valid'}: {v.detail}" if v.detail else (v.cause or "valid")
                      for k, v in task.node_cache.items() if isinstance(k, HandoverNode))

@@ -21,7 +21,7 @@ import numpy as np
 
 from planner.forking import pool_may_fork
 from planner.motion.trrt import TrrtSettings
-from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
+from planner.regrasp.graph import HandoverNode, PlacementNode, RegraspGraph, Validation
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.path_assembly import carried
 from planner.regrasp.settings import HANDS_OF, PlannerSettings
@@ -86,14 +86,17 @@ def _legs(planner: HandConfigPlanner, path: list) -> list[ExploreLeg]:
     return legs
 
 
-def key_path(planner: HandConfigPlanner, should_stop: Callable[[], bool]) -> tuple[list | None, str | None]:
-    """The cheapest path whose nodes are valid (motions not planned), or the reason there is none."""
-    from planner.regrasp.graph import RegraspGraph
+def key_pose_termination(task: Task, should_stop: Callable[[], bool]) -> Termination:
+    """The key-pose search's termination: its own iteration cap, the scenario's time budget (if any), the cancel."""
+    return Termination.of_limits(task.scenario.limits, should_stop).with_iterations(KEY_POSE_ITERATIONS)
 
-    termination = Termination(KEY_POSE_ITERATIONS, planner.task.scenario.limits.time_s, should_stop)
-    graph = RegraspGraph(planner.screen(planner.graph_spec(), termination, want=1), planner.task.settings.weights)
+
+def key_path(planner: HandConfigPlanner) -> tuple[list | None, str | None]:
+    """The cheapest path whose nodes are valid (motions not planned), or the reason there is none; the
+    search stops on the planner's termination (:func:`key_pose_termination`)."""
+    graph = RegraspGraph(planner.screen(planner.graph_spec(), want=1), planner.task.settings.weights)
     planner.prepare_search(graph)
-    res = graph.search(planner.validate_node, lambda a, b, k: Validation(True), termination)
+    res = graph.search(planner.validate_node, lambda a, b, k: Validation(True), planner.termination)
     if res.status != "solved":
         return None, f"{res.code}: {res.message}"
     return res.path, None
@@ -159,8 +162,8 @@ class RemoteSeeds:
 def _row_work(task: Task, hands: str, should_stop: Callable[[], bool]) -> RowWork:
     """A configuration's legs (from its key-pose path), with this task's collision checks."""
     t0 = time.perf_counter()
-    planner = HandConfigPlanner(task, hands)
-    path, reason = key_path(planner, should_stop)
+    planner = HandConfigPlanner(task, hands, key_pose_termination(task, should_stop))
+    path, reason = key_path(planner)
     stats = {"key_poses_s": time.perf_counter() - t0}
     if path is None:
         return RowWork(hands, None, f"no feasible grasp or key poses: {reason}", stats)

@@ -172,10 +172,10 @@ def test_key_poses_do_not_depend_on_which_configuration_ran_first(scenario):
     generator, so a configuration finds the same key path whatever was validated before it."""
     from planner.regrasp.hand_config_planner import HandConfigPlanner
     from planner.regrasp.task import Task
-    from planner.survey.runner import key_path
+    from planner.survey.runner import key_path, key_pose_termination
 
     def path_of(task, hands):
-        path, reason = key_path(HandConfigPlanner(task, hands), lambda: False)
+        path, reason = key_path(HandConfigPlanner(task, hands, key_pose_termination(task, lambda: False)))
         assert path is not None, reason
         return path
 
@@ -193,23 +193,23 @@ def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenar
     import planner.regrasp.hand_config_planner as hcp
     from planner.regrasp.hand_config_planner import HandConfigPlanner
     from planner.regrasp.task import Task
-    from planner.survey.runner import key_path
+    from planner.survey.runner import key_path, key_pose_termination
 
     task = Task(scenario)
     run_survey(scenario, estimator=seeds_of(2, 50), hands=["right-right", "left-left"], workers=2, task=task)
     assert task.node_cache, "the workers' validations did not reach the caller"
     before = dict(task.node_cache)
     fresh_calls = []
-    planner = HandConfigPlanner(task, "left-left")
+    planner = HandConfigPlanner(task, "left-left", key_pose_termination(task, lambda: False))
     validate = hcp.validate_placement
     monkeypatch.setattr(hcp, "validate_placement", lambda t, node, rng: fresh_calls.append(node) or validate(t, node, rng))
-    path, reason = key_path(planner, lambda: False)
+    path, reason = key_path(planner)
     assert path is not None, reason
     assert fresh_calls == [] and task.node_cache == before
     monkeypatch.undo()
     # and they are the validations a one-process run makes (each node has its own generator)
     alone = Task(scenario)
-    assert key_path(HandConfigPlanner(alone, "left-left"), lambda: False)[0] == path
+    assert key_path(HandConfigPlanner(alone, "left-left", key_pose_termination(alone, lambda: False)))[0] == path
 
 
 def test_the_cli_progress_bar_leaves_the_process_single_threaded():

@@ -10,6 +10,7 @@ import pytest
 
 from planner.motion.trrt import TrrtSettings, plan_motion
 from planner.survey.counting import ExploreLeg, explore_counted
+from planner.termination import Termination
 
 RESOLUTION = 0.02
 
@@ -95,15 +96,21 @@ def test_iteration_cap_and_cancel(robot, task, right_active):
     timer.start()
     t0 = time.perf_counter()
     res = plan_motion(start, goal, right_active, walled, robot.lower, robot.upper, np.random.default_rng(0),
-                      TrrtSettings(max_iterations=10**7, time_limit_s=30), should_stop=stop.is_set)
+                      termination=Termination(10**7, 30.0, stop.is_set))
     elapsed = time.perf_counter() - t0
     timer.cancel()
     assert res.status == "canceled"
     assert elapsed < 1.2  # cancel lands within 1 s of the request at 0.2 s
 
     stop.set()  # a cancel that arrives before the start
-    res = plan_motion(start, goal, right_active, walled, robot.lower, robot.upper, np.random.default_rng(0), should_stop=stop.is_set)
+    res = plan_motion(start, goal, right_active, walled, robot.lower, robot.upper, np.random.default_rng(0),
+                      termination=Termination(10**7, canceled=stop.is_set))
     assert res.status == "canceled"
+
+    # The user's own time budget ends the search as a timeout, and says how far it got.
+    res = plan_motion(start, goal, right_active, walled, robot.lower, robot.upper, np.random.default_rng(0),
+                      termination=Termination(10**7, 0.3))
+    assert res.status == "timeout" and res.stats["rounds"] > 0 and f"after {res.stats['rounds']} rounds" in res.reason
 
 
 def test_margin_cost_biases_towards_stability(robot, upright, evaluator, hold_right, right_active):
