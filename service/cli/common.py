@@ -29,9 +29,32 @@ def open_store_or_exit(url: str, init: bool) -> None:
 
 
 def fail(message: str, code: int = EXIT_USAGE) -> NoReturn:
-    """Print a clear error on stderr and exit non-zero."""
-    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    """Print a clear error on stderr, on one line, and exit non-zero."""
+    from rich.markup import escape
+
+    line = " ".join(str(message).split())
+    err_console.print(f"[bold red]error:[/] {escape(line)}", highlight=False, soft_wrap=True)
     sys.exit(code)
+
+
+def describe(exc: BaseException, flags: dict[str, str] | None = None) -> str:
+    """A validation error as one line for people: each field (as its flag, when ``flags`` names it), what is
+    wrong and the value given; never pydantic's class names or its documentation links."""
+    from pydantic import ValidationError
+
+    if not isinstance(exc, ValidationError):
+        return " ".join(str(exc).split())
+    flags = flags or {}
+    parts = []
+    for err in exc.errors(include_url=False):
+        field = ".".join(str(p) for p in err.get("loc", ()))
+        label = flags.get(field, field)
+        message = str(err.get("msg", "invalid")).removeprefix("Value error, ")
+        message = message[:1].lower() + message[1:]
+        given = err.get("input")
+        shown = f" (got {given!r})" if label and isinstance(given, (int, float, str)) and not isinstance(given, bool) else ""
+        parts.append(f"{label}: {message}{shown}" if label else message)
+    return "; ".join(parts)
 
 
 def print_json(doc: Any) -> None:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import click
 
-from .common import fail
+from .common import describe, fail
 
 
 def _stance_posture(robot: str, stance: str) -> tuple[list[str], list[float]]:
@@ -110,7 +110,10 @@ def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str
                                     stance=stance)
         limits = limits_from_urdf(str(files.urdf), names)
     except (ValidationError, ValueError) as exc:
-        fail(str(exc))
+        fail(describe(exc, {"speed": "--speed", "drop_rate": "--drop-rate", "delay_ms": "--delay-ms",
+                            "crash_after": "--crash-after", "seed": "--seed", "start_buffer_s": "--start-buffer-ms",
+                            "heartbeat_period_s": "--heartbeat-period-s", "watchdog_timeout_s": "--watchdog-ms",
+                            "freeze_heartbeat_after_s": "--freeze-heartbeat-after-s", "robot_id": "--robot-id"}))
 
     import numpy as np
 

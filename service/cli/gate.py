@@ -18,6 +18,8 @@ import click
 from .common import EXIT_USAGE, console, fail
 
 EXIT_VETO = 1
+#: Fields without which a document is not a plan file at all (bad input, exit 2, rather than a plan the gate vetoes).
+PLAN_FILE_KEYS = ("schema", "status", "robot", "trajectory")
 
 
 @click.group("gate")
@@ -50,6 +52,11 @@ def check(plan_file: str, threshold_mm: float | None, approved_sha256: str | Non
         plan = json.loads(text)
     except json.JSONDecodeError as exc:
         fail(f"plan file {plan_file} is not valid JSON: {exc}")
+    if not isinstance(plan, dict):
+        fail(f"{plan_file} is not a plan file (regrasp.plan/1): it holds a JSON {type(plan).__name__}, not an object")
+    missing = [key for key in PLAN_FILE_KEYS if key not in plan]
+    if missing:
+        fail(f"{plan_file} is not a plan file (regrasp.plan/1): it has no {', '.join(missing)}")
     if threshold_mm is not None and not (threshold_mm >= 0 and threshold_mm < 1e4):
         fail(f"--threshold-mm {threshold_mm} must be a finite value >= 0")
     measured = None

@@ -84,9 +84,25 @@ def _is_unknown_name(exc: BaseException) -> bool:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; an unknown name anywhere ends it with a one-line error and exit code 2 (no traceback)."""
     try:
-        cli.main(args=argv, prog_name="regrasp", standalone_mode=True)
+        cli.main(args=argv, prog_name="regrasp", standalone_mode=False)
     except SystemExit as exc:
         return int(exc.code or 0)
+    except click.exceptions.Exit as exc:
+        return int(exc.exit_code or 0)
+    except click.exceptions.Abort:
+        click.echo("aborted", err=True)
+        return 1
+    except click.exceptions.NoArgsIsHelpError as exc:
+        exc.show()  # a group called without a command: its help
+        return exc.exit_code
+    except click.UsageError as exc:
+        # One line: what is wrong, and where the command's help is (click's default prints three).
+        where = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
+        click.echo(f"error: {' '.join(exc.format_message().split())}{where}", err=True)
+        return EXIT_USAGE
+    except click.ClickException as exc:
+        click.echo(f"error: {' '.join(exc.format_message().split())}", err=True)
+        return exc.exit_code
     except Exception as exc:  # noqa: BLE001 - re-raised unless it is a usage error
         if not _is_unknown_name(exc):
             raise

@@ -9,7 +9,30 @@ from pathlib import Path
 
 import click
 
-from .common import console, fail, open_store_or_exit
+from .common import console, describe, fail, open_store_or_exit
+
+#: Settings named by the flag that sets them, in error messages.
+SETTING_FLAGS = {"host": "--host", "port": "--port", "data_dir": "--data-dir", "database_url": "--database-url",
+                 "workers": "--workers", "executor": "--executor", "ray_address": "--ray-address",
+                 "tls_cert_file": "--tls-cert", "tls_key_file": "--tls-key"}
+
+
+def _check_tls(cert: Path, key: Path | None) -> None:
+    """Load the certificate and its key as the server will, so that a wrong pair ends here in one line."""
+    import ssl
+
+    if key is None:
+        fail("--tls-cert needs --tls-key (the certificate's private key)")
+    context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+    try:
+        context.load_cert_chain(str(cert), str(key))
+    except FileNotFoundError as exc:
+        fail(f"cannot read {exc.filename}: no such file")
+    except ssl.SSLError as exc:
+        fail(f"--tls-key {key} is not the private key of --tls-cert {cert}, or one of them is not a PEM file "
+             f"({(exc.reason or 'unreadable').lower()})")
+    except OSError as exc:
+        fail(f"cannot load the TLS certificate {cert} and key {key}: {exc.strerror or exc}")
 
 
 def _settings_from_flags(config: Path | None, **flags: object):  # type: ignore[no-untyped-def]
@@ -20,7 +43,7 @@ def _settings_from_flags(config: Path | None, **flags: object):  # type: ignore[
     try:
         return load_settings(config, **flags)
     except (ValidationError, ValueError) as exc:
-        fail(f"invalid service settings: {exc}")
+        fail(f"invalid service settings: {describe(exc, SETTING_FLAGS)}")
 
 
 @click.command()
@@ -57,9 +80,16 @@ def serve(host: str | None, port: int | None, data_dir: Path | None, database_ur
     from service.app import create_app
     from service.api.auth import TokenStore, is_loopback, make_dev_tokens
 
+    if (tls_cert is None) != (tls_key is None):
+        fail("--tls-cert needs --tls-key (the certificate's private key)" if tls_key is None
+             else "--tls-key needs --tls-cert (the certificate it belongs to)")
     settings = _settings_from_flags(config, host=host, port=port, data_dir=data_dir, database_url=database_url,
                                     workers=workers, executor=executor, ray_address=ray_address,
                                     dev=dev or None, tls_cert_file=tls_cert, tls_key_file=tls_key)
+    if settings.tls_cert_file is not None or settings.tls_key_file is not None:
+        if settings.tls_cert_file is None:
+            fail("--tls-key needs --tls-cert (the certificate it belongs to)")
+        _check_tls(settings.tls_cert_file, settings.tls_key_file)
     if settings.executor == "ray":
         try:
             import ray  # noqa: F401
