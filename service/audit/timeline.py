@@ -7,7 +7,6 @@ readable. The chain is verified while reading; the verdict ends the output.
 
 from __future__ import annotations
 
-import json
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -22,13 +21,44 @@ def _utc(ns: int) -> str:
     return datetime.fromtimestamp(ns / NS_PER_S, tz=timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
 
 
+def _words(value: Any, depth: int = 0) -> str:
+    """A value as words for people: ``collision 1, ik 3`` rather than ``{'collision': 1, 'ik': 3}``."""
+    if isinstance(value, dict):
+        if not value:
+            return "none"
+        inner = ", ".join(f"{str(k).replace('_', ' ')} {_words(v, depth + 1)}" for k, v in value.items())
+        return f"({inner})" if depth else inner
+    if isinstance(value, (list, tuple)):
+        return "none" if not value else ", ".join(_words(v, depth + 1) for v in value)
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if value is None:
+        return "-"
+    return str(value)
+
+
 def _short(value: Any, limit: int = 110) -> str:
-    text = json.dumps(value, separators=(",", ":"), default=str)
+    text = _words(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 #: Envelope fields of the service's events, left out of one-line summaries.
 _ENVELOPE = {"event_id", "at", "job_id", "message"}
+
+
+def _plan_words(doc: dict[str, Any], sha: str | None) -> str:
+    parts = [str(doc[k]) for k in ("status",) if doc.get(k)]
+    if doc.get("hands"):
+        parts.append(f"hands {doc['hands']}")
+    if isinstance(doc.get("min_margin_m"), (int, float)):
+        parts.append(f"min margin {doc['min_margin_m'] * 1000:.1f} mm")
+    if doc.get("recommended"):
+        parts.append(f"recommended {doc['recommended']}")
+    if sha:
+        parts.append(f"sha256 {sha[:12]}")
+    return ", ".join(parts)
 
 
 def _event_line(body: dict[str, Any]) -> str:
@@ -41,21 +71,20 @@ def _event_line(body: dict[str, Any]) -> str:
         new = payload.get("to", payload.get("state"))
         old = payload.get("from")
         text = f"state {old} -> {new}" if old is not None else f"state -> {new}"
+        data = payload.get("data") if isinstance(payload.get("data"), dict) else {}
         for key in ("reason", "actor", "by"):
-            if payload.get(key):
-                text += f"  {key}: {payload[key]}"
+            value = payload.get(key) or data.get(key)
+            if value:
+                text += f"  {key}: {value}"
         return text + (f"  ({message})" if message else "")
     if kind in ("plan", "survey"):
         doc = payload.get("document") if isinstance(payload.get("document"), dict) else payload
-        keys = {k: doc.get(k) for k in ("status", "hands", "min_margin_m", "recommended") if k in doc}
-        if payload.get("plan_sha256"):
-            keys["plan_sha256"] = payload["plan_sha256"]
-        return f"{kind} {_short(keys)}"
+        return f"{kind} {_plan_words(doc, payload.get('plan_sha256'))}".rstrip()
     rest = {k: v for k, v in payload.items() if k not in _ENVELOPE}
     text = f"{kind}"
     if message:
-        text += f" {message!r}"
-    return f"{text} {_short(rest)}" if rest else text
+        text += f": {message}"
+    return f"{text}: {_short(rest)}" if rest and not message else (f"{text} ({_short(rest)})" if rest else text)
 
 
 def timeline(path: str | Path, *, show_all: bool = False, head: str | None = None) -> tuple[list[str], VerifyResult]:
@@ -64,7 +93,7 @@ def timeline(path: str | Path, *, show_all: bool = False, head: str | None = Non
     lines: list[str] = []
     if not result.entries:
         return lines, result
-    t0 = result.entries[0].log_time_ns
+    t0 = min(entry.log_time_ns for entry in result.entries)  # offsets count from the earliest event: never negative
     counts: dict[str, list[int]] = {}
     for entry in result.entries:
         rel = (entry.log_time_ns - t0) / NS_PER_S

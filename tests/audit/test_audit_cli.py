@@ -94,3 +94,25 @@ def test_layout_prints_the_shipped_foxglove_layout(tmp_path):
     target = tmp_path / "layout.json"
     written = _run("layout", "--out", str(target))
     assert written.exit_code == 0 and json.loads(target.read_text()) == layout
+
+
+def test_show_speaks_words_and_counts_from_the_earliest_event(tmp_path):
+    """No Python dicts in the timeline, and no negative offsets when an event's time precedes the first record's."""
+    from service.audit import AuditSettings, AuditWriter
+
+    path = tmp_path / "words.mcap"
+    w = AuditWriter(path, "job-7", robot_name="hrp5p", settings=AuditSettings(compression="none"),
+                    clock_ns=lambda: 1_700_000_000_000_000_000)
+    w.record("progress", {"message": "left-left: search iteration 3", "failures": {"collision": 1, "ik": 2}})
+    w.record("approval", {"approved_by": "bob", "plan_sha256": "ab" * 32}, log_time_ns=1_699_999_999_895_000_000)
+    w.record("plan", {"status": "solved", "hands": "left-left", "min_margin_m": 0.0634})
+    w.close()
+    out = _run("show", str(path))
+    assert out.exit_code == 0, out.output
+    events = [line for line in out.output.splitlines() if line.startswith("20")]
+    assert events and not any("{" in line or "'" in line for line in events), out.output
+    assert "+ -" not in out.output and "+-" not in out.output and "s  #" in out.output
+    assert "failures (collision 1, ik 2)" in out.output
+    assert "plan solved, hands left-left, min margin 63.4 mm" in out.output
+    approval = next(line for line in events if "approval" in line)
+    assert "+    0.000s" in approval  # the earliest event is offset 0; the rest count from it
