@@ -5,7 +5,8 @@ and writes its audit file as the service does: the job's events in a real SQLite
 turned into records by the service's audit pump code (``service.audit.pump.records_for_event``)
 and written by ``AuditWriter`` at the events' times: request, planning, the plan (its stored
 canonical text), approval, the gate's verdict, dispatch, every 0.25 s segment sent and
-acknowledged, the robot state echoed every 0.1 s, the end. Prints the file size, MB per
+acknowledged, the robot state reported every 0.1 s with the 50 states per second measured since the
+last report, the plan replayed on the execution's timeline (``/executed_plan/``), the end. Prints the file size, MB per
 minute of plan, the bytes per topic before compression, and the write time.
 Target (docs/audit.md): a 60 s plan with its execution under 20 MB.
 Run: ``python benchmarks/bench_audit_size.py [--seconds 60] [--compression zstd|none]``.
@@ -38,6 +39,8 @@ MOVES = {"RSP": -0.8, "REP": -0.4, "RSR": -0.2, "RSY": 0.2, "RWRY": 0.3, "LSP": 
          "LSY": -0.2, "WY": 0.3, "WP": 0.05, "HY": 0.2, "HP": 0.1}
 SEGMENT_S = 0.25
 ROBOT_STATE_PERIOD_S = 0.1
+#: Measured joint states kept per second of motion (CONTRACT 7: at least 50), reported in batches.
+MEASURED_RATE_HZ = 50
 
 
 def _job(store: JobStore, plan: dict[str, Any]) -> tuple[str, str]:
@@ -86,10 +89,17 @@ def _timeline(store: JobStore, job_id: str, sha: str, plan: dict[str, Any]) -> l
         add(at, "bridge", data={"event": "segment", "payload": seg})
         add(at + timedelta(milliseconds=2), "bridge", data={"event": "segment", "payload": {
             "job_id": job_id, "seq": k, "acknowledged": True}})
+    per_report = round(ROBOT_STATE_PERIOD_S * MEASURED_RATE_HZ)
     for k in range(int(duration / ROBOT_STATE_PERIOD_S) + 1):
-        i = min(int(round(k * ROBOT_STATE_PERIOD_S / plan["dt_s"])), len(traj) - 1)
+        samples = []
+        for j in range(per_report):
+            t = k * ROBOT_STATE_PERIOD_S + (j - per_report + 1) / MEASURED_RATE_HZ
+            if t < 0:
+                continue
+            i = min(int(round(t / plan["dt_s"])), len(traj) - 1)
+            samples.append({"stamp": 1000.0 + t, "q": traj[i]["q"], "index": i})
         add(start + timedelta(seconds=k * ROBOT_STATE_PERIOD_S), "bridge", data={"event": "robot_state", "payload": {
-            "stamp": 1000.0 + k * ROBOT_STATE_PERIOD_S, "joint_names": names, "q": traj[i]["q"], "index": i}})
+            "joint_names": names, "samples": samples}})
     end = start + timedelta(seconds=duration + 0.1)
     add(end, "bridge", data={"event": "finished", "payload": {"status": "succeeded", "reason": None}})
     add(end, "state", state="succeeded", message="executed", data={"execution": True, "verdict": verdict})

@@ -9,6 +9,7 @@ planned CoM and ZMP ground paths. Every message carries its own instant only.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Iterator, Mapping
 
 import numpy as np
@@ -20,6 +21,14 @@ from .joints import joint_states_body, tf_body
 from .settings import AuditSettings
 from .topics import (
     NS_PER_S,
+    TOPIC_EXECUTED_PLAN_COM,
+    TOPIC_EXECUTED_PLAN_JOINTS,
+    TOPIC_EXECUTED_PLAN_OBJECT,
+    TOPIC_EXECUTED_PLAN_SCENE,
+    TOPIC_EXECUTED_PLAN_STABILITY,
+    TOPIC_EXECUTED_PLAN_SUPPORT,
+    TOPIC_EXECUTED_PLAN_TF,
+    TOPIC_EXECUTED_PLAN_ZMP,
     TOPIC_PLAN_COM,
     TOPIC_PLAN_JOINTS,
     TOPIC_PLAN_OBJECT,
@@ -54,59 +63,101 @@ def _segment_at(segments: Any, i: int) -> Mapping[str, Any] | None:
     return None
 
 
-def plan_messages(plan: Mapping[str, Any], t0: int, settings: AuditSettings, tree: UrdfTree | None) -> Iterator[Message]:
-    """The playback messages of ``plan`` (``regrasp.plan/1``) starting at log time ``t0`` (ns)."""
-    trajectory = plan.get("trajectory") or []
-    if not trajectory:
-        return
-    joint_names = list((plan.get("robot") or {}).get("joint_names") or [])
-    base_pose = (plan.get("stance") or {}).get("base_pose")
-    if base_pose is not None and len(base_pose) != 7:
-        base_pose = None
-    threshold = plan.get("threshold_m")
-    dt = float(plan.get("dt_s") or 0.0)
-    scenario = plan.get("scenario") if isinstance(plan.get("scenario"), Mapping) else {}
-    shape = scenario.get("object") if isinstance(scenario.get("object"), Mapping) else None
-    tables = [t for t in (scenario.get("tables") or []) + (scenario.get("obstacles") or []) if isinstance(t, Mapping)]
-    polygon = plan.get("support_polygon") or []
-    lift = settings.marker_lift_m
-    indices = playback_indices(len(trajectory), dt, settings.plan_playback_rate_hz)
-    points = [trajectory[i] for i in indices]
+@dataclass(frozen=True)
+class PlaybackTopics:
+    """Where a playback goes: the plan's own (``/plan/``) or the plan again on the execution's timeline."""
 
-    if len(polygon) >= 3:
-        yield TOPIC_PLAN_SUPPORT, fx.SCENE_UPDATE, mk.support_body(polygon, None, threshold, t0, lift), t0
-    com_path = [p["com"] for p in points if p.get("com") is not None]
-    zmp_path = [p["zmp"] for p in points if p.get("zmp") is not None]
-    if tables or com_path or zmp_path:
-        yield TOPIC_PLAN_SCENE, fx.SCENE_UPDATE, mk.path_body(com_path, zmp_path, tables, t0, lift), t0
-    zmp_margin = None
-    if len(polygon) >= 3 and len(zmp_path) == len(points) and zmp_path:
-        zmp_margin = mk.signed_distance(polygon, np.asarray(zmp_path, dtype=float))
+    joints: str
+    tf: str
+    com: str
+    zmp: str
+    object: str
+    support: str
+    scene: str
+    stability: str
 
-    for k, (i, point) in enumerate(zip(indices, points)):
-        ns = t0 + int(round(float(point.get("t", i * dt)) * NS_PER_S))
+
+PLAN_TOPICS = PlaybackTopics(TOPIC_PLAN_JOINTS, TOPIC_PLAN_TF, TOPIC_PLAN_COM, TOPIC_PLAN_ZMP, TOPIC_PLAN_OBJECT,
+                             TOPIC_PLAN_SUPPORT, TOPIC_PLAN_SCENE, TOPIC_PLAN_STABILITY)
+EXECUTED_PLAN_TOPICS = PlaybackTopics(
+    TOPIC_EXECUTED_PLAN_JOINTS, TOPIC_EXECUTED_PLAN_TF, TOPIC_EXECUTED_PLAN_COM, TOPIC_EXECUTED_PLAN_ZMP,
+    TOPIC_EXECUTED_PLAN_OBJECT, TOPIC_EXECUTED_PLAN_SUPPORT, TOPIC_EXECUTED_PLAN_SCENE, TOPIC_EXECUTED_PLAN_STABILITY)
+
+
+class Playback:
+    """A plan's playback samples, ready to be stamped: its static markers once, then one group per sample."""
+
+    def __init__(self, plan: Mapping[str, Any], settings: AuditSettings, tree: UrdfTree | None) -> None:
+        self.plan = plan
+        self.settings = settings
+        self.tree = tree
+        trajectory = plan.get("trajectory") or []
+        self.joint_names = list((plan.get("robot") or {}).get("joint_names") or [])
+        base_pose = (plan.get("stance") or {}).get("base_pose")
+        self.base_pose = base_pose if base_pose is not None and len(base_pose) == 7 else None
+        self.threshold = plan.get("threshold_m")
+        self.dt = float(plan.get("dt_s") or 0.0)
+        scenario = plan.get("scenario") if isinstance(plan.get("scenario"), Mapping) else {}
+        self.shape = scenario.get("object") if isinstance(scenario.get("object"), Mapping) else None
+        self.tables = [t for t in (scenario.get("tables") or []) + (scenario.get("obstacles") or [])
+                       if isinstance(t, Mapping)]
+        self.polygon = plan.get("support_polygon") or []
+        #: Trajectory indices shown, and their points.
+        self.indices = playback_indices(len(trajectory), self.dt, settings.plan_playback_rate_hz)
+        self.points = [trajectory[i] for i in self.indices]
+        self.com_path = [p["com"] for p in self.points if p.get("com") is not None]
+        self.zmp_path = [p["zmp"] for p in self.points if p.get("zmp") is not None]
+        self.zmp_margin = None
+        if len(self.polygon) >= 3 and len(self.zmp_path) == len(self.points) and self.zmp_path:
+            self.zmp_margin = mk.signed_distance(self.polygon, np.asarray(self.zmp_path, dtype=float))
+
+    def t_of(self, k: int) -> float:
+        """Plan time (s) of the ``k``-th sample shown."""
+        return float(self.points[k].get("t", self.indices[k] * self.dt))
+
+    def static(self, t0: int, topics: PlaybackTopics) -> Iterator[Message]:
+        """The support polygon with its threshold band, the tables and the planned ground paths, at ``t0``."""
+        lift = self.settings.marker_lift_m
+        if len(self.polygon) >= 3:
+            yield topics.support, fx.SCENE_UPDATE, mk.support_body(self.polygon, None, self.threshold, t0, lift), t0
+        if self.tables or self.com_path or self.zmp_path:
+            yield topics.scene, fx.SCENE_UPDATE, mk.path_body(self.com_path, self.zmp_path, self.tables, t0, lift), t0
+
+    def sample(self, k: int, ns: int, topics: PlaybackTopics) -> Iterator[Message]:
+        """The messages of the ``k``-th sample shown, stamped ``ns``."""
+        i, point, settings, lift = self.indices[k], self.points[k], self.settings, self.settings.marker_lift_m
         q = point.get("q")
-        if joint_names and q is not None:
-            yield TOPIC_PLAN_JOINTS, fx.JOINT_STATES, joint_states_body(joint_names, q, None, ns), ns
-            tf = tf_body(tree, {str(n): float(v) for n, v in zip(joint_names, q)}, base_pose, "", ns)
+        if self.joint_names and q is not None:
+            yield topics.joints, fx.JOINT_STATES, joint_states_body(self.joint_names, q, None, ns), ns
+            tf = tf_body(self.tree, {str(n): float(v) for n, v in zip(self.joint_names, q)}, self.base_pose, "", ns)
             if tf is not None:
-                yield TOPIC_PLAN_TF, fx.FRAME_TRANSFORMS, tf, ns
+                yield topics.tf, fx.FRAME_TRANSFORMS, tf, ns
         com = point.get("com")
         if com is not None:
-            body = mk.com_body(com, point.get("margin_m"), threshold, None, ns, settings.com_marker_diameter_m, lift)
-            yield TOPIC_PLAN_COM, fx.SCENE_UPDATE, body, ns
+            body = mk.com_body(com, point.get("margin_m"), self.threshold, None, ns, settings.com_marker_diameter_m, lift)
+            yield topics.com, fx.SCENE_UPDATE, body, ns
         zmp = point.get("zmp")
         if zmp is not None:
-            inside = zmp_margin is None or bool(zmp_margin[k] >= 0)
-            yield TOPIC_PLAN_ZMP, fx.SCENE_UPDATE, mk.zmp_body(zmp, inside, ns, settings.zmp_marker_diameter_m, lift), ns
+            inside = self.zmp_margin is None or bool(self.zmp_margin[k] >= 0)
+            yield topics.zmp, fx.SCENE_UPDATE, mk.zmp_body(zmp, inside, ns, settings.zmp_marker_diameter_m, lift), ns
         pose = point.get("object_pose")
         if isinstance(pose, list) and len(pose) == 7:
             held = point.get("holding", "none") != "none"
-            yield TOPIC_PLAN_OBJECT, fx.SCENE_UPDATE, mk.object_body(shape, pose, held, ns), ns
-        seg = _segment_at(plan.get("segments"), i)
-        sample = {"timestamp": stamp(ns), "index": i, "t": float(point.get("t", i * dt)),
-                  "margin_m": point.get("margin_m"), "threshold_m": threshold,
-                  "zmp_margin_m": None if zmp_margin is None else float(zmp_margin[k]),
-                  "effort_ratio": point.get("effort_ratio"), "holding": point.get("holding"),
-                  "segment": None if seg is None else f"{seg.get('kind')}/{seg.get('hand')}"}
-        yield TOPIC_PLAN_STABILITY, fx.PLAN_SAMPLE, sample, ns
+            yield topics.object, fx.SCENE_UPDATE, mk.object_body(self.shape, pose, held, ns), ns
+        seg = _segment_at(self.plan.get("segments"), i)
+        stability = {"timestamp": stamp(ns), "index": i, "t": self.t_of(k),
+                     "margin_m": point.get("margin_m"), "threshold_m": self.threshold,
+                     "zmp_margin_m": None if self.zmp_margin is None else float(self.zmp_margin[k]),
+                     "effort_ratio": point.get("effort_ratio"), "holding": point.get("holding"),
+                     "segment": None if seg is None else f"{seg.get('kind')}/{seg.get('hand')}"}
+        yield topics.stability, fx.PLAN_SAMPLE, stability, ns
+
+
+def plan_messages(plan: Mapping[str, Any], t0: int, settings: AuditSettings, tree: UrdfTree | None) -> Iterator[Message]:
+    """The playback messages of ``plan`` (``regrasp.plan/1``) starting at log time ``t0`` (ns)."""
+    if not plan.get("trajectory"):
+        return
+    playback = Playback(plan, settings, tree)
+    yield from playback.static(t0, PLAN_TOPICS)
+    for k in range(len(playback.indices)):
+        yield from playback.sample(k, t0 + int(round(playback.t_of(k) * NS_PER_S)), PLAN_TOPICS)

@@ -32,7 +32,9 @@ class AuditSettings(BaseSettings):
     auto_visualize: bool = True
     #: Highest rate of the robot's /tf (every joint state is still recorded;
     #: the transforms only animate the model). 0 = a transform for every state.
-    executed_tf_rate_hz: float = 50.0
+    executed_tf_rate_hz: float = 25.0
+    #: Rate at which the plan is replayed on the execution's timeline (``/executed_plan/``, per second of plan).
+    executed_plan_rate_hz: float = 25.0
     #: Attach the Foxglove layout shipped with the package to every file.
     attach_layout: bool = True
 

@@ -26,6 +26,17 @@ TOPIC_PLAN_SCENE = "/plan/markers/scene"
 #: One sample per playback step for Foxglove's Plot panel (margin, ZMP margin, effort).
 TOPIC_PLAN_STABILITY = "/plan/stability"
 
+#: The plan's playback again, on the execution's timeline (published at dispatch as the controller plays it),
+#: so that the planned and the measured robot overlap in time.
+TOPIC_EXECUTED_PLAN_JOINTS = "/executed_plan/joint_states"
+TOPIC_EXECUTED_PLAN_TF = "/executed_plan/tf"
+TOPIC_EXECUTED_PLAN_COM = "/executed_plan/markers/com"
+TOPIC_EXECUTED_PLAN_ZMP = "/executed_plan/markers/zmp"
+TOPIC_EXECUTED_PLAN_OBJECT = "/executed_plan/markers/object"
+TOPIC_EXECUTED_PLAN_SUPPORT = "/executed_plan/markers/support"
+TOPIC_EXECUTED_PLAN_SCENE = "/executed_plan/markers/scene"
+TOPIC_EXECUTED_PLAN_STABILITY = "/executed_plan/stability"
+
 TOPIC_ROBOT_JOINTS = "/robot/joint_states"
 TOPIC_ROBOT_TF = "/robot/tf"
 

@@ -48,10 +48,12 @@ from .encoding import RawJson, dumps, stamp
 from .joints import joint_states_body, tf_body
 from .layout import LAYOUT_ATTACHMENT, LAYOUT_MEDIA_TYPE, layout_bytes
 
+from .executed import ControllerClock, ExecutedPlan, measured_samples
+
 # Re-exported: importers of service.audit.writer use these names.
 from .markers import shrink_polygon  # noqa: F401
 from .payloads import find_joint_state, find_plan, urdf_for
-from .playback import plan_messages
+from .playback import Playback, plan_messages
 from .settings import AuditError, AuditSettings
 from .severity import level_of, summarise
 from .topics import (
@@ -136,6 +138,9 @@ class AuditWriter:
         #: The plan's stance base pose: the floating base stays there (the plan format),
         #: so executed states without one are placed with it.
         self._base_pose: list[float] | None = None
+        #: The execution's timeline: the controller's clock on the file's, and the plan replayed on it.
+        self._controller_clock = ControllerClock()
+        self._executed_plan: ExecutedPlan | None = None
         layout = layout_bytes() if self.settings.attach_layout else None
         if carried:
             self._carry(carried)
@@ -220,11 +225,13 @@ class AuditWriter:
         self._channels[topic] = (channel_id, schema)
         return channel_id
 
-    def _emit(self, topic: str, schema: str, message: Mapping[str, Any], log_time_ns: int) -> str:
+    def _emit(self, topic: str, schema: str, message: Mapping[str, Any], log_time_ns: int,
+              publish_time_ns: int | None = None) -> str:
         if self._closed:
             raise AuditError(f"audit file {self.path} is closed")
-        if log_time_ns < 0:
-            raise AuditError(f"log time must be >= 0 ns, got {log_time_ns}")
+        publish_time_ns = log_time_ns if publish_time_ns is None else int(publish_time_ns)
+        if log_time_ns < 0 or publish_time_ns < 0:
+            raise AuditError(f"log and publish times must be >= 0 ns, got {log_time_ns} and {publish_time_ns}")
         channel_id = self._channel(topic, schema)
         body = dict(message)
         body["audit"] = {"seq": self._seq, "prev": self._head}
@@ -232,9 +239,9 @@ class AuditWriter:
             data = dumps(body)
         except ValueError as exc:
             raise AuditError(f"{topic}: payload has a non-finite number (NaN/Inf): {exc}") from exc
-        digest = record_digest(self._seq, topic, schema, log_time_ns, log_time_ns, data)
+        digest = record_digest(self._seq, topic, schema, log_time_ns, publish_time_ns, data)
         self._writer.add_message(
-            channel_id=channel_id, log_time=log_time_ns, data=data, publish_time=log_time_ns, sequence=self._seq
+            channel_id=channel_id, log_time=log_time_ns, data=data, publish_time=publish_time_ns, sequence=self._seq
         )
         self._seq += 1
         self._head = digest
@@ -298,6 +305,14 @@ class AuditWriter:
                     if urdf is not None:
                         self.robot_description(urdf, ns)
                 self.plan_playback(plan, ns)
+                replay = self.settings.model_copy(update={"plan_playback_rate_hz": self.settings.executed_plan_rate_hz})
+                self._executed_plan = ExecutedPlan(Playback(plan, replay, self._tree))
+                return
+            measured = measured_samples(payload)
+            data = payload.get("data") if isinstance(payload.get("data"), Mapping) else payload
+            names = data.get("joint_names") if isinstance(data, Mapping) else None
+            if measured and isinstance(names, (list, tuple)) and names:
+                self._measured(list(names), measured, ns, data.get("base_pose"))
                 return
             state = find_joint_state(payload)
             if state is not None:
@@ -305,6 +320,23 @@ class AuditWriter:
                 self.joint_state(names, q, source="executed", base_pose=base, log_time_ns=ns)
         except Exception as exc:  # noqa: BLE001 - a view must never lose the audit event
             _log.warning("audit %s: no Foxglove view for an event (%s)", self.job_id, exc)
+
+    def _measured(self, names: list[str], samples: list[dict[str, Any]], reported_ns: int,
+                  base_pose: Sequence[float] | None) -> None:
+        """Measured joint states at the controller's measurement times, and the plan replayed up to them."""
+        for sample in samples:
+            q = sample.get("q")
+            if not isinstance(q, (list, tuple)) or len(q) != len(names):
+                continue
+            at = self._controller_clock.to_ns(float(sample["stamp"]), reported_ns)
+            self.joint_state(names, [float(v) for v in q], source="executed", base_pose=base_pose, log_time_ns=at,
+                             publish_time_ns=at)
+            index = sample.get("index")
+            if self._executed_plan is not None and isinstance(index, int):
+                with self._lock:
+                    for topic, schema, body, t in self._executed_plan.advance(index, at):
+                        self._emit(topic, schema, body, t)
+                    self._commit()
 
     def state_change(self, old: str | None, new: str, *, reason: str | None = None, actor: str | None = None,
                      log_time_ns: int | None = None) -> str:
@@ -342,8 +374,12 @@ class AuditWriter:
         base_pose: Sequence[float] | None = None,
         velocity: Sequence[float] | None = None,
         log_time_ns: int | None = None,
+        publish_time_ns: int | None = None,
     ) -> str:
-        """One joint state (and its transforms) of the plan (/plan/) or as the robot reported it (/robot/)."""
+        """One joint state (and its transforms) of the plan (/plan/) or as the robot reported it (/robot/).
+
+        ``publish_time_ns``: when it was measured (the controller's time on the file's clock), if known.
+        """
         if source not in ("plan", "executed"):
             raise AuditError(f"joint state source must be 'plan' or 'executed', got {source!r}")
         plan = source == "plan"
@@ -358,11 +394,11 @@ class AuditWriter:
                 with_tf = self._last_executed_tf_ns is None or ns - self._last_executed_tf_ns >= NS_PER_S / rate
             tf = tf_body(self._tree, {str(n): float(v) for n, v in zip(joint_names, q)}, base_pose,
                          "" if plan else EXECUTED_PREFIX, ns) if with_tf else None
-            self._emit(TOPIC_JOINTS_PLAN if plan else TOPIC_JOINTS_EXECUTED, fx.JOINT_STATES, body, ns)
+            self._emit(TOPIC_JOINTS_PLAN if plan else TOPIC_JOINTS_EXECUTED, fx.JOINT_STATES, body, ns, publish_time_ns)
             if tf is not None:
                 if not plan:
                     self._last_executed_tf_ns = ns
-                self._emit(TOPIC_PLAN_TF if plan else TOPIC_ROBOT_TF, fx.FRAME_TRANSFORMS, tf, ns)
+                self._emit(TOPIC_PLAN_TF if plan else TOPIC_ROBOT_TF, fx.FRAME_TRANSFORMS, tf, ns, publish_time_ns)
             return self._commit()
 
     def transforms(self, transforms: Sequence[tuple[str, str, Sequence[float], Sequence[float]]],

@@ -110,7 +110,7 @@ def test_executed_states_are_all_recorded_and_tf_is_rate_limited(tmp_path, hrp5p
     with open(path, "rb") as f:
         topics = [c.topic for _s, c, _m in make_reader(f).iter_messages()]
     assert topics.count("/robot/joint_states") == 50
-    assert topics.count("/robot/tf") == 13  # 50 Hz over 0.25 s: t = 0, 20, ..., 240 ms
+    assert topics.count("/robot/tf") == 7  # 25 Hz over 0.25 s: t = 0, 40, ..., 240 ms
 
 
 def test_executed_states_are_placed_at_the_plan_stance(tmp_path, hrp5p_urdf):
