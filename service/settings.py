@@ -78,6 +78,9 @@ class ServiceSettings(BaseSettings):
     max_body_bytes: int = Field(1_000_000, ge=1024, description="larger request bodies get 413, declared or chunked")
     body_read_timeout_s: float = Field(
         10.0, gt=0, description="a request body not received in full within this long gets 408 and is closed")
+    header_read_timeout_s: float = Field(
+        10.0, gt=0, le=10.0, description="a connection whose request line and headers are not complete within this "
+                                         "long (from its opening, or from a request's first byte) is closed")
     list_limit_max: int = Field(500, ge=1)
     list_results_max: int = Field(
         10, ge=1, description="largest page of GET /v1/jobs?include_result=true (results are large); page with offset")

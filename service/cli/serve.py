@@ -127,5 +127,8 @@ def serve(host: str | None, port: int | None, data_dir: Path | None, database_ur
     sys.stdout.flush()
     tls = ({"ssl_certfile": str(settings.tls_cert_file), "ssl_keyfile": str(settings.tls_key_file)}
            if settings.tls_cert_file else {})
+    from service.api.connections import header_deadline_protocol
+
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=log_level, access_log=log_level == "debug",
-                timeout_keep_alive=5, h11_max_incomplete_event_size=64 * 1024, **tls)
+                timeout_keep_alive=5, h11_max_incomplete_event_size=64 * 1024,
+                http=header_deadline_protocol(settings.header_read_timeout_s), **tls)
