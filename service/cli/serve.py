@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -129,6 +130,32 @@ def serve(host: str | None, port: int | None, data_dir: Path | None, database_ur
            if settings.tls_cert_file else {})
     from service.api.connections import header_deadline_protocol
 
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=log_level, access_log=log_level == "debug",
-                timeout_keep_alive=5, h11_max_incomplete_event_size=64 * 1024,
-                http=header_deadline_protocol(settings.header_read_timeout_s), **tls)
+    config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=log_level,
+                            access_log=log_level == "debug", timeout_keep_alive=5, h11_max_incomplete_event_size=64 * 1024,
+                            http=header_deadline_protocol(settings.header_read_timeout_s), **tls)
+    server = _stopping_server(config)
+    server.run()
+    if not server.started:
+        sys.exit(3)  # uvicorn's own code for a server that could not start (the port is taken, ...)
+    if server.stop_signals:
+        console.print(f"stopped ({', '.join(signal.Signals(s).name for s in server.stop_signals)})", highlight=False)
+
+
+def _stopping_server(config):  # type: ignore[no-untyped-def]
+    """uvicorn's server, except that a SIGTERM or SIGINT is a clean stop: the service shuts down (jobs
+    handed back, workers closed) and the process exits 0, where uvicorn would die by the signal again."""
+    import contextlib
+
+    import uvicorn
+
+    class StoppingServer(uvicorn.Server):
+        stop_signals: list[int] = []
+
+        @contextlib.contextmanager
+        def capture_signals(self):  # type: ignore[no-untyped-def]
+            with super().capture_signals():
+                yield
+                # Taken before uvicorn's capture raises them again on leaving.
+                self.stop_signals, self._captured_signals[:] = list(self._captured_signals), []
+
+    return StoppingServer(config)

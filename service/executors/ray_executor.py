@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import signal
 import threading
 import time
 from dataclasses import dataclass
@@ -118,6 +119,9 @@ class RayExecutor:
         self.settings = settings
         slots = max(settings.workers, 1)
         actor_cpus = 1.0
+        # ray.init installs its own SIGTERM handler (a SystemExit raised wherever the main thread is);
+        # the server's handler, a graceful stop, is put back.
+        sigterm = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
         if not ray.is_initialized():
             if settings.ray_address:
                 ray.init(address=settings.ray_address, ignore_reinit_error=True, log_to_driver=False)
@@ -128,6 +132,8 @@ class RayExecutor:
                 actor_cpus = min(1.0, cpus / slots)
                 ray.init(ignore_reinit_error=True, include_dashboard=False, log_to_driver=False,
                          num_cpus=math.ceil(cpus), object_store_memory=settings.ray_object_store_bytes)
+        if sigterm is not None:
+            signal.signal(signal.SIGTERM, sigterm)
         # max_restarts=0: an actor that dies fails its job (WORKER_CRASHED), as a local worker process does.
         self._actor_cls = ray.remote(num_cpus=actor_cpus, max_concurrency=3, max_restarts=0)(_JobActorImpl)
         self._slots = [_Slot() for _ in range(settings.workers)]

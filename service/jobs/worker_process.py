@@ -148,6 +148,19 @@ class WorkerContext:
         return self._cancel.is_set()
 
 
+def die_with_parent() -> None:
+    """Ask Linux to SIGKILL this process the moment its parent dies (``PR_SET_PDEATHSIG``): a kill -9 of the
+    server then takes its workers at once; elsewhere the parent watch (:func:`_watch_parent`) does it."""
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def _watch_parent(parent_pid: int) -> None:
     """Exit at once when the parent dies (SIGKILL of the server must not leave planners running)."""
     while True:
@@ -159,6 +172,9 @@ def _watch_parent(parent_pid: int) -> None:
 def worker_main(conn: Connection, cancel: Event, handlers: dict[str, str], robot: str | None, parent_pid: int,
                 nice: int = 0) -> None:
     """Entry point of a local worker process."""
+    die_with_parent()
+    if os.getppid() != parent_pid:  # the parent died before the request above
+        os._exit(3)
     lower_priority(nice)
     watch = threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watch")
     watch.start()
