@@ -25,6 +25,13 @@ def _sigterm(srv: Server) -> tuple[int, str]:
     return code, srv.log_path.read_text()
 
 
+def _running(pid: int) -> bool:
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
 def _clean(log: str) -> None:
     assert "Traceback" not in log, log[-3000:]
     assert "leaked semaphore" not in log and "CancelledError" not in log, log[-3000:]
@@ -41,7 +48,10 @@ def test_sigterm_exits_0_with_no_traceback_local(tmp_path: Path) -> None:
         assert code == 0, log[-3000:]
         assert "stopped (SIGTERM)" in log
         _clean(log)
-        assert not [pid for pid in workers if psutil.pid_exists(pid) and psutil.Process(pid).status() != "zombie"]
+        deadline = time.monotonic() + WORKER_DEATH_S  # multiprocessing's resource tracker ends once it sees the EOF
+        while (left := [pid for pid in workers if _running(pid)]) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not left, [psutil.Process(pid).cmdline() for pid in left if _running(pid)]
     finally:
         srv.stop()
 
