@@ -31,6 +31,7 @@ from datetime import datetime
 from typing import Any, Callable
 
 from schemas.bridge import JointState, TrajectorySegment
+from schemas.policy import SafetyPolicy
 
 from .dispatch_io import DispatcherIO
 from .dispatch_run import Execution, _Run
@@ -64,7 +65,8 @@ class Dispatcher:
 
     def __init__(self, settings: BridgeSettings | None = None, dispatch: DispatchSettings | None = None,
                  gate: SafetyGate | None = None, signer: Signer | None = None,
-                 on_controller_return: Callable[[str, dict[str, Any]], None] | None = None):
+                 on_controller_return: Callable[[str, dict[str, Any]], None] | None = None,
+                 policy: SafetyPolicy | None = None):
         self.settings = settings or BridgeSettings()
         self.dispatch = dispatch or DispatchSettings()
         if signer is None and self.settings.signing_key is not None:
@@ -73,7 +75,9 @@ class Dispatcher:
         #: Called (job_id, data) from a zenoh thread when a controller lost during that job is heard from again
         #: and the stop was sent again.
         self.on_controller_return = on_controller_return
-        self.gate = gate or SafetyGate()  # the start tolerance comes with each measured state (see _execute)
+        # The gate holds the site's safety policy (its floor, caps and hash); the start tolerance comes with each
+        # measured state (see _execute).
+        self.gate = gate or SafetyGate(policy=policy)
         self.keys = Keys(self.settings.robot_id)
         self._lock = threading.Lock()
         self._run_lock = threading.Lock()

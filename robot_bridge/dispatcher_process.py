@@ -31,6 +31,7 @@ from datetime import datetime
 from typing import Any, Callable
 
 from schemas.bridge import GateVerdict, JointState
+from schemas.policy import SafetyPolicy, default_policy
 
 from .dispatcher import (
     BusyError,
@@ -57,9 +58,12 @@ _ERRORS: dict[str, type[Exception]] = {e.__name__: e for e in (BusyError, Contro
 class DispatcherProcess:
     """A :class:`Dispatcher` running in a child process (spawned), with the same calls."""
 
-    def __init__(self, settings: BridgeSettings | None = None, dispatch: DispatchSettings | None = None):
+    def __init__(self, settings: BridgeSettings | None = None, dispatch: DispatchSettings | None = None,
+                 policy: SafetyPolicy | None = None):
         self.settings = settings or BridgeSettings()
         self.dispatch = dispatch or DispatchSettings()
+        #: The site's safety policy the child's gate enforces.
+        self.policy = policy or default_policy()
         self.on_controller_return: Callable[[str, dict[str, Any]], None] | None = None
         ctx = mp.get_context("spawn")
         self._cmd, cmd_child = ctx.Pipe()
@@ -73,7 +77,8 @@ class DispatcherProcess:
         self._dead: str | None = None
         self._proc = ctx.Process(target=_child_main, name="regrasp-bridge", daemon=True,
                                  args=(self.settings.model_dump(mode="json"), self.dispatch.model_dump(mode="json"),
-                                       cmd_child, out_child, os.getpid()))
+                                       cmd_child, out_child, os.getpid(),
+                                       (self.policy.document(), self.policy.source)))
         self._proc.start()
         cmd_child.close()
         out_child.close()
@@ -198,7 +203,8 @@ class DispatcherProcess:
 
 
 # ---------------------------------------------------------------------- child side
-def _child_main(settings_doc: dict, dispatch_doc: dict, cmd: Any, out: Any, parent_pid: int) -> None:
+def _child_main(settings_doc: dict, dispatch_doc: dict, cmd: Any, out: Any, parent_pid: int,
+                policy: tuple[dict, str] | None = None) -> None:
     """The bridge process: one Dispatcher, its status every STATUS_PERIOD_S, commands from the parent."""
     from .process_tuning import (
         freeze_startup_objects,
@@ -219,7 +225,8 @@ def _child_main(settings_doc: dict, dispatch_doc: dict, cmd: Any, out: Any, pare
     shorten_switch_interval()
     try:
         settings = BridgeSettings(**settings_doc)
-        disp = Dispatcher(settings, DispatchSettings(**dispatch_doc))
+        safety = SafetyPolicy.model_validate(policy[0]).with_source(policy[1]) if policy is not None else None
+        disp = Dispatcher(settings, DispatchSettings(**dispatch_doc), policy=safety)
     except Exception as exc:  # noqa: BLE001 - the parent reports it
         send(("failed", f"{type(exc).__name__}: {exc}"))
         return

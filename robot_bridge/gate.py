@@ -28,6 +28,7 @@ import numpy as np
 
 from schemas.bridge import GateVerdict
 from schemas.plan import plan_sha256
+from schemas.policy import SafetyPolicy, default_policy
 
 from .gate_checks import (
     _check_finite,
@@ -39,6 +40,7 @@ from .gate_checks import (
 )
 from .gate_effort import EffortVeto, check_effort_and_grip
 from .gate_context import _Context, _first, _jsonable, _timed
+from .gate_policy import check_policy_limits, check_policy_threshold
 from .gate_parse import (
     ExecutablePlan,
     _parse_executable,
@@ -65,10 +67,15 @@ __all__ = ["Approval", "ExecutablePlan", "GateSettings", "MeasuredState", "Safet
 
 
 class SafetyGate:
-    """Checks plans for one process; robot models are parsed once and cached."""
+    """Checks plans for one process against one site's safety policy; robot models are parsed once and cached.
 
-    def __init__(self, settings: GateSettings | None = None):
+    The policy (:mod:`schemas.policy`, the built-in one by default: a 30 mm floor) is the gate's own: no
+    argument of a check can lower its floor, and every verdict carries its SHA-256."""
+
+    def __init__(self, settings: GateSettings | None = None, policy: SafetyPolicy | None = None):
         self.settings = settings or GateSettings()
+        self.policy = policy or default_policy()
+        self._policy_sha256 = self.policy.sha256()
         self._robots: dict[tuple[str, str], _Robot] = {}
         self._fk: dict[tuple[str, tuple[str, ...]], BatchFK] = {}
 
@@ -83,13 +90,17 @@ class SafetyGate:
         now: datetime | None = None,
         offline: bool = False,
         recovery: bool = False,
+        physics: dict[str, Any] | None = None,
     ) -> GateVerdict:
         """The verdict on ``plan``. Online (the default) an approval and a measured state are required.
 
         ``offline`` skips the approval, hash and start-state checks when they are not
-        given (``regrasp gate check``); every other check runs the same way.
+        given (``regrasp gate check``); every other check runs the same way. ``threshold_m`` replaces
+        the plan's threshold for the samples, never below the policy's floor. ``physics``: the plan's
+        physics dry run (``regrasp.simreport/1``), needed when the policy requires one.
         """
-        return self._check(plan, None, approval, measured, threshold_m, now, offline, recovery=recovery)
+        return self._check(plan, None, approval, measured, threshold_m, now, offline, recovery=recovery,
+                           physics=physics)
 
     def check_json(self, plan_json: bytes | str,
                    **kwargs: Any) -> tuple[GateVerdict, ExecutablePlan | dict[str, Any] | None]:
@@ -120,25 +131,26 @@ class SafetyGate:
             try:
                 plan = loads_plan(raw)
             except (ValueError, RecursionError) as exc:
-                ctx = _Context(settings=self.settings)
+                ctx = _Context(settings=self.settings, policy_sha256=self._policy_sha256)
                 return ctx.verdict(False, "structure", f"the plan is not valid JSON: {exc}", None,
                                    time.perf_counter() - t0), None
         verdict = self._check(plan, (digest, hash_s), kwargs.pop("approval", None), kwargs.pop("measured", None),
                               kwargs.pop("threshold_m", None), kwargs.pop("now", None), kwargs.pop("offline", False),
-                              json_s=time.perf_counter() - t1, recovery=kwargs.pop("recovery", False), **kwargs)
+                              json_s=time.perf_counter() - t1, recovery=kwargs.pop("recovery", False),
+                              physics=kwargs.pop("physics", None), **kwargs)
         return verdict, (executable if executable is not None else plan)
 
     def _check(self, plan: Any, digest: tuple[str, float] | None, approval: Approval | None, measured: MeasuredState | None,
                threshold_m: float | None, now: datetime | None, offline: bool, json_s: float | None = None,
-               recovery: bool = False) -> GateVerdict:
+               recovery: bool = False, physics: dict[str, Any] | None = None) -> GateVerdict:
         started = time.perf_counter()
-        ctx = _Context(settings=self.settings)
+        ctx = _Context(settings=self.settings, policy_sha256=self._policy_sha256)
         ctx.recovery = recovery
         ctx.digest = digest
         if json_s is not None:  # check_json: reading the bytes into a plan, before the checks (not in elapsed_s)
             ctx.note("timing", json_s=json_s)
         try:
-            self._run(ctx, plan, approval, measured, threshold_m, now, offline)
+            self._run(ctx, plan, approval, measured, threshold_m, now, offline, physics)
         except Veto as veto:
             return ctx.verdict(False, veto.check, veto.message, veto.sample_index, time.perf_counter() - started)
         except Exception as exc:  # fail closed: the gate's own failure is a veto
@@ -163,7 +175,8 @@ class SafetyGate:
         return self._fk[key]
 
     def _run(self, ctx: "_Context", plan: dict, approval: Approval | None, measured: MeasuredState | None,
-             threshold_m: float | None, now: datetime | None, offline: bool) -> None:
+             threshold_m: float | None, now: datetime | None, offline: bool,
+             physics: dict[str, Any] | None = None) -> None:
         s = self.settings
         p = _timed(ctx, "parse_s", _read, ctx, plan, s)
         robot = self._robot(p.robot_name, p.urdf_sha256)
@@ -180,10 +193,9 @@ class SafetyGate:
         _check_finite(ctx, p)
         ctx.passed("finite")
 
-        thr = p.threshold if threshold_m is None else float(threshold_m)
-        if not math.isfinite(thr) or thr < 0:
-            raise Veto("structure", f"threshold {thr!r} m must be finite and >= 0")
-        ctx.threshold = thr
+        # The site's policy first: a plan made below its floor is not read on; the samples are checked
+        # against the larger of the threshold and the floor.
+        ctx.threshold = check_policy_threshold(ctx, p, self.policy, threshold_m)
 
         if approval is None:
             if not offline:
@@ -208,6 +220,7 @@ class SafetyGate:
             raise Veto("robot_model", f"the plan was made for URDF {p.urdf_sha256}, the gate loads "
                        f"{robot.urdf_sha256} ({robot.files.urdf}); the kinematics would differ")
         ctx.passed("robot_model", urdf_sha256=robot.urdf_sha256)
+        check_policy_limits(ctx, p, self.policy, physics)
 
         # The torque and grip checks need only the plan's points: they run in a thread of their own while the
         # checks below do (numpy releases the GIL in its loops); their verdict comes after the stability check's.

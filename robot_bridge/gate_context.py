@@ -29,6 +29,7 @@ class _Context:
     recovery: bool = False
     plan_sha256: str | None = None
     digest: tuple[str, float] | None = None  # (sha256 of the given bytes, seconds it took)
+    policy_sha256: str | None = None  # the safety policy that judges the plan
 
     def __post_init__(self) -> None:
         self.stats: dict[str, dict[str, Any]] = {}
@@ -53,7 +54,7 @@ class _Context:
             t = sample * self.dt / self.S
         return GateVerdict(
             passed=passed, check=check, sample_index=sample, point_index=point, t=t, message=message,
-            plan_sha256=self.plan_sha256, threshold_m=self.threshold, samples=self.samples,
+            plan_sha256=self.plan_sha256, threshold_m=self.threshold, policy_sha256=self.policy_sha256, samples=self.samples,
             elapsed_s=elapsed, checks_passed=list(self.ok), skipped=list(self.skipped), stats=_jsonable(self.stats),
         )
 

@@ -68,6 +68,10 @@ class ObjectIn(msgspec.Struct, gc=False):
     com_local: list[float]
 
 
+class TimingIn(msgspec.Struct, gc=False):
+    speed_scale: float | None = None
+
+
 class ExecutablePlan(msgspec.Struct, gc=False):
     """The fields of a plan document (schemas.plan) that the gate checks and the dispatcher sends."""
 
@@ -79,6 +83,7 @@ class ExecutablePlan(msgspec.Struct, gc=False):
     threshold_m: float
     dt_s: float
     trajectory: list[PointIn]
+    timing: TimingIn | None = None
 
 
 _EXECUTABLE = msgspec.json.Decoder(ExecutablePlan)
@@ -111,6 +116,7 @@ class _Parsed:
     com_local: np.ndarray
     threshold: float
     moving: np.ndarray  # columns of Q that change at some point (plans move a few joints at a time)
+    speed_scale: float | None = None  # the plan's timing.speed_scale, when it has one
 
 
 def _get(doc: Any, key: str, what: str) -> Any:
@@ -206,10 +212,18 @@ def _parse(ctx: "_Context", plan: Any, s: GateSettings) -> _Parsed:
     thr = _get(plan, "threshold_m", "threshold_m")
     if not isinstance(thr, (int, float)):
         raise Veto("structure", f"threshold_m is {thr!r}")
+    timing = plan.get("timing")
+    speed = timing.get("speed_scale") if isinstance(timing, dict) else None
+    if timing is not None and not isinstance(timing, dict):
+        raise Veto("structure", f"timing is {type(timing).__name__}; it must be an object")
+    if speed is not None and (isinstance(speed, bool) or not isinstance(speed, (int, float)) or not math.isfinite(speed)
+                              or speed <= 0):
+        raise Veto("structure", f"timing.speed_scale is {speed!r}; it must be a finite number > 0")
     return _Parsed(
         robot_name=str(name), urdf_sha256=str(robot.get("urdf_sha256", "")), joint_names=tuple(names), n=len(traj),
         dt=float(dt), t=t, Q=Q, holding=holding, object_pose=poses, base_pose=base, feet=clean_feet,
         mass=float(mass), com_local=com_local, threshold=float(thr), moving=np.flatnonzero(np.any(Q != Q[:1], axis=0)),
+        speed_scale=None if speed is None else float(speed),
     )
 
 
@@ -222,6 +236,9 @@ def _parse_executable(plan: ExecutablePlan, s: GateSettings) -> _Parsed | None:
             or not (math.isfinite(dt) and 0 < dt <= 1.0) or not (math.isfinite(mass) and mass >= 0)
             or len(plan.stance.base_pose) != 7 or not plan.stance.feet or len(plan.object.com_local) != 3
             or any(len(f.pose) != 7 for f in plan.stance.feet)):
+        return None
+    speed = plan.timing.speed_scale if plan.timing is not None else None
+    if speed is not None and not (math.isfinite(speed) and speed > 0):
         return None
     n, nq = len(traj), len(names)
     qs, ps = list(map(attrgetter("q"), traj)), list(map(attrgetter("object_pose"), traj))
@@ -240,5 +257,5 @@ def _parse_executable(plan: ExecutablePlan, s: GateSettings) -> _Parsed | None:
         base_pose=np.array(plan.stance.base_pose, dtype=float),
         feet=[{"frame": f.frame, "pose": np.array(f.pose, dtype=float), "in_contact": f.in_contact} for f in plan.stance.feet],
         mass=float(mass), com_local=np.array(plan.object.com_local, dtype=float), threshold=float(plan.threshold_m),
-        moving=np.flatnonzero(np.any(Q != Q[:1], axis=0)),
+        moving=np.flatnonzero(np.any(Q != Q[:1], axis=0)), speed_scale=speed,
     )

@@ -169,6 +169,7 @@ GateCheck = Literal[
     "zmp",  # cart-table ZMP inside the support polygon
     "effort",  # static joint torques (robot, held object, contact wrenches) within the effort limits
     "grip",  # the jaws' friction holds the held object's weight and its moment about the closing axis
+    "policy",  # the site's safety policy (schemas.policy): threshold floor, object mass, speed, physics dry run
     "gate_error",  # the gate itself failed: fail closed
 ]
 
@@ -183,7 +184,9 @@ class GateVerdict(StrictModel):
     t: float | None = Field(None, description="time of the failing sample from the plan start (s)")
     message: str
     plan_sha256: str | None = None
-    threshold_m: float | None = None
+    threshold_m: float | None = Field(None, description="the margin every sample was checked against: the larger of "
+                                                         "the plan's threshold and the policy's floor")
+    policy_sha256: str | None = Field(None, description="SHA-256 of the safety policy that judged the plan")
     samples: int = Field(0, description="samples checked on the gate's grid")
     elapsed_s: float = 0.0
     checks_passed: list[str] = Field(default_factory=list)

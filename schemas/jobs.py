@@ -192,6 +192,8 @@ class Job(StrictModel):
     error: JobErrorInfo | None = None
     plan_sha256: str | None = None
     approval: Approval | None = None
+    comparison: bool = Field(False, description="a plan made below the site's safety floor (CONTRACT 5): shown beside "
+                                                "the task's plan, never approvable or dispatchable")
     cancel_requested: bool = False
     attempts: int = 0
     provenance: Provenance

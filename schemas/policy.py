@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError
 
 POLICY_SCHEMA = "regrasp.policy/1"
 #: The environment variable naming the policy file for ``regrasp serve`` and ``regrasp gate check``.
@@ -40,6 +40,24 @@ class SafetyPolicy(BaseModel):
     min_cop_margin_m: float | None = Field(None, ge=0.0, le=0.5,
                                            description="the dry run's floor on the centre-of-pressure margin (m)")
 
+    #: Where the policy came from ("the built-in policy", or its file), for messages; not part of its hash.
+    _source: str = PrivateAttr("built-in")
+
+    @property
+    def source(self) -> str:
+        return self._source
+
+    def with_source(self, source: str) -> "SafetyPolicy":
+        """This policy, said to come from ``source`` (a file name) in messages."""
+        copy = self.model_copy()
+        copy._source = source
+        return copy
+
+    def describe(self) -> str:
+        """How a message names the policy: its source and the start of its SHA-256."""
+        where = "built-in safety policy" if self.source == "built-in" else f"safety policy of {self.source}"
+        return f"{where} (sha256 {self.sha256()[:12]})"
+
     def document(self) -> dict:
         """The policy as its file's JSON object (with ``schema``)."""
         return self.model_dump(by_alias=True)
@@ -56,6 +74,11 @@ class SafetyPolicy(BaseModel):
     def below_floor(self, plan_threshold_m: float) -> bool:
         """Whether a plan made at ``plan_threshold_m`` was planned below this site's floor (a comparison only)."""
         return float(plan_threshold_m) < self.margin_floor_m - 1e-12
+
+
+def policy_from(path: str | Path | None) -> SafetyPolicy:
+    """The policy in ``path``, or the built-in one when no file is named."""
+    return default_policy() if path is None or str(path) == "" else load_policy(path)
 
 
 def default_policy() -> SafetyPolicy:
@@ -81,7 +104,7 @@ def load_policy(path: str | Path) -> SafetyPolicy:
     if data.get("schema") != POLICY_SCHEMA:
         raise PolicyError(f"the policy file {p} has schema {data.get('schema')!r}; expected {POLICY_SCHEMA!r}")
     try:
-        return SafetyPolicy.model_validate(data)
+        return SafetyPolicy.model_validate(data).with_source(p.name)
     except ValidationError as e:
         first = e.errors()[0]
         where = ".".join(str(x) for x in first["loc"]) or "(file)"

@@ -7,6 +7,8 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
+from schemas.policy import SafetyPolicy, default_policy
+
 from .api.auth import TokenStore
 from .api.metrics import Metrics
 from .audit.pump import AuditProcess
@@ -31,6 +33,8 @@ class Service:
     runner: Runner | None = None
     executor: Any = None
     auditor: AuditProcess | None = None
+    #: The site's safety policy (the gate's floor and caps; comparisons are judged by it), read once at start.
+    policy: SafetyPolicy = field(default_factory=default_policy)
     extra: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -43,15 +47,16 @@ class Service:
         migrate(engine)
         store = JobStore(engine)
         metrics = Metrics(store)
-        bridge = bridge or make_bridge()
+        policy = settings.safety_policy()
+        bridge = bridge or make_bridge(policy)
         owners = LiveOwners()
         svc = cls(settings=settings, store=store, tokens=tokens or TokenStore.from_settings(settings),
-                  metrics=metrics, bridge=bridge, executions=Executions(store, bridge, settings, owners))
+                  metrics=metrics, bridge=bridge, executions=Executions(store, bridge, settings, owners), policy=policy)
         if run_workers and settings.workers > 0:
             from .executors import make_executor
 
             svc.executor = make_executor(settings)
-            svc.runner = Runner(store, svc.executor, settings, owners=owners)
+            svc.runner = Runner(store, svc.executor, settings, owners=owners, policy=policy)
         if settings.audit:
             svc.auditor = AuditProcess(settings.resolved_database_url, settings.audit_dir)
         return svc

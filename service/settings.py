@@ -23,6 +23,8 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 
+from schemas.policy import SafetyPolicy, policy_from
+
 #: Job kind -> "module:function" run by the workers (planner/jobs/entry.py).
 DEFAULT_HANDLERS: dict[str, str] = {
     "plan": "planner.jobs.entry:run_plan",
@@ -103,7 +105,10 @@ class ServiceSettings(BaseSettings):
     init_store: bool = Field(False, description="initialise a store file that is empty or damaged (moved aside first)")
 
     audit: bool = Field(True, description="write one MCAP audit file per job when service.audit is installed")
-    dispatch_threshold_m: float | None = Field(None, ge=0, description="gate threshold at dispatch; default the plan's threshold_m")
+    policy: Path | None = Field(
+        None, description="the site's safety policy file (regrasp.policy/1; REGRASP_POLICY, regrasp serve --policy): the "
+                          "gate's margin floor, mass and speed caps. Default: the built-in policy (30 mm floor). A "
+                          "request never changes it")
     config_file: Path | None = Field(None, alias="REGRASP_CONFIG", description="the file these settings came from")
 
     @model_validator(mode="after")
@@ -133,6 +138,10 @@ class ServiceSettings(BaseSettings):
         file_secret_settings: PydanticBaseSettingsSource,
     ) -> tuple[PydanticBaseSettingsSource, ...]:
         return (init_settings, env_settings, _ConfigFileSource(settings_cls))
+
+    def safety_policy(self) -> SafetyPolicy:
+        """The policy of :attr:`policy` (read now), or the built-in one; :class:`PolicyError` names what is wrong."""
+        return policy_from(self.policy)
 
     @property
     def resolved_database_url(self) -> str:

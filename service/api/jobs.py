@@ -362,6 +362,14 @@ def cancel(job_id: str, body: ReasonBody | None = Body(None), p: Principal = Dep
     return _job_response(svc, row, 202)
 
 
+def _refuse_comparison(svc: Service, row: dict[str, Any], action: str) -> None:
+    """409 for a comparison job (planned below the safety policy's floor): it never reaches the robot."""
+    if row.get("comparison"):
+        raise ProblemError(409, f"job {row['id']} is a comparison: it was planned below the {svc.policy.margin_floor_m * 1000:.1f} "
+                                f"mm floor of the {svc.policy.describe()}, so it is never {action}; plan the task at the "
+                                "floor or above to send it to the robot")
+
+
 @router.post("/{job_id}/approve", response_model=Job, summary="Approve a planned job (two-person rule)",
              responses=problems(400, 401, 403, 404, 409, 413, 422))
 def approve(job_id: str, body: ApproveBody | None = Body(None), p: Principal = Depends(principal),
@@ -373,6 +381,7 @@ def approve(job_id: str, body: ApproveBody | None = Body(None), p: Principal = D
                                 "another approver must")
     if row["kind"] not in ("plan", "recover"):
         raise ProblemError(409, f"job {job_id} is a {row['kind']} job; only plan and recover jobs are approved")
+    _refuse_comparison(svc, row, "approved")
     if row["state"] != "planned":
         raise ProblemError(409, f"job {job_id} is {row['state']}; only a planned job can be approved")
     sha = row["plan_sha256"]
@@ -422,6 +431,7 @@ def reject(job_id: str, body: RejectBody | None = Body(None), p: Principal = Dep
 def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depends(service)) -> Response:
     require("operator", p, "dispatching a plan")
     row = _load(svc, job_id)
+    _refuse_comparison(svc, row, "dispatched")
     if row["state"] == "planned" and row["kind"] in ("plan", "recover"):
         raise ProblemError(409, f"job {job_id} is planned but not approved (or its approval expired); "
                                 "an approver must approve it first")

@@ -29,13 +29,29 @@ def gate() -> None:
 
 @gate.command("check")
 @click.argument("plan_file", type=click.Path(dir_okay=False))
-@click.option("--threshold-mm", type=float, default=None, help="CoM margin threshold (mm); default: the plan's own.")
+@click.option("--threshold-mm", type=float, default=None,
+              help="CoM margin threshold (mm) for the samples; default: the plan's own. Never below the policy's floor.")
+@click.option("--policy", "policy_file", type=click.Path(dir_okay=False), default=None,
+              help="The site's safety policy file (regrasp.policy/1; also REGRASP_POLICY); default: the built-in "
+                   "policy (30 mm floor), as at dispatch.")
 @click.option("--approved-sha256", default=None, help="Also check the plan's hash against this approved one.")
 @click.option("--measured-q", type=click.Path(exists=True, dir_okay=False), default=None,
               help="JSON {joint_names, q}: also check the first point against this robot state.")
 @click.option("--json", "as_json", is_flag=True, help="Print the verdict as JSON.")
-def check(plan_file: str, threshold_mm: float | None, approved_sha256: str | None, measured_q: str | None, as_json: bool) -> None:
-    """Check PLAN_FILE; exit 0 when it passes, 1 on a veto (naming the check and the first failing sample)."""
+def check(plan_file: str, threshold_mm: float | None, approved_sha256: str | None, measured_q: str | None, as_json: bool,
+          policy_file: str | None = None) -> None:
+    """Check PLAN_FILE; exit 0 when it passes, 1 on a veto (naming the check and the first failing sample).
+
+    The plan is judged by the site's safety policy as at dispatch: a plan made below its margin floor is
+    vetoed, and every sample is checked against the larger of the threshold and the floor."""
+    import os
+
+    from schemas.policy import POLICY_ENV, PolicyError, policy_from
+
+    try:
+        policy = policy_from(policy_file if policy_file is not None else os.environ.get(POLICY_ENV))
+    except PolicyError as exc:
+        fail(str(exc))
     from rich.markup import escape
 
     from robot_bridge.gate import Approval, MeasuredState, SafetyGate
@@ -69,7 +85,7 @@ def check(plan_file: str, threshold_mm: float | None, approved_sha256: str | Non
     approval = None
     if approved_sha256:
         approval = Approval(approved_sha256.lower(), datetime.now(timezone.utc) + timedelta(minutes=1))
-    verdict = SafetyGate().check(
+    verdict = SafetyGate(policy=policy).check(
         plan, approval=approval, measured=measured, offline=True,
         threshold_m=None if threshold_mm is None else threshold_mm / 1000.0,
     )
@@ -88,6 +104,7 @@ def check(plan_file: str, threshold_mm: float | None, approved_sha256: str | Non
                       highlight=False)
         if verdict.plan_sha256:
             console.print(f"  plan sha256 {verdict.plan_sha256}", highlight=False)
+        console.print(f"  {policy.describe()}: margin floor {policy.margin_floor_m * 1000:.1f} mm", highlight=False)
     if verdict.check == "structure" and not verdict.passed and not isinstance(plan, dict):
         sys.exit(EXIT_USAGE)
     sys.exit(0 if verdict.passed else EXIT_VETO)

@@ -64,10 +64,13 @@ def _settings_from_flags(config: Path | None, **flags: object):  # type: ignore[
               help="PEM private key of the TLS certificate.")
 @click.option("--init-store", is_flag=True, default=False,
               help="Start a new store when the existing file is empty or damaged (it is moved aside, not deleted).")
+@click.option("--policy", "policy", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="The site's safety policy file (regrasp.policy/1; also REGRASP_POLICY): the gate's margin floor, "
+                   "mass and speed caps. Default: the built-in policy (30 mm floor).")
 @click.option("--log-level", default="info", type=click.Choice(["debug", "info", "warning", "error"]))
 def serve(host: str | None, port: int | None, data_dir: Path | None, database_url: str | None, workers: int | None,
           dev: bool, executor: str | None, ray_address: str | None, config: Path | None, tls_cert: Path | None,
-          tls_key: Path | None, init_store: bool, log_level: str) -> None:
+          tls_key: Path | None, init_store: bool, log_level: str, policy: Path | None = None) -> None:
     """Run the HTTP planning service (docs/contract.md section 5) with its workers.
 
     Every setting also comes from a config file or the environment (REGRASP_*): see docs/service.md.
@@ -86,11 +89,19 @@ def serve(host: str | None, port: int | None, data_dir: Path | None, database_ur
              else "--tls-key needs --tls-cert (the certificate it belongs to)")
     settings = _settings_from_flags(config, host=host, port=port, data_dir=data_dir, database_url=database_url,
                                     workers=workers, executor=executor, ray_address=ray_address,
-                                    dev=dev or None, tls_cert_file=tls_cert, tls_key_file=tls_key)
+                                    dev=dev or None, tls_cert_file=tls_cert, tls_key_file=tls_key, policy=policy)
     if settings.tls_cert_file is not None or settings.tls_key_file is not None:
         if settings.tls_cert_file is None:
             fail("--tls-key needs --tls-cert (the certificate it belongs to)")
         _check_tls(settings.tls_cert_file, settings.tls_key_file)
+    from schemas.policy import POLICY_ENV, PolicyError
+
+    try:
+        site_policy = settings.safety_policy()
+    except PolicyError as exc:
+        fail(str(exc))
+    if settings.policy is not None:  # the workers' processes (risk card's gate dry run) read the same file
+        os.environ[POLICY_ENV] = str(Path(settings.policy).resolve())
     if settings.executor == "ray":
         try:
             import ray  # noqa: F401
@@ -124,6 +135,8 @@ def serve(host: str | None, port: int | None, data_dir: Path | None, database_ur
     scheme = "https" if settings.tls_cert_file else "http"
     console.print(f"serving on {scheme}://{settings.host}:{settings.port} (console at /, API docs at /docs), "
                   f"{settings.workers} {settings.executor} worker(s), store {settings.resolved_database_url.split('://')[0]}",
+                  highlight=False)
+    console.print(f"gate: {site_policy.describe()}, margin floor {site_policy.margin_floor_m * 1000:.1f} mm",
                   highlight=False)
     sys.stdout.flush()
     tls = ({"ssl_certfile": str(settings.tls_cert_file), "ssl_keyfile": str(settings.tls_key_file)}

@@ -114,12 +114,13 @@ class DispatcherBridge:
         self._d.close()
 
 
-def make_bridge() -> Bridge:
+def make_bridge(policy: Any = None) -> Bridge:
     """The zenoh dispatcher of robot_bridge, or :class:`NoBridge` when it cannot start (dispatch then answers 409).
 
     The dispatcher runs in a process of its own (``robot_bridge.dispatcher_process``): its heartbeat and
     watchdog then never wait for the interpreter behind the API's threads. A signing key that cannot be
-    read does not stop the service: it plans, and dispatch answers 409 saying why."""
+    read does not stop the service: it plans, and dispatch answers 409 saying why. ``policy``: the site's
+    safety policy (:class:`schemas.policy.SafetyPolicy`) the bridge's gate enforces; default the built-in one."""
     from robot_bridge.dispatcher_process import DispatcherProcess
     from robot_bridge.settings import BridgeSettings
     from robot_bridge.signing import KeyFileError, Signer
@@ -134,7 +135,7 @@ def make_bridge() -> Bridge:
                 problem = f"the signing key cannot be used: {exc}"
                 log.warning("robot bridge: %s; dispatch will answer 409", problem)
                 settings = settings.model_copy(update={"signing_key": None})
-        return DispatcherBridge(DispatcherProcess(settings), problem)
+        return DispatcherBridge(DispatcherProcess(settings, policy=policy), problem)
     except Exception as exc:  # noqa: BLE001 - the service must still plan without a bridge
         log.warning("robot bridge unavailable (%s); dispatch will answer 409", exc)
         bridge = NoBridge()

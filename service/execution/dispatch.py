@@ -110,8 +110,8 @@ class Executions:
             outcome = self.bridge.execute(
                 plan, job_id=job_id, approved_sha256=job["approved_sha256"],
                 approval_expires_at=job["approval_expires_at"],
-                # None: the gate uses the plan's own threshold_m
-                threshold_m=self.settings.dispatch_threshold_m,
+                # None: the plan's own threshold, never below the safety policy's floor (the bridge's gate holds it)
+                threshold_m=None,
                 on_event=on_event, stop_event=stop,
                 **({"recovery": True} if job.get("kind") == "recover" else {}),
             )

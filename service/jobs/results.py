@@ -46,6 +46,7 @@ def summarize(result: dict[str, Any]) -> dict[str, Any]:
         "seed": seed if isinstance(seed, int) else None,
         "robot": robot.get("name"),
         "robot_sha256": robot.get("urdf_sha256"),
+        "threshold_m": result.get("threshold_m") if isinstance(result.get("threshold_m"), (int, float)) else None,
     }
 
 

@@ -24,10 +24,14 @@ RISK_SCHEMA = "regrasp.risk/1"
 
 @functools.lru_cache(maxsize=1)
 def _gate() -> Any:
-    """One gate per process: it parses each robot's URDF once."""
-    from robot_bridge.gate import SafetyGate
+    """One gate per process: it parses each robot's URDF once. It judges by the site's safety policy
+    (``REGRASP_POLICY``, else the built-in one), as the gate at dispatch does."""
+    import os
 
-    return SafetyGate()
+    from robot_bridge.gate import SafetyGate
+    from schemas.policy import POLICY_ENV, policy_from
+
+    return SafetyGate(policy=policy_from(os.environ.get(POLICY_ENV)))
 
 
 def _segment_at(plan: dict[str, Any], point: int | None) -> dict[str, Any] | None:

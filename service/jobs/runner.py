@@ -14,6 +14,8 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from schemas.policy import SafetyPolicy
+
 from ..executors.base import ExecEvent, Executor
 from ..settings import ServiceSettings
 from ..store.repo import JobStore
@@ -43,10 +45,13 @@ class Runner:
     """Claims jobs for one executor and moves them through planning to their outcome."""
 
     def __init__(self, store: JobStore, executor: Executor, settings: ServiceSettings,
-                 *, owner: str | None = None, owners: LiveOwners | None = None) -> None:
+                 *, owner: str | None = None, owners: LiveOwners | None = None,
+                 policy: SafetyPolicy | None = None) -> None:
         self.store = store
         self.executor = executor
         self.settings = settings
+        #: The site's safety policy: a plan job planned below its floor ends as a comparison.
+        self.policy = policy or settings.safety_policy()
         self.owner = owner or make_owner_id()
         #: The owners alive in this process (shared with the service's executions).
         self.owners = owners or LiveOwners()
@@ -183,12 +188,25 @@ class Runner:
                 err = {"code": err["code"], "message": err["message"] or "no plan meets the constraints"}
                 self._finish(run, "failed", f"infeasible: {err['code']}: {err['message']}", error=err,
                              result_text=text, extra=extra)
+            elif run.kind == "plan" and self._below_floor(summary.get("threshold_m")):
+                # Planned below the site's floor: a comparison, shown beside the task's plan, never for the robot.
+                extra.update(plan_sha256=sha, comparison=True)
+                thr, floor = summary["threshold_m"], self.policy.margin_floor_m
+                self._finish(run, "succeeded", f"a comparison: planned at {thr * 1000:.1f} mm, below the "
+                             f"{floor * 1000:.1f} mm floor of the {self.policy.describe()}; never approved or dispatched",
+                             result_text=text, extra=extra,
+                             data={"plan_sha256": sha, "risk": summary.get("risk"), "comparison": True,
+                                   "policy_sha256": self.policy.sha256()})
             else:
                 extra["plan_sha256"] = sha
                 self._finish(run, "planned", "planned; waiting for approval", result_text=text, extra=extra,
                              data={"plan_sha256": sha, "risk": summary.get("risk")})
         else:
             self._finish(run, "succeeded", "survey finished", result_text=text, extra=extra)
+
+    def _below_floor(self, threshold_m: Any) -> bool:
+        """Whether a plan made at ``threshold_m`` is below the safety policy's floor (a comparison)."""
+        return isinstance(threshold_m, (int, float)) and self.policy.below_floor(float(threshold_m))
 
     def _finish(self, run: _Running, state: str, message: str, *, error: dict[str, Any] | None = None,
                 result_text: str | None = None, extra: dict[str, Any] | None = None,

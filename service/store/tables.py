@@ -76,6 +76,8 @@ jobs = sa.Table(
     # Written when planning ends (by the runner, or by recovery): the source of the duration/outcome metrics.
     sa.Column("planning_s", sa.Float),
     sa.Column("planning_outcome", sa.String(16)),
+    # A plan job planned below the safety policy's floor: a comparison, never approved or dispatched.
+    sa.Column("comparison", sa.Boolean),
     sa.UniqueConstraint("submitter", "idempotency_key", name="uq_jobs_submitter_idempotency_key"),
     # The two aggregates of every /metrics scrape (JobStore.count_by_state, planning_stats) read only these.
     sa.Index("ix_jobs_kind_state", "kind", "state"),

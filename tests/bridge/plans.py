@@ -47,7 +47,7 @@ def build_plan(
     rest_s: float = 0.05,
     robot_name: str = "hrp5p",
     stance: str = "upright",
-    threshold_m: float = 0.02,
+    threshold_m: float = 0.03,
     mass_kg: float = 2.0,
     holding: str = "none",
     com_local: tuple[float, float, float] = (0.0, 0.0, 0.05),

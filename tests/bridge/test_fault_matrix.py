@@ -276,9 +276,22 @@ def test_nan_waypoint_is_vetoed_and_nothing_sent(shared_bridge, arm_plan):
 
 def test_plan_edited_after_approval_is_vetoed(shared_bridge, arm_plan):
     ctl, disp, spy = shared_bridge
-    changed = edited(arm_plan, lambda p: p.__setitem__("threshold_m", 0.0))
+    changed = edited(arm_plan, lambda p: p.__setitem__("threshold_m", 0.04))
     res, rec = run(disp, changed, approved_plan=arm_plan)
     assert res.status == "rejected" and res.verdict.check == "plan_hash" and "changed after approval" in res.reason
+    assert_nothing_sent(disp, spy, rec)
+
+
+def test_plan_below_the_policy_floor_is_vetoed_at_dispatch(shared_bridge, arm_plan):
+    """Approved as it is, a plan made at 0 mm is not for this site: the gate's policy floor (built-in 30 mm)
+    vetoes it before anything is sent, and the verdict names the policy by its hash."""
+    from schemas.policy import default_policy
+
+    ctl, disp, spy = shared_bridge
+    low = edited(arm_plan, lambda p: p.__setitem__("threshold_m", 0.0))
+    res, rec = run(disp, low)
+    assert res.status == "rejected" and res.verdict.check == "policy" and "30.0 mm floor" in res.reason, res.reason
+    assert res.verdict.policy_sha256 == default_policy().sha256()
     assert_nothing_sent(disp, spy, rec)
 
 

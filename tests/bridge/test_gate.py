@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 from robot_bridge.gate import Approval, GateSettings, MeasuredState, SafetyGate
 from schemas.plan import plan_sha256
+from schemas.policy import SafetyPolicy
 
 from .conftest import REPO
 from .plans import build_plan, edited, stance_state, true_min_margin
@@ -22,7 +23,8 @@ from .plans import build_plan, edited, stance_state, true_min_margin
 
 @pytest.fixture(scope="module")
 def gate() -> SafetyGate:
-    return SafetyGate()
+    """The gate's checks at any threshold: a policy with no floor (the floor's own tests are in test_gate_policy)."""
+    return SafetyGate(policy=SafetyPolicy(margin_floor_m=0.0))
 
 
 @pytest.fixture(scope="module")
@@ -486,7 +488,8 @@ def test_zmp_is_checked_between_the_points(gate):
 @example(arm=-1.2, waist=0.35, mass=12.0, holding="right", threshold=0.12)  # far below the margin
 @example(arm=-0.1, waist=0.0, mass=0.0, holding="none", threshold=0.0)  # comfortably above
 def test_any_plan_below_the_margin_is_vetoed(arm, waist, mass, holding, threshold):
-    gate = SafetyGate(GateSettings(check_limits=False))  # the margin alone (effort and grip: test_gate_effort.py)
+    # the margin alone (effort and grip: test_gate_effort.py; the policy's floor: test_gate_policy.py)
+    gate = SafetyGate(GateSettings(check_limits=False), policy=SafetyPolicy(margin_floor_m=0.0))
     plan = build_plan({"RSP": arm, "WP": waist}, duration_s=2.0, mass_kg=mass, holding=holding, threshold_m=threshold)
     true = true_min_margin(plan)
     v = gate.check(plan, offline=True)
@@ -502,7 +505,7 @@ def test_gate_cli(tmp_path, plan):
     from service.cli.main import cli
 
     good = tmp_path / "good.json"
-    good.write_text(json.dumps(plan))
+    good.write_text(json.dumps({**plan, "threshold_m": 0.03}))  # at the built-in policy's floor
     runner = CliRunner()
     out = runner.invoke(cli, ["gate", "check", str(good), "--json"])
     assert out.exit_code == 0, out.output

@@ -9,8 +9,12 @@ from robot_bridge.gate import GateSettings, SafetyGate
 from robot_bridge.gate_effort import EffortVeto, check_effort_and_grip, static_torques
 from robot_bridge.robot_files import robot_files
 from robot_bridge.urdf_kinematics import load_urdf, quaternion_matrix
+from schemas.policy import SafetyPolicy
 
 from .plans import build_plan
+
+#: The torque and grip checks on plans made at any threshold (the policy's floor is tested in test_gate_policy).
+NO_FLOOR = SafetyPolicy(margin_floor_m=0.0)
 
 
 @pytest.mark.parametrize("robot_name", ["hrp5p", "jvrc1"])
@@ -60,7 +64,7 @@ def test_a_plan_over_a_joint_limit_is_vetoed_at_its_first_point_and_passes_with_
     monkeypatch.setattr(gate_module, "robot_files", lambda name, urdf_sha256=None: weak)
     plan = build_plan({"RSP": -0.6}, duration_s=2.0, mass_kg=10.0, holding="right", threshold_m=0.0,
                       com_local=(0.0, 0.0, 0.0))
-    v = SafetyGate().check(plan, offline=True)
+    v = SafetyGate(policy=NO_FLOOR).check(plan, offline=True)
     assert not v.passed and v.check == "effort", v.message
     assert v.point_index is not None and v.point_index > 0 and "RSP" in v.message
     # the points before the veto are within the limit, the vetoed one is over it
@@ -73,8 +77,8 @@ def test_a_plan_over_a_joint_limit_is_vetoed_at_its_first_point_and_passes_with_
                                 tcp, ["r_sole", "l_sole"], 9.81)
     over = np.flatnonzero(np.abs(torques["RSP"]) > 60.0 * (1 + 1e-6))
     assert over[0] == v.point_index
-    assert SafetyGate(GateSettings(check_limits=False)).check(plan, offline=True).passed
-    assert SafetyGate().check(plan, offline=True).check == "effort"
+    assert SafetyGate(GateSettings(check_limits=False), policy=NO_FLOOR).check(plan, offline=True).passed
+    assert SafetyGate(policy=NO_FLOOR).check(plan, offline=True).check == "effort"
 
 
 def test_a_grip_whose_moment_is_too_large_is_vetoed():
@@ -90,7 +94,7 @@ def test_a_grip_whose_moment_is_too_large_is_vetoed():
     with pytest.raises(EffortVeto) as err:
         check_effort_and_grip(*args)
     assert err.value.check == "grip" and "closing axis" in err.value.message
-    v = SafetyGate().check(plan, offline=True)
+    v = SafetyGate(policy=NO_FLOOR).check(plan, offline=True)
     assert not v.passed and v.check == "grip"
     # a rigid hand (no jaws) has no grip check
     rigid = {**files.spec, "hands": {s: {**h, "jaw": None} for s, h in files.spec["hands"].items()}}
@@ -100,7 +104,7 @@ def test_a_grip_whose_moment_is_too_large_is_vetoed():
 
 def test_the_gate_reports_the_plans_effort_ratio():
     plan = build_plan({"RSP": -0.3}, duration_s=1.0, mass_kg=5.0, holding="right", threshold_m=0.0)
-    v = SafetyGate().check(plan, offline=True)
+    v = SafetyGate(policy=NO_FLOOR).check(plan, offline=True)
     assert v.passed, v.message
     from planner.robot.model import load_robot
     from planner.stability.effort import EffortEvaluator

@@ -144,7 +144,7 @@ def stand(request: dict[str, Any], ctx: Any, duration_s: float = STAND_DURATION_
         "scenario": {"name": "stand"}, "stance": stance.result().model_dump(mode="json"),
         "support_polygon": stance.polygon.vertices.tolist(),
         "object": {"name": "box", "mass_kg": 1.0, "com_local": [0.0, 0.0, 0.0], "start_pose": pose, "goal_pose": pose},
-        "threshold_m": 0.0, "hands": "right-right", "dt_s": dt,
+        "threshold_m": float(request.get("threshold_m", 0.03)), "hands": "right-right", "dt_s": dt,
         "trajectory": trajectory,
         "segments": [{"kind": "transit", "hand": "none", "first": 0, "last": n - 1}],
         "min_margin_m": margin, "alternatives": [], "stats": {"test": "stand"},

