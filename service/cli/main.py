@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "serve": ("serve", "serve", "Run the HTTP planning service."),
     "worker": ("worker", "worker", "Run planning workers against a shared job store."),
     "gate": ("gate", "gate", "Run the safety gate offline on a plan file."),
+    "simulate": ("simulate", "simulate", "Play a plan in the physics twin and report its balance."),
     "controller-sim": ("controller_sim", "controller_sim", "Run the simulated HRP-5P controller peer."),
     "audit": ("audit", "audit", "Verify or show an MCAP audit file."),
     "keys": ("keys", "keys", "Make the key pair that signs the robot bridge's commands."),

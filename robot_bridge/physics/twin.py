@@ -1,0 +1,343 @@
+"""The twin in motion: servo commands at the control period, physics at 1 ms, the stabilizer, the load, the
+measurements (CoP, foot forces, tilt) and the faults (fall, foot tilt, foot lift, torque saturation).
+
+The stabilizer is a DCM tracker of the kind humanoid controllers run under position commands: the reference CoM
+is the commanded posture's (the twin's own kinematics at the stance's base pose), its ZMP the cart-table one;
+the measured divergent component of motion xi = c + c'/omega is pulled back to the reference by a desired ZMP
+p_d = p_ref + (1 + k/omega)(xi - xi_ref), kept inside the support polygon, and the measured CoP is brought there
+by moments added to the servo set-points: an ankle (pitch and roll) and a hip share, with an integral on the CoP
+error that leaks back to zero.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from ..plant import PlantFault
+from ..support import Polygon, convex_hull
+from .model import SIDES, TwinModel
+from .settings import TwinSettings
+
+G = 9.81
+#: Moment arm (m) that weighs sole moments against forces in the feed-forward's load sharing: small, so the feet
+#: share the weight as a flat-footed stance does (each sole's pressure centre near its middle).
+FF_MOMENT_ARM_M = 0.02
+
+
+@dataclass
+class Measurement:
+    """What the twin measured at one control instant (world frame, SI)."""
+
+    t: float
+    cop: np.ndarray  # (2,), NaN when no sole touches
+    cop_margin_m: float
+    foot_forces_n: dict[str, float]
+    com: np.ndarray
+    base_tilt_rad: float
+    foot_tilt_rad: float  # the largest of the supporting soles'
+    foot_slip_m: float
+    torque_ratio: float
+    tracking_error_rad: float
+
+
+@dataclass
+class _Extremes:
+    min_cop_margin_m: float = math.inf
+    min_cop_margin_at_s: float | None = None
+    max_torque_ratio: float = 0.0
+    max_tracking_error_rad: float = 0.0
+    foot_slip_m: float = 0.0
+    foot_tilt_rad: float = 0.0
+    saturated_since: dict[int, float] = field(default_factory=dict)
+
+
+def _wxyz(xyzw: np.ndarray) -> np.ndarray:
+    return np.array([xyzw[3], xyzw[0], xyzw[1], xyzw[2]])
+
+
+class Twin:
+    """One robot in one MuJoCo world; ``control(q_cmd, holding, dt)`` advances it by ``dt`` of simulated time."""
+
+    def __init__(self, tm: TwinModel, base_pose: np.ndarray, q0: np.ndarray, in_contact: dict[str, bool],
+                 settings: TwinSettings, object_mass_kg: float = 0.0):
+        self.tm, self.s = tm, settings
+        m = self.m = tm.model
+        self.d = mujoco.MjData(m)
+        self.ref = mujoco.MjData(m)  # the commanded posture's kinematics (the stabilizer's reference)
+        self.base_pose = np.asarray(base_pose, dtype=float)
+        self.in_contact = {s: bool(in_contact.get(s, True)) for s in SIDES}
+        self.object_mass_kg = float(object_mass_kg) * settings.mass_scale
+        self.load_com = {s: np.zeros(3) for s in SIDES}  # the object's CoM in each TCP's frame while held
+        self.load_mass = {s: 0.0 for s in SIDES}
+        self.t = 0.0
+        self.fault: PlantFault | None = None
+        self.extremes = _Extremes()
+        self._kp = m.actuator_gainprm[: len(tm.joint_names), 0].copy()
+        ctrl = {int(dof): i for i, dof in enumerate(tm.dof_adr)}
+        hip = settings.stabilizer.hip_share
+        # per side: ((pitch, roll) controller indices, share of the moment) for the ankle and the hip
+        self._moment_joints = {s: [((ctrl[a], ctrl[b]), w) for (a, b), w in ((tm.ankle_dofs[s], 1.0 - hip),
+                                                                              (tm.hip_dofs[s], hip))
+                                   if a in ctrl and b in ctrl and w > 0] for s in SIDES}
+        self._u = np.zeros(2)  # integrated CoP correction (m)
+        self._ref_hist: list[tuple[np.ndarray, dict[str, np.ndarray]]] = []
+        self._dt_prev = None
+        self.q_cmd = np.asarray(q0, dtype=float).copy()
+        self._pose(self.d, q0)
+        mujoco.mj_forward(m, self.d)
+        lowest = min(self._sole_bottom(s) for s in SIDES if self.in_contact[s])
+        self.d.qpos[2] -= lowest  # soles in contact exactly on the floor
+        self.base_pose = self.base_pose.copy()
+        self.base_pose[2] = self.d.qpos[2]
+        mujoco.mj_forward(m, self.d)
+        self._pose(self.ref, q0)
+        mujoco.mj_kinematics(m, self.ref)
+        self.sole_home = {s: self.d.xpos[tm.sole_body[s]].copy() for s in SIDES}
+        self.pelvis_z0 = float(self.d.xpos[tm.root_body][2])
+        self.polygon = Polygon(convex_hull(np.vstack([self._sole_corners(s) for s in SIDES if self.in_contact[s]])))
+        self.last: Measurement | None = None
+        self._f6 = np.zeros(6)
+        self._geom_side = {tm.sole_geom[s]: s for s in SIDES}
+        v = self.polygon.vertices
+        e = np.roll(v, -1, axis=0) - v
+        n = np.stack([-e[:, 1], e[:, 0]], axis=1) / np.linalg.norm(e, axis=1)[:, None]
+        self._normals, self._offsets = n, np.einsum("ij,ij->i", n, v)
+
+    def _margin(self, p: np.ndarray) -> float:
+        """Signed distance of a point to the support polygon's boundary, inside positive."""
+        d = float((self._normals @ p - self._offsets).min())
+        return d if d >= 0 else float(self.polygon.margin(p[None])[0])
+
+    # ------------------------------------------------------------------ geometry
+    def _pose(self, data: mujoco.MjData, q: np.ndarray) -> None:
+        data.qpos[:3] = self.base_pose[:3]
+        data.qpos[3:7] = _wxyz(self.base_pose[3:])
+        data.qpos[self.tm.qpos_adr] = q
+
+    def _sole_bottom(self, side: str) -> float:
+        g = self.tm.sole_geom[side]
+        R = self.d.geom_xmat[g].reshape(3, 3)
+        corners = self.d.geom_xpos[g] + (np.array([[sx, sy, -1] for sx in (-1, 1) for sy in (-1, 1)])
+                                         * self.m.geom_size[g]) @ R.T
+        return float(corners[:, 2].min())
+
+    def _sole_corners(self, side: str) -> np.ndarray:
+        g = self.tm.sole_geom[side]
+        R = self.d.geom_xmat[g].reshape(3, 3)
+        local = np.array([[sx, sy, -1] for sx in (-1, 1) for sy in (-1, 1)]) * self.m.geom_size[g]
+        return (self.d.geom_xpos[g] + local @ R.T)[:, :2]
+
+    def tcp_pose(self, side: str, commanded: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """(position, rotation) of a hand's TCP frame in the commanded (reference) or measured posture."""
+        data = self.ref if commanded else self.d
+        b = int(self.m.body_parentid[self.tm.load_body[side]])
+        return data.xpos[b].copy(), data.xmat[b].reshape(3, 3).copy()
+
+    def set_reference(self, q_cmd: np.ndarray) -> None:
+        self._pose(self.ref, q_cmd)
+        self.ref.qvel[:] = 0.0
+        mujoco.mj_kinematics(self.m, self.ref)
+        mujoco.mj_comPos(self.m, self.ref)
+
+    # ------------------------------------------------------------------ load
+    def grasp(self, side: str, com_world: np.ndarray) -> None:
+        """The object's CoM in the world when ``side`` closes on it (commanded posture): kept in its TCP frame."""
+        p, R = self.tcp_pose(side)
+        self.load_com[side] = R.T @ (np.asarray(com_world, dtype=float) - p)
+
+    def _update_load(self, holding: str, dt: float) -> None:
+        share = {"none": (0.0, 0.0), "left": (1.0, 0.0), "right": (0.0, 1.0), "both": (0.5, 0.5)}[holding]
+        rate = self.object_mass_kg / self.s.load_ramp_s if self.s.load_ramp_s > 0 else math.inf
+        for side, w in zip(SIDES, share):
+            target = w * self.object_mass_kg
+            cur = self.load_mass[side]
+            new = target if abs(target - cur) <= rate * dt else cur + math.copysign(rate * dt, target - cur)
+            if new != cur:
+                self._set_mass(side, new)
+
+    def _set_mass(self, side: str, mass: float) -> None:
+        m, b = self.m, self.tm.load_body[side]
+        delta = mass - self.load_mass[side]
+        self.load_mass[side] = mass
+        m.body_mass[b] = mass
+        m.body_ipos[b] = self.load_com[side]
+        m.body_inertia[b] = np.full(3, 0.4 * mass * 0.05 ** 2)  # a 5 cm solid sphere's: the object's own inertia
+        while b > 0:  # MuJoCo divides by the compiled subtree masses: keep them true
+            m.body_subtreemass[b] += delta
+            b = int(m.body_parentid[b])
+
+    # ------------------------------------------------------------------ control
+    def control(self, q_cmd: np.ndarray, holding: str, dt: float) -> PlantFault | None:
+        """Command ``q_cmd`` with ``holding`` for ``dt`` s (whole physics steps); the first fault, once found."""
+        if self.fault is not None and self.fault.kind == "fall":
+            self.t += dt  # a fallen robot lies still: nothing more is simulated
+            return self.fault
+        self.q_cmd = np.asarray(q_cmd, dtype=float)
+        self._update_load(holding, dt)
+        self.set_reference(self.q_cmd)
+        tau = self._feedforward() + self._stabilizer(dt)
+        self.d.ctrl[:] = self.q_cmd + tau / self._kp
+        n = max(1, int(round(dt / self.m.opt.timestep)))
+        mujoco.mj_step(self.m, self.d, nstep=n)
+        self.t += n * self.m.opt.timestep
+        self.last = self.measure()
+        fault = self._check(self.last, n * self.m.opt.timestep)
+        if fault is not None and self.fault is None:
+            self.fault = fault
+        return self.fault
+
+    def _feedforward(self) -> np.ndarray:
+        """Static torques of the commanded posture (robot and load under gravity), balanced by the supporting soles'
+        wrenches of least 2-norm: the model-based gravity feed-forward a stiff position servo runs."""
+        n = len(self.tm.joint_names)
+        if not self.s.servo.gravity_feedforward:
+            return np.zeros(n)
+        m, r = self.m, self.ref
+        g = np.zeros(m.nv)
+        mujoco.mj_rne(m, r, 0, g)  # qvel = 0 in the reference: gravity only
+        jac = []
+        for side in SIDES:
+            if self.in_contact[side]:
+                jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+                mujoco.mj_jacBody(m, r, jp, jr, self.tm.sole_body[side])
+                jac += [jp, jr]
+        J = np.vstack(jac)
+        # Base rows: the soles' wrenches carry the whole weight. Least norm with the moments weighed 1/L: the soles
+        # share the load by their forces (the lever rule) and apply moments only where forces cannot balance.
+        scale = np.tile([1.0, 1.0, 1.0, FF_MOMENT_ARM_M, FF_MOMENT_ARM_M, FF_MOMENT_ARM_M], len(jac) // 2)
+        A = J[:, :6].T * scale
+        wrench = scale * (A.T @ np.linalg.solve(A @ A.T, g[:6]))
+        return g[self.tm.dof_adr] - J[:, self.tm.dof_adr].T @ wrench
+
+    def _stabilizer(self, dt: float) -> np.ndarray:
+        tau = np.zeros(len(self.tm.joint_names))
+        # The reference CoM's motion by finite differences of the posture alone: the robot's CoM and each load's
+        # position are kept, and recombined with today's masses (a load's mass changing is no CoM acceleration).
+        r, tm = self.ref, self.tm
+        loads = {s: self.load_mass[s] for s in SIDES}
+        total = float(self.m.body_subtreemass[tm.root_body])
+        robot = total - sum(loads.values())
+        c_all = r.subtree_com[tm.root_body]
+        x_load = {s: r.xipos[tm.load_body[s]].copy() for s in SIDES}
+        c_robot = (total * c_all - sum(loads[s] * x_load[s] for s in SIDES)) / robot
+        self._ref_hist = (self._ref_hist + [(c_robot, x_load)])[-3:]
+        st = self.s.stabilizer
+        if not st.enabled or len(self._ref_hist) < 3 or self.last is None or not np.isfinite(self.last.cop[0]):
+            return tau
+        c0, c1, c2 = ((robot * cr + sum(loads[s] * xl[s] for s in SIDES)) / total for cr, xl in self._ref_hist)
+        v_ref = (c2 - c1) / dt
+        a_ref = (c2 - 2 * c1 + c0) / dt ** 2
+        height = max(float(c2[2]), 0.1)  # the floor is z = 0
+        omega = math.sqrt(G / height)
+        p_ref = c2[:2] - height / G * a_ref[:2]
+        mujoco.mj_subtreeVel(self.m, self.d)
+        c = self.d.subtree_com[self.tm.root_body]
+        v = self.d.subtree_linvel[self.tm.root_body]
+        xi_err = (c[:2] - c2[:2]) + (v[:2] - v_ref[:2]) / omega
+        p_d = self._inside(p_ref + (1.0 + st.dcm_gain / omega) * xi_err)
+        self._u += dt * (st.cop_gain * (p_d - self.last.cop) - self._u / st.cop_leak_s)
+        shift = (p_d - p_ref) + self._u
+        forces = self.last.foot_forces_n
+        total = sum(forces.values())
+        if total <= 0:
+            return tau
+        # Ground moment change that moves the CoP by `shift`: dM = F (dy, -dx); the joints supply -dM.
+        moment = -total * np.array([shift[1], -shift[0]])
+        for side in SIDES:
+            share = forces[side] / total
+            if share <= 0:
+                continue
+            for (jp, jr), w in self._moment_joints[side]:
+                ap, ar = self.d.xaxis[self.m.dof_jntid[self.tm.dof_adr[jp]]], self.d.xaxis[self.m.dof_jntid[self.tm.dof_adr[jr]]]
+                mx, my = share * w * moment
+                det = ap[0] * ar[1] - ar[0] * ap[1]  # [ap ar] (xy) t = moment, by Cramer's rule
+                if abs(det) < 1e-9:
+                    continue
+                tau[jp] += (mx * ar[1] - ar[0] * my) / det
+                tau[jr] += (ap[0] * my - mx * ap[1]) / det
+        return tau
+
+    def _inside(self, p: np.ndarray) -> np.ndarray:
+        inset = self.s.stabilizer.polygon_inset_m
+        if self._margin(p) >= inset:
+            return p
+        centre = self.polygon.vertices.mean(axis=0)
+        lo, hi = 0.0, 1.0
+        for _ in range(20):
+            mid = 0.5 * (lo + hi)
+            if self.polygon.margin((centre + mid * (p - centre))[None])[0] >= inset:
+                lo = mid
+            else:
+                hi = mid
+        return centre + lo * (p - centre)
+
+    # ------------------------------------------------------------------ measurement
+    def measure(self) -> Measurement:
+        m, d, tm = self.m, self.d, self.tm
+        forces = {s: 0.0 for s in SIDES}
+        mx = my = 0.0
+        f6 = self._f6
+        for i in range(d.ncon):
+            con = d.contact[i]
+            side = self._geom_side.get(int(con.geom1)) or self._geom_side.get(int(con.geom2))
+            if side is None:
+                continue
+            mujoco.mj_contactForce(m, d, i, f6)
+            fr = con.frame
+            fz = abs(f6[0] * fr[2] + f6[1] * fr[5] + f6[2] * fr[8])  # world z of the contact force
+            forces[side] += fz
+            mx += fz * con.pos[0]
+            my += fz * con.pos[1]
+        total = forces["left"] + forces["right"]
+        cop = np.array([mx / total, my / total]) if total > 1e-6 else np.full(2, np.nan)
+        margin = self._margin(cop) if total > 1e-6 else -math.inf
+        tilt = math.acos(max(-1.0, min(1.0, float(d.xmat[tm.root_body][8]))))
+        supporting = [s for s in SIDES if self.in_contact[s]]
+        foot_tilt = max(math.acos(max(-1.0, min(1.0, float(d.xmat[tm.sole_body[s]][8])))) for s in supporting)
+        slip = max(float(np.linalg.norm(d.xpos[tm.sole_body[s]][:2] - self.sole_home[s][:2])) for s in supporting)
+        ratio = np.abs(d.actuator_force[: len(tm.joint_names)]) / tm.effort
+        err = np.abs(d.qpos[tm.qpos_adr] - self.q_cmd)
+        keep = ~tm.jaw_mask
+        return Measurement(t=self.t, cop=cop, cop_margin_m=margin, foot_forces_n=forces,
+                           com=d.subtree_com[tm.root_body].copy(), base_tilt_rad=tilt, foot_tilt_rad=foot_tilt,
+                           foot_slip_m=slip, torque_ratio=float(ratio[keep].max()),
+                           tracking_error_rad=float(err[keep].max()))
+
+    def _check(self, ms: Measurement, dt: float) -> PlantFault | None:
+        lim, tm, d = self.s.faults, self.tm, self.d
+        ex = self.extremes
+        if ms.cop_margin_m < ex.min_cop_margin_m:
+            ex.min_cop_margin_m, ex.min_cop_margin_at_s = ms.cop_margin_m, ms.t
+        ex.max_torque_ratio = max(ex.max_torque_ratio, ms.torque_ratio)
+        ex.max_tracking_error_rad = max(ex.max_tracking_error_rad, ms.tracking_error_rad)
+        ex.foot_slip_m = max(ex.foot_slip_m, ms.foot_slip_m)
+        ex.foot_tilt_rad = max(ex.foot_tilt_rad, ms.foot_tilt_rad)
+        drop = self.pelvis_z0 - float(d.xpos[tm.root_body][2])
+        if ms.base_tilt_rad > lim.fall_tilt_rad or drop > lim.fall_drop_m:
+            return PlantFault("fall", f"base tilted {ms.base_tilt_rad:.3f} rad, pelvis {drop * 1000:.0f} mm lower "
+                                      f"(limits {lim.fall_tilt_rad} rad, {lim.fall_drop_m * 1000:.0f} mm)", ms.t)
+        for s in SIDES:
+            if not self.in_contact[s]:
+                continue
+            lift = float(d.xpos[tm.sole_body[s]][2] - self.sole_home[s][2])
+            if lift > lim.foot_lift_m:
+                return PlantFault("foot_lift", f"{s} sole lifted {lift * 1000:.1f} mm (limit "
+                                               f"{lim.foot_lift_m * 1000:.0f} mm)", ms.t)
+        if ms.foot_tilt_rad > lim.foot_tilt_rad:
+            return PlantFault("foot_tilt", f"a supporting sole tilted {ms.foot_tilt_rad:.3f} rad (limit "
+                                           f"{lim.foot_tilt_rad} rad)", ms.t)
+        sat = np.flatnonzero((np.abs(d.actuator_force[: len(tm.joint_names)]) >= tm.effort * (1 - 1e-6)) & ~tm.jaw_mask)
+        for j in list(ex.saturated_since):
+            if j not in sat:
+                del ex.saturated_since[j]
+        for j in sat:
+            since = ex.saturated_since.setdefault(int(j), ms.t - dt)
+            if ms.t - since >= lim.saturation_s - 1e-9:
+                return PlantFault("torque_saturation", f"{tm.joint_names[j]} at its effort limit "
+                                                       f"{tm.effort[j]:.0f} N*m for {lim.saturation_s * 1000:.0f} ms",
+                                  ms.t)
+        return None

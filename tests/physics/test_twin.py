@@ -1,0 +1,122 @@
+"""The physics twin (MuJoCo) on its own: at rest it carries the weight where the CoM is; a planned motion stands,
+the same motion with a far heavier object does not; the same run gives the same report; bad input is refused."""
+
+from __future__ import annotations
+
+import json
+from functools import lru_cache
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from robot_bridge.physics.model import build_twin_model
+from robot_bridge.physics.settings import StabilizerSettings, TwinSettings
+from robot_bridge.physics.simulate import SAMPLE_COLUMNS, SimulateInputError, simulate
+from robot_bridge.physics.twin import G, Twin
+from robot_bridge.robot_files import robot_files
+from tests.bridge.plans import build_plan, stance_state
+
+
+@lru_cache(maxsize=None)
+def arm_plan(mass_kg: float = 8.0) -> str:
+    """A short plan (1.5 s) that swings the right arm out holding an object: canonical JSON, so each test gets
+    its own copy."""
+    return json.dumps(build_plan({"RSP": -0.4, "REP": -0.3}, holding="right", mass_kg=mass_kg, duration_s=1.5))
+
+
+def _plan() -> dict:
+    return json.loads(arm_plan())
+
+
+@pytest.mark.parametrize("robot,stance,load_kg", [("hrp5p", "upright", 0.0), ("hrp5p", "upright", 6.0),
+                                                  ("hrp5p", "crouched", 0.0), ("jvrc1", "upright", 0.0)])
+def test_the_twin_at_rest_carries_its_weight_under_its_com(robot, stance, load_kg):
+    """Standing still (with an object in the right hand when ``load_kg`` > 0): the soles' normal forces add up to
+    the robot's and the object's weight within 1 %, and the CoP is the CoM's ground projection within 2 mm."""
+    names, q, base = stance_state(robot, stance)
+    files = robot_files(robot)
+    settings = TwinSettings()
+    tm = build_twin_model(files.urdf, files.spec, names, settings)
+    twin = Twin(tm, np.array(base), np.array(q), {"left": True, "right": True}, settings, object_mass_kg=load_kg)
+    p, R = twin.tcp_pose("right")
+    twin.grasp("right", p + R @ np.array([0.0, 0.0, 0.08]))
+    for _ in range(400):  # 2 s: the load ramp, then rest
+        assert twin.control(np.array(q), "right" if load_kg else "none", 0.005) is None
+    ms = twin.last
+    weight = (tm.total_mass_kg + load_kg) * G
+    assert sum(ms.foot_forces_n.values()) == pytest.approx(weight, rel=0.01)
+    assert np.linalg.norm(ms.cop - ms.com[:2]) < 0.002, (ms.cop, ms.com)
+    assert twin.load_mass["right"] == pytest.approx(load_kg)
+
+
+def test_the_planned_object_stands_and_a_six_times_heavier_one_does_not():
+    plan = _plan()
+    stood = simulate(plan)
+    assert stood.stood and not stood.report["fell"], stood.report["fault"]
+    assert stood.report["min_cop_margin_m"] > 0.01
+    assert 0 < stood.report["cop_margin_ratio"] <= 2.0
+    heavy = simulate(plan, TwinSettings(mass_scale=6.0))
+    assert not heavy.stood
+    assert heavy.report["fault"]["kind"] in ("fall", "foot_tilt", "foot_lift", "torque_saturation")
+    assert heavy.report["mass_scale"] == 6.0
+
+
+def test_the_same_run_twice_gives_the_same_report_and_samples():
+    plan = _plan()
+    a, b = simulate(plan), simulate(plan)
+    ra, rb = dict(a.report), dict(b.report)
+    assert ra.pop("wall_s") >= 0 and rb.pop("wall_s") >= 0
+    assert ra == rb
+    assert a.samples == b.samples
+    assert len(a.samples) == len(plan["trajectory"])  # one row per plan sample at speed 1
+    assert len(a.samples[0]) == len(SAMPLE_COLUMNS)
+
+
+def test_the_stabilizer_is_a_real_switch():
+    """Off, the same plan gives another CoP history (the stabilizer acts), and the report says which ran."""
+    plan = _plan()
+    on = simulate(plan)
+    off = simulate(plan, TwinSettings(stabilizer=StabilizerSettings(enabled=False)))
+    assert on.report["stabilizer"] is True and off.report["stabilizer"] is False
+    assert on.samples != off.samples
+
+
+def test_simulate_cli_writes_the_report_and_exits_by_the_outcome(tmp_path):
+    from service.cli.simulate import simulate as cli
+
+    plan_file = tmp_path / "plan.json"
+    plan_file.write_text(arm_plan())
+    runner = CliRunner()
+    ok = runner.invoke(cli, [str(plan_file), "--out", str(tmp_path / "ok"), "--json"])
+    assert ok.exit_code == 0, ok.output
+    report = json.loads((tmp_path / "ok" / "simreport.json").read_text())
+    assert report["schema"] == "regrasp.simreport/1" and report["fault"] is None
+    assert set(report) >= {"plan_sha256", "robot", "engine", "stabilizer", "speed", "mass_scale", "fell", "fell_at_s",
+                           "fault", "min_cop_margin_m", "min_cop_margin_at_s", "cop_margin_ratio",
+                           "max_tracking_error_rad", "max_torque_ratio", "foot_slip_m", "foot_tilt_rad", "wall_s"}
+    assert report["engine"] == {"name": "mujoco", "version": report["engine"]["version"], "timestep_s": 0.001}
+    header = (tmp_path / "ok" / "samples.csv").read_text().splitlines()[0]
+    assert header == ",".join(SAMPLE_COLUMNS)
+    heavy = runner.invoke(cli, [str(plan_file), "--out", str(tmp_path / "heavy"), "--mass-scale", "6"])
+    assert heavy.exit_code == 1, heavy.output
+
+
+@pytest.mark.parametrize("edit,words", [
+    (lambda p: p.update(status="infeasible"), "not solved"),
+    (lambda p: p["trajectory"][3]["q"].__setitem__(0, float("nan")), "non-finite"),
+    (lambda p: p["robot"].update(name="nao"), "unknown robot"),
+    (lambda p: p.update(dt_s=0.0025), "multiple of the 1 ms"),
+    (lambda p: p["trajectory"][2].update(holding="teeth"), "holding"),
+])
+def test_a_plan_the_twin_cannot_play_is_refused_in_one_line(edit, words, tmp_path):
+    plan = _plan()
+    edit(plan)
+    with pytest.raises(SimulateInputError, match=words):
+        simulate(plan)
+    from service.cli.simulate import simulate as cli
+
+    f = tmp_path / "bad.json"
+    f.write_text(json.dumps(plan).replace("NaN", "NaN"))
+    res = CliRunner().invoke(cli, [str(f), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2 and "Traceback" not in res.output
