@@ -269,7 +269,7 @@ class ControllerSim:
                                         f"{job.last_index + 1}, got seq {seg.seq} / segment {seg.segment_index}")
                     fatal = False
                 else:
-                    reply = self._accept(job, seg)
+                    reply = job.accept(seg, self.q, self.limits, self.joint_names, self.sim)  # own checks
             elif job is not None and job.state == "executing":
                 reply = ("refused", f"another job is running: {job.job_id}")
             elif seg.segment_index != 0:
@@ -284,7 +284,7 @@ class ControllerSim:
                     reply = ("rejected", f"the robot faulted ({self._fault.reason}); nothing more is played")
                 else:
                     new = Job(seg, columns)
-                    reply = self._accept(new, seg)
+                    reply = new.accept(seg, self.q, self.limits, self.joint_names, self.sim)
                     if reply[0] == "accepted":
                         new.last_heartbeat = received  # the dead-man arms at the first accepted segment
                         self._job = new
@@ -297,10 +297,6 @@ class ControllerSim:
         if crash:
             self._exit(CRASH_EXIT_CODE)
 
-    def _accept(self, job: Job, seg: TrajectorySegment) -> tuple[str, str]:
-        """The controller's own checks on a segment (lock held), against the measured posture."""
-        return job.accept(seg, self.q, self.limits, self.joint_names, self.sim)
-
     # ------------------------------------------------------------------ control loop
     def _control_loop(self) -> None:
         period = 1.0 / self.sim.rate_hz
@@ -311,7 +307,13 @@ class ControllerSim:
             now = time.monotonic()
             with self._lock:
                 job = self._job
-                events = self._tick(job, period * self.sim.speed, now)
+                events, commands = self._commands(job, period * self.sim.speed, now)
+            fault = self._drive(commands)  # the plant's work outside the lock: commands and heartbeats never wait
+            with self._lock:
+                if fault is not None:
+                    if job is not None and job.state == "executing":
+                        self._end(job, "fault")
+                    events.append(("fault", fault.reason))
                 q = self.q.copy()
                 holding = self._holding
                 job_id = job.job_id if job is not None else None
@@ -347,19 +349,20 @@ class ControllerSim:
                 # Never a tick without a pause: at real-time priority a loop that fell behind must not hold the core.
                 time.sleep(MIN_TICK_PAUSE_S)
 
-    def _tick(self, job: Job | None, step: float, now: float) -> list[tuple[str, str]]:
-        """One control tick (lock held): the dead-man first (after a freeze nothing is played before the gap is
-        judged), then ``step`` plan seconds of playback through the plant, in the plant's control steps."""
+    def _commands(self, job: Job | None, step: float, now: float) -> tuple[list[tuple[str, str]], list[tuple]]:
+        """One control tick's decisions (lock held): the dead-man first (after a freeze nothing is played before the
+        gap is judged), then ``step`` plan seconds of playback, cut into the plant's control steps: the events and
+        the (posture, holding, duration) commands for the plant."""
         events: list[tuple[str, str]] = []
         running = job is not None and job.state == "executing"
         if running and job.last_heartbeat is not None and now - job.last_heartbeat > self.bridge.watchdog_timeout_s:
-            status, reason, _ = self._dead_man(job, now)
-            events.append((status, reason))
+            events.append(self._dead_man(job, now)[:2])
             running = False
-        if running and not job.ready(now, self.sim):
-            running = False
+        if running and not job.playing and (running := job.ready(now, self.sim)):
+            self.plant.on_playback()
+        commands = []
         for dt in self.plant.substeps(step):
-            if running:
+            if running and self._fault is None:
                 q, holding, event = job.advance(dt, self.limits, self.sim.position_tolerance)
                 if q is not None:
                     self.q_cmd = q
@@ -368,16 +371,19 @@ class ControllerSim:
                     self._end(job, event[0])
                     events.append(event)
                     running = False
-            fault = self.plant.step(self.q_cmd, self._holding, dt)
+            commands.append((self.q_cmd, self._holding, dt))
+        return events, commands
+
+    def _drive(self, commands: list[tuple]) -> PlantFault | None:
+        """Play the commands on the plant; its first fault (once) ends playback, the posture held as measured."""
+        first = None
+        for q_cmd, holding, dt in commands:
+            fault = self.plant.step(q_cmd, holding, dt)
             if fault is not None and self._fault is None:
-                self._fault = fault
+                self._fault = first = fault
                 self.q_cmd = self.plant.measured().copy()
-                if running:
-                    self._end(job, "fault")
-                    running = False
-                events.append(("fault", fault.reason))
         self.q = self.plant.measured().copy()
-        return events
+        return first
 
     def _heartbeat_frozen(self, now: float) -> bool:
         after = self.sim.freeze_heartbeat_after_s

@@ -46,6 +46,10 @@ class Plant(Protocol):
         """The ``state/balance`` message body (CONTRACT 6) without ``stamp``, or None (no contact model)."""
         ...
 
+    def on_playback(self) -> None:
+        """A job's playback starts (the plant's fault injection, if any, hooks onto it)."""
+        ...
+
 
 class KinematicPlant:
     """Replays the command: the measured posture is the commanded one, nothing falls."""
@@ -64,4 +68,7 @@ class KinematicPlant:
         return self._q
 
     def balance(self) -> dict[str, Any] | None:
+        return None
+
+    def on_playback(self) -> None:
         return None

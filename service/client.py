@@ -87,6 +87,10 @@ class ServiceClient:
     def reject(self, job_id: str, reason: str | None = None) -> dict[str, Any]:
         return self._call("POST", f"/v1/jobs/{job_id}/reject", json={"reason": reason} if reason else None)
 
+    def risk(self, job_id: str) -> dict[str, Any]:
+        """The plan's risk card (with its physics dry run) and the gate's verdicts."""
+        return self._call("GET", f"/v1/jobs/{job_id}/risk")
+
     def dispatch(self, job_id: str) -> dict[str, Any]:
         return self._call("POST", f"/v1/jobs/{job_id}/dispatch")
 

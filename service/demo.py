@@ -40,7 +40,11 @@ class DemoSettings(BaseModel):
     survey_states: int | None = Field(None, ge=1, description="None: the scenario's own estimator (seeds until the "
                                       "intervals are tight), the answer `regrasp survey` and `hands: auto` give; N: N "
                                       "states per seed over 10 seeds instead, a quicker look")
-    controller_speed: float = Field(10.0, gt=0, description="the simulated controller plays K times faster than real time")
+    controller_speed: float = Field(1.0, gt=0, description="the simulated controller plays K times faster than real time "
+                                                         "(the physics twin: simulated time K times the wall clock)")
+    plant: Literal["kinematic", "physics"] = Field("physics", description="the simulated controller's plant: the MuJoCo "
+                                                                          "twin (measured joints, balance, faults) or a "
+                                                                          "replay of the commands")
     workers: int = Field(2, ge=1)
     watchdog_timeout_s: float = Field(3.0, gt=0, le=5.0, description="bridge watchdog for the simulated controller "
                                       "(the robot default is 0.25 s): the demo shares a laptop or a VM with everything "
@@ -127,12 +131,15 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
                # host a 0.25 s heartbeat gap is the scheduler, not a dead controller. A robot keeps 0.25 s.
                REGRASP_BRIDGE_WATCHDOG_TIMEOUT_S=str(settings.watchdog_timeout_s),
                REGRASP_BRIDGE_LEASE_S=str(settings.lease_s),
+               # the demo's site policy: the built-in floor, and only plans whose physics dry run stood are dispatched
+               REGRASP_POLICY=str(_demo_policy(data_dir)),
                PYTHONUNBUFFERED="1")
     exe = [sys.executable, "-m", "service.cli.main"]
     with ExitStack() as stack:
         say(f"starting the simulated controller of {robot} (zenoh {endpoint}, {settings.controller_speed:g}x real time)")
         sim = _start([*exe, "controller-sim", "--robot", robot, "--stance", _stance_of(settings.scenario),
-                      "--speed", str(settings.controller_speed), "--listen", endpoint], env, out / "controller-sim.log")
+                      "--speed", str(settings.controller_speed), "--plant", settings.plant, "--listen", endpoint], env,
+                     out / "controller-sim.log")
         stack.callback(_stop, sim)
         say(f"starting the service on http://127.0.0.1:{http_port} ({settings.workers} workers, SQLite in {data_dir})")
         srv = _start([*exe, "serve", "--host", "127.0.0.1", "--port", str(http_port), "--data-dir", str(data_dir),
@@ -178,6 +185,8 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
                               planning_time_s=plan["stats"].get("time_s"), duration_s=plan["trajectory"][-1]["t"],
                               hands=plan["hands"], max_effort_ratio=max(p.get("effort_ratio") or 0.0 for p in plan["trajectory"]))
         result.steps.append(("plan", f"{plan['hands']}, min margin {plan['min_margin_m'] * 1000:.1f} mm"))
+        result.summary["physics"] = _physics_line(alice, plan_job["id"])
+        say(f"the risk card's physics dry run: {result.summary['physics']}")
 
         say("alice tries to approve her own plan (refused: a planner is not an approver, and never of her own plan)")
         try:
@@ -273,6 +282,33 @@ def _sealed_audit(audit_dir: Path, job_id: str, timeout: float):
     if verdict is None:
         raise TimeoutError(f"the audit file of job {job_id} was not written within {timeout:.0f} s")
     return path, verdict
+
+
+def _physics_line(client: Any, job_id: str) -> str:
+    """The risk card's physics dry run in one line (the twin's verdict before anyone approves)."""
+    try:
+        card = (client.risk(job_id) or {}).get("planning") or {}
+    except Exception as exc:  # noqa: BLE001 - the line is information; dispatch still checks the policy
+        return f"not available ({exc})"
+    phys = card.get("physics") or {}
+    if "report" not in phys:
+        return phys.get("error", "not run")
+    rep, at = phys["report"], phys.get("at") or {}
+    seg = at.get("segment") or {}
+    where = f"at {at['t']:.2f} s ({seg.get('kind', '?')}, {seg.get('hand', '?')} hand)" if at.get("t") is not None else ""
+    if rep.get("fault"):
+        return f"{'fell' if rep['fell'] else 'faulted'}: {rep['fault']['kind']} {where}"
+    return (f"stood; min CoP margin {rep['min_cop_margin_m'] * 1000:.1f} mm {where}, "
+            f"{rep['cop_margin_ratio']:.2f} of the plan's CoM margin")
+
+
+def _demo_policy(data_dir: Path) -> Path:
+    """The demo's safety policy file: the built-in one with the physics dry run required."""
+    from schemas.policy import SafetyPolicy
+
+    path = data_dir / "policy.json"
+    path.write_text(json.dumps(SafetyPolicy(require_physics_pass=True).document(), indent=1))
+    return path
 
 
 def _lookahead_segments(speed: float) -> int:

@@ -106,6 +106,8 @@ class RobotFile(_Strict):
     default_posture_rad: dict[str, float] = Field(default_factory=dict)
     limit_sources: str = ""
     license_notice: str | None = None
+    #: the physics twin's servo gains, rotor inertia and contact (robot_bridge.physics.settings.SimSection reads it)
+    sim: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)

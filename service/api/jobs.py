@@ -34,6 +34,7 @@ from schemas.scenario import Scenario
 
 from ..context import Service
 from ..execution.dispatch import RobotBusy
+from ..execution.physics_gate import dispatch_refusal
 from ..jobs.provenance import provenance
 from ..store.repo import Conflict, IdempotencyMismatch, QueueFull, UserQueueFull
 from .auth import Principal
@@ -442,6 +443,9 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
     if text is None or hashlib.sha256(text.encode("utf-8")).hexdigest() != row["approved_sha256"]:
         raise ProblemError(409, f"the stored plan of job {job_id} no longer matches the approved hash "
                                 f"{row['approved_sha256']}; it cannot be dispatched")
+    physics = dispatch_refusal(svc, row)  # the policy's physics dry run: the card's, bound to the plan's hash
+    if physics is not None:
+        raise ProblemError(409, f"job {job_id} is not dispatched: {physics}")
     signing = getattr(svc.bridge, "signing_problem", None)
     if signing is not None:
         raise ProblemError(409, f"the robot bridge cannot sign commands: {signing}; the controller refuses unsigned "

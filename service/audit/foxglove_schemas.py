@@ -30,6 +30,8 @@ ROBOT_DESCRIPTION = "std_msgs/String"
 AUDIT_EVENT = "regrasp.audit.Event"
 #: One playback sample of a plan's stability figures (Foxglove's Plot panel reads its fields).
 PLAN_SAMPLE = "regrasp.plan.Sample"
+#: One balance sample the physics plant reported during execution (state/balance, docs/contract.md section 6).
+ROBOT_BALANCE = "regrasp.robot.Balance"
 
 
 def _obj(properties: JSON, title: str | None = None, description: str | None = None) -> JSON:
@@ -213,6 +215,21 @@ SCHEMAS: dict[str, JSON] = {
         },
         title=PLAN_SAMPLE,
         description="A plan's stability figures at one playback sample",
+    ),
+    ROBOT_BALANCE: _obj(
+        {
+            "timestamp": TIME,
+            "cop_x": _num("centre of pressure, x (m, world)"),
+            "cop_y": _num("centre of pressure, y (m, world)"),
+            "cop_margin_m": _num("CoP distance to the support polygon's edge, inside positive (m)"),
+            "force_left_n": _num("left sole's normal force (N)"),
+            "force_right_n": _num("right sole's normal force (N)"),
+            "base_tilt_rad": _num("the base's tilt from upright (rad)"),
+            "min_cop_margin_m": _num("smallest CoP margin so far (m)"),
+            "audit": AUDIT_FIELD,
+        },
+        title=ROBOT_BALANCE,
+        description="The robot's balance as the controller's physics plant measured it",
     ),
 }
 

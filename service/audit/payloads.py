@@ -46,6 +46,21 @@ def find_joint_state(payload: Mapping[str, Any]) -> tuple[list[str], list[float]
     return None
 
 
+def find_balance(payload: Mapping[str, Any]) -> dict[str, float] | None:
+    """A ``state/balance`` sample (the physics plant's) in the payload or its ``data``/``payload``, flattened for
+    Foxglove's Plot panel; None when there is none."""
+    for candidate in (payload, payload.get("data"), payload.get("payload")):
+        if not isinstance(candidate, Mapping) or "foot_forces_n" not in candidate or "cop_margin_m" not in candidate:
+            continue
+        cop = candidate.get("cop") or [None, None]
+        forces = candidate.get("foot_forces_n") or {}
+        out = {"cop_x": cop[0], "cop_y": cop[1], "cop_margin_m": candidate.get("cop_margin_m"),
+               "force_left_n": forces.get("left"), "force_right_n": forces.get("right"),
+               "base_tilt_rad": candidate.get("base_tilt_rad"), "min_cop_margin_m": candidate.get("min_cop_margin_m")}
+        return {k: float(v) for k, v in out.items() if isinstance(v, (int, float))}
+    return None
+
+
 def urdf_for(robot_name: str | None) -> str | None:
     """The URDF text of a known robot (from the planner's registry), or None."""
     if not robot_name:

@@ -39,6 +39,8 @@ TOPIC_EXECUTED_PLAN_STABILITY = "/executed_plan/stability"
 
 TOPIC_ROBOT_JOINTS = "/robot/joint_states"
 TOPIC_ROBOT_TF = "/robot/tf"
+#: The physics plant's balance stream during execution (CoP, its margin, foot forces, base tilt).
+TOPIC_ROBOT_BALANCE = "/robot/balance"
 
 # Older names of the same topics, kept for importers.
 TOPIC_JOINTS_PLAN = TOPIC_PLAN_JOINTS

@@ -17,6 +17,7 @@ topic                    schema                    what
                                                    paths), CoM, ZMP, object
 /plan/stability          regrasp.plan.Sample       margin, ZMP margin, effort per sample
 /robot/joint_states      foxglove.JointStates      the robot state echoed back
+/robot/balance           regrasp.robot.Balance     the physics plant's CoP, margin, foot forces, tilt
 /robot/tf                foxglove.FrameTransforms  the same, frames under ``executed/``
 =======================  ========================  =====================================
 
@@ -52,7 +53,7 @@ from .executed import ControllerClock, ExecutedPlan, measured_samples
 
 # Re-exported: importers of service.audit.writer use these names.
 from .markers import shrink_polygon  # noqa: F401
-from .payloads import find_joint_state, find_plan, urdf_for
+from .payloads import find_balance, find_joint_state, find_plan, urdf_for
 from .playback import Playback, plan_messages
 from .settings import AuditError, AuditSettings
 from .severity import level_of, summarise
@@ -68,6 +69,7 @@ from .topics import (
     TOPIC_JOINTS_PLAN,
     TOPIC_LOG,
     TOPIC_PLAN_TF,
+    TOPIC_ROBOT_BALANCE,
     TOPIC_ROBOT_DESCRIPTION,
     TOPIC_ROBOT_TF,
     TOPIC_SUPPORT,
@@ -313,6 +315,11 @@ class AuditWriter:
             names = data.get("joint_names") if isinstance(data, Mapping) else None
             if measured and isinstance(names, (list, tuple)) and names:
                 self._measured(list(names), measured, ns, data.get("base_pose"))
+                return
+            balance = find_balance(payload)
+            if balance is not None:
+                self._emit(TOPIC_ROBOT_BALANCE, fx.ROBOT_BALANCE, {"timestamp": stamp(ns), **balance}, ns)
+                self._commit()
                 return
             state = find_joint_state(payload)
             if state is not None:

@@ -63,12 +63,14 @@ def stance_step(out: Path, robot_name: str, fmt: str = "png") -> list[dict]:
               help="0: the demo surveys with the scenario's own estimator (seeds until every interval is within "
                    "+-0.02), so it recommends what `regrasp survey` and `hands: auto` do; N: N states per seed over "
                    "10 seeds instead (a quicker look, whose recommendation may differ).")
-@click.option("--speed", default=10.0, show_default=True, type=click.FloatRange(min=0.1),
-              help="The simulated controller plays K times faster than real time.")
+@click.option("--speed", default=1.0, show_default=True, type=click.FloatRange(min=0.1),
+              help="The simulated controller plays K times faster than real time (physics: simulated time).")
+@click.option("--plant", type=click.Choice(["physics", "kinematic"]), default="physics", show_default=True,
+              help="The simulated controller's plant: the MuJoCo twin, or a replay of the commands.")
 @click.option("--format", "fmt", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
               help="Format of the figures.")
 def demo(out_dir: str, robot_name: str | None, stances_only: bool, scenario: str | None, survey_states: int | None,
-         speed: float, fmt: str) -> None:
+         speed: float, plant: str, fmt: str) -> None:
     """Run the main job end to end on the embedded defaults and show its result."""
     from planner.errors import InputError
     from planner.scene.scenarios import load_scenario
@@ -117,7 +119,7 @@ def demo(out_dir: str, robot_name: str | None, stances_only: bool, scenario: str
     console.print(f"  planner kernels ready in {warm_up(robot_name):.1f} s")
 
     settings = DemoSettings(scenario=scenario, robot=robot_override, survey_states=survey_states or None,
-                            controller_speed=speed, figure_format=fmt)
+                            controller_speed=speed, plant=plant, figure_format=fmt)
     console.print(f"[bold]2. Scenario {scenario} with {robot_name}"
                   + (f" (over the scenario's {scenario_robot})" if robot_override else "")
                   + " through the service, the gate and the simulated robot[/]")
@@ -136,7 +138,10 @@ def demo(out_dir: str, robot_name: str | None, stances_only: bool, scenario: str
     table.add_row("min margin / threshold", f"{s['min_margin_m'] * 1000:.1f} mm / {s['threshold_m'] * 1000:.0f} mm")
     table.add_row("max effort ratio", f"{s['max_effort_ratio']:.2f} (static torque / limit, the worst joint)")
     table.add_row("planning time", f"{s['planning_time_s']:.1f} s")
-    table.add_row("motion duration", f"{s['duration_s']:.1f} s (played {speed:g}x faster by the simulated controller)")
+    table.add_row("motion duration", f"{s['duration_s']:.1f} s (played at {speed:g}x by the simulated controller, "
+                                     f"{plant} plant)")
+    if s.get("physics"):
+        table.add_row("physics dry run", s["physics"])
     table.add_row("execution", s["execution"])
     table.add_row("audit", s["audit"])
     table.add_row("demo time", f"{time.perf_counter() - t0:.1f} s")

@@ -20,6 +20,7 @@ from typing import Any
 from ..jobs.owners import LiveOwners, make_owner_id
 from ..settings import ServiceSettings
 from ..store.repo import JobStore
+from .balance import start_balance_watch
 from .bridge import Bridge
 
 log = logging.getLogger("regrasp.execution")
@@ -30,6 +31,8 @@ STOP_POLL_S = 0.2
 EVENT_DRAIN_TIMEOUT_S = 30.0
 #: Bridge events that mean the robot is being driven (robot_bridge.dispatcher names them so).
 EXECUTING_EVENTS = frozenset({"executing", "segment", "robot_state"})
+#: Rate of the balance samples an execution records in its events (and so its audit), Hz.
+BALANCE_EVENT_HZ = 10.0
 #: Exceptions of the bridge raised before anything was sent: the job goes back to approved.
 NOT_STARTED_ERRORS = frozenset({"ControllerUnavailableError", "BusyError", "NoSigningKeyError"})
 
@@ -62,6 +65,8 @@ class Executions:
         # A controller lost during a job and heard from again gets the stop again; the job's record says so.
         if hasattr(bridge, "on_controller_return"):
             bridge.on_controller_return = self._record_stop_resent
+        # The physics plant's balance stream, when the bridge is a real one: the console's CoP trace, the audit's.
+        self.balance = start_balance_watch() if hasattr(bridge, "on_controller_return") else None
 
     def _record_stop_resent(self, job_id: str, data: dict[str, Any]) -> None:
         """Store the re-sent stop as a bridge event of the job (its audit file records it)."""
@@ -106,6 +111,16 @@ class Executions:
         def on_event(name: str, payload: dict[str, Any]) -> None:
             pending.put((str(name), dict(payload) if isinstance(payload, dict) else payload))
 
+        last_balance = [-float("inf")]
+
+        def on_balance(sample: dict[str, Any]) -> None:  # into the job's events (and its audit) at BALANCE_EVENT_HZ
+            stamp = float(sample.get("stamp") or 0.0)
+            if stamp - last_balance[0] >= 1.0 / BALANCE_EVENT_HZ:
+                last_balance[0] = stamp
+                on_event("balance", sample)
+
+        unlisten = self.balance.listen(on_balance) if self.balance is not None else (lambda: None)
+
         try:
             outcome = self.bridge.execute(
                 plan, job_id=job_id, approved_sha256=job["approved_sha256"],
@@ -119,6 +134,7 @@ class Executions:
             details = outcome.details
         except Exception as exc:  # noqa: BLE001 - a bridge fault aborts the execution
             if type(exc).__name__ in NOT_STARTED_ERRORS:
+                unlisten()
                 pending.put(None)
                 writer.join(EVENT_DRAIN_TIMEOUT_S)
                 self.store.transition(job_id, ["dispatching"], "approved", expect_owner=self.owner, owner=None,
@@ -128,6 +144,7 @@ class Executions:
                 return
             log.exception("execution of job %s failed", job_id)
             status, reason, verdict, details = "aborted", f"bridge error: {type(exc).__name__}: {exc}", None, {}
+        unlisten()
         pending.put(None)
         writer.join(EVENT_DRAIN_TIMEOUT_S)
         if stop.is_set() and status == "aborted" and not reason:
@@ -220,6 +237,8 @@ class Executions:
                 pass
         for thread in list(self._threads.values()):
             thread.join(5)
+        if self.balance is not None:
+            self.balance.close()
         self.owners.discard(self.owner)
 
 

@@ -7,6 +7,11 @@ worst moments it found: the smallest CoM margin headroom above the threshold and
 ZMP margin, each with its time, plan point, segment (kind and hand). Effort headroom comes
 from the plan's own ``effort_ratio`` (the gate has no torque model); it is labelled so.
 
+The card also carries the physics dry run (robot_bridge.physics, CONTRACT 9): the plan played in the
+MuJoCo twin at speed 1 and mass scale 1, bound to the plan's hash: whether the robot stood, its
+smallest centre-of-pressure margin, when and in which segment. The safety policy's
+``require_physics_pass`` dispatches only plans whose dry run stood (service.execution.physics_gate).
+
 The card is computed where the plan is (the worker), stored with the job's ``planned`` event,
 and served by ``GET /v1/jobs/{id}/risk`` (service.api.risk) together with the gate's verdict at
 dispatch and, when the store holds one, a comparison with the same task planned at 0 mm.
@@ -96,6 +101,7 @@ def risk_card(plan: dict[str, Any], plan_text: str | bytes | None = None) -> dic
         "zmp": None,
         "effort": _effort(plan),
         "planner_min_margin_m": plan.get("min_margin_m"),
+        "physics": physics_dry_run(plan),
     }
     if "min_margin_m" in com:
         m = float(com["min_margin_m"])
@@ -105,6 +111,25 @@ def risk_card(plan: dict[str, Any], plan_text: str | bytes | None = None) -> dic
     if "min_margin_m" in zmp:
         card["zmp"] = {"min_margin_m": float(zmp["min_margin_m"]), **_moment(plan, zmp.get("at_sample"), per_point)}
     return card
+
+
+def physics_dry_run(plan: dict[str, Any]) -> dict[str, Any]:
+    """The plan in the physics twin at speed 1 and mass scale 1: the simulation report (regrasp.simreport/1)
+    plus where its smallest CoP margin (or its fault) happened and whether it stood; ``error`` when the twin could
+    not play it (the card still goes out: a missing dry run fails the policy's physics check, never passes it)."""
+    try:
+        from robot_bridge.physics.simulate import simulate
+
+        report = simulate(plan).report
+    except Exception as exc:  # noqa: BLE001 - the card is advice; the policy check treats an error as no pass
+        return {"error": f"the physics dry run could not be made: {type(exc).__name__}: {exc}"}
+    fault = report.get("fault")
+    at = fault["at_s"] if fault else report.get("min_cop_margin_at_s")
+    dt = float(plan.get("dt_s") or 0.0)
+    n = len(plan.get("trajectory") or [])
+    point = None if at is None or dt <= 0 or n == 0 else int(min(max(round(at / dt), 0), n - 1))
+    return {"stood": fault is None, "at": {"t": at, "point": point, "segment": _segment_at(plan, point)},
+            "report": report}
 
 
 def _holding_at(plan: dict[str, Any], sample: int | None, per_point: int) -> str | None:

@@ -78,11 +78,14 @@ def initial_q_file(tmp_path_factory) -> str:
 
 
 def start_controller(initial_q_file: str, *flags: str, speed: float = 4.0, trusted_key: str | None = None,
-                     watchdog_s: float | None = None) -> ControllerProcess:
+                     watchdog_s: float | None = None, plant: str = "kinematic") -> ControllerProcess:
     """Start ``regrasp controller-sim`` on a free loopback port and wait (bounded) for its ready line.
 
     ``trusted_key``: the dispatcher's public key (without one the controller obeys only stop);
-    ``watchdog_s``: its dead-man (default the production 0.25 s)."""
+    ``watchdog_s``: its dead-man (default the production 0.25 s); ``plant``: kinematic, or physics (the MuJoCo
+    twin, always at speed 1: the robot in the loop is a physical one)."""
+    if plant == "physics":
+        flags, speed = (*flags, "--plant", "physics"), 1.0
     port = free_port()
     robot_id = f"t{uuid.uuid4().hex[:10]}"
     endpoint = f"tcp/127.0.0.1:{port}"
@@ -123,11 +126,19 @@ def closing_factory(make: Callable[..., T], close: Callable[[T], object]) -> Ite
         close(thing)
 
 
+def plant_of(request) -> str:
+    """The plant a test module runs its controllers with: its ``plant`` fixture's, else kinematic."""
+    return request.getfixturevalue("plant") if "plant" in request.fixturenames else "kinematic"
+
+
 @pytest.fixture
-def spawn_controller(initial_q_file, key_pair):
+def spawn_controller(initial_q_file, key_pair, request):
     """Start controller-sim processes trusting the session's key; all are ended after the test."""
+    plant = plant_of(request)
+
     def make(*flags, speed=4.0, trusted_key=key_pair.public, watchdog_s=None):
-        return start_controller(initial_q_file, *flags, speed=speed, trusted_key=trusted_key, watchdog_s=watchdog_s)
+        return start_controller(initial_q_file, *flags, speed=speed, trusted_key=trusted_key, watchdog_s=watchdog_s,
+                                plant=plant)
 
     yield from closing_factory(make, ControllerProcess.terminate)
 
@@ -227,9 +238,10 @@ def bridge(spawn_controller, spy_factory, key_pair):
 
 
 @pytest.fixture(scope="module")
-def shared_bridge(initial_q_file, key_pair):
+def shared_bridge(initial_q_file, key_pair, request):
     """One controller, spy and dispatcher for tests that never move the robot (the vetoes)."""
-    ctl = start_controller(initial_q_file, trusted_key=key_pair.public, watchdog_s=RELAXED_WATCHDOG_S)
+    ctl = start_controller(initial_q_file, trusted_key=key_pair.public, watchdog_s=RELAXED_WATCHDOG_S,
+                           plant=plant_of(request))
     spy = make_spy(ctl.robot_id)
     disp = connect_dispatcher(ctl, spy, signing_key=key_pair.private)
     yield ctl, disp, spy

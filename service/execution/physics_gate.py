@@ -1,0 +1,78 @@
+"""The safety policy's physics check at dispatch (``require_physics_pass``, ``min_cop_margin_m``).
+
+The dry run is the risk card's (service.jobs.risk): the plan played in the MuJoCo twin when it was planned, bound
+to the plan's hash. This check reads that record; it runs no physics itself, and the safety gate stays free of
+MuJoCo. A plan without a dry run for its own hash, or whose dry run fell, faulted, or kept a smaller CoP margin
+than the policy's floor, is not dispatched.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from schemas.policy import SafetyPolicy
+
+
+def physics_problem(policy: SafetyPolicy, card: dict[str, Any] | None, plan_sha256: str) -> str | None:
+    """Why the policy refuses to dispatch this plan on its physics dry run, or None (the policy may not ask)."""
+    if not policy.require_physics_pass:
+        return None
+    physics = (card or {}).get("physics") if isinstance(card, dict) else None
+    if not isinstance(physics, dict):
+        return "the safety policy requires a physics dry run, and this plan has none"
+    if "error" in physics:
+        return f"the safety policy requires a physics dry run, and this plan's failed: {physics['error']}"
+    report = physics.get("report") or {}
+    if report.get("plan_sha256") != plan_sha256 or card.get("plan_sha256") not in (None, plan_sha256):
+        return "the physics dry run on record is not this plan's (its hash differs)"
+    fault = report.get("fault")
+    if fault:
+        kind = "fell" if report.get("fell") else f"faulted ({fault.get('kind')})"
+        return (f"the physics dry run {kind} at {float(fault.get('at_s', 0.0)):.2f} s: {fault.get('detail')}; "
+                "the safety policy requires it to stand")
+    floor = policy.min_cop_margin_m
+    margin = report.get("min_cop_margin_m")
+    if floor is not None and (margin is None or float(margin) < floor):
+        shown = "none" if margin is None else f"{float(margin) * 1000:.1f} mm"
+        return (f"the physics dry run's smallest CoP margin ({shown} at {report.get('min_cop_margin_at_s')} s) is "
+                f"below the safety policy's min_cop_margin_m ({floor * 1000:.1f} mm)")
+    return None
+
+
+def site_policy(svc: Any) -> SafetyPolicy:
+    """The service's safety policy (its own when it holds one, else ``REGRASP_POLICY``'s file, else the built-in),
+    with the physics dry run required under ``--dev`` (the demo's and a developer's service)."""
+    import os
+
+    from schemas.policy import POLICY_ENV, default_policy, load_policy
+
+    policy = getattr(svc, "policy", None)
+    if not isinstance(policy, SafetyPolicy):
+        path = os.environ.get(POLICY_ENV)
+        policy = load_policy(path) if path else default_policy()
+    if getattr(svc.settings, "dev", False) and not policy.require_physics_pass:
+        policy = policy.model_copy(update={"require_physics_pass": True})
+    return policy
+
+
+def stored_card(svc: Any, job_id: str, plan_sha256: str) -> dict[str, Any] | None:
+    """The job's risk card for ``plan_sha256`` as stored with its events (the planned event, or a later note)."""
+    cursor = 0
+    while True:
+        page = svc.store.events_after(job_id, cursor, 500)
+        for ev in page:
+            card = (ev.get("data") or {}).get("risk")
+            if isinstance(card, dict) and card.get("plan_sha256") == plan_sha256:
+                return card
+        if len(page) < 500:
+            return None
+        cursor = page[-1]["id"]
+
+
+def dispatch_refusal(svc: Any, row: dict[str, Any]) -> str | None:
+    """Why the site's policy refuses to dispatch this approved job on its physics dry run, or None."""
+    policy = site_policy(svc)
+    if not policy.require_physics_pass:
+        return None
+    sha = row.get("approved_sha256") or row.get("plan_sha256") or ""
+    return physics_problem(policy, stored_card(svc, row["id"], sha), sha)
