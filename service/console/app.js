@@ -754,7 +754,7 @@
       root.append(svg("circle", { cx: X(w[0]), cy: Y(w[1]), r: 6, class: "worst-ring", "data-role": "worst" }));
     }
     const legend = svg("g", { class: "legend", transform: "translate(" + (pad + 6) + "," + 16 + ")" });
-    const items = [["support", "support polygon"], ["threshold", "shrunk by " + mm(threshold) + " mm"], ["com-trace", "CoM"], ["zmp-trace", "ZMP"]];
+    const items = [["support", "support polygon"], ["threshold", "shrunk by " + mm(threshold) + " mm"], ["com-trace", "CoM"], ["zmp-trace", "ZMP"], ["cop-trace", "CoP (robot)"]];
     let lx = 0;
     items.forEach(([cls, label]) => {
       legend.append(svg("line", { x1: lx, x2: lx + 18, y1: 0, y2: 0, class: cls + " legend-line" }));
@@ -762,12 +762,23 @@
       lx += 34 + label.length * 5.6;
     });
     root.append(legend);
+    // The robot's measured centre of pressure (the physics plant's state/balance, live), beside the planned ZMP.
+    const copTrace = svg("polyline", { points: "", class: "cop-trace", "data-role": "cop-trace" });
+    const copDot = svg("circle", { cx: -10, cy: -10, r: 4, class: "cop-dot", "data-role": "cop-dot", visibility: "hidden" });
+    root.append(copTrace);
     const dot = svg("circle", { cx: -10, cy: -10, r: 5, class: "cursor-dot", "data-role": "cursor" });
     const zdot = svg("rect", { x: -10, y: -10, width: 7, height: 7, class: "zmp-dot" });
     const edot = svg("circle", { cx: -10, cy: -10, r: 6, class: "exec-dot", "data-role": "exec-dot", visibility: "hidden" });
-    root.append(zdot, dot, edot);
+    root.append(zdot, dot, edot, copDot);
     state.charts = state.charts || {};
+    const copPoints = [];
     state.charts.com = {
+      cop(x, y) {
+        copPoints.push(X(x).toFixed(1) + "," + Y(y).toFixed(1));
+        copTrace.setAttribute("points", copPoints.join(" "));
+        copDot.setAttribute("cx", X(x)); copDot.setAttribute("cy", Y(y)); copDot.setAttribute("visibility", "visible");
+        root.dataset.copSamples = String(copPoints.length);
+      },
       cursor(i) {
         const p = traj[i];
         if (!p) return;
@@ -1016,6 +1027,11 @@
           return "robot moving: " + of() + "; segment " + (d.segment_index + 1) + " of " + d.segment_count + " sent";
         }
         return null;  // acknowledgements and re-sends keep the last message
+      case "balance": {  // the physics plant's balance: the CoP drawn live beside the planned ZMP
+        const chart = state.charts && state.charts.com;
+        if (chart && chart.cop && Array.isArray(d.cop) && typeof d.cop[0] === "number") chart.cop(d.cop[0], d.cop[1]);
+        return null;
+      }
       case "controller":
         return "controller reports " + (d.status || "?") + (d.reason ? ": " + d.reason : "");
       case "stop_sent": return "stop sent to the controller" + (d.reason ? " (" + d.reason + ")" : "");
@@ -1145,6 +1161,17 @@
         dd.append(" ", link);
       }
       if (card.zmp) add("Worst ZMP margin", mm(card.zmp.min_margin_m) + " mm inside the support polygon, at " + momentText(card.zmp));
+      const phys = card.physics;
+      if (phys) {
+        const rep = phys.report || {}, at = phys.at || {};
+        const where = typeof at.t === "number" ? " at t = " + at.t.toFixed(2) + " s" + (at.segment ? " (" + at.segment.kind + ", " + at.segment.hand + ")" : "") : "";
+        const text = phys.error ? phys.error
+          : rep.fault ? (rep.fell ? "FELL" : "FAULT") + " in the physics twin: " + rep.fault.kind + where + " (" + rep.fault.detail + ")"
+          : "stood in the physics twin; smallest CoP margin " + mm(rep.min_cop_margin_m) + " mm" + where +
+            (typeof rep.cop_margin_ratio === "number" ? ", " + rep.cop_margin_ratio.toFixed(2) + " of the plan's CoM margin" : "");
+        const dd = add("Physics dry run", text, { "data-role": "risk-physics", "data-stood": String(!!phys.stood) });
+        if (!phys.stood) dd.classList.add("tight");
+      }
       if (card.effort) add("Effort headroom", (100 * card.effort.headroom).toFixed(1) + " % (peak ratio " + card.effort.max_ratio.toFixed(3) +
         " at " + momentText(card.effort) + "; the planner's static torques)");
       else add("Effort headroom", "no effort limits in this plan");
