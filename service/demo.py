@@ -131,8 +131,8 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
                # host a 0.25 s heartbeat gap is the scheduler, not a dead controller. A robot keeps 0.25 s.
                REGRASP_BRIDGE_WATCHDOG_TIMEOUT_S=str(settings.watchdog_timeout_s),
                REGRASP_BRIDGE_LEASE_S=str(settings.lease_s),
-               # the demo's site policy: the built-in floor, and only plans whose physics dry run stood are dispatched
-               REGRASP_POLICY=str(_demo_policy(data_dir)),
+               # only plans whose physics dry run stood are dispatched (the risk card's, checked by the service)
+               REGRASP_REQUIRE_PHYSICS_PASS="true",
                PYTHONUNBUFFERED="1")
     exe = [sys.executable, "-m", "service.cli.main"]
     with ExitStack() as stack:
@@ -300,15 +300,6 @@ def _physics_line(client: Any, job_id: str) -> str:
         return f"{'fell' if rep['fell'] else 'faulted'}: {rep['fault']['kind']} {where}"
     return (f"stood; min CoP margin {rep['min_cop_margin_m'] * 1000:.1f} mm {where}, "
             f"{rep['cop_margin_ratio']:.2f} of the plan's CoM margin")
-
-
-def _demo_policy(data_dir: Path) -> Path:
-    """The demo's safety policy file: the built-in one with the physics dry run required."""
-    from schemas.policy import SafetyPolicy
-
-    path = data_dir / "policy.json"
-    path.write_text(json.dumps(SafetyPolicy(require_physics_pass=True).document(), indent=1))
-    return path
 
 
 def _lookahead_segments(speed: float) -> int:

@@ -94,6 +94,9 @@ class ServiceSettings(BaseSettings):
     tokens_file: Path | None = Field(None, description="JSON or YAML file of the same shape as tokens")
     tokens_reload_s: float = Field(2.0, gt=0, description="how often the tokens file is checked for changes (reloaded without a restart)")
     dev: bool = Field(False, description="make demo tokens (loopback only) and print them")
+    require_physics_pass: bool = Field(
+        False, description="dispatch only plans whose physics dry run (the risk card's) stood, whatever the site policy "
+                           "says (it can only add this rule); on under --dev and in the demo")
     metrics_token: str | None = Field(
         None, min_length=16, description="bearer token Prometheus sends for /metrics (user tokens are accepted too)")
     metrics_host: str = Field("127.0.0.1", description="bind address of the separate metrics listener")

@@ -40,17 +40,17 @@ def physics_problem(policy: SafetyPolicy, card: dict[str, Any] | None, plan_sha2
 
 
 def site_policy(svc: Any) -> SafetyPolicy:
-    """The service's safety policy (its own when it holds one, else ``REGRASP_POLICY``'s file, else the built-in),
-    with the physics dry run required under ``--dev`` (the demo's and a developer's service)."""
-    import os
-
-    from schemas.policy import POLICY_ENV, default_policy, load_policy
+    """The service's safety policy, with the physics dry run required when the service's own setting
+    (``require_physics_pass``, on under ``--dev`` and in the demo) asks for it: a setting can add the rule, never
+    lift the policy's."""
+    from schemas.policy import default_policy
 
     policy = getattr(svc, "policy", None)
     if not isinstance(policy, SafetyPolicy):
-        path = os.environ.get(POLICY_ENV)
-        policy = load_policy(path) if path else default_policy()
-    if getattr(svc.settings, "dev", False) and not policy.require_physics_pass:
+        policy = default_policy()
+    settings = svc.settings
+    if (getattr(settings, "require_physics_pass", False) or getattr(settings, "dev", False)) \
+            and not policy.require_physics_pass:
         policy = policy.model_copy(update={"require_physics_pass": True})
     return policy
 

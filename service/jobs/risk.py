@@ -80,10 +80,12 @@ def risk_card(plan: dict[str, Any], plan_text: str | bytes | None = None) -> dic
     as at dispatch; without it the gate checks the dict.
     """
     gate = _gate()
+    physics = physics_dry_run(plan)  # given to the gate too: a policy that requires it judges this run
+    report = physics.get("report")
     if plan_text is not None:
-        verdict, _ = gate.check_json(plan_text, offline=True)
+        verdict, _ = gate.check_json(plan_text, offline=True, physics=report)
     else:
-        verdict = gate.check(plan, offline=True)
+        verdict = gate.check(plan, offline=True, physics=report)
     stats = verdict.stats or {}
     per_point = int((stats.get("time") or {}).get("samples_per_point") or 1)
     threshold = verdict.threshold_m if verdict.threshold_m is not None else plan.get("threshold_m")
@@ -101,7 +103,7 @@ def risk_card(plan: dict[str, Any], plan_text: str | bytes | None = None) -> dic
         "zmp": None,
         "effort": _effort(plan),
         "planner_min_margin_m": plan.get("min_margin_m"),
-        "physics": physics_dry_run(plan),
+        "physics": physics,
     }
     if "min_margin_m" in com:
         m = float(com["min_margin_m"])
