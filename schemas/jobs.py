@@ -255,6 +255,7 @@ class Health(StrictModel):
     queue_depth: int
     controller_alive: bool
     version: str
+    robot_id: str | None = Field(None, description="the robot this service's bridge drives (what a recover job names)")
 
 
 class Problem(OpenModel):

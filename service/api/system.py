@@ -42,7 +42,8 @@ def healthz(svc: Service = Depends(service)) -> Health:
     runner_ok = svc.runner is None or (svc.runner._thread is not None and svc.runner._thread.is_alive())  # noqa: SLF001
     return Health(status="ok" if runner_ok else "degraded", database=svc.store.engine.dialect.name,
                   executor=svc.executor.name if svc.executor is not None else "none", workers=workers,
-                  queue_depth=depth, controller_alive=svc.bridge.controller_alive(), version=code_version())
+                  queue_depth=depth, controller_alive=svc.bridge.controller_alive(), version=code_version(),
+                  robot_id=getattr(svc.bridge, "robot_id", None))
 
 
 class Identity(StrictModel):

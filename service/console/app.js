@@ -30,6 +30,12 @@
   /* The role each action needs (docs/contract.md section 5); cancel needs the job's submitter or an admin. */
   const ROLE_OF = { approve: "approver", reject: "approver", dispatch: "operator", stop: "operator" };
   const HIDE = "hide";
+  /* The site's CoM margin floor when the service does not say (schemas/policy.py's built-in default). */
+  const DEFAULT_FLOOR_M = 0.03;
+  /* One colour per hand configuration, the same as the CLI's plots (experiments/plots.py HANDS_COLOURS). */
+  const HANDS_COLOURS = { "left-left": "#1f77b4", "right-right": "#ff7f0e", "left-right": "#2ca02c", "right-left": "#9467bd" };
+  /* A gap between two measured states longer than this (s of plan time) breaks the executed trace. */
+  const EXEC_GAP_S = 0.5;
   const SVG_NS = "http://www.w3.org/2000/svg";
 
   const state = {
@@ -54,6 +60,8 @@
     riskFor: null,       // job id + state whose risk report is loaded
     urdfCache: {},       // robot name -> URDF text (served by the API)
     playTimer: null,
+    health: null,        // GET /healthz (robot_id: what a recover job names)
+    compare: null,       // {jobId, label, traj} a second plan drawn beside the one shown (a comparison, or the task's plan)
   };
 
   const $ = (id) => document.getElementById(id);
@@ -209,6 +217,7 @@
   async function refreshHealth() {
     try {
       const h = await api("GET", "/healthz");
+      state.health = h;
       const ctl = h.controller_alive === undefined ? "" : (h.controller_alive ? ", controller alive" : ", no controller");
       $("health").textContent = "service: " + (h.status || "ok") + ctl;
       $("health").className = "health " + ((h.status || "ok") === "ok" ? "ok" : "warn");
@@ -300,6 +309,8 @@
     $("job-error").textContent = job.error ? (job.error.code + ": " + job.error.message) : "-";
     updateButtons(job);
     updateExecBar(job);
+    renderComparisonNote(job);
+    renderRecovery(job);
     loadRisk(job);
     // keep the list row in step
     const row = $("jobs").querySelector('tbody tr[data-job-id="' + job.id + '"]');
@@ -318,11 +329,13 @@
   /* Buttons follow the job's state and what the token may do (see refusal()). */
   function updateButtons(job) {
     const s = job.state;
+    // A comparison (planned below the site's floor) is never for the robot: nothing to approve or dispatch.
+    const forRobot = (job.kind === "plan" || job.kind === "recover") && !job.comparison;
     const show = {
-      approve: job.kind === "plan" && s === "planned",
-      reject: job.kind === "plan" && s === "planned",
-      dispatch: job.kind === "plan" && s === "approved",
-      cancel: CANCELABLE.has(s),
+      approve: forRobot && s === "planned",
+      reject: forRobot && s === "planned",
+      dispatch: forRobot && s === "approved",
+      cancel: CANCELABLE.has(s) && !(job.comparison && s !== "queued" && s !== "planning"),
     };
     const anyShown = [];
     for (const [action, fits] of Object.entries(show)) {
@@ -345,7 +358,12 @@
     if ((action === "approve" || action === "dispatch") && !(await confirmAction(action, job))) return;
     let body;
     if (action === "approve") body = job.plan_sha256 ? { plan_sha256: job.plan_sha256 } : {};
-    if (action === "reject" || action === "stop" || action === "cancel") body = { reason: "operator console" };
+    if (action === "stop" || action === "cancel") body = { reason: "operator console" };
+    if (action === "reject") {
+      const reason = await askRejectReason(job);
+      if (reason === null) return;  // declined: nothing is sent
+      body = { reason };
+    }
     state.busy = true;
     for (const b of $("actions").querySelectorAll("button")) b.disabled = true;
     try {
@@ -519,8 +537,22 @@
     const isSurvey = !!(result && Array.isArray(result.rows));
     $("plan-view").hidden = !isPlan;
     $("survey-view").hidden = !isSurvey;
+    if (state.compare && state.compare.forJob !== job.id) state.compare = null;
+    renderFailure(job);
     if (isPlan) renderPlan(result);
     if (isSurvey) renderSurvey(result);
+  }
+
+  /* A failed job says why first; a failed plan shows its scene as planned and no empty charts. */
+  function renderFailure(job) {
+    const box = $("failure-box");
+    const plan = job.result;
+    const failure = (plan && plan.failure) || (job.state === "failed" ? job.error : null);
+    box.hidden = !failure;
+    if (!failure) return;
+    box.textContent = "Not planned: " + (failure.code ? failure.code + ": " : "") + (failure.message || "no message") +
+      (plan && plan.trajectory && !plan.trajectory.length ? " The 3D view shows the scene as planned: the robot in its stance, the object where the task starts." : "");
+    box.dataset.code = failure.code || "";
   }
 
   /* Inward offset of a convex polygon (the support polygon shrunk by the threshold). */
@@ -579,17 +611,28 @@
     const inner = shrinkConvex(polygon, threshold);
     state.plan = derivePlan(plan);
     if (!state.exec || state.exec.jobId !== (state.job && state.job.id)) state.exec = null;
+    const moving = traj.length > 0;
+    // No motion (a failed plan): no charts, timeline or segments to show empty; the scene as planned in 3D.
+    for (const id of ["margin-chart", "com-chart", "segments"]) $(id).closest(id === "segments" ? "table" : "figure").hidden = !moving;
+    $("timeline").closest(".timeline").hidden = !moving;
+    if (!moving) {
+      $("plan-summary").textContent = "status " + plan.status + ": no motion was planned" +
+        (plan.failure ? " (" + plan.failure.code + ")" : "") + "; threshold " + mm(threshold) + " mm, hands " + (plan.hands || "-") + ".";
+      show3d(plan);
+      return;
+    }
     drawComChart(polygon, inner, traj, threshold);
     drawMarginChart(traj, plan.segments || [], threshold, Number(plan.dt_s || 0));
     renderSegments(plan.segments || [], traj);
     const dur = traj.length ? traj[traj.length - 1].t : 0;
-    const headroom = (typeof plan.min_margin_m === "number") ? plan.min_margin_m - threshold : null;
+    const line = safetyLine(state.job, plan);
+    const headroom = (typeof plan.min_margin_m === "number") ? plan.min_margin_m - line.value : null;
     const stats = plan.stats || {};
     const failures = stats.failures && typeof stats.failures === "object" ? Object.entries(stats.failures).filter(([, v]) => typeof v === "number" && v > 0) : [];
     $("plan-summary").textContent =
       "status " + plan.status + ", hands " + (plan.hands || "-") + ", " + traj.length + " points over " +
-      Number(dur).toFixed(2) + " s, min margin " + mm(plan.min_margin_m) + " mm against a threshold of " + mm(threshold) +
-      " mm (headroom " + mm(headroom) + " mm)" +
+      Number(dur).toFixed(2) + " s, min margin " + mm(plan.min_margin_m) + " mm (planned with a threshold of " + mm(threshold) +
+      " mm; headroom " + mm(headroom) + " mm against " + line.label + ")" +
       (failures.length ? "; rejected while planning: " + failures.map(([k, v]) => k + " " + v).join(", ") : "") +
       (plan.failure ? "; failure " + plan.failure.code + ": " + plan.failure.message : "") +
       // hands: auto: the quick survey that ranked the configurations, and how each one planned
@@ -657,7 +700,10 @@
       await v3.show(plan, urdf, fetchBinary);
       box.dataset.status = "drawn";
       box.dataset.robot = name;
-      v3.setIndex(state.cursor);
+      box.dataset.ghost = "";
+      if ((plan.trajectory || []).length) v3.setIndex(state.cursor);
+      drawCompare();
+      box.dispatchEvent(new CustomEvent("regrasp3d:drawn"));
     } catch (err) {
       box.dataset.status = "error";
       v3.clear();
@@ -754,11 +800,14 @@
       root.append(svg("circle", { cx: X(w[0]), cy: Y(w[1]), r: 6, class: "worst-ring", "data-role": "worst" }));
     }
     const legend = svg("g", { class: "legend", transform: "translate(" + (pad + 6) + "," + 16 + ")" });
-    const items = [["support", "support polygon"], ["threshold", "shrunk by " + mm(threshold) + " mm"], ["com-trace", "CoM"], ["zmp-trace", "ZMP"], ["cop-trace", "CoP (robot)"]];
-    let lx = 0;
-    items.forEach(([cls, label]) => {
-      legend.append(svg("line", { x1: lx, x2: lx + 18, y1: 0, y2: 0, class: cls + " legend-line" }));
-      legend.append(svg("text", { x: lx + 22, y: 4 }, label));
+    const items = [["support", "support polygon"], ["threshold", "shrunk by " + mm(threshold) + " mm"], ["com-trace", "CoM"], ["zmp-trace", "ZMP"],
+      null, ["cop-trace", "CoP (robot)"], ["com-start", "start"], ["compare-com", "other plan"]];  // null: a second row
+    let lx = 0, ly = 0;
+    items.forEach((item) => {
+      if (item === null) { lx = 0; ly += 14; return; }
+      const [cls, label] = item;
+      legend.append(svg("line", { x1: lx, x2: lx + 18, y1: ly, y2: ly, class: cls + " legend-line" }));
+      legend.append(svg("text", { x: lx + 22, y: ly + 4 }, label));
       lx += 34 + label.length * 5.6;
     });
     root.append(legend);
@@ -790,6 +839,15 @@
         const c = measured ? measured.com : (traj[i] && traj[i].com);
         if (!Array.isArray(c)) return;
         edot.setAttribute("cx", X(c[0])); edot.setAttribute("cy", Y(c[1])); edot.setAttribute("visibility", "visible");
+      },
+      compare(other, label) {
+        const cpts = other.filter((p) => Array.isArray(p.com)).map((p) => [p.com[0], p.com[1]]);
+        const line = svg("polyline", { points: path(cpts), class: "compare-com", "data-role": "compare-com" });
+        const old = root.querySelector('[data-role="compare-com"]');
+        if (old) old.remove();
+        root.insertBefore(line, root.querySelector('[data-role="com-trace"]'));
+        line.append(svg("title", {}, label));
+        root.dataset.compare = "drawn";
       },
     };
   }
@@ -841,19 +899,31 @@
       root.append(svg("circle", { cx: X(tOf(P.worst)), cy: Y(w.margin_m), r: 5, class: "worst-point", "data-role": "worst" }));
       root.append(svg("text", { x: X(tOf(P.worst)) + 7, y: Y(w.margin_m) + 14, class: "worst-label" }, "worst " + mm(w.margin_m) + " mm"));
     }
-    const execLine = svg("polyline", { points: "", class: "exec-line", "data-role": "exec-line" });
-    root.append(execLine);
+    const compareLine = svg("polyline", { points: "", class: "compare-line", "data-role": "compare-line" });
+    root.append(compareLine);
+    // The executed margin: one polyline per run of measured states (never a line across a gap without measurements).
+    const execTrace = svg("g", { "data-role": "exec-trace" });
+    root.append(execTrace);
     const execCursor = svg("line", { x1: -10, x2: -10, y1: padT, y2: H - padB, class: "exec-cursor", "data-role": "exec-cursor", visibility: "hidden" });
-    root.append(execCursor);
+    const execLabel = svg("text", { x: -100, y: padT + 24, class: "exec-cursor-label", "data-role": "exec-cursor-label", visibility: "hidden" }, "");
+    root.append(execCursor, execLabel);
     const cursor = svg("line", { x1: -10, x2: -10, y1: padT, y2: H - padB, class: "cursor", "data-role": "cursor" });
     const dot = svg("circle", { cx: -10, cy: -10, r: 4, class: "cursor-dot" });
     root.append(cursor, dot);
     // legend
     const legend = svg("g", { class: "legend", transform: "translate(" + (padL + 6) + "," + (H - padB - 10) + ")" });
-    [["margin-line", "planned"], ["exec-line", "executed (measured joints)"]].forEach(([cls, label], k) => {
-      legend.append(svg("line", { x1: k * 90, x2: k * 90 + 16, y1: 0, y2: 0, class: cls }));
-      legend.append(svg("text", { x: k * 90 + 20, y: 4 }, label));
+    const legendItems = [["margin-line", "planned"], ["exec-line", "executed (measured)"], ["exec-cursor", "robot now"]];
+    let lx = 0;
+    legendItems.forEach(([cls, label]) => {
+      legend.append(svg("line", { x1: lx, x2: lx + 16, y1: 0, y2: 0, class: cls }));
+      legend.append(svg("text", { x: lx + 20, y: 4 }, label));
+      lx += 30 + label.length * 5.6;
     });
+    const compareLegend = svg("g", { visibility: "hidden", transform: "translate(0,-14)", "data-role": "compare-legend" });
+    compareLegend.append(svg("line", { x1: 0, x2: 16, y1: 0, y2: 0, class: "compare-line" }));
+    const compareText = svg("text", { x: 20, y: 4 }, "");
+    compareLegend.append(compareText);
+    legend.append(compareLegend);
     root.append(legend);
     // hover and click: the nearest trajectory index under the pointer
     const overlay = svg("rect", { x: padL, y: padT, width: W - padL - padR, height: H - padT - padB, class: "hover-overlay", "data-role": "hover" });
@@ -874,15 +944,47 @@
         if (typeof p.margin_m === "number") { dot.setAttribute("cx", X(tOf(i))); dot.setAttribute("cy", Y(p.margin_m)); }
         root.dataset.cursor = String(i);
       },
-      exec(i, trace) {
+      exec(i, trace, live) {
         if (typeof i === "number" && traj[i]) {
           execCursor.setAttribute("x1", X(tOf(i))); execCursor.setAttribute("x2", X(tOf(i)));
           execCursor.setAttribute("visibility", "visible");
+          execLabel.setAttribute("x", Math.min(X(tOf(i)) + 4, W - padR - 90));
+          execLabel.textContent = "robot, t = " + Number(tOf(i)).toFixed(1) + " s";
+          execLabel.setAttribute("visibility", "visible");
           root.dataset.execIndex = String(i);
         }
         if (trace && trace.length) {
-          execLine.setAttribute("points", trace.map(([k, m]) => X(tOf(k)).toFixed(1) + "," + Y(Math.max(mmin, Math.min(mmax, m))).toFixed(1)).join(" "));
+          const sorted = trace.slice().sort((a, b) => a[0] - b[0]);
+          const runs = [[sorted[0]]];
+          for (let k = 1; k < sorted.length; k++) {
+            if (tOf(sorted[k][0]) - tOf(sorted[k - 1][0]) > EXEC_GAP_S) runs.push([]);
+            runs[runs.length - 1].push(sorted[k]);
+          }
+          execTrace.replaceChildren(...runs.map((run) => svg("polyline", { class: "exec-line", "data-role": "exec-run",
+            points: run.map(([k, m]) => X(tOf(k)).toFixed(1) + "," + Y(Math.max(mmin, Math.min(mmax, m))).toFixed(1)).join(" ") })));
+          const last = sorted[sorted.length - 1][0];
+          root.dataset.execLastIndex = String(last);
+          root.dataset.execLastX = X(tOf(last)).toFixed(1);
+          root.dataset.execRuns = String(runs.length);
         }
+      },
+      /* The execution is over: a finished run needs no cursor; a stopped one says where the robot stopped. */
+      execEnded(stateName, i) {
+        if (stateName === "aborted" && typeof i === "number" && traj[i]) {
+          execLabel.textContent = "robot stopped, t = " + Number(tOf(i)).toFixed(1) + " s";
+        } else {
+          execCursor.setAttribute("visibility", "hidden");
+          execLabel.setAttribute("visibility", "hidden");
+        }
+      },
+      compare(other, label) {
+        const pts = other.map((p, k) => [typeof p.t === "number" ? p.t : k * dt, p.margin_m])
+          .filter((p) => typeof p[1] === "number" && p[0] <= tmax + 1e-9);
+        compareLine.setAttribute("points", pts.map(([t, m]) => X(t).toFixed(1) + "," + Y(Math.max(mmin, Math.min(mmax, m))).toFixed(1)).join(" "));
+        const cut = other.length && other[other.length - 1].t > tmax + 1e-9;
+        compareText.textContent = label + (cut ? " (its first " + tmax.toFixed(1) + " s)" : "");
+        compareLegend.setAttribute("visibility", "visible");
+        root.dataset.compare = "drawn";
       },
     };
   }
@@ -919,23 +1021,41 @@
     }));
   }
 
+  /* A survey as the CLI shows it: R with its 95 % interval and seed count per configuration, the recommendation,
+     and a tie where intervals overlap (the recommendation is then not decided by the survey). */
   function renderSurvey(survey) {
     const rows = survey.rows || [];
+    const ties = new Set(survey.indistinguishable || []);
+    const ci = (row) => Array.isArray(row.ratio_ci95) && row.ratio_ci95.length === 2 ? row.ratio_ci95 : null;
     const body = $("survey-table").querySelector("tbody");
     body.replaceChildren(...rows.map((row) => {
       const tr = el("tr", { "data-hands": row.hands });
       const rec = row.hands === survey.recommended;
       if (rec) tr.classList.add("recommended");
-      tr.append(el("td", {}, row.hands), el("td", {}, row.stable), el("td", {}, row.unstable),
+      const interval = ci(row);
+      const swatch = el("span", { class: "swatch", style: "display:inline-block;width:10px;height:10px;margin-right:4px;background:" + (HANDS_COLOURS[row.hands] || "#999") });
+      const hands = el("td", {}, "");
+      hands.append(swatch, row.hands);
+      tr.append(hands, el("td", {}, row.stable), el("td", {}, row.unstable),
         el("td", {}, row.ratio === null || row.ratio === undefined ? "- (" + (row.reason || "no plan") + ")" : Number(row.ratio).toFixed(4)),
-        el("td", {}, rec ? "recommended" : ""));
+        el("td", { "data-role": "ci" }, interval ? "[" + interval[0].toFixed(4) + ", " + interval[1].toFixed(4) + "]" : "-"),
+        el("td", { "data-role": "seeds" }, row.seeds === undefined ? "-" : String(row.seeds) + (row.converged === false ? " (not converged)" : "")),
+        el("td", {}, rec ? (ties.size ? "recommended (tie)" : "recommended") : ties.has(row.hands) ? "tie with " + survey.recommended : ""));
       return tr;
     }));
-    const W = 520, H = 260, padL = 46, padB = 40, padT = 16, padR = 10;
-    const root = chartFrame($("survey-chart"), W, H, "Ratio of stable states per hand configuration");
+    const best = rows.find((r) => r.hands === survey.recommended);
+    const bestCi = best && ci(best);
+    $("survey-summary").textContent = !best ? "No configuration could be surveyed." :
+      "Recommended: " + best.hands + " (R " + Number(best.ratio).toFixed(4) + (bestCi ? ", 95 % interval [" + bestCi[0].toFixed(4) + ", " + bestCi[1].toFixed(4) + "]" : "") +
+      (best.seeds !== undefined ? ", " + best.seeds + " seeds" : "") + ")" +
+      (ties.size ? "; a tie with " + [...ties].join(", ") + ": their intervals overlap, so the survey does not tell them apart (the tie order picked " + best.hands + ")." : "; no other configuration's interval overlaps it.");
+    $("survey-summary").dataset.tie = String(ties.size > 0);
+    const W = 560, H = 280, padL = 46, padB = 40, padT = 16, padR = 10;
+    const root = chartFrame($("survey-chart"), W, H, "Ratio of stable states per hand configuration, with 95 % intervals");
     const n = Math.max(rows.length, 1);
     const slot = (W - padL - padR) / n;
-    const Y = (r) => H - padB - r * (H - padT - padB);
+    const lo = Math.min(0, ...rows.map((r) => (ci(r) ? ci(r)[0] : (typeof r.ratio === "number" ? r.ratio : 0)))) ;
+    const Y = (r) => H - padB - ((r - lo) / (1 - lo || 1)) * (H - padT - padB);
     for (const r of [0, 0.25, 0.5, 0.75, 1]) {
       root.append(svg("line", { x1: padL, x2: W - padR, y1: Y(r), y2: Y(r), class: "gridline" }));
       root.append(svg("text", { x: padL - 4, y: Y(r) + 4, "text-anchor": "end" }, r.toFixed(2)));
@@ -944,13 +1064,23 @@
       const x = padL + i * slot + slot * 0.2;
       const ratio = typeof row.ratio === "number" ? row.ratio : 0;
       const rec = row.hands === survey.recommended;
-      root.append(svg("rect", { x, y: Y(ratio), width: slot * 0.6, height: Y(0) - Y(ratio),
-        class: "bar" + (rec ? " bar-recommended" : "") + (typeof row.ratio === "number" ? "" : " bar-none"), "data-hands": row.hands }));
-      root.append(svg("text", { x: x + slot * 0.3, y: Y(ratio) - 4, "text-anchor": "middle" },
+      const bar = svg("rect", { x, y: Y(ratio), width: slot * 0.6, height: Y(0) - Y(ratio),
+        class: "bar" + (rec ? " bar-recommended" : "") + (ties.has(row.hands) ? " bar-tie" : "") + (typeof row.ratio === "number" ? "" : " bar-none"),
+        "data-hands": row.hands });
+      if (typeof row.ratio === "number") bar.setAttribute("style", "fill:" + (HANDS_COLOURS[row.hands] || "#999"));
+      root.append(bar);
+      const interval = ci(row);
+      const cx = x + slot * 0.3;
+      if (interval) {  // the interval as an error bar; its label sits beside it, never across it
+        root.append(svg("line", { x1: cx, x2: cx, y1: Y(interval[0]), y2: Y(interval[1]), class: "ci-bar", "data-role": "ci-bar", "data-hands": row.hands }));
+        for (const v of interval) root.append(svg("line", { x1: cx - 5, x2: cx + 5, y1: Y(v), y2: Y(v), class: "ci-bar" }));
+      }
+      root.append(svg("text", { x: cx + 8, y: Y(interval ? interval[1] : ratio) - 4, "text-anchor": "start" },
         typeof row.ratio === "number" ? row.ratio.toFixed(3) : "n/a"));
-      root.append(svg("text", { x: x + slot * 0.3, y: H - padB + 16, "text-anchor": "middle" }, row.hands));
+      root.append(svg("text", { x: cx, y: H - padB + 16, "text-anchor": "middle" }, row.hands + (rec ? " *" : "")));
     });
     root.append(svg("text", { x: 12, y: H / 2, "text-anchor": "middle", transform: "rotate(-90 12 " + H / 2 + ")" }, "R = C / (C + U)"));
+    root.append(svg("text", { x: W - padR, y: H - 6, "text-anchor": "end" }, "* recommended; bars: 95 % interval" + (ties.size ? "; dashed: a tie" : "")));
   }
 
   // ------------------------------------------------------------- execution
@@ -965,7 +1095,10 @@
      job list says is (an operator looking at another job still has Stop at hand). */
   function updateExecBar(job) {
     const bar = $("exec-bar");
-    if (job && !EXECUTING.has(job.state) && state.exec && state.exec.jobId === job.id) state.exec.live = false;
+    if (job && !EXECUTING.has(job.state) && state.exec && state.exec.jobId === job.id) {
+      state.exec.live = false;
+      finishExecCursor(job);
+    }
     const listed = state.runningJob && !(job && state.runningJob.id === job.id) ? state.runningJob : null;  // the detail is fresher
     const running = job && EXECUTING.has(job.state) ? job : listed;
     const executing = !!running;
@@ -997,7 +1130,7 @@
   function ensureExec(job) {
     if (!state.exec || state.exec.jobId !== job.id) {
       const n = state.plan ? state.plan.traj.length : 0;
-      state.exec = { jobId: job.id, index: 0, points: n, trace: [], live: true, segMin: {} };
+      state.exec = { jobId: job.id, index: 0, points: n, trace: [], live: true, segMin: {}, segPlanMin: {}, segCount: {} };
     }
     return state.exec;
   }
@@ -1041,17 +1174,19 @@
   }
 
   /* Move the execution cursor; with a measured joint state, draw the robot there and its executed margin. */
-  function followExec(d) {
+  function followExec(d, replay) {
     const ex = state.exec;
     const P = state.plan;
     if (!ex || !P) return;
-    ex.live = true;
+    if (!replay) ex.live = true;
     const i = Math.max(0, Math.min(P.traj.length - 1, ex.index || 0));
     let measured = null;
-    if (d && Array.isArray(d.q) && Array.isArray(d.joint_names) && window.regrasp3d && $("view3d").dataset.status === "drawn") {
+    const drawn = window.regrasp3d && $("view3d").dataset.status === "drawn";
+    if (d && Array.isArray(d.q) && Array.isArray(d.joint_names) && drawn) {
       measured = window.regrasp3d.setMeasured(d.joint_names, d.q, i);
       ex.measured = true;
-    } else if (!ex.measured && window.regrasp3d && $("view3d").dataset.status === "drawn") {
+      ex.last = { joint_names: d.joint_names, q: d.q, index: i };
+    } else if (!replay && !ex.measured && drawn) {
       window.regrasp3d.setIndex(i);  // no measured joints yet: the planned pose at the reported index
     }
     if (measured && isFinite(measured.margin_m)) {
@@ -1059,13 +1194,226 @@
       const seg = P.segOf[i];
       if (seg >= 0) {
         ex.segMin[seg] = Math.min(ex.segMin[seg] === undefined ? Infinity : ex.segMin[seg], measured.margin_m);
-        const cell = $("segments").querySelector('tbody tr[data-segment="' + seg + '"] td.exec-min');
-        if (cell) cell.textContent = mm(ex.segMin[seg]);
+        const planned = P.traj[i].margin_m;
+        if (typeof planned === "number") ex.segPlanMin[seg] = Math.min(ex.segPlanMin[seg] === undefined ? Infinity : ex.segPlanMin[seg], planned);
+        ex.segCount[seg] = (ex.segCount[seg] || 0) + 1;
       }
     }
+    updateExecSegments();
     if (state.charts && state.charts.margin) state.charts.margin.exec(i, ex.trace);
     if (state.charts && state.charts.com) state.charts.com.exec(i, measured);
     $("view3d").dataset.execIndex = String(i);
+  }
+
+  /* Each segment's executed minimum beside the planned minimum over the same measured points, and whether
+     the segment is still running (or was cut short by a stop): a partial minimum is never shown as final. */
+  function updateExecSegments() {
+    const ex = state.exec, P = state.plan, job = state.job;
+    if (!ex || !P || !job || ex.jobId !== job.id) return;
+    const at = ex.index || 0;
+    for (const [key, value] of Object.entries(ex.segMin)) {
+      const seg = Number(key), s = P.doc.segments[seg];
+      const cell = $("segments").querySelector('tbody tr[data-segment="' + seg + '"] td.exec-min');
+      if (!cell || !s) continue;
+      const running = EXECUTING.has(job.state) && at >= s.first && at <= s.last;
+      const cut = job.state === "aborted" && at >= s.first && at < s.last;
+      const n = ex.segCount[seg] || 0;
+      cell.textContent = mm(value) + " (planned " + mm(ex.segPlanMin[seg]) + " at the same " + n + " point" + (n === 1 ? "" : "s") + ")" +
+        (running ? ", running" : cut ? ", partial: stopped" : "");
+      cell.classList.toggle("seg-running", running || cut);
+      cell.dataset.status = running ? "running" : cut ? "partial" : "final";
+    }
+  }
+
+  function finishExecCursor(job) {
+    const ex = state.exec;
+    if (!ex || ex.jobId !== job.id || !TERMINAL.has(job.state)) return;
+    if (state.charts && state.charts.margin && state.charts.margin.execEnded) state.charts.margin.execEnded(job.state, ex.index);
+    updateExecSegments();
+  }
+
+  // ------------------------------------------------------------ comparison
+  /* The site's floor: what the service's risk card says, else the built-in default (and the page says which). */
+  function siteFloor() {
+    const card = state.risk && state.risk.planning;
+    const given = card && (card.margin_floor_m ?? (card.policy && card.policy.margin_floor_m));
+    return typeof given === "number" ? { value: given, source: "the site's policy" } : { value: DEFAULT_FLOOR_M, source: "the built-in floor" };
+  }
+
+  /* The threshold of the task a plan belongs to: its own, unless it is a comparison (then the scenario's). */
+  function taskThreshold(job, plan) {
+    const own = Number((plan && plan.threshold_m) || 0);
+    if (!job || !job.comparison) return own;
+    const req = job.request || {};
+    if (req.scenario && typeof req.scenario === "object" && typeof req.scenario.threshold_m === "number") return req.scenario.threshold_m;
+    const entry = state.catalogue && state.catalogue.scenarios.find((x) => x.name === req.scenario);
+    return entry ? entry.threshold_m : 0;
+  }
+
+  /* What every headroom figure is measured against: the task's threshold or the site's floor, the larger. */
+  function safetyLine(job, plan) {
+    const task = taskThreshold(job, plan), floor = siteFloor();
+    return task >= floor.value ? { value: task, label: "the task's " + mm(task) + " mm threshold" }
+      : { value: floor.value, label: floor.source + " of " + mm(floor.value) + " mm" };
+  }
+
+  function renderComparisonNote(job) {
+    const note = $("comparison-note");
+    note.hidden = !job.comparison;
+    if (!job.comparison) return;
+    const plan = job.result;
+    const line = safetyLine(job, plan);
+    const min = plan && typeof plan.min_margin_m === "number" ? plan.min_margin_m : null;
+    note.textContent = "Comparison plan, not for the robot: planned at " + mm(plan ? plan.threshold_m : 0) +
+      " mm, below the site's floor, so it is never approved or dispatched." +
+      (min !== null ? " Its worst CoM margin is " + mm(min) + " mm: " + mm(Math.abs(min - line.value)) + " mm " +
+        (min < line.value ? "below " : "above ") + line.label + "." : "");
+    note.dataset.below = String(min !== null && min < line.value);
+  }
+
+  /* The second plan drawn beside the one shown: for a plan, its comparison; for a comparison, the task's plan. */
+  async function loadCompare(job, risk) {
+    let otherId = null, label = null;
+    if (!job.comparison && risk && risk.unconstrained && risk.unconstrained.job_id) {
+      otherId = risk.unconstrained.job_id;
+      label = "comparison at 0 mm (job " + shortId(otherId) + "), not for the robot";
+    } else if (job.comparison) {
+      try {
+        const list = await api("GET", "/v1/jobs?kind=plan&limit=200");
+        const same = (r) => JSON.stringify(Object.entries(r || {}).filter(([k]) => k !== "threshold_m" && k !== "time_limit_s").sort());
+        const mine = same(job.request);
+        const task = (list.jobs || []).find((j) => j.id !== job.id && !j.comparison && j.plan_sha256 && same(j.request) === mine);
+        if (task) { otherId = task.id; label = "the task's plan (job " + shortId(task.id) + ")"; }
+      } catch (err) { return; }
+    }
+    if (!otherId || (state.compare && state.compare.jobId === otherId && state.compare.forJob === job.id)) return;
+    try {
+      const other = await api("GET", "/v1/jobs/" + encodeURIComponent(otherId));
+      if (!state.job || state.job.id !== job.id || !other.result || !Array.isArray(other.result.trajectory)) return;
+      state.compare = { jobId: otherId, forJob: job.id, label, traj: other.result.trajectory };
+      drawCompare();
+    } catch (err) { /* the comparison is extra: the plan's own view stands without it */ }
+  }
+
+  function drawCompare() {
+    const c = state.compare;
+    if (!c || !state.job || c.forJob !== state.job.id) return;
+    if (state.charts && state.charts.margin && state.charts.margin.compare) state.charts.margin.compare(c.traj, c.label);
+    if (state.charts && state.charts.com && state.charts.com.compare) state.charts.com.compare(c.traj, c.label);
+    if (window.regrasp3d && $("view3d").dataset.status === "drawn") window.regrasp3d.showComparison(c.traj);
+  }
+
+  // -------------------------------------------------------------- recovery
+  /* The robot's measured states of an execution, from the job's event history (robot_state events). */
+  async function executionHistory(jobId) {
+    const r = await fetch("/v1/jobs/" + encodeURIComponent(jobId) + "/events?follow=false",
+      { headers: { "Authorization": "Bearer " + state.token, "Accept": "text/event-stream" } });
+    if (!r.ok) return [];
+    const text = await r.text();
+    const out = [];
+    for (const block of text.split("\n\n")) {
+      const ev = parseSse(block);
+      const p = ev && ev.payload;
+      if (!p || ev.event !== "bridge" || !p.data || p.data.event !== "robot_state") continue;
+      const d = p.data.payload || {};
+      if (Array.isArray(d.samples)) {
+        for (const s of d.samples) out.push({ joint_names: d.joint_names, q: s.q, index: s.index, stamp: s.stamp });
+      } else if (Array.isArray(d.q)) out.push(d);
+    }
+    return out;
+  }
+
+  /* After an execution ended (stopped, or vetoed at its start), show where the robot is and offer the way back. */
+  function renderRecovery(job) {
+    const box = $("recovery");
+    const d = state.risk && state.risk.job_id === job.id ? state.risk.dispatch : null;
+    const startVeto = job.state === "rejected" && ((d && d.check === "start_state") || /start.?state/i.test((job.error && job.error.message) || ""));
+    const show = job.state === "aborted" || startVeto;
+    box.hidden = !show;
+    if (!show) return;
+    box.dataset.reason = startVeto ? "start-state" : "aborted";
+    $("recovery-text").textContent = startVeto
+      ? "The robot is not where this plan starts, so the safety gate refused it. The way out: plan the way back " +
+        "(a recover job from the robot's measured joints to its stance posture), have it approved and dispatch it; then plan this task again."
+      : "The execution was stopped. The translucent orange robot in the 3D view is the robot's last measured pose; " +
+        "the grey one is the plan. Plan the way back before the next plan: every plan starts from the stance posture.";
+    const button = $("btn-recover");
+    const why = state.me === undefined ? "who you are is not known yet" : (state.me !== null && !hasRole("operator")) ? "planning the way back needs the role 'operator'" : null;
+    button.disabled = why !== null || state.busy;
+    button.title = why || "submit a recover job: plan from the measured joints back to the stance posture";
+    if (job.state === "aborted" && state.ghostFor !== job.id) showMeasuredGhost(job);
+  }
+
+  async function showMeasuredGhost(job) {
+    state.ghostFor = job.id;
+    let last = null;
+    if (state.exec && state.exec.jobId === job.id && state.exec.last) last = state.exec.last;
+    let history = [];
+    try { history = await executionHistory(job.id); } catch (err) { history = []; }
+    if (history.length) last = history[history.length - 1];
+    if (!state.job || state.job.id !== job.id || !last) return;
+    const place = () => {
+      if (!window.regrasp3d || $("view3d").dataset.status !== "drawn") return false;
+      replayExecution(job, history);
+      const ok = window.regrasp3d.showGhost(last.joint_names, last.q);
+      $("view3d").dataset.ghost = ok ? "measured" : "";
+      $("recovery").dataset.measuredIndex = String(last.index ?? "");
+      return true;
+    };
+    if (!place()) $("view3d").addEventListener("regrasp3d:drawn", place, { once: true });
+  }
+
+  /* The executed margin of a finished execution, from its measured states (when the page did not watch it live). */
+  function replayExecution(job, history) {
+    if (!history.length || !state.plan) return;
+    const ex = ensureExec(job);
+    if (ex.trace.length >= history.length) return;
+    ex.trace = []; ex.segMin = {}; ex.segPlanMin = {}; ex.segCount = {};
+    for (const d of history) { if (typeof d.index === "number") ex.index = d.index; followExec(d, true); }
+    ex.live = false;
+    if (window.regrasp3d) window.regrasp3d.setIndex(state.cursor);
+    finishExecCursor(job);
+  }
+
+  async function planWayBack() {
+    const job = state.job;
+    const robot = (state.health && state.health.robot_id) || (state.plan && state.plan.doc.robot && state.plan.doc.robot.name) || "hrp5p";
+    $("recovery-result").textContent = "";
+    try {
+      const rec = await api("POST", "/v1/jobs", { kind: "recover", request: { robot } });
+      $("recovery-result").textContent = "submitted as job " + shortId(rec.id) + ": it is planned, then approved and dispatched like any plan";
+      $("recovery-result").dataset.jobId = rec.id;
+      refreshJobs();
+      selectJob(rec.id);
+    } catch (err) {
+      $("recovery-result").textContent = "not submitted: " + (err.detail || err.message);
+      if (job) showProblem(err);
+    }
+  }
+
+  // ----------------------------------------------------------------- reject
+  /* Reject asks first, with a reason that is required (it is stored with the job and audited). */
+  function askRejectReason(job) {
+    const dialog = $("reject-dialog");
+    const text = $("reject-reason");
+    text.value = "";
+    $("reject-hint").hidden = true;
+    dialog.dataset.jobId = job.id;
+    return new Promise((resolve) => {
+      const form = $("reject-form");
+      const onSubmit = (e) => {
+        const ok = e.submitter && e.submitter.value === "ok";
+        if (ok && !text.value.trim()) { e.preventDefault(); $("reject-hint").hidden = false; text.focus(); return; }
+      };
+      form.addEventListener("submit", onSubmit);
+      dialog.addEventListener("close", () => {
+        form.removeEventListener("submit", onSubmit);
+        resolve(dialog.returnValue === "ok" && text.value.trim() ? text.value.trim() : null);
+      }, { once: true });
+      dialog.returnValue = "";
+      dialog.showModal();
+      text.focus();
+    });
   }
 
   // --------------------------------------------------------------- confirm
@@ -1096,7 +1444,7 @@
 
   async function loadRisk(job) {
     const box = $("risk-card");
-    if (job.kind !== "plan" || !HAS_PLAN.has(job.state) || !job.plan_sha256) { box.hidden = true; return; }
+    if ((job.kind !== "plan" && job.kind !== "recover") || !HAS_PLAN.has(job.state) || !job.plan_sha256) { box.hidden = true; return; }
     const key = job.id + ":" + job.state;
     if (state.riskFor === key) {
       // Loaded (or loading) already: a re-render of the same job keeps the card on screen.
@@ -1109,6 +1457,9 @@
       if (!state.job || state.job.id !== job.id) return;
       state.risk = risk;
       renderRisk(risk);
+      renderRecovery(state.job);
+      renderComparisonNote(state.job);
+      loadCompare(state.job, risk);
     } catch (err) {
       if (err.status === 404 && !(state.job && state.job.id === job.id)) return;
       box.hidden = false;
@@ -1145,17 +1496,25 @@
       verdict.className = "risk-verdict warn";
     } else {
       const g = card.gate || {};
-      verdict.textContent = g.passed
+      const job = state.job && state.job.id === risk.job_id ? state.job : null;
+      verdict.textContent = job && job.comparison
+        ? "comparison plan: not for the robot (never approved or dispatched); the gate's dry run below measures it against " + safetyLine(job, job.result).label
+        : g.passed
         ? "gate dry run: PASS (" + (g.samples || 0) + " samples, " + (g.checks_passed || []).length + " checks; approval, hash and start state are checked at dispatch)"
         : "gate dry run: VETO [" + g.check + "] " + momentText(g.failed_at) + ": " + g.message;
-      verdict.className = "risk-verdict " + (g.passed ? "ok" : "bad");
+      verdict.className = "risk-verdict " + (job && job.comparison ? "warn" : g.passed ? "ok" : "bad");
       verdict.dataset.passed = String(!!g.passed);
       const com = card.com_margin;
       if (com) {
-        const dd = add("Worst CoM margin", mm(com.min_margin_m) + " mm, headroom " + mm(com.headroom_m) + " mm above the " +
-          mm(card.threshold_m) + " mm threshold, at " + momentText(com) + ", held by " + (com.hand || "none"),
-          { "data-role": "risk-worst", "data-point": String(com.point) });
-        if (typeof com.headroom_m === "number" && com.headroom_m < 0.005) dd.classList.add("tight");
+        // Headroom against the task's threshold or the site's floor, whichever is larger; never the plan's own
+        // threshold when that was lowered (a comparison).
+        const line = job ? safetyLine(job, job.result || { threshold_m: card.threshold_m }) : { value: card.threshold_m, label: "the " + mm(card.threshold_m) + " mm threshold" };
+        const line2 = line.value >= card.threshold_m ? line : { value: card.threshold_m, label: "the " + mm(card.threshold_m) + " mm threshold" };
+        const headroom = com.min_margin_m - line2.value;
+        const dd = add("Worst CoM margin", mm(com.min_margin_m) + " mm, headroom " + mm(headroom) + " mm " +
+          (headroom < 0 ? "(below) " : "above ") + line2.label + ", at " + momentText(com) + ", held by " + (com.hand || "none"),
+          { "data-role": "risk-worst", "data-point": String(com.point), "data-headroom-mm": (headroom * 1000).toFixed(1) });
+        if (headroom < 0.005) dd.classList.add("tight");
         const link = el("button", { type: "button", class: "secondary small", "data-role": "risk-goto" }, "show");
         link.addEventListener("click", () => setCursor(com.point, "risk"));
         dd.append(" ", link);
@@ -1181,16 +1540,16 @@
       add("Against 0 mm", "the unconstrained plan (job " + shortId(free.job_id) + ") reaches " + mm(free.unconstrained_min_margin_m) +
         " mm" + (free.unconstrained_breaks_threshold ? ", below the threshold" : ", within the threshold") +
         (free.plans_differ ? "; the constrained motion differs" : "; the same motion"));
-    } else {
-      const dd = add("Against 0 mm", "no 0 mm plan of this task in the store");
+    } else if (!(state.job && state.job.comparison)) {
+      const dd = add("Against 0 mm", "no 0 mm comparison of this task in the store");
       const job = state.job;
       if (job && job.id === risk.job_id && (state.me === null || hasRole("planner")) && job.request) {
         const b = el("button", { type: "button", class: "secondary small", "data-role": "plan-unconstrained" }, "plan it at 0 mm");
-        b.title = "submit the same request with threshold 0 (the unconstrained planner) to compare";
+        b.title = "submit the same request with threshold 0 (the unconstrained planner): a comparison, drawn beside this plan and never sent to the robot";
         b.addEventListener("click", () => {
           const request = Object.assign({}, job.request, { threshold_m: 0 });
           api("POST", "/v1/jobs", { kind: "plan", request })
-            .then((other) => { b.replaceWith(" submitted as job " + shortId(other.id) + "; reopen this job when it is planned"); refreshJobs(); })
+            .then((other) => { b.replaceWith(" submitted as job " + shortId(other.id) + " (a comparison, not for the robot); it is drawn beside this plan when it is planned"); refreshJobs(); })
             .catch((err) => { b.replaceWith(" not submitted: " + (err.detail || err.message)); });
         });
         dd.append(" ", b);
@@ -1204,6 +1563,7 @@
       dispatch.textContent = d.passed ? "gate at dispatch: PASS (" + (d.samples || 0) + " samples)"
         : "gate at dispatch: VETO [" + d.check + "]" + (d.sample_index !== null && d.sample_index !== undefined
           ? " at sample " + d.sample_index + " (point " + d.point_index + ", t = " + Number(d.t).toFixed(3) + " s" + seg + ")" : "") + ": " + d.message;
+      if (!d.passed && d.check === "start_state") dispatch.textContent += " The way out: plan the way back (below), then plan again.";
       dispatch.className = "risk-dispatch " + (d.passed ? "ok" : "bad");
       dispatch.dataset.check = d.check || "";
     }
@@ -1285,6 +1645,7 @@
       b.addEventListener("click", () => act(b.dataset.action));
     }
     $("btn-stop").addEventListener("click", stopFromBar);
+    $("btn-recover").addEventListener("click", planWayBack);
     $("timeline").addEventListener("input", () => setCursor(Number($("timeline").value), "timeline"));
     $("timeline-play").addEventListener("click", playTimeline);
     $("view3d").addEventListener("regrasp:pick", (e) => setCursor(e.detail.index, "user-3d"));

@@ -21,7 +21,7 @@ import URDFLoader from "urdf-loader";
 const COLORS = {
   background: 0xf3f5f8, robot: 0x8a97a8, robotExec: 0xd9822b, object: 0xe0a030, table: 0xa07850,
   obstacle: 0xb05050, support: 0x1a8f4a, band: 0xe07b00, com: 0x2457d6, zmp: 0x8e3fb5, worst: 0xc62828,
-  exec: 0xd9822b,
+  exec: 0xd9822b, compare: 0x777777,
 };
 const FLOOR_Z = 0.002;
 /** Shortest time between two frames, ms (software WebGL in a headless browser takes tens of ms per frame). */
@@ -101,6 +101,8 @@ class View3D {
       for (const child of [...g.children]) { g.remove(child); disposeTree(child); }
     }
     this.robot = null;
+    this.ghost = null;
+    this.compareLine = null;
     this.plan = null;
   }
 
@@ -109,6 +111,8 @@ class View3D {
     if (!this.renderer) return;
     this.clear();
     this.plan = plan;
+    this.urdfText = urdfText;
+    this.fetchMesh = fetchMesh;
     this.inertials = parseInertials(urdfText);
     const material = new THREE.MeshStandardMaterial({ color: COLORS.robot, roughness: 0.7, metalness: 0.1 });
     const loader = new URDFLoader();
@@ -125,7 +129,59 @@ class View3D {
     this.addScene(plan);
     this.addFloor(plan);
     this.setIndex(0);
+    if (!(plan.trajectory || []).length) this.poseAsPlanned(plan);
     this.frame();
+  }
+
+  /* A plan without motion (a failed one): the robot in its stance's posture, the object where the task puts it. */
+  poseAsPlanned(plan) {
+    const stance = plan.stance || {};
+    if (Array.isArray(stance.q) && plan.robot && Array.isArray(plan.robot.joint_names)) this.applyJoints(plan.robot.joint_names, stance.q);
+    const obj = plan.object || {};
+    const pose = obj.start_pose || obj.pose;
+    if (Array.isArray(pose) && pose.length === 7) setPose(this.object, pose);
+    else this.object.visible = false;  // nowhere known: not drawn rather than drawn at the origin
+    this.render();
+  }
+
+  /* The measured pose as a translucent ghost beside the plan's robot (after a stop: where the robot really is). */
+  showGhost(names, q) {
+    if (!this.renderer || !this.plan || !this.urdfText) return false;
+    if (!this.ghost) {
+      const material = new THREE.MeshStandardMaterial({ color: COLORS.robotExec, transparent: true, opacity: 0.45, depthWrite: false });
+      const loader = new URDFLoader();
+      loader.loadMeshCb = (path, manager, _m, done) => loadMesh(path, manager, material, done, this.fetchMesh);
+      loader.parseCollision = false;
+      const ghost = loader.parse(this.urdfText);
+      ghost.traverse((o) => { if (o.isMesh) o.material = material; });
+      const base = (this.plan.stance && this.plan.stance.base_pose) || [0, 0, 0, 0, 0, 0, 1];
+      ghost.position.set(base[0], base[1], base[2]);
+      ghost.quaternion.set(base[3], base[4], base[5], base[6]);
+      ghost.userData.role = "measured-ghost";
+      this.ghost = ghost;
+      this.world.add(ghost);
+    }
+    const values = {};
+    names.forEach((n, k) => { if (this.ghost.joints[n]) values[n] = q[k]; });
+    this.ghost.setJointValues(values);
+    this.ghost.updateMatrixWorld(true);
+    this.ghost.visible = true;
+    this.render();
+    return true;
+  }
+
+  ghostShown() { return !!(this.ghost && this.ghost.visible); }
+
+  /* A comparison plan's CoM ground trace (grey), beside this plan's. */
+  showComparison(trajectory) {
+    if (this.compareLine) { this.world.remove(this.compareLine); disposeTree(this.compareLine); this.compareLine = null; }
+    const com = (trajectory || []).filter((p) => Array.isArray(p.com)).map((p) => [p.com[0], p.com[1]]);
+    if (com.length > 1) {
+      this.compareLine = polyline(com, COLORS.compare, FLOOR_Z * 3.5);
+      this.compareLine.userData.role = "comparison";
+      this.world.add(this.compareLine);
+    }
+    this.render();
   }
 
   /* Point the camera at everything drawn, from the robot's right and a little ahead and above. */
@@ -432,6 +488,9 @@ window.regrasp3d = {
   show(plan, urdfText, fetchMesh) { return view ? view.show(plan, urdfText, fetchMesh) : Promise.resolve(); },
   setIndex(i) { if (view) view.setIndex(i); },
   setMeasured(names, q, index) { return view ? view.setMeasured(names, q, index) : null; },
+  showGhost(names, q) { return view ? view.showGhost(names, q) : false; },
+  ghostShown() { return view ? view.ghostShown() : false; },
+  showComparison(trajectory) { if (view) view.showComparison(trajectory); },
   clearMeasured() { if (view) view.clearMeasured(); },
   clear() { if (view) { view.clear(); view.render(); } },
   comAt(i) { return view ? view.comAt(i) : null; },
