@@ -1355,6 +1355,7 @@
     const place = () => {
       if (!window.regrasp3d || $("view3d").dataset.status !== "drawn") return false;
       replayExecution(job, history);
+      window.regrasp3d.setIndex(state.cursor);  // the plan's robot back in its own colour, at the cursor
       const ok = window.regrasp3d.showGhost(last.joint_names, last.q);
       $("view3d").dataset.ghost = ok ? "measured" : "";
       $("recovery").dataset.measuredIndex = String(last.index ?? "");
