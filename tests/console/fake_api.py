@@ -91,15 +91,19 @@ def synthetic_plan() -> dict[str, Any]:
 
 def synthetic_survey() -> dict[str, Any]:
     return {
-        "schema": "regrasp.survey/1", "robot": {"name": "hrp5p", "urdf_sha256": "0" * 64},
+        "schema": "regrasp.survey/2", "robot": {"name": "hrp5p", "urdf_sha256": "0" * 64},
         "stance": {"name": "upright"}, "threshold_m": THRESHOLD_M, "seed": 1, "object": {},
+        "estimator": {"until": "solved", "ci_half_width": 0.02, "seeds_min": 10, "seeds_max": 256},
         "rows": [
-            {"hands": "left-left", "stable": 10529, "unstable": 15, "ratio": 0.9986},
-            {"hands": "right-right", "stable": 9120, "unstable": 880, "ratio": 0.912},
-            {"hands": "left-right", "stable": 6100, "unstable": 3900, "ratio": 0.61},
+            {"hands": "left-left", "stable": 10529, "unstable": 15, "ratio": 0.9986, "ratio_ci95": [0.9961, 1.0],
+             "seeds": 12, "converged": True},
+            {"hands": "right-right", "stable": 9920, "unstable": 80, "ratio": 0.992, "ratio_ci95": [0.984, 0.998],
+             "seeds": 12, "converged": True},
+            {"hands": "left-right", "stable": 6100, "unstable": 3900, "ratio": 0.61, "ratio_ci95": [0.58, 0.64],
+             "seeds": 30, "converged": True},
             {"hands": "right-left", "stable": 0, "unstable": 0, "ratio": None, "reason": "no feasible handover"},
         ],
-        "recommended": "left-left", "stats": {},
+        "recommended": "left-left", "indistinguishable": ["right-right"], "stats": {},
     }
 
 

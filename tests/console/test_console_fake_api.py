@@ -63,6 +63,20 @@ def test_survey_table_and_chart(page, fake_server):
     expect(page.locator('#survey-table tr[data-hands="right-left"]')).to_contain_text("no feasible handover")
     expect(page.locator("#survey-chart rect.bar")).to_have_count(4)
     expect(page.locator('#survey-chart rect.bar-recommended[data-hands="left-left"]')).to_have_count(1)
+    # The uncertainty, as the CLI shows it: intervals, seeds, the tie and the recommendation.
+    left = page.locator('#survey-table tr[data-hands="left-left"]')
+    expect(left.locator('[data-role="ci"]')).to_have_text("[0.9961, 1.0000]")
+    expect(left.locator('[data-role="seeds"]')).to_have_text("12")
+    expect(left).to_contain_text("recommended (tie)")
+    expect(page.locator('#survey-table tr[data-hands="right-right"]')).to_contain_text("tie with left-left")
+    summary = page.locator("#survey-summary")
+    expect(summary).to_contain_text("Recommended: left-left")
+    expect(summary).to_contain_text("95 % interval [0.9961, 1.0000], 12 seeds")
+    expect(summary).to_contain_text("a tie with right-right")
+    expect(page.locator('#survey-chart [data-role="ci-bar"]')).to_have_count(3)
+    # One colour per hand configuration, the CLI's (experiments/plots.py HANDS_COLOURS: tab:blue, tab:orange, ...).
+    assert "#1f77b4" in page.locator('#survey-chart rect.bar[data-hands="left-left"]').get_attribute("style")
+    assert "#ff7f0e" in page.locator('#survey-chart rect.bar[data-hands="right-right"]').get_attribute("style")
     screenshot(page, "console-survey")
     assert page.js_errors == []
 

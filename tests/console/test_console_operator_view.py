@@ -222,7 +222,7 @@ def test_a_stop_clicked_during_execution_aborts_the_job(page, live):
     # It ended early: the controller's last index is well short of the plan's end.
     assert index < len(job["result"]["trajectory"]) - 1
     # The executed margin, computed in the page from the measured joints, was drawn against the planned one.
-    assert page.locator('#margin-chart polyline[data-role="exec-line"]').get_attribute("points")
+    assert page.locator('#margin-chart polyline[data-role="exec-run"]').first.get_attribute("points")
     assert page.js_errors == []
 
 
