@@ -18,7 +18,8 @@ import numpy as np  # noqa: E402
 
 from planner.survey.estimator import bootstrap_rng, ratio_interval  # noqa: E402
 
-COLOURS = {"left-left": "tab:blue", "right-right": "tab:red", "left-right": "tab:green", "right-left": "tab:orange"}
+from .plots import HANDS_COLOURS  # noqa: E402 - one colour per hand configuration in every plot
+
 
 
 def convergence_series(row: dict[str, Any], first_seed: int) -> dict[str, np.ndarray]:
@@ -47,7 +48,7 @@ def plot_convergence(path: Path, doc: dict[str, Any], title: str | None = None) 
         s = convergence_series(row, int(doc["seed"]))
         if not len(s["states"]):
             continue
-        colour = COLOURS.get(row["hands"], "k")
+        colour = HANDS_COLOURS.get(row["hands"], "k")
         label = f"{row['hands']}: R = {row['ratio']:.3f} ({row['seeds']} seeds{', converged' if row.get('converged') else ''})"
         ax.plot(s["states"], s["ratio"], "-o", ms=2, color=colour, label=label)
         ax.fill_between(s["states"], s["lo"], s["hi"], color=colour, alpha=0.15)

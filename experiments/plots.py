@@ -121,14 +121,16 @@ def plot_stance(path: Path, *, name: str, feet: list[dict], sole_sizes: dict[str
 def plot_com_trace(path: Path, *, title: str, polygon: np.ndarray, threshold_m: float,
                    traces: list[tuple[str, np.ndarray, str]]) -> Path:
     """CoM ground traces (label, (N, 2) xy, colour) over the support polygon, like the paper's Figs. 2-5."""
-    fig, ax = plt.subplots(figsize=(5.5, 5))
+    fig, ax = plt.subplots(figsize=(7.5, 5))
     _draw_polygon(ax, polygon, threshold_m)
+    marked = False
     for label, xy, colour in traces:
         xy = np.asarray(xy)
         if len(xy):
             ax.plot(xy[:, 0], xy[:, 1], "-", color=colour, lw=1.4, label=label)
-            ax.plot(xy[0, 0], xy[0, 1], "o", color=colour, ms=4)
-            ax.plot(xy[-1, 0], xy[-1, 1], "s", color=colour, ms=4)
+            ax.plot(xy[0, 0], xy[0, 1], "o", color=colour, ms=4, label=None if marked else "start (circle)")
+            ax.plot(xy[-1, 0], xy[-1, 1], "s", color=colour, ms=4, label=None if marked else "end (square)")
+            marked = True
     pad = 0.05
     lo, hi = polygon.min(axis=0) - pad, polygon.max(axis=0) + pad
     ax.set_xlim(lo[0], hi[0])
@@ -136,7 +138,9 @@ def plot_com_trace(path: Path, *, title: str, polygon: np.ndarray, threshold_m: 
     ax.set_aspect("equal")
     ax.set_xlabel("x (m, forward)")
     ax.set_ylabel("y (m, left)")
-    return _save(fig, ax, path, title)
+    # The legend beside the axes, never over the curves.
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7, borderaxespad=0.0)
+    return _save(fig, ax, path, title, legend=False)
 
 
 def holding_events(trajectory: Sequence[dict]) -> list[tuple[float, str]]:
@@ -203,7 +207,8 @@ def plot_survey_bars(path: Path, *, title: str, rows: list[dict], recommended: s
         text += f"\nC={r['stable']:,} U={r['unstable']:,}"
         if r["hands"] == recommended:
             text = "recommended\n" + text
-        ax.text(bar.get_x() + bar.get_width() / 2, bar.get_height() + 0.02, text, ha="center", fontsize=7,
+        top = max(bar.get_height(), ci[1] if (r["ratio"] is not None and ci) else 0.0)  # above the error bar, not across it
+        ax.text(bar.get_x() + bar.get_width() / 2, top + 0.03, text, ha="center", va="bottom", fontsize=7,
                 fontweight="bold" if r["hands"] == recommended else "normal")
     ax.set_ylim(0, 1.3)
     ax.set_xlabel("hand configuration (start hand - end hand)")
@@ -216,7 +221,7 @@ def plot_survey_scatter(path: Path, *, title: str, polygon: np.ndarray, threshol
                         max_points: int = 20000) -> Path:
     """CoM ground projections of explored states over the polygon: one colour per hand configuration,
     stable states as dots, unstable ones as crosses (``hands`` None: one colour for all)."""
-    fig, ax = plt.subplots(figsize=(6.4, 5.6))
+    fig, ax = plt.subplots(figsize=(8.4, 5.6))
     _draw_polygon(ax, polygon, threshold_m)
     xy = np.asarray(xy)
     stable = np.asarray(stable, dtype=bool)
@@ -224,15 +229,29 @@ def plot_survey_scatter(path: Path, *, title: str, polygon: np.ndarray, threshol
     if len(xy) > max_points:
         idx = np.linspace(0, len(xy) - 1, max_points).astype(int)
         xy, stable, hands = xy[idx], stable[idx], hands[idx]
-    for name in [h for h in HANDS_COLOURS if h in set(hands.tolist())] + sorted(set(hands.tolist()) - set(HANDS_COLOURS)):
-        colour = HANDS_COLOURS.get(name, "tab:grey")
+    from matplotlib.colors import to_rgba
+    from matplotlib.lines import Line2D
+
+    names = [h for h in HANDS_COLOURS if h in set(hands.tolist())] + sorted(set(hands.tolist()) - set(HANDS_COLOURS))
+    colour_of = {name: to_rgba(HANDS_COLOURS.get(name, "tab:grey")) for name in names}
+    # All configurations in one draw, in a fixed shuffled order: no configuration is painted wholly over another.
+    order = np.random.default_rng(0).permutation(len(xy))
+    handles = []
+    for is_stable, marker, size in ((True, "o", 3), (False, "x", 14)):
+        pick = order[stable[order] == is_stable]
+        if len(pick):
+            ax.scatter(xy[pick, 0], xy[pick, 1], s=size, marker=marker, lw=0.8,
+                       c=[colour_of[h] for h in hands[pick]], alpha=0.5 if is_stable else 0.9)
+    for name in names:
         sel = hands == name
-        ok, bad = sel & stable, sel & ~stable
-        ax.scatter(xy[ok, 0], xy[ok, 1], s=3, color=colour, alpha=0.5, label=f"{name}: stable ({ok.sum():,})")
-        if bad.any():
-            ax.scatter(xy[bad, 0], xy[bad, 1], s=14, color=colour, marker="x", lw=0.8,
-                       label=f"{name}: unstable ({bad.sum():,})")
+        ok, bad = int((sel & stable).sum()), int((sel & ~stable).sum())
+        handles.append(Line2D([], [], ls="", marker="o", ms=5, color=colour_of[name], label=f"{name}: stable ({ok:,})"))
+        if bad:
+            handles.append(Line2D([], [], ls="", marker="x", ms=6, color=colour_of[name], label=f"{name}: unstable ({bad:,})"))
+    polygon_handles = ax.get_legend_handles_labels()[0]  # the support polygon and its threshold band
+    ax.legend(handles=polygon_handles + handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7,
+              borderaxespad=0.0)
     ax.set_aspect("equal")
     ax.set_xlabel("CoM x (m, forward)")
     ax.set_ylabel("CoM y (m, left)")
-    return _save(fig, ax, path, title)
+    return _save(fig, ax, path, title, legend=False)

@@ -93,15 +93,19 @@ def test_survey_scatter_colours_each_configuration_with_a_legend(monkeypatch, tm
     path = plots.plot_survey_scatter(tmp_path / "s.svg", title="explored", polygon=POLYGON, threshold_m=0.03, xy=xy,
                                      stable=stable, hands=hands)
     ax = seen["fig"].axes[0]
+    legend = ax.get_legend()
     colours = {}
-    for coll in ax.collections:
-        label = coll.get_label()
-        if ":" in label:
-            colours.setdefault(label.split(":")[0], set()).add(mcolors.to_hex(coll.get_facecolor()[0], keep_alpha=False))
+    for handle, text in zip(legend.legend_handles, legend.get_texts()):
+        if ":" in text.get_text():
+            colours.setdefault(text.get_text().split(":")[0], set()).add(mcolors.to_hex(handle.get_color(), keep_alpha=False))
     assert set(colours) == {"left-left", "right-right", "left-right", "right-left"}
     # one colour per configuration, and four different ones
     assert all(len(c) == 1 for c in colours.values()) and len({next(iter(c)) for c in colours.values()}) == 4
     assert colours["left-left"] == {mcolors.to_hex(plots.HANDS_COLOURS["left-left"])}
+    # No configuration is painted wholly over another: the points drawn last (on top) hold every configuration.
+    stable_points = max(ax.collections, key=lambda c: len(c.get_offsets()))
+    top = {mcolors.to_hex(c, keep_alpha=False) for c in stable_points.get_facecolors()[-40:]}
+    assert top == {mcolors.to_hex(plots.HANDS_COLOURS[h]) for h in colours}
     legend = [t.get_text() for t in ax.get_legend().get_texts()]
     assert any(t.startswith("left-left: stable") for t in legend) and any("unstable" in t for t in legend)
     svg = _texts(path)
@@ -133,3 +137,56 @@ def test_an_unknown_format_is_refused_with_the_valid_ones(tmp_path):
         plots.with_format(tmp_path / "x.png", "jpg")
     with pytest.raises(ValueError, match="png, svg, pdf"):
         plots.plot_survey_bars(tmp_path / "x.jpg", title="t", rows=ROWS)
+
+
+def _figure_of(monkeypatch, module) -> dict:
+    seen: dict = {}
+    real_close = module.plt.close
+
+    def keep(fig):
+        seen["fig"] = fig
+        real_close(fig)
+
+    monkeypatch.setattr(module.plt, "close", keep)
+    return seen
+
+
+def test_every_survey_plot_gives_a_configuration_the_same_colour(monkeypatch, tmp_path):
+    """The convergence plot uses the bars' and the scatter's colours (right-right is one colour everywhere)."""
+    from experiments import convergence_plot
+
+    seen = _figure_of(monkeypatch, convergence_plot)
+    per_seed = [{"seed": s, "stable": 90 + s, "unstable": 10, "solved": True} for s in range(1, 6)]
+    rows = [{"hands": h, "stable": sum(p["stable"] for p in per_seed), "unstable": 50, "ratio": 0.9,
+             "ratio_ci95": [0.88, 0.92], "seeds": 5, "per_seed": per_seed} for h in ("left-left", "right-right")]
+    convergence_plot.plot_convergence(tmp_path / "c.png", {"seed": 1, "rows": rows, "stance": {"name": "upright"}})
+    lines = {line.get_label(): mcolors.to_hex(line.get_color()) for line in seen["fig"].axes[0].get_lines()}
+    for hands in ("left-left", "right-right"):
+        label = next(k for k in lines if k.startswith(hands))
+        assert lines[label] == mcolors.to_hex(plots.HANDS_COLOURS[hands]), (hands, lines)
+
+
+def test_a_bar_label_sits_above_its_error_bar(monkeypatch, tmp_path):
+    seen = _figure_of(monkeypatch, plots)
+    rows = [{"hands": "left-left", "stable": 90, "unstable": 10, "ratio": 0.9, "ratio_ci95": [0.7, 0.99]},
+            {"hands": "right-right", "stable": 50, "unstable": 50, "ratio": 0.5, "ratio_ci95": [0.3, 0.8]}]
+    plots.plot_survey_bars(tmp_path / "b.png", title="bars", rows=rows, recommended="left-left")
+    ax = seen["fig"].axes[0]
+    for row in rows:
+        text = next(t for t in ax.texts if f"{row['ratio']:.3f}" in t.get_text())
+        assert text.get_position()[1] > row["ratio_ci95"][1], (row, text.get_position())
+
+
+def test_the_com_trace_legend_names_the_markers_and_stays_off_the_curves(monkeypatch, tmp_path):
+    seen = _figure_of(monkeypatch, plots)
+    xy = np.column_stack([np.linspace(-0.05, 0.05, 30), np.linspace(0.0, 0.1, 30)])
+    plots.plot_com_trace(tmp_path / "t.png", title="CoM", polygon=POLYGON, threshold_m=0.03,
+                         traces=[("planned", xy, "tab:blue"), ("unconstrained", xy * 0.5, "tab:grey")])
+    fig = seen["fig"]
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "start (circle)" in labels and "end (square)" in labels and "planned" in labels and "unconstrained" in labels
+    fig.canvas.draw()
+    legend_box = ax.get_legend().get_window_extent()
+    axes_box = ax.get_window_extent()
+    assert legend_box.x0 >= axes_box.x1 - 1  # beside the axes: it covers no curve
