@@ -16,6 +16,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.colors import to_rgba  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Polygon as MplPolygon  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 from shapely.geometry import Polygon  # noqa: E402
@@ -229,9 +231,6 @@ def plot_survey_scatter(path: Path, *, title: str, polygon: np.ndarray, threshol
     if len(xy) > max_points:
         idx = np.linspace(0, len(xy) - 1, max_points).astype(int)
         xy, stable, hands = xy[idx], stable[idx], hands[idx]
-    from matplotlib.colors import to_rgba
-    from matplotlib.lines import Line2D
-
     names = [h for h in HANDS_COLOURS if h in set(hands.tolist())] + sorted(set(hands.tolist()) - set(HANDS_COLOURS))
     colour_of = {name: to_rgba(HANDS_COLOURS.get(name, "tab:grey")) for name in names}
     # All configurations in one draw, in a fixed shuffled order: no configuration is painted wholly over another.
