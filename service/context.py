@@ -18,6 +18,7 @@ from .jobs.owners import LiveOwners
 from .jobs.runner import Runner
 from .settings import ServiceSettings
 from .store import JobStore, make_engine, migrate
+from .store.health import StorageHealth
 
 log = logging.getLogger("regrasp.service")
 
@@ -35,6 +36,7 @@ class Service:
     auditor: AuditProcess | None = None
     #: The site's safety policy (the gate's floor and caps; comparisons are judged by it), read once at start.
     policy: SafetyPolicy = field(default_factory=default_policy)
+    storage: StorageHealth | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -50,18 +52,23 @@ class Service:
         policy = settings.safety_policy()
         bridge = bridge or make_bridge(policy)
         owners = LiveOwners()
+        storage = StorageHealth(settings.data_dir, min_free_bytes=settings.disk_min_free_bytes,
+                                reserve_bytes=settings.disk_reserve_bytes)
         svc = cls(settings=settings, store=store, tokens=tokens or TokenStore.from_settings(settings),
-                  metrics=metrics, bridge=bridge, executions=Executions(store, bridge, settings, owners), policy=policy)
+                  metrics=metrics, bridge=bridge, executions=Executions(store, bridge, settings, owners), policy=policy,
+                  storage=storage)
         if run_workers and settings.workers > 0:
             from .executors import make_executor
 
             svc.executor = make_executor(settings)
-            svc.runner = Runner(store, svc.executor, settings, owners=owners, policy=policy)
+            svc.runner = Runner(store, svc.executor, settings, owners=owners, policy=policy, storage=storage)
         if settings.audit:
             svc.auditor = AuditProcess(settings.resolved_database_url, settings.audit_dir)
         return svc
 
     def start(self) -> None:
+        if self.storage is not None:
+            self.storage.start()
         if self.settings.metrics_port is not None:
             from prometheus_client import start_http_server
 

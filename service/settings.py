@@ -80,6 +80,12 @@ class ServiceSettings(BaseSettings):
     max_body_bytes: int = Field(1_000_000, ge=1024, description="larger request bodies get 413, declared or chunked")
     body_read_timeout_s: float = Field(
         10.0, gt=0, description="a request body not received in full within this long gets 408 and is closed")
+    disk_min_free_bytes: int = Field(
+        32_000_000, ge=0, description="below this much free space on the data directory's disk the service is sick "
+                                      "(503, running jobs fail with the reason)")
+    disk_reserve_bytes: int = Field(
+        1_000_000, ge=0, description="a file this large is kept in the data directory and given up when the disk "
+                                     "fills, so that the jobs' failures can still be recorded")
     header_read_timeout_s: float = Field(
         10.0, gt=0, le=10.0, description="a connection whose request line and headers are not complete within this "
                                          "long (from its opening, or from a request's first byte) is closed")

@@ -129,7 +129,7 @@ def _check_caps(svc: Service, body: JobSubmit, scenario: Scenario | None) -> Non
 @router.post(
     "", status_code=202, response_model=Job,
     summary="Submit a plan or survey job",
-    responses={**problems(400, 401, 403, 409, 413, 422, 429),
+    responses={**problems(400, 401, 403, 409, 413, 422, 429, 503),
                202: {"description": "Accepted (also for a replay of the same Idempotency-Key)",
                      "headers": {"Location": {"description": "URL of the job", "schema": {"type": "string"}}}}},
 )
@@ -140,6 +140,10 @@ def submit(
     p: Principal = Depends(principal),
     svc: Service = Depends(service),
 ) -> Response:
+    sick = svc.storage.check() if svc.storage is not None else None
+    if sick is not None:
+        raise ProblemError(503, f"the service cannot take jobs now: {sick}", title="Storage unavailable",
+                           headers={"Retry-After": str(svc.settings.retry_after_s)})
     if body.kind == "recover":
         require("operator", p, "submitting a recover job")
         robot, seed = svc.settings.robot, body.request.seed

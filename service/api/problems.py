@@ -127,6 +127,11 @@ def install_problem_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(DBAPIError)
     async def _database(request: Request, exc: DBAPIError) -> JSONResponse:
+        storage = getattr(getattr(request.app.state, "service", None), "storage", None)
+        reason = storage.note_failure(exc, f"{request.method} {request.url.path}") if storage is not None else None
+        if reason is not None:
+            return problem_response(503, f"the service cannot keep data: {reason}", title="Storage unavailable",
+                                    instance=request.url.path, headers={"Retry-After": "5"})
         ref = uuid.uuid4().hex[:12]
         log.error("job store error on %s %s (ref %s): %s", request.method, request.url.path, ref,
                   str(exc.orig if exc.orig is not None else exc).splitlines()[0][:300])

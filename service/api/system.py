@@ -32,6 +32,10 @@ PLACEHOLDER = """<!doctype html><html><head><meta charset="utf-8"><title>regrasp
 
 @router.get("/healthz", response_model=Health, summary="Liveness and readiness", responses=problems(503))
 def healthz(svc: Service = Depends(service)) -> Health:
+    sick = svc.storage.check() if svc.storage is not None else None
+    if sick is not None:
+        raise ProblemError(503, f"the service cannot keep data: {sick}", title="Storage unavailable",
+                           headers={"Retry-After": str(svc.settings.retry_after_s)})
     try:
         depth = svc.store.queue_depth()
     except Exception as exc:  # noqa: BLE001

@@ -117,6 +117,8 @@ class JobAuditor:
         self.audit_dir = audit_dir
         self._writers: dict[str, tuple[Any, Path]] = {}
         self._done_upto: dict[str, int] = {}
+        #: Fields of a job row not stored yet (the store failed): job id -> fields.
+        self._unsaved: dict[str, dict[str, Any]] = {}
         self._cursor = 0
 
     def _start_cursor(self) -> int:
@@ -130,9 +132,27 @@ class JobAuditor:
         for writer, _ in self._writers.values():
             try:
                 writer.close()
-            except Exception:  # noqa: BLE001
-                log.exception("closing an audit writer failed")
+            except Exception as exc:  # noqa: BLE001
+                _log_failure("closing an audit writer failed", exc)
         self._writers.clear()
+
+    def _drop_writer(self, job_id: str) -> None:
+        """Forget a job's writer after a failed write: its file ends where it stopped (read as unfinished), and
+        the job continues in a new file carrying the records up to the stored head."""
+        entry = self._writers.pop(job_id, None)
+        if entry is not None:
+            try:
+                entry[0].close()
+            except Exception as exc:  # noqa: BLE001 - the file is left as a crash would leave it
+                log.debug("closing the failed audit writer of %s: %s", job_id, exc)
+
+    def _save(self, job_id: str) -> None:
+        """Store the job's file, head and progress; kept and tried again at the next pump if the store fails,
+        so that the stored head always catches up with the file's last record."""
+        fields = self._unsaved.get(job_id)
+        if fields:
+            self.store.update_fields(job_id, **fields)
+            self._unsaved.pop(job_id, None)
 
     def run(self, stop: Any, parent_pid: int) -> None:
         """Pump until ``stop`` is set or the parent process dies (used by the audit process)."""
@@ -146,21 +166,23 @@ class JobAuditor:
                 os._exit(3)
             try:
                 self.pump_once()
-            except Exception:  # noqa: BLE001
-                log.exception("audit pump failed")
+            except Exception as exc:  # noqa: BLE001
+                _log_failure("audit pump failed", exc)
         try:
             self.pump_once()
-        except Exception:  # noqa: BLE001
-            log.exception("final audit pump failed")
+        except Exception as exc:  # noqa: BLE001
+            _log_failure("final audit pump failed", exc)
         self.stop()
 
     def pump_once(self) -> int:
+        for job_id in list(self._unsaved):
+            self._save(job_id)
         events = self.store.all_events_after(self._cursor)
         for event in events:
-            self._cursor = event["id"]
             job_id = event["job_id"]
             job = self.store.get(job_id)
             if job is None:
+                self._cursor = event["id"]
                 continue
             done = self._done_upto.get(job_id)
             if done is None:
@@ -169,22 +191,32 @@ class JobAuditor:
             after_end = (job.get("audit_closed") and event["kind"] == "bridge"
                          and (event.get("data") or {}).get("event") in AFTER_END_EVENTS)
             if event["id"] <= done or (job.get("audit_closed") and not after_end):
+                self._cursor = event["id"]
                 continue
-            writer, path = self._writer(job, "recorded after the job ended" if after_end else None)
-            head = None
-            for kind, payload, at_ns in records_for_event(event, job, self.store):
-                head = writer.record(kind, payload, at_ns)
+            try:
+                writer, path = self._writer(job, "recorded after the job ended" if after_end else None)
+                head = None
+                for kind, payload, at_ns in records_for_event(event, job, self.store):
+                    head = writer.record(kind, payload, at_ns)
+                closing = (event["kind"] == "state" and event.get("state") in TERMINAL_STATES) or after_end
+                if closing:
+                    writer.close()
+                    self._writers.pop(job_id, None)
+            except Exception:
+                # The event is recorded again (in a continuation file) at the next pump; the cursor stays before it.
+                self._drop_writer(job_id)
+                raise
             self._done_upto[job_id] = event["id"]
-            fields: dict[str, Any] = {"audit_event_id": event["id"]}
-            if not after_end:  # the job's file and head stay the ones its run ended with; the addendum lies beside
-                fields["audit_path"] = str(path)
-                if isinstance(head, str):
-                    fields["audit_head"] = head
-            if (event["kind"] == "state" and event.get("state") in TERMINAL_STATES) or after_end:
-                writer.close()
-                self._writers.pop(job_id, None)
+            self._cursor = event["id"]
+            # The stored file and head are always the newest file's and its last record's (also for a record
+            # added after the job ended): `regrasp audit verify --head` agrees with the job's stored head.
+            fields: dict[str, Any] = {"audit_event_id": event["id"], "audit_path": str(path)}
+            if isinstance(head, str):
+                fields["audit_head"] = head
+            if closing:
                 fields["audit_closed"] = True
-            self.store.update_fields(job_id, **fields)
+            self._unsaved[job_id] = {**self._unsaved.get(job_id, {}), **fields}
+            self._save(job_id)
         return len(events)
 
     def _writer(self, job: dict[str, Any], continued_because: str | None = None) -> tuple[Any, Path]:
@@ -209,6 +241,17 @@ class JobAuditor:
             self.store.update_fields(job_id, audit_path=str(path), audit_head=writer.head)
         self._writers[job_id] = (writer, path)
         return writer, path
+
+
+def _log_failure(what: str, exc: BaseException) -> None:
+    """One line for a disk or store that will not take writes (the service's health says so), a traceback else."""
+    from ..store.health import storage_trouble
+
+    trouble = storage_trouble(exc)
+    if trouble is not None:
+        log.error("%s: the disk is %s (%s); retrying", what, trouble, str(exc).splitlines()[0][:200] if str(exc) else "")
+    else:
+        log.exception(what)
 
 
 def _carried_records(previous: str, head: str | None) -> list[Any]:

@@ -18,6 +18,7 @@ from schemas.policy import SafetyPolicy
 
 from ..executors.base import ExecEvent, Executor
 from ..settings import ServiceSettings
+from ..store.health import StorageHealth, storage_trouble
 from ..store.repo import JobStore
 from .owners import LiveOwners, make_owner_id
 from .provenance import code_version, library_versions, robot_sha256
@@ -46,8 +47,12 @@ class Runner:
 
     def __init__(self, store: JobStore, executor: Executor, settings: ServiceSettings,
                  *, owner: str | None = None, owners: LiveOwners | None = None,
-                 policy: SafetyPolicy | None = None) -> None:
+                 policy: SafetyPolicy | None = None, storage: StorageHealth | None = None) -> None:
         self.store = store
+        #: The data directory's health: while it is sick, running jobs fail with its reason and none is claimed.
+        self.storage = storage
+        #: Jobs whose failure could not be written yet (the disk was full), retried every step: job id -> reason.
+        self._unrecorded: dict[str, tuple[_Running, str]] = {}
         self.executor = executor
         self.settings = settings
         #: The site's safety policy: a plan job planned below its floor ends as a comparison.
@@ -87,14 +92,23 @@ class Runner:
         while not self._stop.is_set():
             try:
                 self.step()
-            except Exception:  # noqa: BLE001 - a DB hiccup must not kill the runner
-                log.exception("runner step failed; retrying")
+            except Exception as exc:  # noqa: BLE001 - a DB hiccup must not kill the runner
+                reason = self.storage.note_failure(exc, "a job store write") if self.storage is not None else None
+                if reason is None and storage_trouble(exc) is None:
+                    log.exception("runner step failed; retrying")
+                else:
+                    log.error("runner step failed: %s; retrying", reason or storage_trouble(exc))
                 time.sleep(0.5)
 
     # ----------------------------------------------------------------- step
     def step(self) -> None:
         for event in self.executor.poll(self.settings.poll_interval_s):
             self._handle(event)
+        sick = self.storage.check() if self.storage is not None else None
+        if sick is not None or self._unrecorded:
+            self._fail_for_storage(sick)
+            if sick is not None:
+                return  # no progress writes, no claims while the data cannot be kept
         now = time.monotonic()
         self._flush_progress(now)
         if self._flags_due.is_set() or now - self._last_flags >= FLAG_POLL_S:
@@ -213,9 +227,40 @@ class Runner:
                 data: dict[str, Any] | None = None) -> None:
         if error is not None:
             error = {k: v for k, v in error.items() if k in ("code", "message", "traceback")}
-        self.store.finish_planning(run.job_id, self.owner, state, message=message,
-                                   planning_s=time.monotonic() - run.started, result_text=result_text,
-                                   error=error, extra=extra, data=data)
+        try:
+            self.store.finish_planning(run.job_id, self.owner, state, message=message,
+                                       planning_s=time.monotonic() - run.started, result_text=result_text,
+                                       error=error, extra=extra, data=data)
+        except Exception as exc:
+            reason = self.storage.note_failure(exc, f"storing job {run.job_id}'s outcome") if self.storage else None
+            if reason is None:
+                raise
+            self._unrecorded[run.job_id] = (run, reason)  # failed with the reason as soon as that can be written
+            self._fail_for_storage(reason)
+
+    def _fail_for_storage(self, reason: str | None) -> None:
+        """Fail every running job with the storage's reason (stopping its worker), and write down the
+        failures that could not be written before; the reserve file makes room for them."""
+        for job_id, run in list(self._running.items()):
+            if reason is not None:
+                self._running.pop(job_id)
+                self.executor.cancel(job_id)
+                self._unrecorded[job_id] = (run, reason)
+        if not self._unrecorded:
+            return
+        if self.storage is not None:
+            self.storage.release_reserve()
+        for job_id, (run, why) in list(self._unrecorded.items()):
+            try:
+                self.store.finish_planning(job_id, self.owner, "failed", message=f"failed: {why}",
+                                           planning_s=time.monotonic() - run.started,
+                                           error={"code": "STORAGE_UNAVAILABLE", "message": why})
+            except Exception as exc:  # noqa: BLE001 - still no room: tried again at the next step
+                if storage_trouble(exc) is None:
+                    raise
+                continue
+            del self._unrecorded[job_id]
+            log.error("job %s failed: %s", job_id, why)
 
     def _finish_canceled(self, job_id: str, message: str, run: _Running | None = None) -> None:
         run = run or self._running.pop(job_id, None)
