@@ -65,6 +65,8 @@ class RobotSpec(_Frozen):
     arms: dict[Side, ArmSpec]
     waist: list[str]
     neck: list[str] = Field(default_factory=list)
+    #: movable joints beyond an arm's end that are neither its chain nor its jaw (fingers of a rigid hand)
+    hand_joints: list[str] = Field(default_factory=list)
     upright: UprightSpec
     default_posture_rad: dict[str, float] = Field(default_factory=dict)
     #: joint -> rad/s^2 (m/s^2 for prismatic joints), every movable non-mimic joint of the URDF
@@ -77,6 +79,9 @@ class RobotSpec(_Frozen):
     #: link pairs whose self-collision is never checked beyond the collision world's own rules (a spec
     #: file's ``srdf`` ``<disable_collisions>`` and its ``disable_collisions``), each pair sorted
     disabled_collisions: list[tuple[str, str]] = Field(default_factory=list)
+    #: where the self-collision matrix comes from: the robot's SRDF, or computed over random configurations
+    #: (:mod:`planner.scene.collision_matrix`, cached by URDF and spec)
+    self_collision_matrix: Literal["computed", "srdf"] = "computed"
 
     def acceleration_limit(self, joint: str) -> float:
         """Acceleration limit of a joint (rad/s^2, m/s^2 for a prismatic joint)."""

@@ -20,7 +20,7 @@ import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Callable, Literal
 
 import numpy as np
 import yaml
@@ -36,6 +36,7 @@ from planner.robot.spec import (
     UprightSpec,
 )
 from planner.robot.spec_collision import parse_collision, urdf_origin, write_link_shapes
+from planner.robot.urdf_checks import check_inertials, check_mesh_file
 
 ROBOT_SCHEMA = "regrasp.robot/1"
 CACHE_ENV = "REGRASP_CACHE_DIR"
@@ -220,6 +221,18 @@ class _Urdf:
             link = j.find("parent").attrib["link"]
         return out[::-1]
 
+    def subtree_joints(self, link: str) -> list[str]:
+        """Movable non-mimic joints below ``link`` (in its subtree)."""
+        out, todo = [], [link]
+        while todo:
+            parent = todo.pop()
+            for j in self.joints.values():
+                if j.find("parent").attrib["link"] == parent:
+                    if self.is_movable(j):
+                        out.append(j.attrib["name"])
+                    todo.append(j.find("child").attrib["link"])
+        return out
+
     def link(self, name: str) -> ET.Element | None:
         """The ``<link>`` element of that name, or None."""
         return next((e for e in self.root.findall("link") if e.attrib["name"] == name), None)
@@ -253,6 +266,58 @@ def _add_frame(urdf: _Urdf, frame: str, link: str, pose: list[float], field_name
     urdf.parent_joint[frame] = j
 
 
+def _place_frame(urdf: _Urdf, frame: str, link: str, pose: list[float], field_name: str, notes: list[str],
+                 box: list[float] | None = None) -> bool:
+    """Where the URDF has ``frame`` and the spec places it too, the spec wins: a plain frame (a massless leaf on a
+    fixed joint) is moved to ``pose`` on ``link`` (its collision replaced by the sole ``box`` when given); whether it
+    moved. A frame that is more than that is a conflict the spec cannot settle: refused, saying how to fix it."""
+    try:
+        xyz, rpy = urdf_origin(pose)
+    except ValueError:
+        raise RobotSpecError(f"{field_name}.pose_in_link: the quaternion is zero") from None
+    joint = urdf.parent_joint.get(frame)
+    el = urdf.link(frame)
+    children = [j for j in urdf.joints.values() if j.find("parent").attrib["link"] == frame]
+    mass_el = el.find("inertial/mass") if el is not None else None
+    plain = (joint is not None and joint.attrib.get("type") == "fixed" and not children
+             and (mass_el is None or float(mass_el.attrib.get("value", "0")) == 0.0))
+    if not plain:
+        raise RobotSpecError(f"{field_name}.frame: the URDF already has a link {frame!r} that is not a plain frame (a "
+                             "massless leaf on a fixed joint), so the spec's pose_in_link cannot move it; drop "
+                             f"pose_in_link to use the URDF's {frame!r}, or name another frame for the spec's")
+    origin = joint.find("origin")
+    old = _origin_matrix(origin)
+    new = _origin_matrix(ET.Element("origin", {"xyz": xyz, "rpy": rpy}))
+    same_box = box is None or _box_size(el) == (float(box[0]), float(box[1]), SOLE_THICKNESS_M)
+    if joint.find("parent").attrib["link"] == link and np.allclose(old, new, atol=1e-9) and same_box:
+        return False  # the URDF's frame is where the spec puts it
+    before = joint.find("parent").attrib["link"]
+    joint.find("parent").attrib["link"] = link
+    if origin is None:
+        origin = ET.SubElement(joint, "origin")
+    origin.attrib.update({"xyz": xyz, "rpy": rpy})
+    if box is not None:
+        for col in el.findall("collision"):
+            el.remove(col)
+        _sole_box(el, (box[0], box[1]))
+    notes.append(f"{field_name}: the URDF's {frame!r} (on {before}) is moved to the spec's pose_in_link on {link}"
+                 + (f" with its {box[0]} x {box[1]} m sole box" if box is not None else "") + " (the spec wins)")
+    return True
+
+
+def _origin_matrix(origin: ET.Element | None) -> np.ndarray:
+    T = np.eye(4)
+    if origin is not None:
+        T[:3, :3] = _rpy_matrix([float(v) for v in origin.attrib.get("rpy", "0 0 0").split()])
+        T[:3, 3] = [float(v) for v in origin.attrib.get("xyz", "0 0 0").split()]
+    return T
+
+
+def _box_size(link_el: ET.Element) -> tuple[float, ...] | None:
+    box = link_el.find("collision/geometry/box")
+    return tuple(float(v) for v in box.attrib["size"].split()) if box is not None else None
+
+
 def _sole_box(link_el: ET.Element, size: tuple[float, float]) -> None:
     col = ET.SubElement(link_el, "collision")
     ET.SubElement(col, "origin", {"xyz": f"0 0 {-SOLE_THICKNESS_M / 2!r}", "rpy": "0 0 0"})
@@ -260,16 +325,20 @@ def _sole_box(link_el: ET.Element, size: tuple[float, float]) -> None:
     ET.SubElement(geo, "box", {"size": f"{size[0]!r} {size[1]!r} {SOLE_THICKNESS_M!r}"})
 
 
-def derive(path: str | Path) -> DerivedRobot:
+def derive(path: str | Path, progress: Callable[[str], None] = lambda message: None) -> DerivedRobot:
     """Validate a spec file against its URDF and write the derived URDF if the URDF needs one (else it is used as
-    it is); errors name the field."""
+    it is); errors name the field. ``progress(message)`` hears of the slow part (fitting boxes to meshes)."""
     path = Path(path).expanduser().resolve()
     rf = read_spec_file(path)
     urdf_file = resolve_urdf(rf.urdf, path.parent, rf.packages)
     urdf = _Urdf.parse(urdf_file)
     created: list[str] = []
     sole_boxes_added: list[str] = []
+    moved: list[str] = []  # frames of the URDF that the spec places elsewhere (the spec wins)
     notes: list[str] = []
+    massless, point_masses = check_inertials(urdf.root, RobotSpecError)
+    if massless or point_masses:
+        notes.append(f"masses: {massless} massless link(s) (frames), {point_masses} point mass(es) (zero inertia)")
     for side in ("left", "right"):
         if side not in rf.feet:
             raise RobotSpecError(f"feet.{side}: missing")
@@ -287,6 +356,9 @@ def derive(path: str | Path) -> DerivedRobot:
             _add_frame(urdf, foot.frame, foot.link, foot.pose_in_link, where, box=(foot.size[0], foot.size[1]))
             created.append(foot.frame)
         else:
+            if foot.pose_in_link is not None and _place_frame(urdf, foot.frame, foot.link, foot.pose_in_link, where,
+                                                              notes, box=foot.size):
+                moved.append(foot.frame)
             el = urdf.link(foot.frame)
             if el.find("collision/geometry/box") is None:
                 if foot.size is None:
@@ -317,6 +389,9 @@ def derive(path: str | Path) -> DerivedRobot:
                                      "create it on the link")
             _add_frame(urdf, hand.frame, hand.link, hand.pose_in_link, where)
             created.append(hand.frame)
+        elif hand.pose_in_link is not None and _place_frame(urdf, hand.frame, hand.link, hand.pose_in_link, where,
+                                                            notes):
+            moved.append(hand.frame)
         if hand.jaw is None:
             # a rigid hand: no joint opens or closes it, and a held object attaches at its TCP
             arm_paths[side] = list(urdf.chain(hand.frame))
@@ -350,7 +425,10 @@ def derive(path: str | Path) -> DerivedRobot:
                                  "an arm needs at least 6")
     used = leg_joints | set(waist) | {j for a in arms.values() for j in a.chain} | {g.joint for g in grippers.values()}
     movable = [name for name, el in urdf.joints.items() if urdf.is_movable(el)]
-    neck = [j for j in movable if j not in used]
+    # a joint beyond an arm's end (a finger, a wrist camera) belongs to that hand; the rest is the neck
+    beyond_hands = {j for side, hand in rf.hands.items() for j in urdf.subtree_joints(hand.link)}
+    hand_joints = [j for j in movable if j not in used and j in beyond_hands]
+    neck = [j for j in movable if j not in used and j not in beyond_hands]
     for fld, table in (("acceleration_limits", rf.acceleration_limits), ("effort_limits", rf.effort_limits),
                        ("default_posture_rad", rf.default_posture_rad)):
         for joint in table:
@@ -380,11 +458,11 @@ def derive(path: str | Path) -> DerivedRobot:
     posture = {**_srdf_posture(rf, srdf, movable, notes), **rf.default_posture_rad}
     spec = RobotSpec(
         name=rf.name, urdf="", description=rf.description, root_link=urdf.root_link, feet=feet, arms=arms, waist=waist,
-        neck=neck, upright=UprightSpec(foot_y_m=rf.upright.foot_y_m, pelvis_height_m=rf.upright.pelvis_height_m),
+        neck=neck, hand_joints=hand_joints, upright=UprightSpec(foot_y_m=rf.upright.foot_y_m, pelvis_height_m=rf.upright.pelvis_height_m),
         default_posture_rad=posture,
         acceleration_limits=acceleration,
         effort_limits=rf.effort_limits, grip=rf.grip, limit_sources=rf.limit_sources, license_notice=rf.license_notice,
-        disabled_collisions=disabled,
+        disabled_collisions=disabled, self_collision_matrix="srdf" if srdf is not None else "computed",
     )
     shapes = parse_collision(rf.collision, RobotSpecError)
     for link, link_shapes in (shapes or {}).items():
@@ -393,7 +471,7 @@ def derive(path: str | Path) -> DerivedRobot:
             raise RobotSpecError(f"collision.{link}: the URDF has no link {link!r}")
         write_link_shapes(el, link_shapes)
         notes.append(f"collision: {len(link_shapes)} shape(s) of the spec on {link}")
-    if not created and not sole_boxes_added and not shapes and not urdf.has_mesh_collisions():
+    if not created and not moved and not sole_boxes_added and not shapes and not urdf.has_mesh_collisions():
         # nothing to derive: the URDF itself, so plans carry its own SHA-256 and nothing is written
         spec = spec.model_copy(update={"urdf": str(urdf_file)})
         return DerivedRobot(spec=spec, source=path, urdf=urdf_file, derived_urdf=urdf_file, created_frames=(),
@@ -407,7 +485,7 @@ def derive(path: str | Path) -> DerivedRobot:
         notes.append("collision: boxes fitted to the URDF's meshes (cached)")
         text = derived.read_text()
     else:
-        fitted = fit_mesh_collisions(urdf, urdf_file.parent, path.parent, rf.packages)
+        fitted = fit_mesh_collisions(urdf, urdf_file.parent, path.parent, rf.packages, progress)
         notes.append(f"collision: {fitted} boxes fitted to the URDF's meshes" if fitted else
                      "collision: the URDF's primitives")
         text = ET.tostring(urdf.root, encoding="unicode")
@@ -480,13 +558,16 @@ def _disabled_collisions(rf: RobotFile, srdf_file: tuple[Path, ET.Element] | Non
     return sorted(pairs)
 
 
-def fit_mesh_collisions(urdf: _Urdf, urdf_dir: Path, spec_dir: Path, packages: dict[str, str]) -> int:
+def fit_mesh_collisions(urdf: _Urdf, urdf_dir: Path, spec_dir: Path, packages: dict[str, str],
+                        progress: Callable[[str], None] = lambda message: None) -> int:
     """Replace every mesh collision of the URDF by its oriented bounding box (trimesh); how many were fitted.
 
     The planner's fast collision screen works on primitives; a box per mesh keeps every link covered."""
     import trimesh
 
     count = 0
+    meshes = len(urdf.root.findall("link/collision/geometry/mesh"))
+    seen = 0
     for link in urdf.root.findall("link"):
         for col in link.findall("collision"):
             geo = col.find("geometry")
@@ -494,10 +575,15 @@ def fit_mesh_collisions(urdf: _Urdf, urdf_dir: Path, spec_dir: Path, packages: d
             if mesh_el is None:
                 continue
             ref = mesh_el.attrib.get("filename", "")
+            seen += 1
+            progress(f"fitting boxes to mesh {seen}/{meshes} ({link.attrib['name']})")
             where = f"collision: link {link.attrib['name']!r} mesh {ref!r}"
             try:
                 mesh_path = _resolve(ref, urdf_dir, packages, where) if ref.startswith("package://") else \
                     _resolve(ref.removeprefix("file://"), urdf_dir, {}, where)
+                unreadable = check_mesh_file(mesh_path)
+                if unreadable:
+                    raise RobotSpecError(f"{where}: cannot read the mesh: {unreadable}")
                 mesh = trimesh.load(str(mesh_path), force="mesh")
             except RobotSpecError:
                 raise

@@ -287,6 +287,11 @@ class CollisionWorld:
         hits = self._pair_hits(Rw, pw, ia, ib, np.zeros(ia.size))
         for k in np.flatnonzero(hits.mean(axis=1) >= ALWAYS_IN_CONTACT_FRACTION):
             disabled.add(tuple(sorted((self.bodies[ia[k]].link, self.bodies[ib[k]].link))))  # type: ignore[arg-type]
+        # Without an SRDF, the matrix computed over many random configurations (cached by URDF and spec).
+        if robot.spec.self_collision_matrix == "computed":
+            from planner.scene.collision_matrix import cached_matrix
+
+            disabled.update(cached_matrix(self)[0].disabled())
         # The robot's own collision matrix (its SRDF's, or pairs its spec file lists).
         disabled.update((a, b) for a, b in robot.spec.disabled_collisions)
         return disabled

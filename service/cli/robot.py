@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 from rich.table import Table
 
-from .common import console, fail, print_json
+from .common import console, err_console, fail, print_json
 
 
 @click.group()
@@ -45,13 +45,27 @@ def urdf(name: str) -> None:
 
 @robot.command("check")
 @click.argument("spec_file", type=click.Path(dir_okay=False))
-def check(spec_file: str) -> None:
-    """Validate a robot spec file (regrasp.robot/1) and print what was derived from its URDF."""
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False),
+              help="Draw each built-in stance's feet, support polygon and CoM to this image (png, svg, pdf).")
+@click.option("--quiet", is_flag=True, help="No progress lines on stderr.")
+def check(spec_file: str, plot_path: str | None, quiet: bool) -> None:
+    """Validate a robot spec file (regrasp.robot/1) and print what was derived from its URDF: frames, chains,
+    limits, the self-collision matrix (computed without an SRDF, cached), the pairs in collision at the ready
+    posture and the stances, and the ready posture to paste into the spec when it gives none."""
+    import time
+
     from planner.errors import InputError
     from planner.robot.spec_file import derive
 
+    started = time.monotonic()
+
+    def progress(message: str) -> None:
+        if not quiet:
+            err_console.print(f"[dim]{time.monotonic() - started:5.1f} s  {message}[/]", highlight=False)
+
+    progress("reading the spec and its URDF")
     try:
-        d = derive(spec_file)
+        d = derive(spec_file, progress)
     except InputError as exc:
         fail(str(exc))
     s = d.spec
@@ -68,14 +82,62 @@ def check(spec_file: str) -> None:
         hand = ("rigid hand (the object attaches at the TCP)" if arm.gripper is None else
                 f"jaw {arm.gripper.joint} 0..{arm.gripper.max_opening_m * 1000:.1f} mm")
         console.print(f"{side} arm ({arm.tcp}): {', '.join(arm.chain)}; {hand}", highlight=False)
-    console.print(f"waist: {', '.join(s.waist) or '-'}; neck: {', '.join(s.neck) or '-'}", highlight=False)
+    console.print(f"waist: {', '.join(s.waist) or '-'}; neck: {', '.join(s.neck) or '-'}"
+                  + (f"; hand joints: {', '.join(s.hand_joints)}" if s.hand_joints else ""), highlight=False, soft_wrap=True)
     by_source: dict[str, list[str]] = {}
     for joint, source in d.limit_sources.items():
         by_source.setdefault(source, []).append(joint)
     for source, joints in by_source.items():
         console.print(f"effort limits from {source}: {', '.join(joints)}", highlight=False)
     for note in d.notes or ("collision: the URDF's primitives",):
-        console.print(note, highlight=False)
+        console.print(note, highlight=False, soft_wrap=True)
+    _check_model(spec_file, plot_path, progress)
+
+
+def _pairs(pairs) -> str:  # type: ignore[no-untyped-def]
+    return ", ".join(f"{a}/{b}" for a, b in pairs) or "none"
+
+
+def _check_model(spec_file: str, plot_path: str | None, progress) -> None:  # type: ignore[no-untyped-def]
+    """The model-level part of ``robot check``: ready posture, collision matrix, collisions, feet."""
+    from planner.errors import InputError
+    from planner.robot.model import load_robot
+    from planner.scene.robot_report import robot_report
+
+    progress("loading the model (and the ready posture)")
+    try:
+        robot = load_robot(spec_file)
+        report = robot_report(robot, progress)
+    except (InputError, ValueError) as exc:
+        fail(str(exc))
+    posture = getattr(robot, "ready_posture_note", None)
+    if posture:
+        console.print(posture, highlight=False, soft_wrap=True)
+    m = report.matrix
+    if m is None:
+        console.print(f"collision matrix: the SRDF's ({report.spec_pairs} pairs with the spec's own)", highlight=False)
+    else:
+        console.print(f"collision matrix: computed over {m.samples} random configurations (seed {m.seed})"
+                      f"{' (cached)' if report.matrix_cached else ''}: not checked {len(m.adjacent)} adjacent, "
+                      f"{len(m.always)} always in collision, {len(m.nested)} nested, {len(m.never)} never in "
+                      f"collision" + (f"; {report.spec_pairs} more from the spec" if report.spec_pairs else ""),
+                      highlight=False, soft_wrap=True)
+        for label, pairs in (("always in collision", m.always), ("nested (one chain, often in collision)", m.nested),
+                             ("never in collision", m.never)):
+            console.print(f"  {label}: {_pairs(pairs)}", highlight=False, soft_wrap=True)
+    for where, pairs in report.colliding.items():
+        mark = "" if not pairs else " [yellow](not checked while planning: fix the posture or the shapes if real)[/]"
+        console.print(f"in collision at the {where}: {_pairs(pairs)}{mark}", highlight=False, soft_wrap=True)
+    for name, error in report.stance_errors.items():
+        console.print(f"stance {name}: does not solve ({error})", highlight=False, soft_wrap=True)
+    for fp in report.footprints:
+        centre = fp.polygon.mean(axis=0) if len(fp.polygon) else fp.com[:2]
+        console.print(f"stance {fp.stance}: CoM margin {fp.margin_m * 1000:.1f} mm, CoM {1000 * (fp.com[0] - centre[0]):+.1f} "
+                      f"mm forward, {1000 * (fp.com[1] - centre[1]):+.1f} mm left of the polygon's centre", highlight=False)
+    if plot_path:
+        from service.footprint_plot import plot_footprints
+
+        console.print(f"plot {plot_footprints(robot.name, report.footprints, plot_path)}", highlight=False, soft_wrap=True)
 
 
 @robot.command("info")

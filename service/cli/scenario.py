@@ -58,9 +58,11 @@ def unknown_names(sc) -> list[str]:  # type: ignore[no-untyped-def]
     from pathlib import Path
 
     from planner.jobs.request_names import registered_robots, registered_stances
+    from planner.robot.spec_file import is_spec_path
 
     out = []
-    if sc.robot not in registered_robots():
+    # on the command line a robot spec file is taken by its path, as `plan` takes it (the service takes names only)
+    if not is_spec_path(sc.robot) and sc.robot not in registered_robots():
         out.append(f"unknown robot {sc.robot!r}; valid robots: {', '.join(registered_robots())}")
     if isinstance(sc.stance, str) and sc.stance not in registered_stances() and not Path(sc.stance).is_file():
         out.append(f"unknown stance {sc.stance!r}; built-in stances: {', '.join(registered_stances())} (or a stance file)")
@@ -83,7 +85,12 @@ def check(file: str) -> None:
     unknown = unknown_names(sc)
     if unknown:
         fail("; ".join(unknown))
-    report = check_scenario(sc)
+    from planner.errors import InputError
+
+    try:
+        report = check_scenario(sc)
+    except InputError as exc:  # a robot spec file that cannot be used
+        fail(str(exc))
     for note in report.notes:
         console.print(f"[dim]{note}[/]")
     if not report.ok:
