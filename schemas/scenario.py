@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field, PrivateAttr, model_validator
 
@@ -137,6 +137,9 @@ class Scenario(StrictModel):
     limits: Limits = Field(default_factory=Limits)
     survey: SurveySettings = Field(default_factory=SurveySettings)
     seed: int = Field(1, ge=0, le=2**63 - 1)
+    #: set by the planner when a built-in task is fitted to another robot (planner.scene.task_fitting): what it
+    #: measured and chose; absent otherwise
+    fitted: dict[str, Any] | None = None
 
     @model_validator(mode="after")
     def _check(self) -> "Scenario":

@@ -49,6 +49,8 @@ class PlanOptions:
     limits: bool = True
     #: a registered robot name or a spec file path, over the scenario's ``robot``
     robot: str | None = None
+    #: the object's mass (kg), over the scenario's (and over a fitted task's)
+    mass_kg: float | None = None
 
 
 def library_versions() -> dict[str, str]:
@@ -198,6 +200,11 @@ def plan_scenario(
     if options.robot is not None:
         scenario = scenario.model_copy(update={"robot": options.robot})
     progress(0.02, "setting up the task")
+    from planner.scene.task_fitting import fit_to_robot
+
+    scenario = fit_to_robot(scenario, scenario.robot)  # a built-in task run with another robot is fitted to it
+    if options.mass_kg is not None:
+        scenario = with_overrides(scenario, mass_kg=options.mass_kg)
     if not options.limits:
         settings = (settings or PlannerSettings()).model_copy(update={"limits": False})
     try:

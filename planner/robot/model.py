@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import threading
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable, TypeVar
@@ -185,7 +185,7 @@ def load_robot(name: str = "hrp5p") -> RobotModel:
     upper = np.array(model.upperPositionLimit)[qids]
     vel = np.array(model.velocityLimit)[vids]
     acc = np.array([spec.acceleration_limit(n) for n in joint_names])
-    return RobotModel(
+    robot = RobotModel(
         name=spec.name,
         spec=spec,
         urdf_path=path,
@@ -203,6 +203,12 @@ def load_robot(name: str = "hrp5p") -> RobotModel:
         q_offset=np.array(off),
         mimic=mimics,
     )
+    if not spec.default_posture_rad:
+        # the spec names no posture: a ready posture is derived (arms down, hands clear; cached)
+        from planner.robot.ready_posture import cached_ready_posture
+
+        robot = replace(robot, spec=spec.model_copy(update={"default_posture_rad": cached_ready_posture(robot)}))
+    return robot
 
 
 def frame_poses(

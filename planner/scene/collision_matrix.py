@@ -5,11 +5,11 @@ seeded, so the same pairs every time):
 
 - ``adjacent``: a link and the nearest ancestor that has geometry (they touch at their joint by design);
 - ``always``: pairs in collision in at least 95 % of the samples (they cannot be told apart);
-- ``nested``: pairs on one chain, at most three joints apart, in collision in at least half of the samples:
+- ``nested``: pairs on one chain, at most two joints apart, in collision in at least half of the samples:
   the box fitted to a housing (a forearm, a wrist) and the box of what turns inside it overlap around the
   joints whatever their values, where the meshes themselves would not touch;
-- ``never``: pairs in collision in none of the samples (the arms cannot reach them: checking them only
-  costs time).
+- ``never``: pairs in collision in none of the samples (checking them only costs time), except a link of one
+  arm against a link of the other: random configurations seldom bring the hands together, a handover does.
 
 The result depends only on the robot's URDF and spec, so it is kept in the cache folder under their hash and
 computed once (a few seconds); a spec with an ``srdf`` uses the SRDF's matrix instead.
@@ -35,9 +35,9 @@ SAMPLES = 2000
 SEED = 20250
 ALWAYS_FRACTION = 0.95
 NESTED_FRACTION = 0.5
-NESTED_MAX_JOINTS = 3
+NESTED_MAX_JOINTS = 2
 #: bump when the rules change, so matrices cached by an older version are not reused
-MATRIX_VERSION = 1
+MATRIX_VERSION = 2
 _BATCH = 250
 
 Pair = tuple[str, str]
@@ -111,6 +111,11 @@ def _chain_distance(model: pin.Model, ja: int, jb: int) -> int | None:
     return None
 
 
+def _subtree_links(model: pin.Model, joint_id: int) -> set[str]:
+    """Body frames moved by ``joint_id`` (carried by it or a joint below it)."""
+    return {f.name for f in model.frames if f.type == pin.FrameType.BODY and joint_id in model.supports[f.parentJoint]}
+
+
 def compute_matrix(world: "CollisionWorld", progress: Callable[[str], None] = lambda m: None) -> CollisionMatrix:
     """Sample the joint space (seeded) and sort the robot's link pairs by the rules of the module docstring."""
     robot = world.robot
@@ -141,14 +146,17 @@ def compute_matrix(world: "CollisionWorld", progress: Callable[[str], None] = la
     frac = counts / SAMPLES
     model = robot.pin_model
     joint_of = {b.link: int(b.joint) for b in bodies}
+    arms = [_subtree_links(model, model.getJointId(arm.chain[0])) for arm in robot.spec.arms.values()]
     always, nested, never = [], [], []
     for k, pair in enumerate(link_pairs):
         if pair in adjacent:
             continue
+        across = any(pair[0] in a and pair[1] in b for a in arms for b in arms if a is not b)
         if frac[k] >= ALWAYS_FRACTION:
             always.append(pair)
         elif counts[k] == 0:
-            never.append(pair)
+            if not across:
+                never.append(pair)
         elif frac[k] >= NESTED_FRACTION:
             dist = _chain_distance(model, joint_of[pair[0]], joint_of[pair[1]])
             if dist is not None and dist <= NESTED_MAX_JOINTS:

@@ -67,6 +67,8 @@ def portable_mesh(mesh: MeshSource) -> dict[str, Any]:
 def portable_dump(scenario: Scenario, **kwargs: Any) -> dict[str, Any]:
     """``scenario.model_dump(**kwargs)`` with the object's mesh in its portable form."""
     data = scenario.model_dump(**kwargs)
+    if data.get("fitted", 0) is None:
+        del data["fitted"]  # only a fitted task records it
     if scenario.object.mesh is not None:
         data["object"]["mesh"] = portable_mesh(scenario.object.mesh)
     return data

@@ -102,6 +102,7 @@ def with_overrides(
     states_per_configuration: int | None = None,
     time_limit_s: float | None = None,
     survey: dict[str, Any] | None = None,
+    mass_kg: float | None = None,
 ) -> Scenario:
     """The scenario with request/CLI overrides applied and re-validated.
 
@@ -127,6 +128,8 @@ def with_overrides(
         data["survey"] = merged
     if time_limit_s is not None:
         data["limits"]["time_s"] = time_limit_s
+    if mass_kg is not None:
+        data["object"]["mass_kg"] = mass_kg
     from .meshes import carry_mesh_source
 
     return carry_mesh_source(scenario, parse_scenario(data, f"scenario {scenario.name!r} with overrides"))

@@ -126,8 +126,10 @@ def plan_summary(plan: dict, path: Path | None = None) -> dict:
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--no-limits", is_flag=True, help="Do not check joint torques against the effort limits, nor the grip (as the paper).")
 @click.option("--robot", "robot_ref", help="Override the scenario's robot: a name (`regrasp robot list`) or a robot spec file.")
+@click.option("--mass-kg", type=float, help="Override the object's mass, kg (a built-in task fitted to another robot "
+              "gets a mass within that robot's reach; this overrides it too).")
 def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, solutions, time_limit_s, out_path,
-         plot_path, fmt, compare_threshold_mm, as_json, quiet, no_limits, robot_ref) -> None:
+         plot_path, fmt, compare_threshold_mm, as_json, quiet, no_limits, robot_ref, mass_kg) -> None:
     """Plan a regrasp task: pick, regrasp or hand over, and place, keeping the CoM margin."""
     from planner.errors import InputError
     from planner.jobs.plan_job import PlanOptions, plan_scenario
@@ -139,7 +141,7 @@ def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, soluti
     try:
         sc = resolve_scenario(ref)
         options = PlanOptions(hands=hands, threshold_m=threshold_m, seed=seed, solutions=solutions, stance=stance,
-                              time_limit_s=time_limit_s, limits=not no_limits, robot=robot_ref)
+                              time_limit_s=time_limit_s, limits=not no_limits, robot=robot_ref, mass_kg=mass_kg)
         t0 = time.perf_counter()
         if quiet or as_json:
             doc = plan_scenario(sc, options)
@@ -148,7 +150,8 @@ def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, soluti
         compare = None
         if compare_m is not None:
             opts2 = PlanOptions(hands=doc.get("hands") or hands, threshold_m=compare_m, seed=seed,
-                                stance=stance, time_limit_s=time_limit_s, limits=not no_limits, robot=robot_ref)
+                                stance=stance, time_limit_s=time_limit_s, limits=not no_limits, robot=robot_ref,
+                                mass_kg=mass_kg)
             compare = (plan_scenario(sc, opts2) if quiet or as_json else
                        run_with_progress("comparison", lambda p: plan_scenario(sc, opts2, progress=p)))
     except InputError as exc:

@@ -91,14 +91,14 @@ def check(spec_file: str, plot_path: str | None, quiet: bool) -> None:
         console.print(f"effort limits from {source}: {', '.join(joints)}", highlight=False)
     for note in d.notes or ("collision: the URDF's primitives",):
         console.print(note, highlight=False, soft_wrap=True)
-    _check_model(spec_file, plot_path, progress)
+    _check_model(spec_file, plot_path, progress, posture_given=bool(s.default_posture_rad))
 
 
 def _pairs(pairs) -> str:  # type: ignore[no-untyped-def]
     return ", ".join(f"{a}/{b}" for a, b in pairs) or "none"
 
 
-def _check_model(spec_file: str, plot_path: str | None, progress) -> None:  # type: ignore[no-untyped-def]
+def _check_model(spec_file: str, plot_path: str | None, progress, posture_given: bool) -> None:  # type: ignore[no-untyped-def]
     """The model-level part of ``robot check``: ready posture, collision matrix, collisions, feet."""
     from planner.errors import InputError
     from planner.robot.model import load_robot
@@ -110,9 +110,15 @@ def _check_model(spec_file: str, plot_path: str | None, progress) -> None:  # ty
         report = robot_report(robot, progress)
     except (InputError, ValueError) as exc:
         fail(str(exc))
-    posture = getattr(robot, "ready_posture_note", None)
-    if posture:
-        console.print(posture, highlight=False, soft_wrap=True)
+    if not posture_given:
+        derived = robot.spec.default_posture_rad
+        if derived:
+            values = ", ".join(f"{joint}: {value!r}" for joint, value in derived.items())
+            console.print("ready posture: derived, the spec gives none (arms down, hands clear; paste it into the "
+                          f"spec to keep it):\ndefault_posture_rad: {{{values}}}", highlight=False, soft_wrap=True)
+        else:
+            console.print("ready posture: the zero posture (the spec gives none; its arms already hang down, clear "
+                          "of the body)", highlight=False, soft_wrap=True)
     m = report.matrix
     if m is None:
         console.print(f"collision matrix: the SRDF's ({report.spec_pairs} pairs with the spec's own)", highlight=False)
