@@ -22,13 +22,13 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import Any, Callable
 
 import numpy as np
 import pinocchio as pin
 
-if TYPE_CHECKING:
-    from planner.scene.collision import CollisionWorld
+#: a planner.scene.collision.CollisionWorld (not imported: that module imports this one)
+CollisionWorld = Any
 
 #: samples of the joint space, their seed, the fractions of the rules above and the chain distance of "nested"
 SAMPLES = 2000
@@ -81,7 +81,7 @@ def _cache_file(name: str, key: str) -> Path:
     return cache_dir() / "collision-matrices" / f"{name}-{key[:20]}.json"
 
 
-def cached_matrix(world: "CollisionWorld", progress: Callable[[str], None] = lambda m: None
+def cached_matrix(world: CollisionWorld, progress: Callable[[str], None] = lambda m: None
                   ) -> tuple[CollisionMatrix, bool]:
     """The robot's computed matrix, from the cache folder or computed now and stored there; and whether it was
     cached."""
@@ -116,7 +116,7 @@ def _subtree_links(model: pin.Model, joint_id: int) -> set[str]:
     return {f.name for f in model.frames if f.type == pin.FrameType.BODY and joint_id in model.supports[f.parentJoint]}
 
 
-def compute_matrix(world: "CollisionWorld", progress: Callable[[str], None] = lambda m: None) -> CollisionMatrix:
+def compute_matrix(world: CollisionWorld, progress: Callable[[str], None] = lambda m: None) -> CollisionMatrix:
     """Sample the joint space (seeded) and sort the robot's link pairs by the rules of the module docstring."""
     robot = world.robot
     bodies = world.bodies[: world.n_robot]

@@ -76,10 +76,10 @@ def test_a_zero_posture_with_the_arms_through_the_table_gets_a_derived_ready_pos
     assert np.asarray(plan["trajectory"][0]["q"])[arms] == pytest.approx(q[arms], abs=1e-9)  # it starts there
 
 
-def _fitted_plan(tmp_path, robot: str, *extra: str) -> dict:
+def _fitted_plan(tmp_path, robot: str, hands: str, *extra: str) -> dict:
     out = tmp_path / f"plan-{len(extra)}.json"
-    res = CliRunner().invoke(cli, ["plan", "--scenario", "upright", "--robot", robot, "--out", str(out), "--quiet",
-                                   *extra], catch_exceptions=False)
+    res = CliRunner().invoke(cli, ["plan", "--scenario", "upright", "--robot", robot, "--hands", hands, "--out",
+                                   str(out), "--quiet", *extra], catch_exceptions=False)
     assert res.exit_code in (0, 1), res.output
     return json.loads(out.read_text())
 
@@ -96,8 +96,8 @@ def _within_reach(plan: dict) -> None:
 
 @pytest.mark.parametrize("robot", ["talos", "g1"])
 def test_the_upright_task_fitted_to_talos_and_g1_is_within_reach_and_plans(tmp_path, robot):
-    pytest.importorskip("example_robot_data")
-    plan = _fitted_plan(tmp_path, robot)
+    pytest.importorskip("cmeel", reason="TALOS and G1 need the example-robot-data package (the `talos` extra)")
+    plan = _fitted_plan(tmp_path, robot, "left-left")
     assert plan["scenario"]["fitted"]["robot"] == robot and plan["scenario"]["fitted"]["from_robot"] == "hrp5p"
     _within_reach(plan)
     assert plan["object"]["mass_kg"] == plan["scenario"]["fitted"]["mass_kg"] < 8.0
@@ -106,12 +106,12 @@ def test_the_upright_task_fitted_to_talos_and_g1_is_within_reach_and_plans(tmp_p
 
 def test_the_upright_task_fitted_to_a_made_up_small_humanoid_plans_and_mass_kg_overrides(tmp_path):
     spec_path = write_small_humanoid(tmp_path / "robot")
-    plan = _fitted_plan(tmp_path, str(spec_path))
+    plan = _fitted_plan(tmp_path, str(spec_path), "right-right")
     fitted = plan["scenario"]["fitted"]
     assert fitted["robot"] == "small_humanoid" and fitted["scale"] < 1.0
     _within_reach(plan)
     assert plan["status"] == "solved", plan["failure"]
-    lighter = _fitted_plan(tmp_path, str(spec_path), "--mass-kg", "0.3")
+    lighter = _fitted_plan(tmp_path, str(spec_path), "right-right", "--mass-kg", "0.3")
     assert lighter["object"]["mass_kg"] == 0.3 and lighter["scenario"]["fitted"] == fitted
 
 
