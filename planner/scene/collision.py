@@ -22,7 +22,7 @@ narrow phase, with transforms set from the precomputed arrays.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import Callable, Iterable, Sequence
 
 import fcl
 import numpy as np
@@ -156,12 +156,14 @@ class CollisionWorld:
         kinematics: BatchKinematics | None = None,
         reference_postures: Sequence[tuple[np.ndarray, np.ndarray]] = (),
         moving_joints: Sequence[str] | None = None,
+        progress: Callable[[str], None] | None = None,
     ):
         """``reference_postures``: (base_pose, q) pairs, such as the stance posture, whose touching
         self pairs are disabled like the default posture's. ``moving_joints``: when given (e.g. the
         waist and arms while the feet stay planted), pairs of two bodies that none of these joints
         moves are dropped: they cannot change during a plan, so check the stance once with a
-        world built without ``moving_joints``."""
+        world built without ``moving_joints``. ``progress(message)`` hears of the collision matrix's computation
+        (the first time a robot without an SRDF is seen)."""
         self.robot = robot
         self._reference_postures = [(np.asarray(b, float), np.asarray(q, float)) for b, q in reference_postures]
         self.settings = settings or CollisionSettings()
@@ -213,6 +215,7 @@ class CollisionWorld:
             touch = contact_joints(robot, side)
             self._touching[side] = np.array([i for i in range(self.n_robot) if bodies[i].joint in touch], dtype=int)
             self._tcp[side] = arm.tcp
+        self._progress = progress
         self.disabled = self._disabled_self_pairs()
         moving = np.ones(B, dtype=bool)
         moving[self.n_robot:] = False
@@ -291,7 +294,7 @@ class CollisionWorld:
         if robot.spec.self_collision_matrix == "computed":
             from planner.scene.collision_matrix import cached_matrix
 
-            disabled.update(cached_matrix(self)[0].disabled())
+            disabled.update(cached_matrix(self, self._progress or (lambda message: None))[0].disabled())
         # The robot's own collision matrix (its SRDF's, or pairs its spec file lists).
         disabled.update((a, b) for a, b in robot.spec.disabled_collisions)
         return disabled

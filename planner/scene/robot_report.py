@@ -78,7 +78,7 @@ def robot_report(robot: RobotModel, progress: Callable[[str], None] = lambda m: 
     from planner.stability.stances import StanceError, solve_stance
 
     progress("building the collision model")
-    world = CollisionWorld(robot)
+    world = CollisionWorld(robot, progress=progress)
     matrix, cached = (None, False)
     if robot.spec.self_collision_matrix == "computed":
         matrix, cached = cached_matrix(world, progress)

@@ -137,3 +137,32 @@ def test_a_sole_frame_the_spec_cannot_move_is_refused_saying_how_to_fix_it(tmp_p
     assert res.exit_code == 2, res.output
     assert "feet.left.frame: the URDF already has a link 'l_sole' that is not a plain frame" in res.output
     assert "drop pose_in_link" in res.output
+
+
+def test_scenario_check_takes_a_robot_spec_file_as_plan_does(tmp_path):
+    import yaml
+
+    write_small_humanoid(tmp_path / "robot")
+    scenario = {
+        "schema": "regrasp.scenario/1", "name": "small-box", "robot": "robot/small_humanoid.yaml", "stance": "upright",
+        "object": {"shape": "box", "size": [0.05, 0.08, 0.10], "mass_kg": 1.0},
+        "start_pose": [0.38, -0.26, 0.80, 0, 0, 0, 1], "goal_pose": [0.38, -0.1, 0.80, 0, 0, 0, 1],
+        "tables": [{"name": "table", "pose": [0.5, 0, 0.375, 0, 0, 0, 1], "size": [0.4, 1.2, 0.75]}],
+        "threshold_m": 0.02,
+    }
+    path = tmp_path / "task.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    res = CliRunner().invoke(cli, ["scenario", "check", str(path)], catch_exceptions=False)
+    assert res.exit_code == 0 and "is valid" in res.output, res.output
+    path.write_text(yaml.safe_dump({**scenario, "robot": "robot/missing.yaml"}))
+    res = CliRunner().invoke(cli, ["scenario", "check", str(path)])
+    assert res.exit_code == 2 and "cannot read robot spec" in res.output, res.output
+
+
+def test_robot_check_shows_progress_and_caches_what_it_fits(tmp_path):
+    spec_path = write_small_humanoid(tmp_path / "robot")
+    first = CliRunner().invoke(cli, ["robot", "check", str(spec_path)], catch_exceptions=False)
+    assert first.exit_code == 0, first.output
+    assert "reading the spec and its URDF" in first.output and "collision matrix: 2000/2000" in first.output
+    again = CliRunner().invoke(cli, ["robot", "check", str(spec_path)], catch_exceptions=False)
+    assert "(cached)" in again.output and "collision matrix: 2000/2000" not in again.output
