@@ -128,7 +128,10 @@ class BatchKinematics:
 
 def select_states(Rs: list, ps: list, rows: np.ndarray) -> tuple[list, list]:
     """The states ``rows`` of a :meth:`BatchKinematics.forward` result, as such a result (one block each)."""
-    R, p = frames_block(Rs)[..., rows], frames_block(ps)[..., rows]
+    rows = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows)
+    # np.take allocates the selection in its own shape: indexing with [..., rows] may hand back a transposed
+    # view of a buffer laid out differently, whose rows frames_block would not recognise as a block
+    R, p = np.take(frames_block(Rs), rows, axis=-1), np.take(frames_block(ps), rows, axis=-1)
     return [None, *R[1:]], [None, *p[1:]]
 
 

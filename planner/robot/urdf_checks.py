@@ -2,7 +2,8 @@
 
 A NaN, negative or infinite mass, or an inertia that is not positive definite on a link with mass,
 makes every CoM and torque the planner computes meaningless, so a spec whose URDF has one is refused
-naming the link. A massless link (a frame, a sensor mount) is fine: it adds nothing. A mesh file is
+naming the link. A massless link (a frame, a sensor mount) is fine: it adds nothing; so is a point mass (all
+six inertia values zero) and a singular inertia (a rod's: one principal moment zero, to rounding). A mesh file is
 checked before it is loaded: a binary STL whose header claims more triangles than the file holds
 (2^31 of them, say) would have the mesh reader allocate that much.
 """
@@ -16,6 +17,10 @@ from typing import Callable
 
 import numpy as np
 
+#: inertia values all this small (kg*m^2) are a point mass's zero inertia, written with rounding
+POINT_MASS_INERTIA = 1e-12
+#: a principal moment this small against the largest (relative) is a singular inertia's zero, rounded
+SINGULAR_TOLERANCE = 1e-9
 #: bytes of a binary STL's header (80) plus its triangle count (4), and of one triangle record
 _STL_HEADER = 84
 _STL_TRIANGLE = 50
@@ -53,14 +58,16 @@ def check_inertials(root: ET.Element, error: Callable[[str], Exception]) -> tupl
         if mass == 0.0:
             massless += 1
             continue
-        if not any(values.values()):
-            point_masses += 1  # a point mass (a sensor's): physical, its inertia is zero
+        if max(abs(v) for v in values.values()) <= POINT_MASS_INERTIA:
+            point_masses += 1  # a point mass (a sensor's): physical, its inertia zero (to rounding: 1e-20 below it)
             continue
         inertia = np.array([[values["ixx"], values["ixy"], values["ixz"]],
                             [values["ixy"], values["iyy"], values["iyz"]],
                             [values["ixz"], values["iyz"], values["izz"]]])
-        smallest = float(np.linalg.eigvalsh(inertia)[0])
-        if not smallest > 0.0:
+        eig = np.linalg.eigvalsh(inertia)
+        smallest = float(eig[0])
+        # a rod's or a disc's inertia has a zero principal moment; written out it may round a hair below zero
+        if not smallest > -(SINGULAR_TOLERANCE * float(eig[-1]) + 1e-12) or not eig[-1] > 0.0:
             raise error(f"urdf: link {name!r} has mass {mass:g} kg but its inertia is not positive definite "
                         f"(smallest eigenvalue {smallest:.3g} kg*m^2); give its inertia, or mass 0 for a frame")
     return massless, point_masses

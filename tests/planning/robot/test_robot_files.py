@@ -30,7 +30,7 @@ def _set_mass(link: str, value: str):
 
 
 def _check(spec_path):
-    return CliRunner().invoke(cli, ["robot", "check", str(spec_path)])
+    return CliRunner().invoke(cli, ["robot", "check", str(spec_path), "--quiet"])
 
 
 @pytest.mark.parametrize("value", ["nan", "-1.5", "1e400", "inf"])
