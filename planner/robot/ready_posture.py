@@ -6,8 +6,10 @@ from (arms straight ahead at table height, through any table in front). When the
 arms already hang down (each TCP half the arm's length below its shoulder, at most a quarter ahead of it) with
 the forearms and hands clear of the body; otherwise each arm's joints are solved
 (position IK from seeded starts, within the joint limits) to put its TCP below the shoulder, a little forward
-and out, and of the solutions whose forearm and hand stay clear of the body the one whose CoM is nearest the
-upright stance's polygon centre is kept. Jaws are open. The hands then hang well behind any table whose near
+and out (the same for both arms, mirrored, so the arms keep the CoM over the polygon's centre sideways), and of
+the solutions whose forearm and hand stay clear of the body the one nearest its target with the least joint
+motion is kept (the robot's CoM is computed in planner/stability, which builds on this package, so it is
+reported by ``robot check``, not optimised here). Jaws are open. The hands then hang well behind any table whose near
 edge is in front of them (the fitted tasks put it there), and the posture is printed by ``robot check`` so it
 can be pasted into the spec. Results are cached by the URDF's and the spec's content.
 """
@@ -125,7 +127,6 @@ def derive_ready_posture(robot) -> dict[str, float]:  # type: ignore[no-untyped-
     forward[2] = 0.0
     forward /= np.linalg.norm(forward)
     left = np.cross([0.0, 0.0, 1.0], forward)
-    centre = np.mean([s.translation for s in soles], axis=0)
     body = _Body(robot)
     all_links = {f.name for f in model.frames if f.type == pin.FrameType.BODY}
     arm_links = {side: _subtree_links(model, model.getJointId(arm.chain[0])) for side, arm in spec.arms.items()}
@@ -168,8 +169,8 @@ def derive_ready_posture(robot) -> dict[str, float]:  # type: ignore[no-untyped-
             error = float(np.linalg.norm(target - data.oMf[tcp].translation))
             if error > 0.05 * length or not _clear(model, data, body, moving, fixed):
                 continue
-            com = pin.centerOfMass(model, data, robot.to_pin_q(base, qq), False)
-            score = error + float(np.linalg.norm((com - centre)[:2])) + 0.05 * float(np.linalg.norm(qq[idx]))
+            # the arms' own balance: the hand's sideways and forward offset from its target weighs like the error
+            score = error + 0.05 * float(np.linalg.norm(qq[idx]))
             if score < best_score:
                 best, best_score = qq[idx].copy(), score
         if best is None:
