@@ -140,6 +140,9 @@ class Scenario(StrictModel):
     #: set by the planner when a built-in task is fitted to another robot (planner.scene.task_fitting): what it
     #: measured and chose; absent otherwise
     fitted: dict[str, Any] | None = None
+    speed_scale: Finite = Field(1.0, gt=0, le=1, description="share of the time-optimal speed the plan is timed at")
+    zmp_margin_m: Finite | None = Field(None, ge=0, le=0.5, description="how far inside the support polygon the "
+                                        "timing keeps the ZMP, m; default the threshold, never below the safety floor")
 
     @model_validator(mode="after")
     def _check(self) -> "Scenario":

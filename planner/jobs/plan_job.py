@@ -19,6 +19,7 @@ from planner.errors import Canceled, InputError
 from planner.jobs.survey_job import survey_overrides
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import assemble, effort_ratios, trajectory_points
+from planner.regrasp.plan_timing import PlanTimer
 from planner.stability.effort import EffortEvaluator
 from planner.regrasp.results import PlannerResult
 from planner.regrasp.settings import PlannerSettings
@@ -31,6 +32,7 @@ from planner.stability.stances import StanceError
 from planner.survey.auto import auto_order, survey_summary
 from planner.termination import Termination
 from schemas.plan import PLAN_SCHEMA
+from schemas.policy import default_policy
 from schemas.scenario import Scenario
 
 ProgressFn = Callable[[float, str], None]
@@ -51,6 +53,8 @@ class PlanOptions:
     robot: str | None = None
     #: the object's mass (kg), over the scenario's (and over a fitted task's)
     mass_kg: float | None = None
+    #: share of the time-optimal speed (0 < S <= 1), over the scenario's ``speed_scale``
+    speed_scale: float | None = None
 
 
 def library_versions() -> dict[str, str]:
@@ -97,6 +101,21 @@ def _infeasible(task_or_none: Task | None, scenario: Scenario, code: str, messag
         "alternatives": [],
         "stats": stats or {},
     }
+
+
+def timing_zmp_margin(scenario: Scenario, threshold_m: float) -> float:
+    """How far inside the polygon the timing keeps the ZMP: the scenario's ``zmp_margin_m``, by default the plan's
+    threshold; a user may lower it, never below the safety policy's floor nor raise it above the threshold."""
+    asked = scenario.zmp_margin_m
+    if asked is None:
+        return float(threshold_m)
+    floor = default_policy().margin_floor_m
+    if asked < floor - 1e-12:
+        raise InputError(f"zmp_margin_m {asked * 1000:g} mm is below the safety policy's floor of {floor * 1000:g} mm")
+    if asked > threshold_m + 1e-12:
+        raise InputError(f"zmp_margin_m {asked * 1000:g} mm is above the plan's threshold of {threshold_m * 1000:g} mm "
+                         "(the CoM itself is only held that far inside)")
+    return float(asked)
 
 
 def build_task(scenario: Scenario, settings: PlannerSettings | None = None) -> Task:
@@ -196,7 +215,8 @@ def plan_scenario(
     t_start = time.perf_counter()
     started = time.monotonic()
     scenario = with_overrides(scenario, stance=options.stance, threshold_m=options.threshold_m,
-                              hands=options.hands, seed=options.seed, time_limit_s=options.time_limit_s)
+                              hands=options.hands, seed=options.seed, time_limit_s=options.time_limit_s,
+                              speed_scale=options.speed_scale)
     if options.robot is not None:
         scenario = scenario.model_copy(update={"robot": options.robot})
     progress(0.02, "setting up the task")
@@ -214,6 +234,7 @@ def plan_scenario(
     except PlacementError as exc:
         code = "START_INVALID" if exc.end == "start" else "GOAL_INVALID"
         return _infeasible(None, scenario, code, str(exc), stats={"time_s": time.perf_counter() - t_start})
+    zmp_margin_m = timing_zmp_margin(scenario, task.threshold_m)
     inradius = task.stance.polygon.inradius
     if task.threshold_m > inradius:
         return _infeasible(task, scenario, "THRESHOLD_TOO_LARGE",
@@ -300,8 +321,14 @@ def plan_scenario(
         stats["time_s"] = time.perf_counter() - t_start
         return _infeasible(task, scenario, code, message, _failure_counts(results), hands=order[-1] if len(order) == 1 else None, stats=stats)
     best, planner = min(solved, key=lambda rp: rp[0].cost)
+    t_timing = time.perf_counter()
+    dt = task.settings.timing.dt_s
+    timing = PlanTimer(task, task.settings.plan_timing, scenario.speed_scale, zmp_margin_m, dt).time_plan(best.pieces)
+    stats["timing"] = {**timing.stats, "time_s": time.perf_counter() - t_timing}
     t_asm = time.perf_counter()
-    traj = assemble(best.pieces, task.evaluator, task.settings.timing.dt_s, task.placements[task.start_id])
+    traj = assemble(timing.pieces, task.evaluator, dt, task.placements[task.start_id])
+    duration = float(traj.t[-1])
+    timing_record = {**timing.record, "time_optimal_duration_s": duration - timing.stats["slack_s"], "duration_s": duration}
     traj.effort_ratio = effort_ratios(traj, task.limits or EffortEvaluator(task.robot, task.stance, task.obj.mass_kg,
                                                                            task.obj.com_local))
     stats["limits"] = task.limits is not None
@@ -338,6 +365,7 @@ def plan_scenario(
         "trajectory": trajectory_points(traj),
         "segments": traj.segments,
         "min_margin_m": float(traj.margin.min()),
+        "timing": timing_record,
         "alternatives": alternatives,
         "stats": stats,
     }
@@ -349,7 +377,7 @@ def plan_job(request: dict[str, Any], ctx) -> dict[str, Any]:
     scenario = resolve_scenario(request["scenario"], survey=survey_overrides(request))
     options = PlanOptions(hands=request.get("hands"), threshold_m=request.get("threshold_m"), seed=request.get("seed"),
                           stance=request.get("stance"), time_limit_s=request.get("time_limit_s"),
-                          robot=request.get("robot"))
+                          robot=request.get("robot"), speed_scale=request.get("speed_scale"))
 
     def stop() -> bool:
         return bool(ctx.cancelled())

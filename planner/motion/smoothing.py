@@ -46,10 +46,20 @@ class SmoothResult:
     stats: dict = field(default_factory=dict)
 
 
-def path_length(path: np.ndarray) -> float:
-    """Euclidean joint-space length of a piecewise-linear path."""
+def path_length(path: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """Length of a piecewise-linear path: Euclidean in joint space, or with per-joint ``weights`` the sum over
+    segments of max_j weights_j |dq_j| (with weights 1 / velocity limit: the time the segment takes at the limits)."""
     P = np.asarray(path, dtype=float)
-    return float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum()) if len(P) > 1 else 0.0
+    return float(_segment_lengths(P, weights).sum()) if len(P) > 1 else 0.0
+
+
+def _segment_lengths(P: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+    D = np.diff(P, axis=0)
+    return np.linalg.norm(D, axis=1) if weights is None else np.abs(D * weights).max(axis=1)
+
+
+def _distance(a: np.ndarray, b: np.ndarray, weights: np.ndarray | None) -> float:
+    return float(np.linalg.norm(b - a)) if weights is None else float(np.abs((b - a) * weights).max())
 
 
 def _point_at(path: np.ndarray, cum: np.ndarray, s: float) -> tuple[int, np.ndarray]:
@@ -66,20 +76,22 @@ def shortcut(
     rng: np.random.Generator,
     settings: SmoothingSettings | None = None,
     termination: Termination | None = None,
+    weights: np.ndarray | None = None,
 ) -> SmoothResult:
     """Shorten ``path`` (K, n) with random valid shortcuts; returns the new path (endpoints unchanged).
 
     ``settings.iterations`` shortcuts are drawn; ``termination`` (the motion's) ends the smoothing
-    early on a cancel or past the user's deadline, keeping the path shortened so far."""
+    early on a cancel or past the user's deadline, keeping the path shortened so far. ``weights`` (n,)
+    measures the path as :func:`path_length` does (default Euclidean)."""
     s = settings or SmoothingSettings()
     P = np.asarray(path, dtype=float).copy()
-    before = path_length(P)
+    before = path_length(P, weights)
     tried = accepted = 0
     drawn = 0
     while drawn < s.iterations:
         if len(P) < 3 or (termination is not None and termination.should_stop()):
             break
-        cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
+        cum = np.concatenate([[0.0], np.cumsum(_segment_lengths(P, weights))])
         total = cum[-1]
         if total <= 0:
             break
@@ -93,7 +105,7 @@ def shortcut(
             j, b = _point_at(P, cum, s2)
             if j <= i:
                 continue  # both on one segment: already straight
-            gain = (s2 - s1) - float(np.linalg.norm(b - a))
+            gain = (s2 - s1) - _distance(a, b, weights)
             if gain >= s.min_gain:
                 cands.append((gain, i, j, a, b, np.vstack([a[None], edge_states(a, b, s.edge_resolution_rad)])))
         if not cands:
@@ -107,7 +119,7 @@ def shortcut(
         accepted += 1
         P = _dedupe(np.vstack([P[: i + 1], a[None], b[None], P[j + 1 :]]))
     P, dropped = _drop_skippable(P, validity, s.edge_resolution_rad)
-    return SmoothResult(path=P, length_before=before, length_after=path_length(P),
+    return SmoothResult(path=P, length_before=before, length_after=path_length(P, weights),
                         stats=dict(shortcuts_tried=tried, shortcuts_accepted=accepted, waypoints_dropped=dropped))
 
 

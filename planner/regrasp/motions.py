@@ -120,6 +120,7 @@ class MotionValidator:
                           threshold_m=t.evaluator.threshold_m if t.constrained else -np.inf)
         if not timed.ok:
             return None
+        piece.path = piece.waypoints
         piece.waypoints = timed.Q
         piece.timed = True  # type: ignore[attr-defined]
         return piece

@@ -67,6 +67,7 @@ def _timed_copy(piece: MotionPiece, motions: MotionValidator) -> MotionPiece:
     tp = motions.timed(MotionPiece(piece.kind, piece.hand, piece.waypoints, piece.holding, piece.hold))
     if tp is None:  # short straight pieces were validated densely already; time them kinematically
         _, Q = time_parameterize(piece.waypoints, motions.task.robot, motions.task.settings.timing)
+        piece.path = piece.waypoints
         piece.waypoints = Q
         piece.timed = True  # type: ignore[attr-defined]
         return piece

@@ -34,6 +34,8 @@ class MotionPiece:
     waypoints: np.ndarray
     holding: Literal["none", "left", "right", "both"]
     hold: HoldSpec | None
+    #: the validated joint path (waypoints joined by straight segments) once ``waypoints`` holds its timed samples
+    path: np.ndarray | None = None
 
 
 @dataclass
@@ -54,21 +56,13 @@ def _sides(holding: str) -> tuple[str, ...]:
     return {"none": (), "left": ("left",), "right": ("right",), "both": ("left", "right")}[holding]
 
 
-def assemble(pieces: list[MotionPiece], evaluator: StateEvaluator, dt: float, start_object_pose: np.ndarray) -> TimedTrajectory:
-    """Concatenate timed pieces (each from rest to rest, already sampled at ``dt``).
+def object_states(pieces: list[MotionPiece], evaluator: StateEvaluator, start_object_pose: np.ndarray):
+    """Per non-empty piece: (piece, holding, the HoldSpec of the grasp as actually held or None, the
+    object's world pose at the piece's start while it rests).
 
-    The object's state is tracked through the plan, not taken from the pieces: when a
-    hand closes on the object, its grasp is measured from where the object really is
-    and where the TCP really is; when the last hand lets go, the object stays exactly
-    where it was released. So the object never jumps, even though IK reaches key
-    poses only to a tolerance.
-    """
-    Qs: list[np.ndarray] = []
-    holds: list[str] = []
-    poses: list[np.ndarray] = []
-    coms: list[np.ndarray] = []
-    segments: list[dict] = []
-    count = 0
+    The object's state is tracked through the plan, not taken from the pieces: when a hand closes on
+    the object, its grasp is measured from where the object really is and where the TCP really is;
+    when the last hand lets go, the object stays exactly where it was released."""
     current = np.asarray(start_object_pose, dtype=float)
     grasp: dict[str, np.ndarray] = {}  # side -> T_obj_tcp as actually held
     holding = "none"
@@ -90,6 +84,26 @@ def assemble(pieces: list[MotionPiece], evaluator: StateEvaluator, dt: float, st
         else:
             side = "left" if holding == "both" else holding
             hold = HoldSpec(holding, grasp[side])
+        yield piece, holding, hold, current
+
+
+def assemble(pieces: list[MotionPiece], evaluator: StateEvaluator, dt: float, start_object_pose: np.ndarray) -> TimedTrajectory:
+    """Concatenate timed pieces (each from rest to rest, already sampled at ``dt``).
+
+    The object's state is tracked through the plan, not taken from the pieces: when a
+    hand closes on the object, its grasp is measured from where the object really is
+    and where the TCP really is; when the last hand lets go, the object stays exactly
+    where it was released. So the object never jumps, even though IK reaches key
+    poses only to a tolerance.
+    """
+    Qs: list[np.ndarray] = []
+    holds: list[str] = []
+    poses: list[np.ndarray] = []
+    coms: list[np.ndarray] = []
+    segments: list[dict] = []
+    count = 0
+    for piece, holding, hold, current in object_states(pieces, evaluator, start_object_pose):
+        Q = np.asarray(piece.waypoints, dtype=float)
         batch = evaluator.evaluate(Q, hold, threshold_m=0.0)
         pose = np.repeat(current[None], len(Q), axis=0) if hold is None else batch.object_pose
         if count > 0:

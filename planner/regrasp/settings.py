@@ -11,6 +11,7 @@ from planner.grasping.handover import HandoverSettings
 from planner.motion.ik import IkSettings
 from planner.motion.smoothing import SmoothingSettings
 from planner.motion.timing import TimingSettings
+from planner.regrasp.plan_timing import PlanTimingSettings
 from planner.motion.trrt import TrrtSettings
 from planner.regrasp.graph import GraphWeights
 
@@ -47,6 +48,7 @@ class PlannerSettings(BaseModel):
     trrt: TrrtSettings = Field(default_factory=lambda: TrrtSettings(max_iterations=300, step_rad=0.6, goal_bias=0.25))
     smoothing: SmoothingSettings = Field(default_factory=SmoothingSettings)
     timing: TimingSettings = Field(default_factory=TimingSettings)
+    plan_timing: PlanTimingSettings = Field(default_factory=PlanTimingSettings)
     arm_only_restarts: int = Field(1, ge=0, description="random restarts of the arm-only IK attempt")
     motion_attempts: int = Field(
         2, ge=1, description="T-RRT runs per motion before it counts as failed: a run that reaches its round cap is "

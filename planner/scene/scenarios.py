@@ -103,6 +103,7 @@ def with_overrides(
     time_limit_s: float | None = None,
     survey: dict[str, Any] | None = None,
     mass_kg: float | None = None,
+    speed_scale: float | None = None,
 ) -> Scenario:
     """The scenario with request/CLI overrides applied and re-validated.
 
@@ -118,6 +119,8 @@ def with_overrides(
         data["hands"] = hands
     if seed is not None:
         data["seed"] = seed
+    if speed_scale is not None:
+        data["speed_scale"] = speed_scale
     if states_per_configuration is not None:
         survey = {**(survey or {}), "until": "states", "states_per_seed": states_per_configuration}
     if survey:

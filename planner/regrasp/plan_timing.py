@@ -1,0 +1,391 @@
+"""Timing of a solved plan: blended through its waypoints, time-optimal under the robot's and the balance's limits.
+
+The search validated every motion piece as straight segments between waypoints and timed each
+rest to rest (:mod:`planner.motion.timing`). Here the plan is timed again as it will run:
+
+1. **Runs.** Consecutive pieces form one run, traversed without stopping, unless the task needs
+   rest between them: where what the hands hold changes (grasp, release, the handover's
+   exchange) and around every move of a jaw. A run starts and ends at rest.
+2. **Blends.** Each interior waypoint of a run is replaced by a quadratic blend
+   (:class:`planner.motion.topp.BlendedPath`) of half-length up to ``blend_rad``.
+3. **Time-optimal timing** (TOPP-RA, :func:`planner.motion.topp.parameterize`) within the joint
+   velocity and acceleration limits, the static plus inertial joint torques within the effort
+   limits, and the cart-table ZMP at least ``zmp_margin_m`` inside the support polygon (where the
+   CoM itself is closer to an edge than that, as far inside as the CoM). The CoM terms come from
+   :mod:`planner.stability.com_path`, the torques from :mod:`planner.stability.effort` and
+   :mod:`planner.stability.inertial_torques`. Then ``1 / speed_scale`` stretches it in time.
+4. **Checks of the samples**, as the plan checker computes them: velocities and accelerations by
+   finite differences, the ZMP by central differences, the static plus inertial torques; a run
+   that exceeds one is stretched in time (which keeps it on the path and only lowers them) and
+   sampled again.
+5. **Validation again at the dense samples**: every sample through the task's state checker
+   (collision, the margin, the static limits) with the grasping rules of the piece it belongs to,
+   and the margin at the midpoints between samples. A blend with a failing sample is halved, at
+   the last round removed (the robot then stops at that waypoint). A run that cannot be timed
+   keeps the search's own rest-to-rest timing, which was validated.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from planner.motion.smoothing import shortcut
+from planner.motion.timing import MARGIN_TOLERANCE_M, zmp_cart_table
+from planner.motion.topp import (
+    BlendedPath,
+    LinearRows,
+    gridpoints_for,
+    parameterize,
+    sample,
+    zmp_rows,
+)
+from planner.regrasp.plan_assembly import MotionPiece, object_states
+from planner.stability.com_path import com_path_terms
+from planner.stability.effort import EffortEvaluator
+from planner.stability.evaluator import HoldSpec
+from planner.stability.inertial_torques import InertialTorques
+
+METHOD = "topp-ra"
+#: The random stream of the timing's shortcuts (apart from the search's hop streams).
+SHORTCUT_STREAM = 7919
+#: Waypoints closer than this (rad, per joint) are one.
+SAME_WAYPOINT_RAD = 1e-9
+
+
+class PlanTimingSettings(BaseModel):
+    """How the plan is timed: the share of the limits used, the blends, the TOPP-RA grid."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    velocity_scale: float = Field(0.98, gt=0, le=1, description="share of the URDF velocity limits TOPP-RA may use")
+    acceleration_scale: float = Field(0.98, gt=0, le=1, description="share of the spec's acceleration limits TOPP-RA may use")
+    effort_scale: float = Field(0.98, gt=0, le=1, description="share of the effort limits the static plus inertial torques may use")
+    shortcut_iterations: int = Field(200, ge=0, description="random shortcuts tried on each planned motion before "
+                                     "it is blended (checked like the search's)")
+    blend_rad: float = Field(0.15, ge=0, description="largest half-length of a corner blend (joint-space arc length, rad)")
+    blend_rounds: int = Field(3, ge=0, description="times a blend with an invalid sample is halved before it is removed")
+    grid_step_rad: float = Field(0.01, gt=0, description="TOPP-RA gridpoint spacing along the path (rad)")
+    max_gridpoints: int = Field(800, ge=10, description="TOPP-RA gridpoints per run at most")
+    zmp_inner_m: float = Field(0.0005, ge=0, description="extra ZMP margin inside TOPP-RA, for the finite differences between gridpoints")
+    check_rounds: int = Field(8, ge=1, description="time stretches of a run whose samples exceed a limit")
+    rest_samples: int = Field(1, ge=0, description="extra copies of a run's first and last sample (exactly zero velocity)")
+
+
+@dataclass
+class Run:
+    """Pieces traversed without stopping: their joint path and what is held along it."""
+
+    pieces: list[MotionPiece]
+    holding: Literal["none", "left", "right", "both"]
+    hold: HoldSpec | None
+    free_object: np.ndarray | None
+
+
+@dataclass
+class PlanTiming:
+    """The retimed pieces and what the plan records of the timing."""
+
+    pieces: list[MotionPiece]
+    record: dict
+    stats: dict = field(default_factory=dict)
+
+
+def _jaw_moves(piece: MotionPiece, jaw_cols: np.ndarray) -> bool:
+    P = np.asarray(piece.path if piece.path is not None else piece.waypoints, dtype=float)
+    return bool(jaw_cols.size and np.abs(P[-1, jaw_cols] - P[0, jaw_cols]).max() > 0.0)
+
+
+def runs_of(pieces: list[MotionPiece], task) -> list[Run]:
+    """Split the plan into runs: rest where the holding changes and around every jaw move."""
+    jaw_cols = np.concatenate([np.asarray(v, dtype=int) for v in task.jaw.values()]) if task.jaw else np.zeros(0, int)
+    runs: list[Run] = []
+    prev_jaw = False
+    for piece, holding, hold, current in object_states(pieces, task.evaluator, task.placements[task.start_id]):
+        jaw = _jaw_moves(piece, jaw_cols)
+        if runs and runs[-1].holding == holding and not jaw and not prev_jaw:
+            runs[-1].pieces.append(piece)
+        else:
+            runs.append(Run([piece], holding, hold, None if hold is not None else current.copy()))
+        prev_jaw = jaw
+    return runs
+
+
+def _waypoints(run: Run) -> tuple[np.ndarray, list[int]]:
+    """The run's waypoints (duplicates merged) and the index of the waypoint each piece starts at."""
+    W: list[np.ndarray] = []
+    starts = []
+    for piece in run.pieces:
+        P = np.asarray(piece.path if piece.path is not None else piece.waypoints, dtype=float)
+        starts.append(max(len(W) - 1, 0))
+        for q in P:
+            if not W or np.abs(q - W[-1]).max() > SAME_WAYPOINT_RAD:
+                W.append(q)
+    return np.array(W), starts
+
+
+class PlanTimer:
+    """Times the runs of one plan for one task."""
+
+    def __init__(self, task, settings: PlanTimingSettings, speed_scale: float, zmp_margin_m: float, dt: float):
+        self.task = task
+        self.s = settings
+        self.speed_scale = float(speed_scale)
+        self.zmp_margin_m = float(zmp_margin_m)
+        self.dt = float(dt)
+        robot = task.robot
+        self.vlim = robot.velocity_limit
+        self.alim = robot.acceleration_limit
+        self.limits: EffortEvaluator | None = task.limits
+        self.threshold = task.evaluator.threshold_m if task.constrained else -np.inf
+        self.stats = {"shortened_s": 0.0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0}
+
+    # -- constraints ------------------------------------------------------------------------------------------------
+    def _rows(self, run: Run, path: BlendedPath, grid: np.ndarray) -> tuple[list[LinearRows], np.ndarray]:
+        P0, P1, P2 = path(grid, 0), path(grid, 1), path(grid, 2)
+        t = self.task
+        terms = com_path_terms(t.evaluator, P0, P1, P2, run.hold)
+        polygon = t.evaluator.polygon
+        static_margin = polygon.margin(terms.com[:, :2])
+        need = np.minimum(self.zmp_margin_m + self.s.zmp_inner_m, np.maximum(static_margin, 0.0))
+        z = zmp_rows(terms.com, terms.d1, terms.d2, polygon.normals, polygon.offsets, 0.0)
+        room = z.room - need[:, None]
+        rows = [LinearRows(grid, z.a, z.b, np.zeros_like(z.a), np.full_like(room, -np.inf), np.maximum(room, 0.0))]
+        if self.limits is not None:
+            tau_s = self._static(run, P0)
+            A, B = self._inertial(run).coefficients(P0, P1, P2)
+            lim = self.limits.table.limit * self.s.effort_scale
+            rows.append(LinearRows(grid, A, B, tau_s, np.minimum(-lim, tau_s), np.maximum(lim, tau_s)))
+        return rows, need
+
+    def _static(self, run: Run, Q: np.ndarray) -> np.ndarray:
+        T_tcp_obj = None if run.hold is None else run.hold.T_tcp_obj
+        return self.limits.evaluate(Q, run.holding, T_tcp_obj=T_tcp_obj).torque
+
+    def _inertial(self, run: Run) -> InertialTorques:
+        t = self.task
+        if run.hold is None:
+            return InertialTorques(t.robot, t.stance.base_pose)
+        tcp = t.robot.spec.arms[run.hold.tcp_side].tcp
+        return InertialTorques(t.robot, t.stance.base_pose, t.obj.mass_kg, tcp, run.hold.T_tcp_obj, t.obj.com_local)
+
+    # -- checks of the samples ------------------------------------------------------------------------------------
+    def _stretch_needed(self, run: Run, Q: np.ndarray, need_at: np.ndarray) -> float:
+        """The time stretch (>= 1) the samples need to keep the limits as the checker sees them; 1 when they do."""
+        dt = self.dt
+        k = 1.0
+        if len(Q) >= 2:
+            v = np.abs(np.diff(Q, axis=0)) / dt
+            k = max(k, float((v / self.vlim).max()))
+        if len(Q) >= 3:
+            a = np.abs(Q[2:] - 2.0 * Q[1:-1] + Q[:-2]) / (dt * dt)
+            k = max(k, math.sqrt(float((a / self.alim).max())))
+        t = self.task
+        com = t.evaluator.evaluate(Q, run.hold, threshold_m=0.0).com
+        zmp = zmp_cart_table(com, dt)
+        zm = t.evaluator.polygon.margin(zmp)
+        bad = zm < need_at - 1e-9
+        if bad.any():
+            room = t.evaluator.polygon.margin(com[:, :2]) - need_at
+            offset = np.linalg.norm(zmp - com[:, :2], axis=1)
+            ratio = offset[bad] / np.maximum(room[bad], 1e-6)
+            k = max(k, math.sqrt(float(ratio.max())) * 1.05, 1.05)
+        if self.limits is not None and len(Q) >= 3:
+            tau_s = self._static(run, Q)
+            inert = self._inertial(run)
+            dq = np.zeros_like(Q)
+            ddq = np.zeros_like(Q)
+            dq[1:-1] = (Q[2:] - Q[:-2]) / (2.0 * dt)
+            ddq[1:-1] = (Q[2:] - 2.0 * Q[1:-1] + Q[:-2]) / (dt * dt)
+            tau_d = inert.torques(Q, dq, ddq)  # M(q) q'' + C(q, q') q'
+            lim = self.limits.table.limit
+            over = np.abs(tau_s + tau_d) > lim
+            if over.any():
+                room = np.maximum(lim - np.abs(tau_s), 1e-9)
+                k = max(k, math.sqrt(float((np.abs(tau_d) / room)[over].max())) * 1.02)
+        return k
+
+    # -- validation ---------------------------------------------------------------------------------------------------
+    def _invalid_s(self, run: Run, path: "_Joined", starts: list[int], s: np.ndarray, Q: np.ndarray) -> np.ndarray:
+        """Path positions of the samples that fail the state checker (those on a blend: the new geometry; the
+        straight stretches are the validated segments) and of samples or midpoints below the margin."""
+        t = self.task
+        bounds = [path.waypoint_s[i] for i in starts[1:]]
+        piece_of = np.searchsorted(np.asarray(bounds), s, side="right") if bounds else np.zeros(len(s), int)
+        on_blend = path.on_blend(s)
+        bad = np.zeros(len(Q), dtype=bool)
+        for k, piece in enumerate(run.pieces):
+            idx = np.flatnonzero((piece_of == k) & on_blend)
+            if not idx.size:
+                continue
+            grasping = piece.hand if piece.kind in ("approach", "retreat") and piece.hand in ("left", "right") else None
+            ok, _ = t.checker.validity(run.hold, run.free_object, grasping, active=None)(Q[idx])
+            bad[idx] = ~ok
+        margin = t.evaluator.evaluate(Q, run.hold, threshold_m=0.0).margin
+        bad |= margin < self.threshold - MARGIN_TOLERANCE_M
+        bad_s = [s[bad]]
+        if len(Q) >= 2:
+            mids = 0.5 * (Q[1:] + Q[:-1])
+            low = t.evaluator.evaluate(mids, run.hold, threshold_m=0.0).margin < self.threshold - MARGIN_TOLERANCE_M
+            bad_s.append(0.5 * (s[1:] + s[:-1])[low])
+        return np.concatenate(bad_s)
+
+    # -- one run ------------------------------------------------------------------------------------------------------
+    def time_run(self, run: Run) -> tuple[list[np.ndarray], float, float] | None:
+        """Per piece its samples (consecutive pieces share the boundary sample), the run's duration at full speed
+        and its duration as timed (whole periods, rest copies left out); None when it cannot be timed here."""
+        W, starts = _waypoints(run)
+        if len(W) < 2:
+            return None
+        blends = np.full(len(W) - 2, self.s.blend_rad)
+        for round_ in range(self.s.blend_rounds + 2):
+            stops = np.flatnonzero(blends <= 0.0) + 1  # interior waypoints where the robot stops
+            cuts = [0, *stops.tolist(), len(W) - 1]
+            parts = []
+            for a, b in zip(cuts[:-1], cuts[1:]):
+                part = self._time_part(run, W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0))
+                if part is None:
+                    return None
+                parts.append(part)
+            # join the parts: each ends at rest at the waypoint where the next one starts
+            s_all, Q_all = [], []
+            offset = 0.0
+            for k, part in enumerate(parts):
+                s_k, Q_k = (part.s, part.Q) if k == 0 else (part.s[1:], part.Q[1:])
+                s_all.append(s_k + offset)
+                Q_all.append(Q_k)
+                offset += part.path.length
+            s_cat, Q_cat = np.concatenate(s_all), np.vstack(Q_all)
+            whole = _Joined([part.path for part in parts])
+            bad_s = self._invalid_s(run, whole, starts, s_cat, Q_cat)
+            if not bad_s.size:
+                break
+            hit = False
+            for i in range(len(blends)):
+                d = whole.blend_of(i + 1)
+                if blends[i] <= 0.0 or d <= 0.0:
+                    continue
+                if np.any(np.abs(bad_s - whole.waypoint_s[i + 1]) <= d + 1e-9):
+                    hit = True
+                    blends[i] = 0.0 if round_ >= self.s.blend_rounds else 0.5 * d
+                    self.stats["blends_removed"] += int(blends[i] == 0.0)
+            if not hit:
+                return None  # a failure away from the blends: keep the validated rest-to-rest timing
+        else:
+            return None
+        self.stats["blends"] += int(np.count_nonzero(blends > 0.0))
+        idx = [0]
+        for i in starts[1:]:  # each piece from the sample nearest its first waypoint
+            j = int(np.argmin(np.abs(s_cat - whole.waypoint_s[i])))
+            idx.append(min(max(j, idx[-1] + 1), len(Q_cat) - 2))
+        idx.append(len(Q_cat) - 1)
+        if any(b <= a for a, b in zip(idx[:-1], idx[1:])):
+            return None
+        rest = self.s.rest_samples
+        out = []
+        for k in range(len(run.pieces)):
+            Qk = Q_cat[idx[k]: idx[k + 1] + 1]
+            if k == 0 and rest:
+                Qk = np.vstack([np.repeat(Qk[:1], rest, axis=0), Qk])
+            if k == len(run.pieces) - 1 and rest:
+                Qk = np.vstack([Qk, np.repeat(Qk[-1:], rest, axis=0)])
+            out.append(Qk)
+        return out, sum(part.full_speed_s for part in parts), (len(Q_cat) - 1) * self.dt
+
+    def _time_part(self, run: Run, W: np.ndarray, blends: np.ndarray) -> "_Part | None":
+        """One stretch between stops, timed and checked; None when TOPP-RA finds no profile or the checks
+        cannot be met by stretching."""
+        path = BlendedPath(W, blends)
+        grid = gridpoints_for(path, self.s.grid_step_rad, self.s.max_gridpoints)
+        rows, _ = self._rows(run, path, grid)
+        sd = parameterize(path, grid, self.vlim * self.s.velocity_scale, self.alim * self.s.acceleration_scale, rows)
+        if sd is None:
+            return None
+        stretch = 1.0
+        for _ in range(self.s.check_rounds):
+            s, T, _ = sample(path, grid, sd, self.dt, stretch / self.speed_scale)
+            Q = path(s)
+            com = self.task.evaluator.evaluate(Q, run.hold, threshold_m=0.0).com
+            need_at = np.minimum(self.zmp_margin_m, np.maximum(self.task.evaluator.polygon.margin(com[:, :2]), 0.0))
+            k = self._stretch_needed(run, Q, need_at)
+            if k <= 1.0 + 1e-9:
+                self.stats["stretched_runs"] += int(stretch > 1.0)
+                full = max(1, int(math.ceil(T * stretch / self.dt - 1e-9))) * self.dt
+                return _Part(path, s, Q, full)
+            stretch *= max(k, 1.01)
+        return None
+
+    def shortcut(self, pieces: list[MotionPiece]) -> list[MotionPiece]:
+        """Each planned motion (more than one straight segment) shortened by more random shortcuts, every new
+        segment checked by the task's state checker at the search's resolution, as the search checks its own."""
+        t = self.task
+        out = []
+        settings = t.settings.smoothing.model_copy(update={"iterations": self.s.shortcut_iterations})
+        for k, (piece, _, hold, current) in enumerate(object_states(pieces, t.evaluator, t.placements[t.start_id])):
+            if piece.path is None or len(piece.path) <= 2 or self.s.shortcut_iterations == 0:
+                out.append(piece)
+                continue
+            validity = t.checker.validity(hold, None if hold is not None else current, None, active=None)
+            rng = np.random.default_rng([t.scenario.seed, SHORTCUT_STREAM, k])
+            res = shortcut(np.asarray(piece.path, dtype=float), validity, rng, settings, weights=1.0 / self.vlim)
+            self.stats["shortened_s"] += res.length_before - res.length_after
+            out.append(replace(piece, path=res.path))
+        return out
+
+    def time_plan(self, pieces: list[MotionPiece]) -> PlanTiming:
+        """The plan's pieces shortened, then timed run by run; and how much slower than full speed the result is."""
+        out: list[MotionPiece] = []
+        slack = 0.0
+        for run in runs_of(self.shortcut(pieces), self.task):
+            self.stats["runs"] += 1
+            timed = self.time_run(run)
+            if timed is None:
+                self.stats["fallback_runs"] += 1
+                out.extend(run.pieces)
+                continue
+            Qs, full, actual = timed
+            slack += actual - full
+            out.extend(replace(p, waypoints=Q) for p, Q in zip(run.pieces, Qs))
+        return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
+                                              "zmp_margin_m": self.zmp_margin_m},
+                          stats={**self.stats, "slack_s": slack})
+
+
+@dataclass
+class _Part:
+    path: BlendedPath
+    s: np.ndarray
+    Q: np.ndarray
+    #: its duration at full speed, whole periods
+    full_speed_s: float
+
+
+class _Joined:
+    """Several parts (each a BlendedPath from rest to rest) as one path position for bookkeeping."""
+
+    def __init__(self, parts: list[BlendedPath]):
+        self.parts = parts
+        ws, blend = [0.0], [0.0]
+        off = 0.0
+        for p in parts:
+            ws += (p.waypoint_s[1:] + off).tolist()
+            blend += [*p.blend.tolist(), 0.0]
+            off += p.length
+        self.waypoint_s = np.array(ws)
+        self._blend = np.array(blend)
+        self.length = off
+
+    def blend_of(self, i: int) -> float:
+        return float(self._blend[i])
+
+    def on_blend(self, s: np.ndarray) -> np.ndarray:
+        """Whether each path position lies on a corner blend."""
+        out = np.zeros(len(s), dtype=bool)
+        for ws, d in zip(self.waypoint_s, self._blend):
+            if d > 0.0:
+                out |= np.abs(s - ws) <= d + 1e-12
+        return out

@@ -1,0 +1,82 @@
+"""The joint torques that accelerating the robot along a path adds to the static ones.
+
+Along a path ``q(s)`` timed by ``s(t)``, inverse dynamics without gravity is linear in
+``s_ddot`` and ``s_dot^2``: ``tau = M(q) q' s_ddot + (M(q) q'' + C(q, q') q') s_dot^2``.
+The stance fixes the feet and the legs do not move, so the pelvis is fixed and pinocchio's
+recursive Newton-Euler algorithm on the free-flyer model with zero base velocity and
+acceleration gives the torques of the moving joints (waist and arms). The held object is a
+point mass fixed to the holding hand's TCP (while both hands hold it, to the left one, as its
+pose is); gravity on it and on the links is the static part (:mod:`planner.stability.effort`).
+The torques come out per checked wire joint, in the order of the effort table.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from planner.kinematics.joint_table import joint_table
+from planner.robot.model import RobotModel
+from planner.stability.effort import effort_table
+
+
+class InertialTorques:
+    """``coefficients(Q, dQ, ddQ)`` -> (A, B) (N, K): the inertial torques are ``A s_ddot + B s_dot^2``."""
+
+    def __init__(self, robot: RobotModel, base_pose: np.ndarray, object_mass: float = 0.0,
+                 tcp_frame: str | None = None, T_tcp_obj: np.ndarray | None = None, com_local: np.ndarray | None = None):
+        self.robot = robot
+        self.base_pose = np.asarray(base_pose, dtype=float)
+        model = pin.Model(robot.pin_model)
+        model.gravity = pin.Motion.Zero()
+        if object_mass > 0.0 and tcp_frame is not None:
+            frame = model.frames[model.getFrameId(tcp_frame)]
+            T = np.asarray(T_tcp_obj, dtype=float)
+            c_tcp = T[:3, :3] @ np.asarray(com_local, dtype=float) + T[:3, 3]
+            c_joint = frame.placement.act(c_tcp)
+            model.appendBodyToJoint(frame.parentJoint, pin.Inertia(float(object_mass), c_joint, np.zeros((3, 3))),
+                                    pin.SE3.Identity())
+        self.model = model
+        self.data = model.createData()
+        rows = joint_table(robot).rows
+        table = effort_table(robot)
+        self.fold = table.fold  # (K, J)
+        self.limit = table.limit
+        self.checked = table.checked
+        # wire velocity -> pinocchio velocity (mimic joints follow their master with the multiplier)
+        self._v_index = np.array([model.idx_vs[r.jid] for r in rows[2:] if r.source[0] >= 0], dtype=int)
+        self._v_source = np.array([r.source[0] for r in rows[2:] if r.source[0] >= 0], dtype=int)
+        self._v_mult = np.array([r.source[1] for r in rows[2:] if r.source[0] >= 0], dtype=float)
+        self._jid_v = np.array([model.idx_vs[j] if j >= 2 else -1 for j in range(len(rows))], dtype=int)
+
+    def _v(self, dq: np.ndarray) -> np.ndarray:
+        v = np.zeros(self.model.nv)
+        v[self._v_index] = self._v_mult * dq[self._v_source]
+        return v
+
+    def _per_checked(self, tau: np.ndarray) -> np.ndarray:
+        per_joint = np.zeros(len(self._jid_v))
+        ok = self._jid_v >= 0
+        per_joint[ok] = tau[self._jid_v[ok]]
+        return self.fold @ per_joint
+
+    def coefficients(self, Q: np.ndarray, dQ: np.ndarray, ddQ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(A, B), each (N, K), at the path points Q with path derivatives dQ, ddQ (N, n)."""
+        n = len(Q)
+        A = np.empty((n, len(self.checked)))
+        B = np.empty((n, len(self.checked)))
+        zero = np.zeros(self.model.nv)
+        for i in range(n):
+            qp = self.robot.to_pin_q(self.base_pose, Q[i])
+            v1, a2 = self._v(dQ[i]), self._v(ddQ[i])
+            A[i] = self._per_checked(pin.rnea(self.model, self.data, qp, zero, v1))
+            B[i] = self._per_checked(pin.rnea(self.model, self.data, qp, v1, a2))
+        return A, B
+
+    def torques(self, Q: np.ndarray, dQ: np.ndarray, ddQ: np.ndarray) -> np.ndarray:
+        """Inertial torques (N, K) of states Q moving with joint velocities dQ and accelerations ddQ."""
+        out = np.empty((len(Q), len(self.checked)))
+        for i in range(len(Q)):
+            qp = self.robot.to_pin_q(self.base_pose, Q[i])
+            out[i] = self._per_checked(pin.rnea(self.model, self.data, qp, self._v(dQ[i]), self._v(ddQ[i])))
+        return out
