@@ -117,6 +117,8 @@ class JobRequest(StrictModel):
     seeds_max: int | None = Field(None, ge=1, le=10_000, description="survey: most seeds per configuration")
     states_per_seed: int | None = Field(None, ge=1, le=1_000_000, description="survey, until: states: states counted per seed")
     time_limit_s: Finite | None = Field(None, gt=0, le=3600, description="planner safety-net time limit, s")
+    speed_scale: Finite | None = Field(None, gt=0, le=1, description="plan: share of the time-optimal speed the "
+                                       "motion is timed at (0 < S <= 1), overriding the scenario's")
 
 
 

@@ -176,7 +176,10 @@ def parameterize(path: BlendedPath, gridpoints: np.ndarray, vlim: np.ndarray, al
     sd = algo.problem_data.sd_vec
     if algo.problem_data.return_code != toppra.algorithm.ParameterizationReturnCode.Ok or sd is None or np.any(~np.isfinite(sd)):
         return None
-    return np.sqrt(np.maximum(np.asarray(sd, dtype=float) ** 2, 0.0))
+    sd = np.abs(np.asarray(sd, dtype=float))
+    if len(sd) > 2 and np.any(sd[1:-1] <= 0.0):  # the path cannot be followed without stopping inside it
+        return None
+    return sd
 
 
 def profile_times(gridpoints: np.ndarray, sd: np.ndarray) -> np.ndarray:

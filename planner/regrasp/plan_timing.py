@@ -247,7 +247,7 @@ class PlanTimer:
             cuts = [0, *stops.tolist(), len(W) - 1]
             parts = []
             for a, b in zip(cuts[:-1], cuts[1:]):
-                part = self._time_part(run, W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0))
+                part = self.time_part(run, W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0))
                 if part is None:
                     return None
                 parts.append(part)
@@ -296,7 +296,7 @@ class PlanTimer:
             out.append(Qk)
         return out, sum(part.full_speed_s for part in parts), (len(Q_cat) - 1) * self.dt
 
-    def _time_part(self, run: Run, W: np.ndarray, blends: np.ndarray) -> "_Part | None":
+    def time_part(self, run: Run, W: np.ndarray, blends: np.ndarray) -> "Part | None":
         """One stretch between stops, timed and checked; None when TOPP-RA finds no profile or the checks
         cannot be met by stretching."""
         path = BlendedPath(W, blends)
@@ -315,7 +315,7 @@ class PlanTimer:
             if k <= 1.0 + 1e-9:
                 self.stats["stretched_runs"] += int(stretch > 1.0)
                 full = max(1, int(math.ceil(T * stretch / self.dt - 1e-9))) * self.dt
-                return _Part(path, s, Q, full)
+                return Part(path, s, Q, full)
             stretch *= max(k, 1.01)
         return None
 
@@ -356,7 +356,9 @@ class PlanTimer:
 
 
 @dataclass
-class _Part:
+class Part:
+    """A stretch between stops, timed: its path, the path position and configuration of every sample."""
+
     path: BlendedPath
     s: np.ndarray
     Q: np.ndarray

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -116,6 +117,7 @@ def plan_summary(plan: dict, path: Path | None = None) -> dict:
 @click.option("--seed", type=int, help="Random seed (same seed, same plan).")
 @click.option("--solutions", type=click.IntRange(1, 20), default=1, show_default=True, help="Keep the K best solutions.")
 @click.option("--time-limit-s", type=float, help="Safety-net time limit in seconds.")
+@click.option("--speed-scale", type=float, help="Share of the time-optimal speed (0 < S <= 1; default the scenario's, 1).")
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="Where to write the plan JSON.")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False),
               help="Write the CoM trace over the support polygon here, and the margin over time beside it (*-margin).")
@@ -128,7 +130,7 @@ def plan_summary(plan: dict, path: Path | None = None) -> dict:
 @click.option("--robot", "robot_ref", help="Override the scenario's robot: a name (`regrasp robot list`) or a robot spec file.")
 @click.option("--mass-kg", type=float, help="Override the object's mass, kg (a built-in task fitted to another robot "
               "gets a mass within that robot's reach; this overrides it too).")
-def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, solutions, time_limit_s, out_path,
+def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, solutions, time_limit_s, speed_scale, out_path,
          plot_path, fmt, compare_threshold_mm, as_json, quiet, no_limits, robot_ref, mass_kg) -> None:
     """Plan a regrasp task: pick, regrasp or hand over, and place, keeping the CoM margin."""
     from planner.errors import InputError
@@ -138,10 +140,13 @@ def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, soluti
     ref = check_scenario_args(scenario_file, scenario_name)
     threshold_m = mm_to_m("--threshold-mm", threshold_mm)
     compare_m = mm_to_m("--compare-threshold-mm", compare_threshold_mm)
+    if speed_scale is not None and not (math.isfinite(speed_scale) and 0.0 < speed_scale <= 1.0):
+        fail(f"--speed-scale must be a number with 0 < S <= 1 (the share of the time-optimal speed), got {speed_scale}")
     try:
         sc = resolve_scenario(ref)
         options = PlanOptions(hands=hands, threshold_m=threshold_m, seed=seed, solutions=solutions, stance=stance,
-                              time_limit_s=time_limit_s, limits=not no_limits, robot=robot_ref, mass_kg=mass_kg)
+                              time_limit_s=time_limit_s, limits=not no_limits, robot=robot_ref, mass_kg=mass_kg,
+                              speed_scale=speed_scale)
         t0 = time.perf_counter()
         if quiet or as_json:
             doc = plan_scenario(sc, options)
@@ -151,7 +156,7 @@ def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, soluti
         if compare_m is not None:
             opts2 = PlanOptions(hands=doc.get("hands") or hands, threshold_m=compare_m, seed=seed,
                                 stance=stance, time_limit_s=time_limit_s, limits=not no_limits, robot=robot_ref,
-                                mass_kg=mass_kg)
+                                mass_kg=mass_kg, speed_scale=speed_scale)
             compare = (plan_scenario(sc, opts2) if quiet or as_json else
                        run_with_progress("comparison", lambda p: plan_scenario(sc, opts2, progress=p)))
     except InputError as exc:

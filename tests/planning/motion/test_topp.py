@@ -1,0 +1,141 @@
+"""Time-optimal timing (TOPP-RA) of joint paths: the analytic bang-bang case, the ZMP constraint where it binds,
+and torques recomputed independently along the timed path."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from planner.motion.timing import zmp_cart_table
+from planner.motion.topp import BlendedPath, gridpoints_for, parameterize, profile_times
+from planner.regrasp.plan_assembly import MotionPiece
+from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings, Run
+from planner.stability.effort import EffortEvaluator, effort_limits
+from planner.stability.evaluator import HoldSpec, StateEvaluator
+
+DT = 0.005
+
+
+def bang_bang_duration(D: np.ndarray, vmax: np.ndarray, amax: np.ndarray) -> float:
+    """Rest-to-rest time along the straight line D with every joint on it: accelerate at the largest path
+    acceleration the joints allow, cruise at the largest path speed, brake."""
+    L = float(np.linalg.norm(D))
+    u = np.abs(D) / L
+    u[u < 1e-12] = 0.0
+    V = float(np.min(vmax[u > 0] / u[u > 0]))
+    A = float(np.min(amax[u > 0] / u[u > 0]))
+    if V * V / A >= L:  # the cruise speed is never reached
+        return 2.0 * np.sqrt(L / A)
+    return L / V + V / A
+
+
+@settings(max_examples=25, deadline=None)
+@given(D=st.lists(st.floats(-2.0, 2.0), min_size=1, max_size=4).filter(lambda d: np.linalg.norm(d) > 0.05),
+       v=st.floats(0.2, 2.0), a=st.floats(0.3, 4.0), ratio=st.floats(0.5, 2.0))
+def test_a_straight_two_waypoint_path_takes_the_bang_bang_time(D, v, a, ratio):
+    D = np.asarray(D)
+    n = len(D)
+    vmax = np.full(n, v)
+    vmax[0] *= ratio  # the joints need not share their limits
+    amax = np.full(n, a)
+    path = BlendedPath(np.array([np.zeros(n), D]), np.zeros(0))
+    grid = gridpoints_for(path, 0.002, 5000)
+    sd = parameterize(path, grid, vmax, amax, [])
+    assert sd is not None and sd[0] == 0.0 and sd[-1] == 0.0
+    T = profile_times(grid, sd)[-1]
+    assert T == pytest.approx(bang_bang_duration(D, vmax, amax), rel=2e-3)
+
+
+@pytest.fixture(scope="module")
+def arm_move(hrp5p, stances):
+    """The right hand carrying a heavy object from close to the chest to far in front (the CoM goes forward)."""
+    st_ = stances["upright"]
+    q0, q1 = st_.q.copy(), st_.q.copy()
+    j = hrp5p.joint_index
+    q0[j("RSP")], q0[j("REP")] = 0.2, -1.6
+    q1[j("RSP")], q1[j("REP")] = -0.9, -0.3
+    return st_, np.array([q0, q1])
+
+
+def _timer(robot, stance, mass, com_local, zmp_margin, limits=True, **timing):
+    ev = StateEvaluator(robot, stance, 0.0, mass, com_local)
+    task = SimpleNamespace(robot=robot, evaluator=ev, stance=stance, constrained=False,
+                           obj=SimpleNamespace(mass_kg=mass, com_local=com_local),
+                           limits=EffortEvaluator(robot, stance, mass, com_local) if limits else None)
+    return PlanTimer(task, PlanTimingSettings(**timing), 1.0, zmp_margin, DT), ev
+
+
+def test_where_the_zmp_binds_it_is_held_at_its_margin_and_never_beyond(hrp5p, arm_move):
+    stance, W = arm_move
+    mass, com_local = 10.0, np.array([0.05, 0.0, 0.0])
+    hold = HoldSpec("right", np.eye(4))
+    line = W[0] + np.linspace(0.0, 1.0, 60)[:, None] * (W[1] - W[0])
+    _, ev = _timer(hrp5p, stance, mass, com_local, 0.0)
+    need = float(ev.evaluate(line, hold).margin.min()) - 0.001  # 1 mm of room where the CoM is closest to the edge
+    run = Run([MotionPiece("transfer", "right", W, "right", hold, path=W)], "right", hold, None)
+
+    def zmp_margins(zmp_margin):
+        timer, ev = _timer(hrp5p, stance, mass, com_local, zmp_margin)
+        part = timer.time_part(run, W, np.zeros(0))
+        assert part is not None
+        com = ev.evaluate(part.Q, hold).com  # the samples' CoM and the ZMP as the plan checker computes it
+        return ev.polygon.margin(zmp_cart_table(com, DT)), len(part.Q)
+
+    free, n_free = zmp_margins(0.0)
+    assert free.min() < need - 0.0002  # unconstrained, braking at the end takes the ZMP past that margin
+    held, n_held = zmp_margins(need)
+    assert held.min() >= need  # never violated
+    assert held.min() <= need + 0.001  # and active: within 1 mm somewhere along the path
+    assert n_held > n_free  # it costs time
+
+
+def test_torques_stay_within_the_effort_limits_along_the_timed_path(hrp5p, arm_move):
+    """Static plus inertial torques of the waist and arm joints, recomputed with pinocchio's inverse dynamics on a
+    fixed-base model of the URDF with the object as a point mass in the hand, from finite differences of the samples.
+    The timing may use 47 % of the limits here: the static torques alone take 46 % at the far end."""
+    stance, W = arm_move
+    mass, com_local = 12.0, np.array([0.05, 0.0, 0.0])
+    share = 0.47
+    hold = HoldSpec("right", np.eye(4))
+    timer, ev = _timer(hrp5p, stance, mass, com_local, 0.0, effort_scale=share)
+    run = Run([MotionPiece("transfer", "right", W, "right", hold, path=W)], "right", hold, None)
+    part = timer.time_part(run, W, np.zeros(0))
+    assert part is not None
+    Q = np.vstack([part.Q[:1], part.Q, part.Q[-1:]])  # at rest before and after, as in a plan
+
+    model = pin.buildModelFromUrdf(str(hrp5p.urdf_path))  # fixed base at the pelvis: the legs do not move
+    tcp = model.getFrameId(hrp5p.spec.arms["right"].tcp)
+    frame = model.frames[tcp]
+    model.appendBodyToJoint(frame.parentJoint, pin.Inertia(mass, frame.placement.act(com_local), np.zeros((3, 3))),
+                            pin.SE3.Identity())
+    base_R = pin.XYZQUATToSE3(np.asarray(stance.base_pose)).rotation
+    model.gravity = pin.Motion(base_R.T @ np.array([0.0, 0.0, -9.81]), np.zeros(3))  # in the pelvis frame
+    data = model.createData()
+    names = hrp5p.joint_names
+    moving = [names[k] for k in np.flatnonzero(np.abs(W[1] - W[0]) > 0)] + ["WP", "WR", "WY", "RSC", "RSR", "RSY"]
+    limit = effort_limits(hrp5p)
+    idx = {name: (model.idx_qs[model.getJointId(name)], model.idx_vs[model.getJointId(name)]) for name in moving}
+    worst = inertial = 0.0
+    for i in range(1, len(Q) - 1):
+        q = pin.neutral(model)
+        v = np.zeros(model.nv)
+        a = np.zeros(model.nv)
+        for name, (iq, iv) in idx.items():
+            k = names.index(name)
+            q[iq] = Q[i, k]
+            v[iv] = (Q[i + 1, k] - Q[i - 1, k]) / (2 * DT)
+            a[iv] = (Q[i + 1, k] - 2 * Q[i, k] + Q[i - 1, k]) / DT**2
+        for name in set(names) - set(idx):  # the other joints at their (fixed) values
+            jid = model.getJointId(name)
+            if jid < model.njoints and model.joints[jid].nq == 1:
+                q[model.idx_qs[jid]] = Q[i, names.index(name)]
+        tau = pin.rnea(model, data, q, v, a)
+        worst = max(worst, max(abs(tau[iv]) / limit[name] for name, (_, iv) in idx.items()))
+        inertial = max(inertial, float(np.abs(tau - pin.rnea(model, data, q, 0 * v, 0 * a)).max()))
+    assert worst <= share
+    assert inertial > 1.0  # the motion's own torques were part of it (N m)
