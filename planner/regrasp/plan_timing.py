@@ -142,7 +142,7 @@ class PlanTimer:
         self.alim = robot.acceleration_limit
         self.limits: EffortEvaluator | None = task.limits
         self.threshold = task.evaluator.threshold_m if task.constrained else -np.inf
-        self.stats = {"shortened_s": 0.0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0}
+        self.stats = {"shortened_s": 0.0, "shortcuts_dropped": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0}
 
     # -- constraints ------------------------------------------------------------------------------------------------
     def _rows(self, run: Run, path: BlendedPath, grid: np.ndarray) -> tuple[list[LinearRows], np.ndarray]:
@@ -211,22 +211,19 @@ class PlanTimer:
 
     # -- validation ---------------------------------------------------------------------------------------------------
     def _invalid_s(self, run: Run, path: "_Joined", starts: list[int], s: np.ndarray, Q: np.ndarray) -> np.ndarray:
-        """Path positions of the samples that fail the state checker (those on a blend: the new geometry; the
-        straight stretches are the validated segments) and of samples or midpoints below the margin."""
+        """Path positions of the samples that fail the state checker (collision, the margin, the static limits),
+        with the grasping rules of the piece each belongs to, and of the midpoints between samples below the margin."""
         t = self.task
         bounds = [path.waypoint_s[i] for i in starts[1:]]
         piece_of = np.searchsorted(np.asarray(bounds), s, side="right") if bounds else np.zeros(len(s), int)
-        on_blend = path.on_blend(s)
         bad = np.zeros(len(Q), dtype=bool)
         for k, piece in enumerate(run.pieces):
-            idx = np.flatnonzero((piece_of == k) & on_blend)
+            idx = np.flatnonzero(piece_of == k)
             if not idx.size:
                 continue
             grasping = piece.hand if piece.kind in ("approach", "retreat") and piece.hand in ("left", "right") else None
-            ok, _ = t.checker.validity(run.hold, run.free_object, grasping, active=None)(Q[idx])
-            bad[idx] = ~ok
-        margin = t.evaluator.evaluate(Q, run.hold, threshold_m=0.0).margin
-        bad |= margin < self.threshold - MARGIN_TOLERANCE_M
+            ok, margin = t.checker.validity(run.hold, run.free_object, grasping, active=None)(Q[idx])
+            bad[idx] = ~ok | (margin < self.threshold - MARGIN_TOLERANCE_M)
         bad_s = [s[bad]]
         if len(Q) >= 2:
             mids = 0.5 * (Q[1:] + Q[:-1])
@@ -309,6 +306,7 @@ class PlanTimer:
         for _ in range(self.s.check_rounds):
             s, T, _ = sample(path, grid, sd, self.dt, stretch / self.speed_scale)
             Q = path(s)
+            Q[0], Q[-1] = W[0], W[-1]  # exactly the rest states (the polynomials reach them to rounding)
             com = self.task.evaluator.evaluate(Q, run.hold, threshold_m=0.0).com
             need_at = np.minimum(self.zmp_margin_m, np.maximum(self.task.evaluator.polygon.margin(com[:, :2]), 0.0))
             k = self._stretch_needed(run, Q, need_at)
@@ -340,10 +338,17 @@ class PlanTimer:
         """The plan's pieces shortened, then timed run by run; and how much slower than full speed the result is."""
         out: list[MotionPiece] = []
         slack = 0.0
-        for run in runs_of(self.shortcut(pieces), self.task):
+        originals = runs_of(pieces, self.task)
+        shortened = runs_of(self.shortcut(pieces), self.task)
+        for run, original in zip(shortened, originals):
             self.stats["runs"] += 1
             timed = self.time_run(run)
+            if timed is None and run is not original:  # the shortcuts' dense samples failed: the search's own path
+                self.stats["shortcuts_dropped"] += 1
+                run = original
+                timed = self.time_run(run)
             if timed is None:
+                run = original
                 self.stats["fallback_runs"] += 1
                 out.extend(run.pieces)
                 continue
@@ -383,11 +388,3 @@ class _Joined:
 
     def blend_of(self, i: int) -> float:
         return float(self._blend[i])
-
-    def on_blend(self, s: np.ndarray) -> np.ndarray:
-        """Whether each path position lies on a corner blend."""
-        out = np.zeros(len(s), dtype=bool)
-        for ws, d in zip(self.waypoint_s, self._blend):
-            if d > 0.0:
-                out |= np.abs(s - ws) <= d + 1e-12
-        return out

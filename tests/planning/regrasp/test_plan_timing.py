@@ -1,0 +1,96 @@
+"""The plan's timing end to end on a small task: blended through its waypoints and checked again at the samples,
+at rest where the hands change what they hold, faster than rest-to-rest, and slower by the speed scale."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from plan_checker import check_plan
+
+from planner.jobs.plan_job import PlanOptions, build_task, plan_scenario
+from planner.regrasp.hand_config_planner import HandConfigPlanner
+from planner.regrasp.plan_assembly import assemble
+from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
+from planner.scene.scenarios import load_scenario
+from planner.termination import Termination
+
+DATA = Path(__file__).resolve().parents[2] / "data"
+
+
+@pytest.fixture(scope="module")
+def solved():
+    """The small task's task and the search's own pieces (each timed rest to rest)."""
+    scenario = load_scenario(DATA / "small-box.yaml")
+    task = build_task(scenario)
+    res = HandConfigPlanner(task, scenario.hands).plan(
+        Termination(scenario.limits.max_iterations))
+    assert res.status == "solved"
+    return task, res.pieces
+
+
+def _timed(task, pieces, speed_scale=1.0, **settings):
+    timing = PlanTimer(task, PlanTimingSettings(**settings), speed_scale, task.threshold_m, 0.005).time_plan(pieces)
+    return timing, assemble(timing.pieces, task.evaluator, 0.005, task.placements[task.start_id])
+
+
+def test_the_blended_path_is_collision_free_and_keeps_the_margin_at_every_sample(solved):
+    task, pieces = solved
+    timing, traj = _timed(task, pieces)
+    assert timing.stats["blends"] > 0 and timing.stats["fallback_runs"] == 0
+    for seg in traj.segments:  # every sample through the collision world, with the object where the plan has it
+        rows = np.arange(seg["first"], seg["last"] + 1)
+        holding = traj.holding[seg["first"]]
+        assert all(traj.holding[i] == holding for i in rows[:-1])
+        grasping = seg["hand"] if seg["kind"] in ("approach", "retreat") and seg["hand"] in ("left", "right") else None
+        if holding == "none":
+            res = task.world.check_batch(task.stance.base_pose, traj.Q[rows], grasping=grasping,
+                                         free_object_pose=traj.object_pose[rows])
+        else:
+            side = "left" if holding == "both" else holding
+            res = task.world.check_batch(task.stance.base_pose, traj.Q[rows], held=[(side, np.eye(4))],
+                                         held_object_poses=traj.object_pose[rows], grasping=grasping)
+        assert not res.collides.any(), f"{seg['kind']} collides at sample {rows[np.argmax(res.collides)]}"
+    assert traj.margin.min() >= task.threshold_m - 1e-4  # the midpoints: the plan checker, below
+
+
+def test_the_robot_rests_where_the_hands_change_what_they_hold_and_nowhere_else_needed(solved):
+    task, pieces = solved
+    _, traj = _timed(task, pieces)
+    Q, holding = traj.Q, np.array(traj.holding)
+    changes = np.flatnonzero(holding[1:] != holding[:-1]) + 1  # grasp and release
+    assert len(changes) == 2
+    for i in changes:
+        assert np.array_equal(Q[i - 1], Q[i]) and np.array_equal(Q[i], Q[i + 1])
+    assert np.array_equal(Q[0], Q[1]) and np.array_equal(Q[-1], Q[-2])
+    # between the rests the arm does not stop: a run of zero velocity is a rest the task needs (grasp, release, a jaw)
+    speed = np.abs(np.diff(Q, axis=0)).max(axis=1)
+    stops = np.flatnonzero((speed[1:] == 0) & (speed[:-1] > 0)) + 1
+    jaw = np.concatenate([task.jaw[s] for s in ("left", "right")])
+    jaw_moves = np.flatnonzero(np.abs(np.diff(Q[:, jaw], axis=0)).max(axis=1) > 0)
+    allowed = set(changes.tolist()) | {len(Q) - 1}
+    for i in stops:
+        near_jaw = jaw_moves.size and np.abs(jaw_moves - i).min() <= 2
+        assert i - 1 in allowed or i in allowed or i + 1 in allowed or near_jaw, f"a stop at sample {i}"
+
+
+def test_blending_makes_the_plan_faster_than_rest_to_rest_and_the_speed_scale_slower(solved):
+    task, pieces = solved
+    before = assemble(pieces, task.evaluator, 0.005, task.placements[task.start_id]).t[-1]
+    timing, traj = _timed(task, pieces)
+    assert traj.t[-1] < before
+    _, half = _timed(task, pieces, speed_scale=0.5)
+    assert half.t[-1] == pytest.approx(2 * traj.t[-1], rel=0.05)
+
+
+def test_the_plan_records_its_timing_and_passes_the_checker():
+    scenario = load_scenario(DATA / "small-box.yaml")
+    plan = plan_scenario(scenario, PlanOptions(speed_scale=0.8))
+    timing = plan["timing"]
+    assert timing["method"] == "topp-ra" and timing["speed_scale"] == 0.8
+    assert timing["duration_s"] == plan["trajectory"][-1]["t"]
+    assert timing["time_optimal_duration_s"] < timing["duration_s"]
+    assert timing["zmp_margin_m"] == plan["threshold_m"]
+    report = check_plan(plan)
+    assert report.errors == []
