@@ -212,3 +212,16 @@ def sample(path: BlendedPath, gridpoints: np.ndarray, sd: np.ndarray, dt: float,
     s = s_at(u, gridpoints, sd, t_grid)
     s[0], s[-1] = 0.0, path.length
     return s, T, n * dt
+
+
+def shaped(s: np.ndarray, window: int) -> np.ndarray:
+    """The samples ``s`` (from rest to rest) through a moving average of ``window`` samples: a finite-impulse
+    response filter that keeps the motion on the path (each value is a mean of path positions, and the
+    sequence stays monotone) and bounds its jerk by the acceleration's change over the window; it adds
+    ``window - 1`` samples. A window of one period of a mode leaves that mode no residual vibration at rest."""
+    if window <= 1:
+        return s
+    padded = np.concatenate([np.full(window - 1, s[0]), s, np.full(window - 1, s[-1])])
+    out = np.convolve(padded, np.full(window, 1.0 / window), mode="valid")
+    out[0], out[-1] = s[0], s[-1]
+    return out

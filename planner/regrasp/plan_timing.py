@@ -42,6 +42,7 @@ from planner.motion.topp import (
     gridpoints_for,
     parameterize,
     sample,
+    shaped,
     zmp_rows,
 )
 from planner.regrasp.plan_assembly import MotionPiece, object_states
@@ -69,9 +70,11 @@ class PlanTimingSettings(BaseModel):
                                      "it is blended (checked like the search's)")
     blend_rad: float = Field(0.15, ge=0, description="largest half-length of a corner blend (joint-space arc length, rad)")
     blend_rounds: int = Field(3, ge=0, description="times a blend with an invalid sample is halved before it is removed")
-    grid_step_rad: float = Field(0.01, gt=0, description="TOPP-RA gridpoint spacing along the path (rad)")
-    max_gridpoints: int = Field(800, ge=10, description="TOPP-RA gridpoints per run at most")
+    grid_step_rad: float = Field(0.02, gt=0, description="TOPP-RA gridpoint spacing along the path (rad)")
+    max_gridpoints: int = Field(400, ge=10, description="TOPP-RA gridpoints per run at most")
     zmp_inner_m: float = Field(0.0005, ge=0, description="extra ZMP margin inside TOPP-RA, for the finite differences between gridpoints")
+    shaping_window_s: float = Field(0.0, ge=0, le=2.0, description="moving average of the path position over this "
+                                    "time: jerk limited, starts and stops spread out (0: TOPP-RA's bang-bang profile)")
     check_rounds: int = Field(8, ge=1, description="time stretches of a run whose samples exceed a limit")
     rest_samples: int = Field(1, ge=0, description="extra copies of a run's first and last sample (exactly zero velocity)")
 
@@ -84,6 +87,8 @@ class Run:
     holding: Literal["none", "left", "right", "both"]
     hold: HoldSpec | None
     free_object: np.ndarray | None
+    #: the search's own path of the run (its pieces' waypoints), whose straight segments the search validated
+    validated: np.ndarray | None = None
 
 
 @dataclass
@@ -115,6 +120,21 @@ def runs_of(pieces: list[MotionPiece], task) -> list[Run]:
     return runs
 
 
+def off_path(Q: np.ndarray, W: np.ndarray | None, tol: float = 1e-7) -> np.ndarray:
+    """Whether each state of Q (N, n) lies off the polyline W (K, n) (all of them when W is None)."""
+    if W is None or len(W) < 2:
+        return np.ones(len(Q), dtype=bool)
+    a, d = W[:-1], np.diff(W, axis=0)  # (K-1, n)
+    dd = np.maximum((d * d).sum(axis=1), 1e-300)
+    off = np.ones(len(Q), dtype=bool)
+    for start in range(0, len(Q), 256):
+        q = Q[start:start + 256, None, :]
+        t = np.clip(((q - a) * d).sum(axis=2) / dd, 0.0, 1.0)
+        dist = np.abs(q - (a + t[..., None] * d)).max(axis=2).min(axis=1)
+        off[start:start + 256] = dist > tol
+    return off
+
+
 def _waypoints(run: Run) -> tuple[np.ndarray, list[int]]:
     """The run's waypoints (duplicates merged) and the index of the waypoint each piece starts at."""
     W: list[np.ndarray] = []
@@ -142,7 +162,7 @@ class PlanTimer:
         self.alim = robot.acceleration_limit
         self.limits: EffortEvaluator | None = task.limits
         self.threshold = task.evaluator.threshold_m if task.constrained else -np.inf
-        self.stats = {"shortened_s": 0.0, "shortcuts_dropped": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0}
+        self.stats = {"shortened_s": 0.0, "shortcuts_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0}
 
     # -- constraints ------------------------------------------------------------------------------------------------
     def _rows(self, run: Run, path: BlendedPath, grid: np.ndarray) -> tuple[list[LinearRows], np.ndarray]:
@@ -159,7 +179,10 @@ class PlanTimer:
             tau_s = self._static(run, P0)
             A, B = self._inertial(run).coefficients(P0, P1, P2)
             lim = self.limits.table.limit * self.s.effort_scale
-            rows.append(LinearRows(grid, A, B, tau_s, np.minimum(-lim, tau_s), np.maximum(lim, tau_s)))
+            moved = (np.abs(A) + np.abs(B)).max(axis=0) > 1e-9  # the joints this motion loads at all
+            if moved.any():
+                A, B, tau_s, lim = A[:, moved], B[:, moved], tau_s[:, moved], lim[moved]
+                rows.append(LinearRows(grid, A, B, tau_s, np.minimum(-lim, tau_s), np.maximum(lim, tau_s)))
         return rows, need
 
     def _static(self, run: Run, Q: np.ndarray) -> np.ndarray:
@@ -211,25 +234,35 @@ class PlanTimer:
 
     # -- validation ---------------------------------------------------------------------------------------------------
     def _invalid_s(self, run: Run, path: "_Joined", starts: list[int], s: np.ndarray, Q: np.ndarray) -> np.ndarray:
-        """Path positions of the samples that fail the state checker (collision, the margin, the static limits),
-        with the grasping rules of the piece each belongs to, and of the midpoints between samples below the margin."""
+        """Path positions of the samples that fail the checks: every sample off the search's own segments (on a
+        blend or a shortcut of the timing) through the state checker (collision, the margin, the static limits)
+        with the grasping rules of the piece it belongs to; every sample and every midpoint between samples
+        against the margin."""
         t = self.task
         bounds = [path.waypoint_s[i] for i in starts[1:]]
         piece_of = np.searchsorted(np.asarray(bounds), s, side="right") if bounds else np.zeros(len(s), int)
+        new = off_path(Q, run.validated)
+        self.stats["checked_samples"] += int(new.sum())
         bad = np.zeros(len(Q), dtype=bool)
+        margin = t.evaluator.evaluate(Q, run.hold, threshold_m=0.0).margin
+        bad |= margin < self.threshold - MARGIN_TOLERANCE_M
         for k, piece in enumerate(run.pieces):
-            idx = np.flatnonzero(piece_of == k)
+            idx = np.flatnonzero((piece_of == k) & new)
             if not idx.size:
                 continue
             grasping = piece.hand if piece.kind in ("approach", "retreat") and piece.hand in ("left", "right") else None
-            ok, margin = t.checker.validity(run.hold, run.free_object, grasping, active=None)(Q[idx])
-            bad[idx] = ~ok | (margin < self.threshold - MARGIN_TOLERANCE_M)
+            ok, _ = t.checker.validity(run.hold, run.free_object, grasping, active=None)(Q[idx])
+            bad[idx] |= ~ok
         bad_s = [s[bad]]
         if len(Q) >= 2:
             mids = 0.5 * (Q[1:] + Q[:-1])
             low = t.evaluator.evaluate(mids, run.hold, threshold_m=0.0).margin < self.threshold - MARGIN_TOLERANCE_M
             bad_s.append(0.5 * (s[1:] + s[:-1])[low])
         return np.concatenate(bad_s)
+
+    def _refuse(self, why: str) -> None:
+        self.stats["refused"].append(why)
+        return None
 
     # -- one run ------------------------------------------------------------------------------------------------------
     def time_run(self, run: Run) -> tuple[list[np.ndarray], float, float] | None:
@@ -270,8 +303,10 @@ class PlanTimer:
                     hit = True
                     blends[i] = 0.0 if round_ >= self.s.blend_rounds else 0.5 * d
                     self.stats["blends_removed"] += int(blends[i] == 0.0)
-            if not hit:
-                return None  # a failure away from the blends: keep the validated rest-to-rest timing
+            if not hit:  # a failure away from the blends: keep the validated rest-to-rest timing
+                kinds = sorted({run.pieces[int(k)].kind for k in np.searchsorted(
+                    np.asarray([whole.waypoint_s[i] for i in starts[1:]]), bad_s, side="right")})
+                return self._refuse(f"{bad_s.size} samples of the {'/'.join(kinds)} off the blends fail the checks")
         else:
             return None
         self.stats["blends"] += int(np.count_nonzero(blends > 0.0))
@@ -301,10 +336,11 @@ class PlanTimer:
         rows, _ = self._rows(run, path, grid)
         sd = parameterize(path, grid, self.vlim * self.s.velocity_scale, self.alim * self.s.acceleration_scale, rows)
         if sd is None:
-            return None
+            return self._refuse("TOPP-RA found no profile")
         stretch = 1.0
         for _ in range(self.s.check_rounds):
             s, T, _ = sample(path, grid, sd, self.dt, stretch / self.speed_scale)
+            s = shaped(s, int(round(self.s.shaping_window_s / self.dt)))
             Q = path(s)
             Q[0], Q[-1] = W[0], W[-1]  # exactly the rest states (the polynomials reach them to rounding)
             com = self.task.evaluator.evaluate(Q, run.hold, threshold_m=0.0).com
@@ -312,10 +348,11 @@ class PlanTimer:
             k = self._stretch_needed(run, Q, need_at)
             if k <= 1.0 + 1e-9:
                 self.stats["stretched_runs"] += int(stretch > 1.0)
-                full = max(1, int(math.ceil(T * stretch / self.dt - 1e-9))) * self.dt
+                full = (max(1, int(math.ceil(T * stretch / self.dt - 1e-9))) + len(s) - 1
+                        - max(1, int(math.ceil(T * stretch / self.speed_scale / self.dt - 1e-9)))) * self.dt
                 return Part(path, s, Q, full)
             stretch *= max(k, 1.01)
-        return None
+        return self._refuse(f"the samples still exceed a limit after {self.s.check_rounds} stretches")
 
     def shortcut(self, pieces: list[MotionPiece]) -> list[MotionPiece]:
         """Each planned motion (more than one straight segment) shortened by more random shortcuts, every new
@@ -341,6 +378,7 @@ class PlanTimer:
         originals = runs_of(pieces, self.task)
         shortened = runs_of(self.shortcut(pieces), self.task)
         for run, original in zip(shortened, originals):
+            run.validated = original.validated = _waypoints(original)[0]
             self.stats["runs"] += 1
             timed = self.time_run(run)
             if timed is None and run is not original:  # the shortcuts' dense samples failed: the search's own path
