@@ -23,7 +23,6 @@ from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import MotionPiece, assemble
 from planner.regrasp.plan_timing import PlanTimer
 from planner.scene.scenarios import load_builtin
-from planner.termination import Termination
 
 DT = 0.005
 
@@ -80,7 +79,7 @@ def main() -> None:
     args = ap.parse_args()
     scenario = load_builtin(args.scenario)
     task = build_task(scenario)
-    res = HandConfigPlanner(task, args.hands).plan(Termination(scenario.limits.max_iterations))
+    res = HandConfigPlanner(task, args.hands).plan()
     if res.status != "solved":
         raise SystemExit(f"{args.scenario} {args.hands}: {res.status}")
     start = task.placements[task.start_id]

@@ -14,7 +14,6 @@ from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import assemble
 from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
 from planner.scene.scenarios import load_scenario
-from planner.termination import Termination
 
 DATA = Path(__file__).resolve().parents[2] / "data"
 
@@ -24,8 +23,7 @@ def solved():
     """The small task's task and the search's own pieces (each timed rest to rest)."""
     scenario = load_scenario(DATA / "small-box.yaml")
     task = build_task(scenario)
-    res = HandConfigPlanner(task, scenario.hands).plan(
-        Termination(scenario.limits.max_iterations))
+    res = HandConfigPlanner(task, scenario.hands).plan()
     assert res.status == "solved"
     return task, res.pieces
 
