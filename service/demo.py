@@ -22,6 +22,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -29,6 +30,11 @@ from pathlib import Path
 from typing import Any, Callable, Literal
 
 from pydantic import BaseModel, Field
+
+#: Measured joint states the demo's audit keeps per second of motion (CONTRACT 7: at least 50).
+MEASURED_STATES_PER_MOTION_S = 55.0
+#: Longest the demo stays silent, s (then it says what it is still waiting for).
+QUIET_S = 2.5
 
 
 class DemoSettings(BaseModel):
@@ -103,7 +109,60 @@ def _stop(proc: subprocess.Popen) -> None:
                 pass
 
 
+def measured_state_period_s(speed: float) -> float:
+    """How often the bridge reports a measured joint state, so that 50 or more land per second of motion
+    (at most every 5 ms of the bridge's loop: a controller much faster than real time keeps fewer)."""
+    return max(0.005, 1.0 / (MEASURED_STATES_PER_MOTION_S * speed))
+
+
+class Narrator:
+    """The demo's voice: says each line, and says what is still going on when nothing was said for a while,
+    so that a person watching never waits in silence (a survey's seeds can run for many seconds)."""
+
+    def __init__(self, say: Callable[[str], None], quiet_s: float = QUIET_S) -> None:
+        self._say, self.quiet_s = say, quiet_s
+        self._lock = threading.Lock()
+        self._last = time.monotonic()
+        self._activity: tuple[str, float] | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch, name="demo-narrator", daemon=True)
+        self._thread.start()
+
+    def __call__(self, text: str) -> None:
+        with self._lock:
+            self._say(text)
+            self._last = time.monotonic()
+
+    def doing(self, what: str | None) -> None:
+        """What the demo waits for now (None: nothing worth a reminder)."""
+        with self._lock:
+            self._activity = None if what is None else (what, time.monotonic())
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+
+    def _watch(self) -> None:
+        while not self._stop.wait(0.25):
+            with self._lock:
+                now = time.monotonic()
+                if self._activity is None or now - self._last < self.quiet_s:
+                    continue
+                what, since = self._activity
+                self._say(f"  ... {what} ({now - since:.0f} s so far)")
+                self._last = now
+
+
 def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> DemoResult:
+    """The demo, narrated: never more than ``QUIET_S`` without a line."""
+    narrator = Narrator(say)
+    try:
+        return _run_demo(out, settings, narrator)
+    finally:
+        narrator.close()
+
+
+def _run_demo(out: Path, settings: DemoSettings, say: Narrator) -> DemoResult:
     from service.client import ServiceClient, ServiceError
 
     out.mkdir(parents=True, exist_ok=True)
@@ -127,6 +186,8 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
                REGRASP_BRIDGE_ROBOT_ID=robot,  # the service talks to the controller of the robot the plan is for
                REGRASP_BRIDGE_SIGNING_KEY=str(signing_key), REGRASP_BRIDGE_TRUSTED_KEY=str(trusted_key),
                REGRASP_DISPATCH_LOOKAHEAD_SEGMENTS=str(_lookahead_segments(settings.controller_speed)),
+               # measured joint states kept at 50 or more per second of motion (CONTRACT 7) in the job's audit file
+               REGRASP_DISPATCH_ROBOT_STATE_EVENT_PERIOD_S=str(measured_state_period_s(settings.controller_speed)),
                # The simulated controller shares the machine's cores with planning workers; on a loaded
                # host a 0.25 s heartbeat gap is the scheduler, not a dead controller. A robot keeps 0.25 s.
                REGRASP_BRIDGE_WATCHDOG_TIMEOUT_S=str(settings.watchdog_timeout_s),
@@ -142,6 +203,7 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
                      out / "controller-sim.log")
         stack.callback(_stop, sim)
         say(f"starting the service on http://127.0.0.1:{http_port} ({settings.workers} workers, SQLite in {data_dir})")
+        say.doing("the service is starting (loading the robot model)")
         srv = _start([*exe, "serve", "--host", "127.0.0.1", "--port", str(http_port), "--data-dir", str(data_dir),
                       "--workers", str(settings.workers)], env, out / "service.log")
         stack.callback(_stop, srv)
@@ -160,6 +222,7 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
         say(f"alice submits the stability survey of scenario {settings.scenario!r} with {robot} "
             f"({'the scenario estimator' if settings.survey_states is None else str(settings.survey_states) + ' states per seed'})")
         job = alice.submit("survey", {"scenario": settings.scenario, **budget})
+        say.doing("the survey is exploring each hand configuration, seed after seed")
         survey_job = alice.wait(job["id"], timeout=settings.job_timeout_s, on_event=ProgressReporter(say, "survey"))
         if survey_job["state"] != "succeeded":
             raise RuntimeError(f"survey job ended {survey_job['state']}: {survey_job.get('error')}")
@@ -174,6 +237,7 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
 
         say(f"alice submits the plan with hands: auto (the survey's answer, {hands}, from the service's survey cache)")
         job = alice.submit("plan", {"scenario": settings.scenario, "hands": "auto", **budget})
+        say.doing("the planner is searching for a regrasp motion that keeps the CoM margin")
         plan_job = alice.wait(job["id"], states=("planned", "failed", "canceled"), timeout=settings.job_timeout_s,
                               on_event=ProgressReporter(say, "plan"))
         if plan_job["state"] != "planned":
@@ -185,6 +249,7 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
                               planning_time_s=plan["stats"].get("time_s"), duration_s=plan["trajectory"][-1]["t"],
                               hands=plan["hands"], max_effort_ratio=max(p.get("effort_ratio") or 0.0 for p in plan["trajectory"]))
         result.steps.append(("plan", f"{plan['hands']}, min margin {plan['min_margin_m'] * 1000:.1f} mm"))
+        say.doing("the physics twin is dry-running the plan for the risk card")
         result.summary["physics"] = _physics_line(alice, plan_job["id"])
         say(f"the risk card's physics dry run: {result.summary['physics']}")
 
@@ -197,26 +262,33 @@ def run_demo(out: Path, settings: DemoSettings, say: Callable[[str], None]) -> D
                 raise RuntimeError(f"alice's self-approval was refused for another reason: {exc}") from None
             result.steps.append(("two-person rule", f"alice refused ({exc.status})"))
         say(f"carol approves the plan (bound to its SHA-256 {plan_job['plan_sha256'][:12]}...)")
+        say.doing("the approval is being recorded")
         carol.approve(plan_job["id"], plan_sha256=plan_job["plan_sha256"])
         result.steps.append(("approval", "carol approved"))
 
         say("bob dispatches: the safety gate rechecks every 5 ms sample, then the segments stream to the controller")
         _wait_for(lambda: bob.health().get("controller_alive", True), settings.start_timeout_s, "the simulated controller", sim)
+        say.doing("the safety gate is checking the plan before the robot moves")
         bob.dispatch(plan_job["id"])
         from schemas.jobs import TERMINAL_STATES
 
+        say.doing("the robot is moving")
         done = bob.wait(plan_job["id"], states=TERMINAL_STATES, timeout=settings.job_timeout_s,
                         on_event=ProgressReporter(say, "execution", points=len(plan["trajectory"])))
         outcome = done["state"] if done["state"] == "succeeded" else f"{done['state']}: {(done.get('error') or {}).get('message')}"
         result.summary["execution"] = outcome
         result.steps.append(("execution", outcome))
         say("waiting for the audit file to be sealed")
+        say.doing("the audit file is being sealed")
         audit_path, verdict = _sealed_audit(data_dir / "audit", plan_job["id"], settings.job_timeout_s)
         result.artefacts["audit"] = str(audit_path)
         result.summary["audit"] = f"{verdict.status}, {verdict.records} chained records"
         result.summary["audit_exit_code"] = verdict.exit_code
         result.ok = done["state"] == "succeeded" and verdict.exit_code == 0
+    say("drawing the plots")
+    say.doing("the plots are being drawn")
     _plots(out, plan, survey, result, settings.figure_format)
+    say.doing(None)
     return result
 
 

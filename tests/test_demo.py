@@ -45,6 +45,8 @@ def test_demo_runs_end_to_end(tmp_path):
     plan_audit = out / "service-data" / "audit" / f"{plan_job_id(proc.stdout)}.mcap"
     result = verify(plan_audit)
     assert result.exit_code == 0 and result.finished
+    _check_one_timeline(plan_audit)
+    _check_never_silent(proc.stdout)
     big = {}
     for f in out.rglob("*"):
         if f.is_file() and f.stat().st_size > 100_000:
@@ -57,6 +59,34 @@ def test_demo_runs_end_to_end(tmp_path):
     assert "safety gate: passed" in proc.stdout and "executing: 50 %" in proc.stdout and "execution finished: succeeded" in proc.stdout
     for png in ("plan-com-trace.png", "plan-margin.png", "survey-bars.png"):
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
+
+
+def _check_one_timeline(path) -> None:
+    """The plan replayed on the execution's timeline overlaps what the robot reported, and the robot's
+    measured joint states are kept at 50 or more per second during the execution (CONTRACT 7)."""
+    from mcap.reader import make_reader
+
+    times: dict[str, list[int]] = {}
+    with open(path, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(
+                topics=["/executed_plan/joint_states", "/robot/joint_states", "/plan/joint_states"]):
+            times.setdefault(channel.topic, []).append(message.publish_time)
+    replayed, measured = sorted(times["/executed_plan/joint_states"]), sorted(times["/robot/joint_states"])
+    assert replayed[0] < measured[-1] and measured[0] < replayed[-1], "planned and executed robots never overlap"
+    overlap = min(replayed[-1], measured[-1]) - max(replayed[0], measured[0])
+    assert overlap > 0.8 * (measured[-1] - measured[0])
+    span_s = (measured[-1] - measured[0]) / 1e9
+    assert len(measured) / span_s >= 50, f"{len(measured)} measured states over {span_s:.1f} s"
+
+
+def _check_never_silent(stdout: str) -> None:
+    """Each of the demo's lines starts with its time (s since the start): no gap of more than 3 s."""
+    import re
+
+    stamps = [float(m.group(1)) for m in re.finditer(r"^\s+(\d+\.\d) s ", stdout, flags=re.M)]
+    assert len(stamps) > 10
+    gaps = [b - a for a, b in zip(stamps, stamps[1:])]
+    assert max(gaps) <= 3.0, f"the demo was silent for {max(gaps):.1f} s"
 
 
 def plan_job_id(stdout: str) -> str:
