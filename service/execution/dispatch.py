@@ -37,6 +37,20 @@ BALANCE_EVENT_HZ = 10.0
 NOT_STARTED_ERRORS = frozenset({"ControllerUnavailableError", "BusyError", "NoSigningKeyError"})
 
 
+
+#: What a start-state veto adds to the job's error: the way out.
+START_STATE_WAY_OUT = ("; the way out: plan the way back first (a recover job, POST /v1/jobs {\"kind\": \"recover\", "
+                       "\"request\": {\"robot\": ...}}, or \"Plan the way back\" in the console), have it approved and "
+                       "dispatch it, then plan this task again from the stance posture")
+
+
+def _check_of(verdict: Any) -> str | None:
+    """The check a gate verdict names (a verdict object or its dict), or None."""
+    if verdict is None:
+        return None
+    check = verdict.get("check") if isinstance(verdict, dict) else getattr(verdict, "check", None)
+    return str(check) if check is not None else None
+
 class RobotBusy(Exception):
     """Another job of the robot is dispatching or executing (one dispatch at a time): HTTP 409 naming it."""
 
@@ -151,6 +165,8 @@ class Executions:
             reason = "stopped by an operator"
         error = None
         if status == "rejected":
+            if _check_of(verdict) == "start_state":
+                reason = (reason or "the robot is not where the plan starts") + START_STATE_WAY_OUT
             error = {"code": "GATE_VETO", "message": reason or "the safety gate vetoed the plan"}
         elif status == "aborted":
             error = {"code": "ABORTED", "message": reason or "execution aborted"}

@@ -122,6 +122,7 @@ def test_recovery_after_an_abort_then_a_normal_plan_succeeds(rig: tuple[Server, 
         assert bob.post(f"/v1/jobs/{stand}/dispatch").status_code == 202
         vetoed = wait_state(bob, stand, END_STATES, timeout=30)
         assert vetoed["state"] == "rejected" and "start_state" in vetoed["error"]["message"], vetoed["error"]
+        assert "the way out: plan the way back" in vetoed["error"]["message"]  # the veto names the way out
 
         # A recover job (an operator's) from the measured state back to the stance posture.
         assert carol.post("/v1/jobs", json={"kind": "recover", "request": {"robot": BRIDGE_ROBOT_ID}}).status_code == 403
