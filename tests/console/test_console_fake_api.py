@@ -154,3 +154,29 @@ def test_planner_submits_a_job_from_the_form(page, fake_server):
     new = [j for j in store.jobs.values() if j["request"].get("scenario") == "staggered"]
     assert len(new) == 1 and new[0]["request"]["threshold_m"] == 0.04
     expect(page.locator('#com-chart polyline[data-role="com-trace"]')).to_have_count(1)
+
+
+def test_a_failed_plan_shows_its_failure_and_no_empty_charts(page, fake_server):
+    """A plan that found no motion: its failure first, no empty charts, no "headroom - mm"."""
+    from .fake_api import synthetic_plan
+
+    url, store = fake_server
+    plan = synthetic_plan()
+    plan.update(status="failed", trajectory=[], segments=[], min_margin_m=None,
+                failure={"code": "THRESHOLD_TOO_LARGE", "message": "a 200 mm threshold leaves no point of the "
+                                                                   "support polygon for the CoM"})
+    with store.lock:
+        job = store._new("plan", "alice", state="failed", result=plan, progress=1.0)
+        job["error"] = {"code": "THRESHOLD_TOO_LARGE", "message": plan["failure"]["message"]}
+    login(page, url, PLANNER)
+    open_job(page, job["id"])
+    box = page.locator("#failure-box")
+    expect(box).to_be_visible()
+    expect(box).to_contain_text("THRESHOLD_TOO_LARGE")
+    expect(box).to_have_attribute("data-code", "THRESHOLD_TOO_LARGE")
+    for chart in ("#margin-chart", "#com-chart"):
+        expect(page.locator(chart)).to_be_hidden()
+    expect(page.locator("#segments")).to_be_hidden()
+    expect(page.locator("#plan-summary")).to_contain_text("no motion was planned")
+    assert "headroom - mm" not in (page.locator("#detail-body").text_content() or "")
+    assert page.js_errors == []
