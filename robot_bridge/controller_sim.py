@@ -46,6 +46,8 @@ CRASH_EXIT_CODE = 3
 MIN_TICK_PAUSE_S = 0.0005
 #: Jobs remembered as ended (their segments refused), most recent first out when full.
 ENDED_JOBS_KEPT = 10_000
+#: The statuses with which this controller ends a running job (repeated in its heartbeat while it holds).
+ENDING_STATUSES = frozenset({"stopped", "fault", "starved"})
 #: Period of the state/balance stream, s (CONTRACT 6: 50 Hz or more).
 BALANCE_PERIOD_S = 0.02
 
@@ -74,6 +76,9 @@ class ControllerSim:
         self._closing = threading.Event()
         self._job: Job | None = None
         self._ended: dict[str, str] = {}  # job id -> how it ended; their segments are refused
+        #: (job id, status, reason) of the last job this controller ended, repeated in its heartbeat while it holds:
+        #: a dispatcher that missed the state/exec report (frozen, reconnected) learns the end from it.
+        self._last_end: tuple[str, str, str] | None = None
         self._auth = CommandAuth(verifier, bridge.clock_skew_s, sim.max_expiry_ahead_s)
         self._log = log or (lambda line: print(line, file=sys.stderr, flush=True))
         self._holding = sim.holding
@@ -335,8 +340,10 @@ class ControllerSim:
                 next_progress = now + self.sim.progress_period_s
             if now >= next_heartbeat and not self._heartbeat_frozen(now):
                 state = "executing" if executing else ("holding" if stopped else "idle")
+                end = self._last_end if stopped and self._last_end and self._last_end[0] == job_id else None
                 self._pub_heartbeat.put(encode(Heartbeat(controller_id=self.sim.controller_id, count=beats, stamp=now,
-                                                         state=state, job_id=job_id)))
+                                                         state=state, job_id=job_id, status=end and end[1],
+                                                         reason=end[2] if end else "")))
                 beats += 1
                 next_heartbeat = now + self.bridge.heartbeat_period_s
             next_tick += period
@@ -393,6 +400,9 @@ class ControllerSim:
                 index: int | None = None, fatal: bool = True, kind: str | None = "trajectory") -> None:
         if status == "refused":
             self._log(json.dumps({"event": "refused", "kind": kind, "job_id": job_id, "seq": seq, "reason": reason}))
+        if (status in ENDING_STATUSES and fatal and job_id is not None
+                and (self._last_end is None or self._last_end[0] != job_id)):
+            self._last_end = (job_id, status, reason)  # the first end reported for the job is its end
         if self._session is None:
             return
         self._pub_exec.put(encode(ExecStatus(job_id=job_id, seq=seq, index=index, status=status, reason=reason,

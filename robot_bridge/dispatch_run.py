@@ -151,7 +151,9 @@ class Execution:
 
         # The watchdog judges only time this loop could run: after the gate (a long check holds the interpreter)
         # or any stall of this process, the heartbeats already here get their callbacks before one is missed.
-        resumed_at = last_iteration = time.monotonic()
+        resumed_at = last_iteration = run_started = time.monotonic()
+        resync_until = -math.inf  # after a long stall of this process: the controller's word is awaited until then
+        thawed_at = -math.inf  # when this process last ran again after such a stall
         while run.sent < min(len(run.segments), ahead) and window_open(time.monotonic()):
             self.send_segment(run, emit)
         last_progress = time.monotonic()
@@ -163,10 +165,18 @@ class Execution:
                 return self._abort(run, emit, "stopped by operator", verdict, started, wait_ack=True)
             tick = time.monotonic()
             if tick - last_iteration > d.self_stall_s:
+                if tick - last_iteration > self.settings.watchdog_timeout_s:
+                    resync_until, thawed_at = tick + d.resync_s, tick
                 resumed_at = tick
             last_iteration = tick
+            # The controller's own end of the job is the job's truth, however it reaches us: its state/exec report
+            # (below) or, when that was missed, its heartbeat saying it holds after ending this job.
+            ended = self.watch.controller_ended(run.job_id, since=run_started)
+            if ended is not None:
+                emit("controller", {"job_id": run.job_id, "status": ended[0], "reason": ended[1], "via": "heartbeat"})
+                return self._abort(run, emit, f"controller {ended[0]}: {ended[1]}", verdict, started)
             problem = self.watch.controller_problem(since=resumed_at)
-            if problem is not None:
+            if problem is not None and tick >= resync_until:
                 return self._abort(run, emit, f"controller lost: {problem}", verdict, started, lost=True)
             try:
                 at, st = self.watch.exec.get(timeout=d.poll_period_s)
@@ -209,20 +219,27 @@ class Execution:
                                         "kind": st.kind})
                 elif st.status in ("rejected", "refused", "starved", "fault", "stopped"):
                     emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason})
-                    return self._abort(run, emit, f"controller {st.status}: {st.reason}", verdict, started)
+                    # A refusal because the controller had already ended the job: its own end is the reason.
+                    ended = self.watch.controller_ended(run.job_id, since=run_started) \
+                        if st.status in ("rejected", "refused") else None
+                    status, reason = ended if ended is not None else (st.status, st.reason)
+                    return self._abort(run, emit, f"controller {status}: {reason}", verdict, started)
             elif st is not None and st.status == "refused" and st.job_id is None:
                 # An unreadable command refused: not this execution's (its segments name their job).
                 emit("controller", {"job_id": run.job_id, "status": st.status, "reason": st.reason, "kind": st.kind})
             elif st is not None and st.status == "rejected" and st.job_id is None:
                 emit("controller", {"job_id": run.job_id, "status": st.status, "reason": st.reason})
                 return self._abort(run, emit, f"controller rejected a command: {st.reason}", verdict, started)
-            self._resend(run, emit, now, due=lambda sent_at: now - sent_at > d.resend_after_s, cause="timeout")
-            # keep the controller fed: stay `lookahead` segments ahead of the one being played, at most
-            # `max_in_flight_segments` of them unacknowledged unless an acknowledgement is late
-            playing = (run.index or 0) // per
-            while run.sent < len(run.segments) and run.sent <= playing + ahead and window_open(now):
-                self.send_segment(run, emit)
-            if now - last_progress > d.progress_timeout_s:
+            # After a freeze, nothing goes out until the controller is heard from again: it may have ended the job
+            # meanwhile, and its word on that (not a refusal of what we send next) is how the job ends.
+            if not (now < resync_until and (self.watch.last_heartbeat_at() or -math.inf) < thawed_at):
+                self._resend(run, emit, now, due=lambda sent_at: now - sent_at > d.resend_after_s, cause="timeout")
+                # keep the controller fed: stay `lookahead` segments ahead of the one being played, at most
+                # `max_in_flight_segments` of them unacknowledged unless an acknowledgement is late
+                playing = (run.index or 0) // per
+                while run.sent < len(run.segments) and run.sent <= playing + ahead and window_open(now):
+                    self.send_segment(run, emit)
+            if now - max(last_progress, thawed_at) > d.progress_timeout_s:
                 return self._abort(run, emit, f"no progress from the controller for {d.progress_timeout_s:.1f} s", verdict, started)
             if now - last_state_event >= d.robot_state_event_period_s:
                 js = self.watch.measured_state()

@@ -57,7 +57,14 @@ class DispatchSettings(BaseSettings):
                     "CPU or the interpreter): the heartbeat watchdog then counts from when it runs again, since the "
                     "controller's heartbeats that came meanwhile were waiting for the same interpreter. The robot is "
                     "still covered meanwhile: the controller's own dead-man stops it if this process goes quiet")
-    progress_timeout_s: float = Field(3.0, gt=0, description="no progress report for this long = fault")
+    resync_s: float = Field(
+        1.0, gt=0, le=10.0,
+        description="after this process was held up for longer than the watchdog (frozen: the controller's dead-man "
+                    "has stopped the robot, and the link may have been dropped and made again), how long the "
+                    "controller is given to be heard from (its own report of how the job ended) before it is judged "
+                    "lost")
+    progress_timeout_s: float = Field(3.0, gt=0, description="no progress report for this long = fault (counted from "
+                                                              "the end of a stall longer than the watchdog, if later)")
     resend_after_s: float = Field(0.1, gt=0, description="re-send a segment the controller has not acknowledged by then")
     gap_holdoff_s: float = Field(
         0.02, gt=0, le=1.0,

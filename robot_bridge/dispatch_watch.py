@@ -41,6 +41,7 @@ class ControllerWatch:
         self._lock = threading.Lock()
         self._token_alive = False
         self._last_heartbeat: float | None = None
+        self._beat: Heartbeat | None = None  # the last heartbeat's content (the controller's state and its job)
         self._joint_state: JointState | None = None
         self._joint_state_at: float | None = None
         #: (receipt time, status) of every ``state/exec`` message, for the running execution.
@@ -56,11 +57,12 @@ class ControllerWatch:
 
     def on_heartbeat(self, sample: zenoh.Sample) -> None:
         try:
-            Heartbeat.model_validate_json(sample.payload.to_bytes())  # only a well-formed heartbeat counts
+            beat = Heartbeat.model_validate_json(sample.payload.to_bytes())  # only a well-formed heartbeat counts
         except ValidationError:
             return
         with self._lock:
             self._last_heartbeat = time.monotonic()
+            self._beat = beat
             lost = bool(self._lost)
         if lost:
             self._back("heartbeat")
@@ -123,6 +125,18 @@ class ControllerWatch:
             return (f"controller heartbeat lost: none for {age * 1000:.0f} ms "
                     f"(watchdog {self.settings.watchdog_timeout_s * 1000:.0f} ms)")
         return None
+
+    def controller_ended(self, job_id: str, since: float) -> tuple[str, str] | None:
+        """``(status, reason)`` when the controller's heartbeat, received after ``since`` (``time.monotonic()``),
+        says it holds after ending ``job_id`` (its own stop, a fault); else None.
+
+        The controller's truth when its ``state/exec`` report was missed: by a dispatcher frozen while the
+        controller stopped, whose link was dropped and made again meanwhile."""
+        with self._lock:
+            beat, at = self._beat, self._last_heartbeat
+        if beat is None or at is None or at < since or beat.job_id != job_id or beat.state != "holding":
+            return None
+        return beat.status or "stopped", beat.reason or "the controller's heartbeat says it ended the job and holds"
 
     def last_heartbeat_at(self) -> float | None:
         with self._lock:

@@ -149,6 +149,9 @@ class Heartbeat(OpenModel):
     stamp: float
     state: Literal["idle", "executing", "holding"] = "idle"
     job_id: str | None = None
+    status: ExecStatusValue | None = Field(None, description="while holding: how the controller ended job_id "
+                                                             "(stopped, fault, ...), as it reported on state/exec")
+    reason: str = Field("", description="while holding: the controller's reason for that end")
 
 
 # --------------------------------------------------------------------------- gate verdict
