@@ -20,7 +20,7 @@ from schemas.bridge import GateVerdict, TrajectorySegment
 
 from .dispatch_io import DispatcherIO
 from .dispatch_types import DispatchSettings, EventCallback, ExecutionResult, SignedSegment
-from .dispatch_watch import ControllerWatch, HeartbeatSender
+from .dispatch_watch import ControllerWatch, HeartbeatSender, LossWatch
 from .settings import BridgeSettings
 from .signing import Signer
 
@@ -43,7 +43,7 @@ class Execution:
     """Follows one gate-passed execution to its end; :meth:`follow` runs on the caller's thread."""
 
     def __init__(self, settings: BridgeSettings, pacing: DispatchSettings, io: DispatcherIO, watch: ControllerWatch,
-                 heartbeat: HeartbeatSender, signer: Signer, stop_requested: Callable[[str], bool],
+                 heartbeat: HeartbeatSender, loss: LossWatch, signer: Signer, stop_requested: Callable[[str], bool],
                  publish: Callable[[TrajectorySegment], None] | None = None,
                  begin_heartbeat: Callable[[str], None] | None = None):
         self.settings = settings
@@ -51,6 +51,8 @@ class Execution:
         self.io = io
         self.watch = watch
         self.heartbeat = heartbeat
+        #: Judges the controller's loss and sends the stop on a thread of its own (off this loop's path).
+        self.loss = loss
         self.signer = signer
         #: Whether an operator asked to stop this job (or every job) since it started.
         self.stop_requested = stop_requested
@@ -96,13 +98,12 @@ class Execution:
         self.io.put_segment(self._payloads[seg.seq].wire(self.signer, time.time() + self.settings.segment_expiry_s))
 
     def _abort(self, run: _Run, emit: EventCallback, reason: str, verdict: GateVerdict, started: float,
-               wait_ack: bool = False, lost: bool = False) -> ExecutionResult:
+               wait_ack: bool = False) -> ExecutionResult:
         # The heartbeat ends first: should the stop not arrive, the controller's dead-man stops the robot.
         self.heartbeat.end()
-        if lost:
-            self.watch.mark_lost(run.job_id, reason)
-        self.io.send_stop(run.job_id, reason)
-        emit("stop_sent", {"job_id": run.job_id, "reason": reason})
+        if self.loss.disarm() is None:  # else the loss watch has sent the stop and reported it
+            self.io.send_stop(run.job_id, reason)
+            emit("stop_sent", {"job_id": run.job_id, "reason": reason})
         acked = False
         if wait_ack:
             deadline = time.monotonic() + self.pacing.ack_timeout_s
@@ -133,6 +134,7 @@ class Execution:
             return ExecutionResult("aborted", f"bridge error: {type(exc).__name__}: {exc}", verdict, run.index, run.sent,
                                    time.monotonic() - started)
         finally:
+            self.loss.disarm()
             self.heartbeat.end()
             self._payloads = {}  # a finished execution's bytes are not kept until the next one
 
@@ -149,11 +151,12 @@ class Execution:
             return (now - min(sent_at for sent_at, _ in run.pending.values()) > d.in_flight_wait_s
                     and now - run.last_new_at > d.in_flight_wait_s)
 
-        # The watchdog judges only time this loop could run: after the gate (a long check holds the interpreter)
-        # or any stall of this process, the heartbeats already here get their callbacks before one is missed.
-        resumed_at = last_iteration = run_started = time.monotonic()
+        # The controller's loss is judged by the loss watch (its own thread); this loop notes only its own long
+        # stalls (a frozen process), after which it waits for the controller's word before sending again.
+        last_iteration = run_started = time.monotonic()
         resync_until = -math.inf  # after a long stall of this process: the controller's word is awaited until then
         thawed_at = -math.inf  # when this process last ran again after such a stall
+        self.loss.arm(run.job_id, emit)
         while run.sent < min(len(run.segments), ahead) and window_open(time.monotonic()):
             self.send_segment(run, emit)
         last_progress = time.monotonic()
@@ -164,10 +167,8 @@ class Execution:
             if stop_event.is_set() or self.stop_requested(run.job_id):
                 return self._abort(run, emit, "stopped by operator", verdict, started, wait_ack=True)
             tick = time.monotonic()
-            if tick - last_iteration > d.self_stall_s:
-                if tick - last_iteration > self.settings.watchdog_timeout_s:
-                    resync_until, thawed_at = tick + d.resync_s, tick
-                resumed_at = tick
+            if tick - last_iteration > self.settings.watchdog_timeout_s:
+                resync_until, thawed_at = tick + d.resync_s, tick
             last_iteration = tick
             # The controller's own end of the job is the job's truth, however it reaches us: its state/exec report
             # (below) or, when that was missed, its heartbeat saying it holds after ending this job.
@@ -175,9 +176,9 @@ class Execution:
             if ended is not None:
                 emit("controller", {"job_id": run.job_id, "status": ended[0], "reason": ended[1], "via": "heartbeat"})
                 return self._abort(run, emit, f"controller {ended[0]}: {ended[1]}", verdict, started)
-            problem = self.watch.controller_problem(since=resumed_at)
-            if problem is not None and tick >= resync_until:
-                return self._abort(run, emit, f"controller lost: {problem}", verdict, started, lost=True)
+            lost = self.loss.lost()
+            if lost is not None:
+                return self._abort(run, emit, lost[0], verdict, started)
             try:
                 at, st = self.watch.exec.get(timeout=d.poll_period_s)
             except queue.Empty:
@@ -200,6 +201,7 @@ class Execution:
                     if st.status == "duplicate":
                         emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason})
                 elif st.status == "succeeded":
+                    self.loss.disarm()
                     result = ExecutionResult("succeeded", st.reason or "trajectory executed", verdict, st.index, run.sent,
                                              now - started)
                     emit("finished", result.to_dict())

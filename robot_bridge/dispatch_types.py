@@ -53,7 +53,7 @@ class DispatchSettings(BaseSettings):
     poll_period_s: float = Field(0.005, gt=0, le=0.1, description="how often the execution loop looks at its inputs")
     self_stall_s: float = Field(
         0.05, gt=0, le=1.0,
-        description="an execution loop that did not run for this long was itself held up (its process starved of the "
+        description="a loss watch that did not run for this long was itself held up (its process starved of the "
                     "CPU or the interpreter): the heartbeat watchdog then counts from when it runs again, since the "
                     "controller's heartbeats that came meanwhile were waiting for the same interpreter. The robot is "
                     "still covered meanwhile: the controller's own dead-man stops it if this process goes quiet")

@@ -13,6 +13,7 @@ Part of the dispatcher (:mod:`robot_bridge.dispatcher`). Two directions:
 
 from __future__ import annotations
 
+import math
 import queue
 import threading
 import time
@@ -24,7 +25,7 @@ from pydantic import ValidationError
 from schemas.bridge import ExecStatus, Heartbeat, JointState
 
 from .dispatch_io import DispatcherIO
-from .process_tuning import raise_thread_priority
+from .process_tuning import raise_thread_priority, use_realtime_scheduling
 from .settings import BridgeSettings
 
 
@@ -185,8 +186,9 @@ class HeartbeatSender:
 
     def _loop(self) -> None:
         """A small signed message every period and nothing else on this thread (no events, no locks held across
-        a send), at the bridge's thread priority."""
+        a send), at the bridge's thread priority (real-time where allowed)."""
         raise_thread_priority(self.settings.thread_nice)
+        use_realtime_scheduling(self.settings.realtime_priority)
         period = self.settings.heartbeat_period_s
         job, seq = None, 0
         next_at = time.monotonic()
@@ -216,6 +218,102 @@ class HeartbeatSender:
                 continue
             self._wake.wait(delay)
             self._wake.clear()
+
+    def close(self) -> None:
+        self._closing.set()
+        self._wake.set()
+        self._thread.join(timeout=1.0)
+
+
+class LossWatch:
+    """Judges, on a thread of its own, whether the controller of the running execution is lost, and acts at once.
+
+    A lost controller (its liveliness token gone, or no heartbeat for the watchdog) is noticed here, not in the
+    execution loop: that loop also sends segments, signs, and hands every event to the service, and a slow
+    event consumer or a busy interpreter must not delay the stop. On a loss this thread ends the dispatcher's
+    heartbeat (so the controller's dead-man stops the robot even if the stop is lost), sends the stop, records
+    the job as lost with its controller, reports ``stop_sent`` and lets the execution loop end the job.
+
+    Its own stalls are allowed for, as the loop's were: after this thread could not run for ``self_stall_s``,
+    the heartbeat's age counts from when it runs again; after a freeze longer than the watchdog (the
+    controller's dead-man has stopped the robot, the link may have been dropped and made again), the
+    controller is given ``resync_s`` to be heard from before it is judged lost.
+    """
+
+    def __init__(self, settings: BridgeSettings, self_stall_s: float, resync_s: float, poll_s: float,
+                 watch: ControllerWatch, heartbeat: HeartbeatSender, io: DispatcherIO):
+        self.settings = settings
+        self.self_stall_s, self.resync_s, self.poll_s = self_stall_s, resync_s, poll_s
+        self.watch, self.heartbeat, self.io = watch, heartbeat, io
+        self._lock = threading.Lock()
+        self._job: str | None = None
+        self._emit: Callable[[str, dict[str, Any]], None] | None = None
+        self._lost: tuple[str, float] | None = None
+        self._wake = threading.Event()
+        self._closing = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="bridge-loss-watch", daemon=True)
+        self._thread.start()
+
+    def arm(self, job_id: str, emit: Callable[[str, dict[str, Any]], None]) -> None:
+        """Watch the controller for ``job_id`` from now on (its segments are about to go out)."""
+        with self._lock:
+            self._job, self._emit, self._lost = job_id, emit, None
+        self._wake.set()
+
+    def disarm(self) -> tuple[str, float] | None:
+        """Stop watching; returns ``(reason, stop sent at)`` when the watch had found the controller lost. Once it
+        returns, this thread sends and reports nothing more for the job."""
+        with self._lock:
+            self._job, self._emit = None, None
+            return self._lost
+
+    def lost(self) -> tuple[str, float] | None:
+        """``(reason, stop sent at)`` once the controller of the armed job was found lost, else None."""
+        with self._lock:
+            return self._lost
+
+    def _loop(self) -> None:
+        raise_thread_priority(self.settings.thread_nice)
+        use_realtime_scheduling(self.settings.realtime_priority)
+        job: str | None = None
+        last = resumed_at = time.monotonic()
+        resync_until = -math.inf
+        while not self._closing.is_set():
+            with self._lock:
+                current = self._job if self._lost is None else None
+            tick = time.monotonic()
+            if current != job:  # armed for another job, or disarmed: judge from now
+                job, last, resumed_at, resync_until = current, tick, tick, -math.inf
+            if current is None:
+                self._wake.wait(0.5)
+                self._wake.clear()
+                continue
+            gap = tick - last
+            if gap > self.self_stall_s:
+                if gap > self.settings.watchdog_timeout_s:
+                    resync_until = tick + self.resync_s
+                resumed_at = tick
+            last = tick
+            problem = self.watch.controller_problem(since=resumed_at)
+            if problem is not None and tick >= resync_until:
+                self._act(job, f"controller lost: {problem}")
+            self._wake.wait(self.poll_s)
+
+    def _act(self, job_id: str, reason: str) -> None:
+        with self._lock:  # held while acting: a disarm waits for the stop and its report
+            if self._job != job_id or self._lost is not None:
+                return
+            # The heartbeat ends first: should the stop not arrive, the controller's dead-man stops the robot.
+            self.heartbeat.end()
+            self.watch.mark_lost(job_id, reason)
+            sent_at = self.io.send_stop(job_id, reason)
+            # Reported before the execution loop can see the loss, so the job's events stay in order.
+            if self._emit is not None:
+                try:
+                    self._emit("stop_sent", {"job_id": job_id, "reason": reason, "sent_at": sent_at})
+                except Exception:  # noqa: BLE001 - a failing recorder must not hide the loss from the loop
+                    pass
+            self._lost = (reason, sent_at)
 
     def close(self) -> None:
         self._closing.set()

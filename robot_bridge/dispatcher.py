@@ -45,7 +45,7 @@ from .dispatch_types import (
     SignedSegment,
     split_segments,
 )
-from .dispatch_watch import ControllerWatch, HeartbeatSender
+from .dispatch_watch import ControllerWatch, HeartbeatSender, LossWatch
 from .gate import Approval, MeasuredState, SafetyGate
 from .settings import BridgeSettings, Keys
 from .signing import Signer
@@ -87,7 +87,10 @@ class Dispatcher:
         self._io = DispatcherIO(self.settings, signer)
         self._watch = ControllerWatch(self.settings, self.dispatch.state_max_age_s, self.keys.alive, self._controller_back)
         self._heartbeat = HeartbeatSender(self.settings, self._io)
-        self._execution = Execution(self.settings, self.dispatch, self._io, self._watch, self._heartbeat, signer,
+        d = self.dispatch
+        self._loss = LossWatch(self.settings, d.self_stall_s, d.resync_s, d.poll_period_s, self._watch, self._heartbeat,
+                               self._io)
+        self._execution = Execution(self.settings, self.dispatch, self._io, self._watch, self._heartbeat, self._loss, signer,
                                     self._stop_requested, self._publish_segment, self._begin_heartbeat)
         self._io.subscribe(self._watch.on_alive, self._watch.on_heartbeat, self._watch.on_joints, self._watch.on_exec)
 
@@ -240,6 +243,7 @@ class Dispatcher:
         """Undeclare everything and close the session (idempotent)."""
         if self._io.session is None:
             return
+        self._loss.close()
         self._heartbeat.close()
         self._io.close()
 
