@@ -8,7 +8,6 @@ callbacks given to :meth:`DispatcherIO.subscribe`, on zenoh's threads.
 
 from __future__ import annotations
 
-import os
 import threading
 import time
 from typing import Any, Callable
@@ -17,7 +16,7 @@ import zenoh
 
 from schemas.bridge import Stop
 
-from .process_tuning import raise_thread_priority
+from .process_tuning import bridge_priority
 from .settings import BridgeSettings, Keys
 from .signing import Signer, canonical_bytes
 from .zenoh_session import control_publisher, open_session
@@ -30,15 +29,10 @@ class DispatcherIO:
         self.settings = settings
         self.signer = signer
         self.keys = Keys(settings.robot_id)
-        # zenoh's runtime threads start with the session and inherit this thread's priority for their lives;
-        # the calling thread gets its own back afterwards.
-        before = thread_nice()
-        raised = raise_thread_priority(settings.thread_nice)
-        try:
+        # zenoh's runtime threads start with the session and inherit this thread's priority for their lives (their
+        # callbacks take the interpreter lock on the bridge's path); the calling thread gets its own back afterwards.
+        with bridge_priority(settings.thread_nice, settings.realtime_priority):
             self.session: zenoh.Session | None = open_session(settings)
-        finally:
-            if raised and before is not None:
-                raise_thread_priority(before)
         s = self.session
         self.pub_traj = control_publisher(s, self.keys.trajectory)
         self.pub_stop = control_publisher(s, self.keys.stop)
@@ -108,10 +102,3 @@ class DispatcherIO:
         self.session.close()
         self.session = None
 
-
-def thread_nice() -> int | None:
-    """The calling thread's niceness (Linux: per thread), or None where it cannot be read."""
-    try:
-        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-    except (AttributeError, OSError):
-        return None

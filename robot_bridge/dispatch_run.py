@@ -21,6 +21,7 @@ from schemas.bridge import GateVerdict, TrajectorySegment
 from .dispatch_io import DispatcherIO
 from .dispatch_types import DispatchSettings, EventCallback, ExecutionResult, SignedSegment
 from .dispatch_watch import ControllerWatch, HeartbeatSender, LossWatch
+from .process_tuning import bridge_priority
 from .settings import BridgeSettings
 from .signing import Signer
 
@@ -126,7 +127,9 @@ class Execution:
         # Serialised once, now: a send (and a re-send) then only splices in its expires_at and signs.
         self._payloads = {seg.seq: SignedSegment(seg) for seg in run.segments}
         try:
-            return self.follow(run, emit, stop_event, verdict, started)
+            # This loop takes the interpreter lock on the bridge's path: at the heartbeat's priority while it runs.
+            with bridge_priority(self.settings.thread_nice, self.settings.realtime_priority):
+                return self.follow(run, emit, stop_event, verdict, started)
         except Exception as exc:  # fail safe: whatever broke, the robot is told to stop
             self.heartbeat.end()
             self.io.send_stop(run.job_id, f"bridge error: {exc}")

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import gc
+from contextlib import contextmanager
+from typing import Any, Iterator
 
 
 def freeze_startup_objects() -> None:
@@ -61,3 +63,38 @@ def raise_thread_priority(nice: int | None) -> bool:
     except (PermissionError, OSError):
         return False
     return True
+
+
+@contextmanager
+def bridge_priority(nice: int | None, realtime: int | None) -> Iterator[None]:
+    """Run the calling thread at the bridge's priority for the block (SCHED_RR at ``realtime`` where allowed,
+    niceness ``nice``), then give it its own back. Threads started in the block keep the bridge's priority.
+
+    For a thread of an ordinary process that carries bridge traffic for a while (an execution loop, the
+    opening of a zenoh session whose runtime threads inherit it): every thread that takes the interpreter
+    lock on the bridge's path must be as urgent as the heartbeat's, or a busy core deschedules it while it
+    holds the lock and the heartbeat waits behind it."""
+    import os
+    import threading
+
+    tid = threading.get_native_id()
+    try:
+        before_nice: int | None = os.getpriority(os.PRIO_PROCESS, tid)
+    except (AttributeError, OSError):
+        before_nice = None
+    try:
+        before_sched: tuple[int, Any] | None = (os.sched_getscheduler(tid), os.sched_getparam(tid))
+    except (AttributeError, OSError):
+        before_sched = None
+    raise_thread_priority(nice)
+    use_realtime_scheduling(realtime)
+    try:
+        yield
+    finally:
+        if before_sched is not None:
+            try:
+                os.sched_setscheduler(tid, *before_sched)
+            except (PermissionError, OSError):
+                pass
+        if before_nice is not None:
+            raise_thread_priority(before_nice)
