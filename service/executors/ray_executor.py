@@ -50,17 +50,48 @@ class _ActorContext:
         return RaySeeds()
 
 
+#: How often a local instance's actor looks whether its server is still alive.
+SERVER_CHECK_S = 0.1
+
+
+def _alive(pid: int) -> bool:
+    """The process exists and is not a zombie (a killed server stays one until its parent reaps it)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        try:
+            os.kill(pid, 0)
+            return True
+        except ProcessLookupError:
+            return False
+        except PermissionError:
+            return True
+    except IndexError:
+        return True
+
+
+def _exit_with(pid: int) -> None:
+    """Exit at once when the server ``pid`` is gone (a kill -9 of the server must not leave planners running)."""
+    while _alive(pid):
+        time.sleep(SERVER_CHECK_S)
+    os._exit(3)
+
+
 class _JobActorImpl:
     """Body of the Ray actor (wrapped with ``ray.remote`` lazily, so importing this module needs no Ray).
 
     Cancels name the job, so a cancel that reaches the actor before its job starts still counts.
     """
 
-    def __init__(self, handlers: dict[str, str], robot: str | None, nice: int = 0, fan_out: bool = False) -> None:
+    def __init__(self, handlers: dict[str, str], robot: str | None, nice: int = 0, fan_out: bool = False,
+                 server_pid: int | None = None) -> None:
         from ..jobs.worker_process import JobHandlers, lower_priority
 
         lower_priority(nice)
         self.fan_out = fan_out
+        if server_pid is not None:  # a local instance: the actor ends with its server (Ray takes ~2 s to notice)
+            threading.Thread(target=_exit_with, args=(server_pid,), daemon=True, name="server-watch").start()
         self.jobs = JobHandlers(handlers, robot)
         self.canceled: set[str] = set()
         self.lock = threading.Lock()
@@ -143,7 +174,8 @@ class RayExecutor:
     def _spawn(self, slot: _Slot) -> None:
         robot = self.settings.robot if self.settings.preload_robot else None
         slot.actor = self._actor_cls.remote(dict(self.settings.handlers), robot, self.settings.worker_nice,
-                                            bool(self.settings.ray_address))
+                                            bool(self.settings.ray_address),
+                                            None if self.settings.ray_address else os.getpid())
         slot.ready_ref = slot.actor.ready.remote()
         slot.ready, slot.job_id, slot.run_ref, slot.progress_ref, slot.kill_at = False, None, None, None, None
         slot.last_seq, slot.pid = 0, None

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import psutil
 import pytest
-from conftest import Server, wait_state
+from conftest import Server, job_events, wait_state
 
 #: The issue's bound on workers outliving their server.
 WORKER_DEATH_S = 1.0
@@ -95,3 +95,32 @@ def test_sigterm_exits_0_with_no_traceback_ray(tmp_path: Path) -> None:
         _clean(log)
     finally:
         srv.stop()
+
+
+def test_kill_9_of_a_ray_server_takes_its_job_actor_within_1s(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    srv = Server(tmp_path, workers=1, extra_args=["--executor", "ray"], startup_timeout_s=RAY_STARTUP_S,
+                 audit="false", ray_object_store_bytes=str(100 * 1024**2), ray_num_cpus="1")
+    srv.env["RAY_USAGE_STATS_ENABLED"] = "0"
+    srv.start()
+    started = []
+    try:
+        with srv.client("alice") as c:
+            job = c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "busy-60"}}).json()
+            wait_state(c, job["id"], {"planning"}, RAY_STARTUP_S)
+            where = next(e["message"] for e in job_events(c, job["id"]) if "actor pid" in (e.get("message") or ""))
+        actor = psutil.Process(int(where.rsplit("pid", 1)[1].split()[0]))
+        started = psutil.Process(srv.proc.pid).children(recursive=True)
+        os.kill(srv.proc.pid, signal.SIGKILL)
+        t0 = time.monotonic()
+        srv.proc.wait(10)
+        while _running(actor.pid) and time.monotonic() - t0 < 5:
+            time.sleep(0.02)
+        assert not _running(actor.pid) and time.monotonic() - t0 <= WORKER_DEATH_S
+    finally:
+        srv.stop()
+        for p in started:  # Ray's own agents of the local instance outlive their raylet: end what this test started
+            try:
+                p.kill()
+            except psutil.NoSuchProcess:
+                pass
