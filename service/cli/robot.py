@@ -139,7 +139,8 @@ def _check_model(spec_file: str, plot_path: str | None, progress, posture_given:
     for fp in report.footprints:
         centre = fp.polygon.mean(axis=0) if len(fp.polygon) else fp.com[:2]
         console.print(f"stance {fp.stance}: CoM margin {fp.margin_m * 1000:.1f} mm, CoM {1000 * (fp.com[0] - centre[0]):+.1f} "
-                      f"mm forward, {1000 * (fp.com[1] - centre[1]):+.1f} mm left of the polygon's centre", highlight=False)
+                      f"mm forward, {1000 * (fp.com[1] - centre[1]):+.1f} mm left of the polygon's centre", highlight=False,
+                      soft_wrap=True)
     if plot_path:
         from service.footprint_plot import plot_footprints
 
