@@ -124,3 +124,15 @@ def test_hrp5p_runs_the_built_in_task_as_written(tmp_path):
     res = CliRunner().invoke(cli, ["plan", "--scenario", "upright", "--mass-kg", "nan", "--out",
                                    str(tmp_path / "p.json"), "--quiet"])
     assert res.exit_code == 2 and "mass_kg" in res.output, res.output
+
+
+def test_a_survey_of_a_built_in_task_with_another_robot_is_fitted_as_the_plan_is(tmp_path):
+    spec_path = write_small_humanoid(tmp_path / "robot")
+    res = CliRunner().invoke(cli, ["survey", "--scenario", "upright", "--robot", str(spec_path), "--until", "states",
+                                   "--states", "20", "--seeds-min", "1", "--seeds-max", "1", "--json"],
+                             catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    survey = json.loads(res.output)
+    plan = _fitted_plan(tmp_path, str(spec_path), "right-right")
+    assert survey["object"]["mass_kg"] == plan["object"]["mass_kg"] < 8.0
+    assert survey["object"]["start_pose"] == plan["object"]["start_pose"]
