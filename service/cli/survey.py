@@ -135,6 +135,7 @@ def ray_seed_map(address: str):  # type: ignore[no-untyped-def]
         fail("--ray-address needs Ray: pip install 'hrp-regrasp[ray]'")
     except (ConnectionError, RuntimeError, ValueError) as exc:
         fail(f"cannot join the Ray cluster at {address}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
+    return None
 
 
 @click.command()

@@ -17,11 +17,31 @@ from typing import Any
 from planner.survey.seed_map import SeedFn
 
 
+#: How long a cluster's head may take to accept a connection before the address counts as wrong.
+REACH_TIMEOUT_S = 5.0
+
+
+def check_reachable(address: str) -> None:
+    """Raise ConnectionError when nothing accepts a connection at a ``host:port`` address (Ray itself
+    would retry for minutes); other forms (``auto``, ``ray://...``) are left to Ray."""
+    import socket
+
+    host, sep, port = address.rpartition(":")
+    if not sep or "://" in address or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=REACH_TIMEOUT_S).close()
+    except OSError as exc:
+        raise ConnectionError(f"nothing answers at {address} ({exc.strerror or exc})") from None
+
+
 def connect(address: str | None) -> None:
     """Join the Ray cluster at ``address`` (``auto``: the one this machine belongs to) unless already in one."""
     import ray
 
     if not ray.is_initialized():
+        if address:
+            check_reachable(address)
         ray.init(address=address, log_to_driver=False, ignore_reinit_error=True)
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Iterator
 
 import pytest
-from conftest import ROOT, Server, wait_state
+from conftest import ROOT, Server, free_port, wait_state
 
 from planner.scene.scenarios import load_scenario
 from planner.survey.estimator import Estimator
@@ -152,3 +152,13 @@ def test_cancelling_a_survey_job_cancels_its_tasks_on_the_cluster(cluster: TwoNo
             assert cluster.free_cpus() == total  # the job actor's CPU only is taken again: no seed task is left
     finally:
         srv.stop()
+
+
+def test_an_address_where_no_cluster_answers_is_refused_in_one_line() -> None:
+    address = f"127.0.0.1:{free_port()}"
+    for command in (["survey", str(DATA / "small-box.yaml"), "--states", "50"], ["paper", "--quick", "--out", "x"]):
+        out = subprocess.run([sys.executable, "-m", "service.cli.main", *command, "--ray-address", address],
+                             cwd=ROOT, capture_output=True, text=True, timeout=120)
+        assert out.returncode == 2, out.stderr[-2000:]
+        assert f"cannot join the Ray cluster at {address}: nothing answers" in out.stderr
+        assert "Traceback" not in out.stderr + out.stdout
