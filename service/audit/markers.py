@@ -152,6 +152,14 @@ def zmp_body(zmp: Point2, inside: bool, ns: int, diameter_m: float, lift_m: floa
     return update(entity("zmp", ns, cylinders=[disc]))
 
 
+def cop_body(cop: Point2, inside: bool, ns: int, diameter_m: float, lift_m: float) -> dict[str, Any]:
+    """The robot's measured centre of pressure now: an orange ring-like disc on the floor (red outside)."""
+    disc = {"pose": {"position": v3((cop[0], cop[1], 1.5 * lift_m)), "orientation": IDENTITY_Q},
+            "size": {"x": diameter_m, "y": diameter_m, "z": 0.002}, "bottom_scale": 1.0, "top_scale": 1.0,
+            "color": ORANGE if inside else RED}
+    return update(entity("cop", ns, cylinders=[disc]))
+
+
 def object_primitives(shape: Mapping[str, Any] | None, pose: Sequence[float], color: dict) -> dict[str, list]:
     """The object at ``pose`` as Foxglove primitives (object frames as planner/objects.py defines them).
 

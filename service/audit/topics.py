@@ -41,6 +41,8 @@ TOPIC_ROBOT_JOINTS = "/robot/joint_states"
 TOPIC_ROBOT_TF = "/robot/tf"
 #: The physics plant's balance stream during execution (CoP, its margin, foot forces, base tilt).
 TOPIC_ROBOT_BALANCE = "/robot/balance"
+#: The measured centre of pressure as a floor marker, over the support polygon in the 3D panel.
+TOPIC_ROBOT_COP = "/robot/markers/cop"
 
 # Older names of the same topics, kept for importers.
 TOPIC_JOINTS_PLAN = TOPIC_PLAN_JOINTS

@@ -70,6 +70,7 @@ from .topics import (
     TOPIC_LOG,
     TOPIC_PLAN_TF,
     TOPIC_ROBOT_BALANCE,
+    TOPIC_ROBOT_COP,
     TOPIC_ROBOT_DESCRIPTION,
     TOPIC_ROBOT_TF,
     TOPIC_SUPPORT,
@@ -319,6 +320,11 @@ class AuditWriter:
             balance = find_balance(payload)
             if balance is not None:
                 self._emit(TOPIC_ROBOT_BALANCE, fx.ROBOT_BALANCE, {"timestamp": stamp(ns), **balance}, ns)
+                if isinstance(balance.get("cop_x"), (int, float)) and isinstance(balance.get("cop_y"), (int, float)):
+                    inside = not isinstance(balance.get("cop_margin_m"), (int, float)) or balance["cop_margin_m"] >= 0
+                    body = mk.cop_body((balance["cop_x"], balance["cop_y"]), inside, ns,
+                                       self.settings.zmp_marker_diameter_m, self.settings.marker_lift_m)
+                    self._emit(TOPIC_ROBOT_COP, fx.SCENE_UPDATE, body, ns)
                 self._commit()
                 return
             state = find_joint_state(payload)

@@ -101,3 +101,28 @@ def test_after_an_abort_the_replay_stops_where_the_robot_stopped(tmp_path) -> No
     assert replayed and max(s["index"] for s in replayed) <= 150
     last_measured = max(x.log_time for x in m["/robot/joint_states"])
     assert max(x.log_time for x in m["/executed_plan/joint_states"]) <= last_measured + 1
+
+
+def test_the_measured_cop_is_a_floor_marker_over_the_support_polygon(tmp_path) -> None:
+    """The physics plant's balance sample: on /robot/balance for the plots, and its CoP as a floor marker
+    (orange inside the polygon, red outside) that the shipped layout shows in the 3D panel."""
+    from service.audit.layout import layout_bytes
+
+    path = tmp_path / "job.mcap"
+    w = AuditWriter(path, "job-1", robot_name="hrp5p", settings=AuditSettings(compression="none"),
+                    clock_ns=lambda: PLANNED_AT)
+    for k, (x, margin) in enumerate(((0.01, 0.05), (0.2, -0.03))):
+        w.record("balance", {"data": {"cop": [x, 0.0], "cop_margin_m": margin, "foot_forces_n": {"left": 500.0,
+                                                                                                  "right": 480.0}}},
+                 PLANNED_AT + k * NS)
+    w.close()
+    m = _messages(path)
+    markers = [json.loads(x.data) for x in m["/robot/markers/cop"]]
+    assert len(markers) == 2
+    discs = [u["entities"][0]["cylinders"][0] for u in markers]
+    assert [d["pose"]["position"]["x"] for d in discs] == [0.01, 0.2]
+    assert discs[0]["color"]["r"] == 1.0 and discs[1]["color"]["g"] < 0.2  # inside orange, outside red
+    layout = json.loads(layout_bytes())
+    assert layout["configById"]["3D!robot"]["topics"]["/robot/markers/cop"]["visible"] is True
+    paths = [p["value"] for p in layout["configById"]["Plot!zmp"]["paths"]]
+    assert "/robot/balance.cop_margin_m" in paths
