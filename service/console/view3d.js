@@ -491,6 +491,7 @@ window.regrasp3d = {
   showGhost(names, q) { return view ? view.showGhost(names, q) : false; },
   ghostShown() { return view ? view.ghostShown() : false; },
   showComparison(trajectory) { if (view) view.showComparison(trajectory); },
+  comparisonShown() { return !!(view && view.compareLine && view.compareLine.parent); },
   clearMeasured() { if (view) view.clearMeasured(); },
   clear() { if (view) { view.clear(); view.render(); } },
   comAt(i) { return view ? view.comAt(i) : null; },

@@ -186,5 +186,9 @@ def test_a_comparison_is_drawn_beside_the_plan_and_never_offered_for_approval(pa
     _open(page, live["url"], CAROL, job["id"])
     expect(page.locator("#margin-chart svg")).to_have_attribute("data-compare", "drawn", timeout=TIMEOUT_MS)
     expect(page.locator("#com-chart svg")).to_have_attribute("data-compare", "drawn", timeout=TIMEOUT_MS)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and not page.evaluate("window.regrasp3d.comparisonShown()"):
+        time.sleep(0.1)
+    assert page.evaluate("window.regrasp3d.comparisonShown()"), "the comparison's CoM trace is not in the 3D view"
     screenshot(page, "operator-comparison")
     assert page.js_errors == []
