@@ -1,0 +1,31 @@
+"""Every built-in HRP-5P task, planned and timed as the CLI does: the independent plan checker and the safety gate
+pass the plan, its ZMP keeps the plan's margin, and its timing record matches its trajectory."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from plan_checker import check_plan
+
+from planner.jobs.plan_job import PlanOptions, plan_scenario
+from planner.scene.scenarios import load_builtin
+from planner.stability.support_polygon import SupportPolygon
+from robot_bridge.gate import SafetyGate
+
+SCENARIOS = ("upright", "staggered", "crouched", "one-legged", "drill-handover", "drill-upright")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_a_built_in_plan_passes_the_checker_and_the_gate(name):
+    plan = plan_scenario(load_builtin(name), PlanOptions(time_limit_s=900))
+    assert plan["status"] == "solved", plan["failure"]
+    report = check_plan(plan)
+    assert report.errors == []
+    verdict = SafetyGate().check(plan, offline=True)
+    assert verdict.passed, verdict.message
+    timing = plan["timing"]
+    assert timing["method"] == "topp-ra" and timing["duration_s"] == plan["trajectory"][-1]["t"]
+    polygon = SupportPolygon(np.asarray(plan["support_polygon"]))
+    zmp_margin = polygon.margin(np.array([p["zmp"] for p in plan["trajectory"]]))
+    assert zmp_margin.min() >= timing["zmp_margin_m"] - 1e-4
