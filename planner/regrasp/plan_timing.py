@@ -334,7 +334,12 @@ class PlanTimer:
         path = BlendedPath(W, blends)
         grid = gridpoints_for(path, self.s.grid_step_rad, self.s.max_gridpoints)
         rows, _ = self._rows(run, path, grid)
-        sd = parameterize(path, grid, self.vlim * self.s.velocity_scale, self.alim * self.s.acceleration_scale, rows)
+        # TOPP-RA over the joints that move (the same arc length; the others add no constraint)
+        cols = np.flatnonzero(np.ptp(W, axis=0) > 0)
+        moving = BlendedPath(W[:, cols], blends)
+        moving.breaks, moving.length = path.breaks, path.length  # the same parameter to the last bit
+        sd = parameterize(moving, grid, self.vlim[cols] * self.s.velocity_scale,
+                          self.alim[cols] * self.s.acceleration_scale, rows)
         if sd is None:
             return self._refuse("TOPP-RA found no profile")
         stretch = 1.0

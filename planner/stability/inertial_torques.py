@@ -55,28 +55,29 @@ class InertialTorques:
         return v
 
     def _per_checked(self, tau: np.ndarray) -> np.ndarray:
-        per_joint = np.zeros(len(self._jid_v))
+        """Torques (N, nv) of pinocchio's velocity space -> (N, K) of the checked wire joints."""
+        per_joint = np.zeros((len(tau), len(self._jid_v)))
         ok = self._jid_v >= 0
-        per_joint[ok] = tau[self._jid_v[ok]]
-        return self.fold @ per_joint
+        per_joint[:, ok] = tau[:, self._jid_v[ok]]
+        return per_joint @ self.fold.T
 
     def coefficients(self, Q: np.ndarray, dQ: np.ndarray, ddQ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(A, B), each (N, K), at the path points Q with path derivatives dQ, ddQ (N, n)."""
         n = len(Q)
-        A = np.empty((n, len(self.checked)))
-        B = np.empty((n, len(self.checked)))
+        A = np.empty((n, self.model.nv))
+        B = np.empty((n, self.model.nv))
         zero = np.zeros(self.model.nv)
         for i in range(n):
             qp = self.robot.to_pin_q(self.base_pose, Q[i])
             v1, a2 = self._v(dQ[i]), self._v(ddQ[i])
-            A[i] = self._per_checked(pin.rnea(self.model, self.data, qp, zero, v1))
-            B[i] = self._per_checked(pin.rnea(self.model, self.data, qp, v1, a2))
-        return A, B
+            A[i] = pin.rnea(self.model, self.data, qp, zero, v1)
+            B[i] = pin.rnea(self.model, self.data, qp, v1, a2)
+        return self._per_checked(A), self._per_checked(B)
 
     def torques(self, Q: np.ndarray, dQ: np.ndarray, ddQ: np.ndarray) -> np.ndarray:
         """Inertial torques (N, K) of states Q moving with joint velocities dQ and accelerations ddQ."""
-        out = np.empty((len(Q), len(self.checked)))
+        out = np.empty((len(Q), self.model.nv))
         for i in range(len(Q)):
             qp = self.robot.to_pin_q(self.base_pose, Q[i])
-            out[i] = self._per_checked(pin.rnea(self.model, self.data, qp, self._v(dQ[i]), self._v(ddQ[i])))
-        return out
+            out[i] = pin.rnea(self.model, self.data, qp, self._v(dQ[i]), self._v(ddQ[i]))
+        return self._per_checked(out)
