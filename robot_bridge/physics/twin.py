@@ -101,6 +101,12 @@ class Twin:
         self.polygon = Polygon(convex_hull(np.vstack([self._sole_corners(s) for s in SIDES if self.in_contact[s]])))
         self.last: Measurement | None = None
         self._f6 = np.zeros(6)
+        self._supporting = [s for s in SIDES if self.in_contact[s]]
+        self._g = np.zeros(m.nv)
+        self._jac = np.zeros((6 * len(self._supporting), m.nv))
+        self._wrench_scale = np.tile([1.0, 1.0, 1.0, FF_MOMENT_ARM_M, FF_MOMENT_ARM_M, FF_MOMENT_ARM_M],
+                                     len(self._supporting))
+        self._keep = np.flatnonzero(~tm.jaw_mask)
         self._geom_side = {tm.sole_geom[s]: s for s in SIDES}
         v = self.polygon.vertices
         e = np.roll(v, -1, axis=0) - v
@@ -197,18 +203,14 @@ class Twin:
         if not self.s.servo.gravity_feedforward:
             return np.zeros(n)
         m, r = self.m, self.ref
-        g = np.zeros(m.nv)
+        g = self._g
         mujoco.mj_rne(m, r, 0, g)  # qvel = 0 in the reference: gravity only
-        jac = []
-        for side in SIDES:
-            if self.in_contact[side]:
-                jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
-                mujoco.mj_jacBody(m, r, jp, jr, self.tm.sole_body[side])
-                jac += [jp, jr]
-        J = np.vstack(jac)
+        J = self._jac
+        for k, side in enumerate(self._supporting):
+            mujoco.mj_jacBody(m, r, J[6 * k:6 * k + 3], J[6 * k + 3:6 * k + 6], self.tm.sole_body[side])
         # Base rows: the soles' wrenches carry the whole weight. Least norm with the moments weighed 1/L: the soles
         # share the load by their forces (the lever rule) and apply moments only where forces cannot balance.
-        scale = np.tile([1.0, 1.0, 1.0, FF_MOMENT_ARM_M, FF_MOMENT_ARM_M, FF_MOMENT_ARM_M], len(jac) // 2)
+        scale = self._wrench_scale
         A = J[:, :6].T * scale
         wrench = scale * (A.T @ np.linalg.solve(A @ A.T, g[:6]))
         return g[self.tm.dof_adr] - J[:, self.tm.dof_adr].T @ wrench
@@ -296,16 +298,17 @@ class Twin:
         cop = np.array([mx / total, my / total]) if total > 1e-6 else np.full(2, np.nan)
         margin = self._margin(cop) if total > 1e-6 else -math.inf
         tilt = math.acos(max(-1.0, min(1.0, float(d.xmat[tm.root_body][8]))))
-        supporting = [s for s in SIDES if self.in_contact[s]]
-        foot_tilt = max(math.acos(max(-1.0, min(1.0, float(d.xmat[tm.sole_body[s]][8])))) for s in supporting)
-        slip = max(float(np.linalg.norm(d.xpos[tm.sole_body[s]][:2] - self.sole_home[s][:2])) for s in supporting)
-        ratio = np.abs(d.actuator_force[: len(tm.joint_names)]) / tm.effort
-        err = np.abs(d.qpos[tm.qpos_adr] - self.q_cmd)
-        keep = ~tm.jaw_mask
+        foot_tilt = slip = 0.0
+        for s in self._supporting:
+            b = tm.sole_body[s]
+            foot_tilt = max(foot_tilt, math.acos(max(-1.0, min(1.0, float(d.xmat[b][8])))))
+            slip = max(slip, math.hypot(d.xpos[b][0] - self.sole_home[s][0], d.xpos[b][1] - self.sole_home[s][1]))
+        keep = self._keep
+        ratio = np.abs(d.actuator_force[keep]) / tm.effort[keep]
+        err = np.abs(d.qpos[tm.qpos_adr[keep]] - self.q_cmd[keep])
         return Measurement(t=self.t, cop=cop, cop_margin_m=margin, foot_forces_n=forces,
                            com=d.subtree_com[tm.root_body].copy(), base_tilt_rad=tilt, foot_tilt_rad=foot_tilt,
-                           foot_slip_m=slip, torque_ratio=float(ratio[keep].max()),
-                           tracking_error_rad=float(err[keep].max()))
+                           foot_slip_m=slip, torque_ratio=float(ratio.max()), tracking_error_rad=float(err.max()))
 
     def _check(self, ms: Measurement, dt: float) -> PlantFault | None:
         lim, tm, d = self.s.faults, self.tm, self.d

@@ -1,0 +1,206 @@
+"""The physics twin: every built-in scenario's plan in MuJoCo, the sensitivity of the result to each modelling
+choice, the cost, and JVRC-1 against the lab's published gains.
+
+Sections (``--section``, default all):
+
+- ``scenarios``: each built-in scenario planned with seed 1, played with the stabilizer at 1x, without it at 1x,
+  with it at 2x (informative) and with the object 6x heavier: stood or the fault, the smallest CoP margin and
+  ``cop_margin_ratio`` (CoP margin over the plan's CoM margin), and the real-time factor of each run.
+- ``sweep``: the upright plan with one setting changed at a time (contact softness, servo stiffness and damping,
+  rotor inertia, load ramp, gravity feed-forward, stabilizer gains): how far each moves the smallest CoP margin.
+- ``jvrc1``: JVRC-1 on the upright task fitted to it, with our derived gains and with gains of the size the HRP-5P
+  lab publishes for its MuJoCo JVRC-1 (legs kp 5000-6000 / kd 20-50, waist 5000 / 32, neck 1000 / 21, arms
+  1100-1200 / 70-80, wrists 500 / 24: the middle of each range, typed from those figures, not from its files).
+
+Plans are made once (``regrasp plan --seed 1``) into ``--plans DIR`` and reused. Figures depend on the machine's
+load for the wall-clock columns only. Run: ``python benchmarks/bench_physics.py [--section S] [--plans DIR]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from robot_bridge.physics.settings import (  # noqa: E402
+    ContactSettings,
+    ServoDefaults,
+    StabilizerSettings,
+    TwinSettings,
+)
+from robot_bridge.physics.simulate import simulate  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+SCENARIOS = ("upright", "staggered", "crouched", "one-legged", "drill-upright", "drill-handover", "talos-upright",
+             "g1-upright")
+#: Typed from the published figures (anchors): the middle of each range, per joint group.
+LAB_GAINS_JVRC1 = {"legs": (5500.0, 35.0), "waist": (5000.0, 32.0), "neck": (1000.0, 21.0), "arms": (1150.0, 75.0),
+                   "wrists": (500.0, 24.0)}
+
+
+def plan_file(plans: Path, scenario: str, robot: str | None = None) -> Path:
+    out = plans / f"{scenario}{'-' + robot if robot else ''}.json"
+    if not out.is_file():
+        cmd = [sys.executable, "-m", "service.cli.main", "plan", "--scenario", scenario, "--seed", "1", "--out", str(out)]
+        if robot:
+            cmd += ["--robot", robot]
+        t = time.perf_counter()
+        proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+        print(f"  planned {out.name} in {time.perf_counter() - t:.0f} s (exit {proc.returncode})", file=sys.stderr)
+    return out
+
+
+def run(plan: dict, settings: TwinSettings, speed: float = 1.0) -> dict:
+    rep = simulate(plan, settings, speed=speed).report
+    duration = plan["trajectory"][-1]["t"] / speed + 2 * settings.settle_s
+    rep["realtime_factor"] = duration / rep["wall_s"]
+    return rep
+
+
+def cell(rep: dict) -> str:
+    m = rep["min_cop_margin_m"]
+    ratio = rep["cop_margin_ratio"]
+    head = "stood" if rep["fault"] is None else f"**{rep['fault']['kind']}** at {rep['fault']['at_s']:.1f} s"
+    tail = "" if m is None else f", {m * 1000:.1f} mm ({ratio:.2f})"
+    return head + tail
+
+
+def scenarios(plans: Path) -> None:
+    print("\n## Built-in scenarios (seed 1): min CoP margin (cop_margin_ratio)\n")
+    print("| scenario | plan min CoM margin | stabilizer 1x | no stabilizer 1x | stabilizer 2x | object x6 | "
+          "real time x (1x run) |")
+    print("|---|---|---|---|---|---|---|")
+    for name in SCENARIOS:
+        path = plan_file(plans, name)
+        if not path.is_file():
+            print(f"| {name} | not planned | | | | | |")
+            continue
+        plan = json.loads(path.read_text())
+        if plan.get("status") != "solved":
+            print(f"| {name} | {plan.get('status')} | | | | | |")
+            continue
+        on = run(plan, TwinSettings())
+        off = run(plan, TwinSettings(stabilizer=StabilizerSettings(enabled=False)))
+        fast = run(plan, TwinSettings(), speed=2.0)
+        heavy = run(plan, TwinSettings(mass_scale=6.0))
+        print(f"| {name} | {plan['min_margin_m'] * 1000:.1f} mm | {cell(on)} | {cell(off)} | {cell(fast)} | "
+              f"{cell(heavy)} | {on['realtime_factor']:.1f} |", flush=True)
+
+
+def sweep(plans: Path) -> None:
+    plan = json.loads(plan_file(plans, "upright").read_text())
+    base = run(plan, TwinSettings())
+    print(f"\n## Sensitivity on upright (seed 1); default: {cell(base)}\n")
+    print("| setting | value | result | change of min CoP margin |")
+    print("|---|---|---|---|")
+    variants = [
+        ("contact time constant", "2 ms", TwinSettings(contact=ContactSettings(timeconst_s=0.002))),
+        ("contact time constant", "20 ms", TwinSettings(contact=ContactSettings(timeconst_s=0.02))),
+        ("contact impedance", "MuJoCo default (0.9, 0.95)", TwinSettings(contact=ContactSettings(impedance=(0.9, 0.95)))),
+        ("servo stiffness (deflection at full effort)", "0.025 rad", TwinSettings(servo=ServoDefaults(stiffness_angle_rad=0.025))),
+        ("servo stiffness (deflection at full effort)", "0.1 rad", TwinSettings(servo=ServoDefaults(stiffness_angle_rad=0.1))),
+        ("servo damping ratio", "0.5", TwinSettings(servo=ServoDefaults(damping_ratio=0.5))),
+        ("servo damping ratio", "2", TwinSettings(servo=ServoDefaults(damping_ratio=2.0))),
+        ("rotor inertia per N*m", "0", TwinSettings(servo=ServoDefaults(armature_per_effort=0.0))),
+        ("rotor inertia per N*m", "3e-3", TwinSettings(servo=ServoDefaults(armature_per_effort=3e-3))),
+        ("gravity feed-forward", "off", TwinSettings(servo=ServoDefaults(gravity_feedforward=False))),
+        ("load ramp", "0 (all at once)", TwinSettings(load_ramp_s=0.0)),
+        ("load ramp", "1 s", TwinSettings(load_ramp_s=1.0)),
+        ("stabilizer", "off", TwinSettings(stabilizer=StabilizerSettings(enabled=False))),
+        ("stabilizer DCM gain", "0", TwinSettings(stabilizer=StabilizerSettings(dcm_gain=0.0))),
+        ("stabilizer DCM gain", "4", TwinSettings(stabilizer=StabilizerSettings(dcm_gain=4.0))),
+        ("stabilizer CoP gain", "0", TwinSettings(stabilizer=StabilizerSettings(cop_gain=0.0))),
+        ("stabilizer CoP gain", "8", TwinSettings(stabilizer=StabilizerSettings(cop_gain=8.0))),
+        ("stabilizer hip share", "0 (ankles only)", TwinSettings(stabilizer=StabilizerSettings(hip_share=0.0))),
+        ("stabilizer hip share", "0.6", TwinSettings(stabilizer=StabilizerSettings(hip_share=0.6))),
+    ]
+    for name, value, settings in variants:
+        rep = run(plan, settings)
+        m, b = rep["min_cop_margin_m"], base["min_cop_margin_m"]
+        delta = "n/a" if m is None or b is None else f"{(m - b) * 1000:+.1f} mm"
+        print(f"| {name} | {value} | {cell(rep)} | {delta} |", flush=True)
+
+
+def _group(joint: str) -> str:
+    j = joint.upper()
+    if "WRIST" in j:
+        return "wrists"
+    if any(k in j for k in ("SHOULDER", "ELBOW")):
+        return "arms"
+    if "NECK" in j:
+        return "neck"
+    if "WAIST" in j:
+        return "waist"
+    return "legs"
+
+
+def jvrc1(plans: Path) -> None:
+    from robot_bridge.physics import model as twin_model
+    from robot_bridge.robot_files import robot_files
+
+    plan = json.loads(plan_file(plans, "upright", "jvrc1").read_text())
+    if plan.get("status") != "solved":
+        print(f"\n## JVRC-1: the upright task fitted to JVRC-1 is {plan.get('status')}")
+        return
+    derived = run(plan, TwinSettings())
+    files = robot_files("jvrc1")
+    names = [n for n in plan["robot"]["joint_names"] if not n.endswith("_JAW")]
+    kp = {n: LAB_GAINS_JVRC1[_group(n)][0] for n in names}
+    kd = {n: LAB_GAINS_JVRC1[_group(n)][1] for n in names}
+    lab_spec = {**files.spec, "sim": {"kp": kp, "kd": kd}}
+    original = twin_model.build_twin_model
+
+    def with_lab_gains(urdf, spec, joint_names, settings):
+        return original(urdf, lab_spec, joint_names, settings)
+
+    twin_model.build_twin_model = with_lab_gains
+    import robot_bridge.physics.simulate as sim_module
+
+    sim_module.build_twin_model = with_lab_gains
+    try:
+        lab = run(plan, TwinSettings())
+        lab_off = run(plan, TwinSettings(stabilizer=StabilizerSettings(enabled=False)))
+    finally:
+        sim_module.build_twin_model = original
+        twin_model.build_twin_model = original
+    tm = original(files.urdf, files.spec, plan["robot"]["joint_names"], TwinSettings())
+    ours = {s.name: (s.kp, s.kd) for s in tm.servos}
+    print("\n## JVRC-1: derived gains against the lab's published sizes (upright task fitted to JVRC-1, seed 1)\n")
+    print("| joint group | lab kp / kd (published sizes) | ours kp / kd (derived, range) |")
+    print("|---|---|---|")
+    for group, (lkp, lkd) in LAB_GAINS_JVRC1.items():
+        mine = [ours[n] for n in names if _group(n) == group]
+        if mine:
+            print(f"| {group} | {lkp:.0f} / {lkd:.0f} | {min(k for k, _ in mine):.0f}-{max(k for k, _ in mine):.0f} / "
+                  f"{min(d for _, d in mine):.0f}-{max(d for _, d in mine):.0f} |")
+    print("\n| gains | result | max tracking error | max torque ratio |")
+    print("|---|---|---|---|")
+    for label, rep in (("derived, stabilizer", derived), ("lab sizes, stabilizer", lab), ("lab sizes, no stabilizer", lab_off)):
+        print(f"| {label} | {cell(rep)} | {rep['max_tracking_error_rad']:.4f} rad | {rep['max_torque_ratio']:.2f} |")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--section", choices=("all", "scenarios", "sweep", "jvrc1"), default="all")
+    ap.add_argument("--plans", type=Path, default=Path("~/.cache/hrp-regrasp/bench-physics").expanduser(),
+                    help="folder of the seed-1 plans (made once)")
+    args = ap.parse_args()
+    args.plans.mkdir(parents=True, exist_ok=True)
+    import mujoco
+
+    print(f"MuJoCo {mujoco.__version__}, 1 ms physics, control at the plan's dt_s")
+    if args.section in ("all", "scenarios"):
+        scenarios(args.plans)
+    if args.section in ("all", "sweep"):
+        sweep(args.plans)
+    if args.section in ("all", "jvrc1"):
+        jvrc1(args.plans)
+
+
+if __name__ == "__main__":
+    main()
