@@ -187,6 +187,9 @@ class Execution:
             except queue.Empty:
                 st = None
             now = time.monotonic()
+            if now - last_iteration > self.settings.watchdog_timeout_s:  # frozen while it waited for a status
+                resync_until, thawed_at = now + d.resync_s, now
+            last_iteration = now
             if st is not None and st.job_id == run.job_id:
                 if st.index is not None:
                     run.index = st.index

@@ -30,7 +30,7 @@ FREEZE_S = 2.5
 RESOLVE_S = 1.0
 
 
-@pytest.mark.parametrize("freeze_s", [FREEZE_S, 0.6])
+@pytest.mark.parametrize("freeze_s", [FREEZE_S, 4.0, 0.6])  # 4 s: past the 3 s progress timeout too
 def test_a_frozen_dispatcher_ends_the_job_with_the_controllers_own_stop(spawn_controller, key_pair, long_plan,
                                                                         freeze_s):
     ctl = spawn_controller(speed=1.0, watchdog_s=0.25)

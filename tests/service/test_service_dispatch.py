@@ -7,6 +7,7 @@ tested whatever state the planner is in.
 
 from __future__ import annotations
 
+import os
 import signal
 import time
 from datetime import datetime, timezone
@@ -161,5 +162,54 @@ def test_a_controller_lost_mid_execution_aborts_the_job(tmp_path: Path, fault: s
         assert 0.0 < lost_for_s < BRIDGE_WATCHDOG_S + LOSS_MARGIN_S, lost_for_s
     finally:
         proc.kill()  # a stopped process is killed too
+        proc.wait(10)
+        srv.stop()
+
+
+def _bridge_process(srv: Server, controller_port: int) -> int:
+    """The pid of the server's bridge process: its child connected to the controller's endpoint."""
+    import psutil
+
+    for child in psutil.Process(srv.proc.pid).children(recursive=True):
+        try:
+            if any(c.raddr and c.raddr.port == controller_port for c in child.net_connections(kind="tcp")):
+                return child.pid
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            continue
+    raise AssertionError("no child of the server is connected to the controller")
+
+
+def test_a_frozen_bridge_process_records_the_controllers_own_stop(tmp_path: Path) -> None:
+    """The server's bridge process is frozen (SIGSTOP) mid-execution for longer than the controller's dead-man and
+    the zenoh lease: the controller stops by itself while nobody listens. On SIGCONT the job ends aborted with the
+    controller's own reason (its dead-man), within 1 s of the resume."""
+    port = free_port()
+    srv = Server(tmp_path, workers=1, bridge_port=port).start()
+    proc = start_controller_sim(srv.data_dir, port, speed=1)
+    try:
+        wait_controller_alive(srv, proc, CONTROLLER_UP_TIMEOUT_S)
+        job_id = submit_approved_plan(srv, {"scenario": "stand-10"})
+        with srv.client("bob") as bob:
+            assert bob.post(f"/v1/jobs/{job_id}/dispatch").status_code == 202
+            deadline = time.monotonic() + 30
+            while not any(e["kind"] == "bridge" and e["data"].get("event") == "executing"
+                          for e in job_events(bob, job_id)):
+                assert time.monotonic() < deadline, bob.get(f"/v1/jobs/{job_id}").json()["state"]
+                time.sleep(0.1)
+            bridge = _bridge_process(srv, port)
+            os.kill(bridge, signal.SIGSTOP)
+            try:
+                time.sleep(BRIDGE_WATCHDOG_S + 2.5)  # past the controller's dead-man and the 3 s lease
+                assert bob.get(f"/v1/jobs/{job_id}").json()["state"] == "executing"  # nobody could know yet
+            finally:
+                os.kill(bridge, signal.SIGCONT)
+                resumed = datetime.now(timezone.utc)
+            done = wait_state(bob, job_id, END_STATES, timeout=30)
+            assert done["state"] == "aborted", (done["message"], done["error"])
+            assert done["error"]["message"].startswith("controller stopped: dead-man"), done["error"]
+            aborted = next(e for e in job_events(bob, job_id) if e["kind"] == "state" and e["state"] == "aborted")
+        assert (datetime.fromisoformat(aborted["at"]) - resumed).total_seconds() < 1.0
+    finally:
+        proc.kill()
         proc.wait(10)
         srv.stop()
