@@ -250,7 +250,7 @@
       const tr = el("tr", { "data-job-id": job.id, "data-state": job.state, "tabindex": "0" });
       if (job.id === state.selected) tr.classList.add("selected");
       tr.append(el("td", {}, shortId(job.id)));
-      tr.append(el("td", {}, job.kind));
+      tr.append(el("td", {}, job.kind + (job.comparison ? " (comparison)" : "")));  // never for the robot
       const stateCell = el("td");
       const badge = el("span");
       stateBadge(badge, job.state);
