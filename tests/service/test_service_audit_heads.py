@@ -56,10 +56,12 @@ def test_every_job_verifies_against_its_stored_head_after_freeze_resume_and_kill
     port = free_port()
     settings = {"bridge_lease_s": "6"}  # the link outlives the freeze: the watchdog, not the lease, sees it
     data = tmp_path / "data"
-    srv = Server(data, workers=1, bridge_port=port, **settings).start()
-    proc = start_controller_sim(srv.data_dir, port, speed=1, **settings)
+    srv = Server(data, workers=1, bridge_port=port, **settings)
+    proc = None
     jobs: list[str] = []
     try:
+        srv.start()
+        proc = start_controller_sim(srv.data_dir, port, speed=1, **settings)
         wait_controller_alive(srv, proc, CONTROLLER_UP_TIMEOUT_S)
         frozen = submit_approved_plan(srv, {"scenario": "move-6"})
         jobs.append(frozen)
@@ -85,7 +87,8 @@ def test_every_job_verifies_against_its_stored_head_after_freeze_resume_and_kill
         jobs += [busy, planned]
         time.sleep(1.0)  # the audit pump has written their records so far
         srv.kill()
-        srv = Server(data, workers=1, bridge_port=port, **settings).start()
+        srv = Server(data, workers=1, bridge_port=port, **settings)
+        srv.start()
         with srv.client("bob") as bob:
             assert bob.post(f"/v1/jobs/{planned}/dispatch").status_code == 202
             wait_state(bob, planned, END_STATES, timeout=60)
@@ -96,6 +99,7 @@ def test_every_job_verifies_against_its_stored_head_after_freeze_resume_and_kill
             code, text = _verify_stored_head(srv, job_id, tmp_path / f"{job_id}.mcap")
             assert code == 0, f"job {job_id}: {text}"
     finally:
-        proc.send_signal(signal.SIGCONT)
-        stop_process(proc)
+        if proc is not None:
+            proc.send_signal(signal.SIGCONT)
+            stop_process(proc)
         srv.stop()

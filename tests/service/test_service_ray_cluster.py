@@ -127,8 +127,8 @@ def test_cancelling_a_survey_job_cancels_its_tasks_on_the_cluster(cluster: TwoNo
                  startup_timeout_s=CLUSTER_STARTUP_S, handlers=DEFAULT_HANDLERS, audit="false", cancel_grace_s="5")
     srv.env.update({k: v for k, v in cluster.env.items() if k.startswith("RAY_")})
     srv.env["REGRASP_SURVEY_CACHE_DIR"] = str(tmp_path / "cache")
-    srv.start()
     try:
+        srv.start()
         with srv.client("alice") as c:
             total = cluster.free_cpus()
             job = c.post("/v1/jobs", json={"kind": "survey", "request": {

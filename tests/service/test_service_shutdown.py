@@ -38,8 +38,9 @@ def _clean(log: str) -> None:
 
 
 def test_sigterm_exits_0_with_no_traceback_local(tmp_path: Path) -> None:
-    srv = Server(tmp_path, workers=2).start()
+    srv = Server(tmp_path, workers=2)
     try:
+        srv.start()
         with srv.client("alice") as c:
             job = c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "busy-30"}}).json()
             wait_state(c, job["id"], {"planning"}, 30)
@@ -57,8 +58,9 @@ def test_sigterm_exits_0_with_no_traceback_local(tmp_path: Path) -> None:
 
 
 def test_kill_9_of_the_server_takes_its_workers_within_1s(tmp_path: Path) -> None:
-    srv = Server(tmp_path, workers=2).start()
+    srv = Server(tmp_path, workers=2)
     try:
+        srv.start()
         with srv.client("alice") as c:
             jobs = [c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "busy-30"}}).json()["id"]
                     for _ in range(2)]
@@ -84,8 +86,8 @@ def test_sigterm_exits_0_with_no_traceback_ray(tmp_path: Path) -> None:
     srv = Server(tmp_path, workers=1, extra_args=["--executor", "ray"], startup_timeout_s=RAY_STARTUP_S,
                  audit="false", ray_object_store_bytes=str(100 * 1024**2), ray_num_cpus="1")
     srv.env["RAY_USAGE_STATS_ENABLED"] = "0"
-    srv.start()
     try:
+        srv.start()
         with srv.client("alice") as c:
             job = c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "busy-30"}}).json()
             wait_state(c, job["id"], {"planning"}, RAY_STARTUP_S)
@@ -102,9 +104,9 @@ def test_kill_9_of_a_ray_server_takes_its_job_actor_within_1s(tmp_path: Path) ->
     srv = Server(tmp_path, workers=1, extra_args=["--executor", "ray"], startup_timeout_s=RAY_STARTUP_S,
                  audit="false", ray_object_store_bytes=str(100 * 1024**2), ray_num_cpus="1")
     srv.env["RAY_USAGE_STATS_ENABLED"] = "0"
-    srv.start()
     started = []
     try:
+        srv.start()
         with srv.client("alice") as c:
             job = c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "busy-60"}}).json()
             wait_state(c, job["id"], {"planning"}, RAY_STARTUP_S)

@@ -64,8 +64,8 @@ def test_full_then_read_only_disk_makes_the_service_say_it_is_sick(small_disk: P
     data = small_disk / "var"
     srv = Server(data, workers=1, disk_min_free_bytes=str(MIN_FREE), disk_reserve_bytes=str(1_000_000))
     srv.log_path = tmp_path / "server.log"  # the log stays writable whatever happens to the disk
-    srv.start()
     try:
+        srv.start()
         with srv.client("alice") as c:
             assert c.get("/healthz").status_code == 200
             running = c.post("/v1/jobs", json={"kind": "plan", "request": {"scenario": "busy-30"}}).json()["id"]
