@@ -385,7 +385,7 @@ def _lookahead_segments(speed: float) -> int:
 
 
 def _robot_of(scenario: str) -> str:
-    from planner.scene.scenarios import load_scenario
+    from planner.api.catalogue import load_scenario
 
     return load_scenario(scenario).robot
 
@@ -393,7 +393,7 @@ def _robot_of(scenario: str) -> str:
 def default_scenario(robot: str) -> str:
     """The demo's scenario for a robot: the paper's upright task, as the built-in scenario made for that robot
     (``ROBOT-upright``) where there is one."""
-    from planner.scene.scenarios import builtin_names, load_builtin
+    from planner.api.catalogue import builtin_names, load_builtin
 
     own = f"{robot}-upright"
     if own in builtin_names() and load_builtin(own).robot == robot:
@@ -402,7 +402,7 @@ def default_scenario(robot: str) -> str:
 
 
 def _stance_of(scenario: str) -> str:
-    from planner.scene.scenarios import load_scenario
+    from planner.api.catalogue import load_scenario
 
     st = load_scenario(scenario).stance
     return st if isinstance(st, str) else st.name

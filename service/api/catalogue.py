@@ -61,10 +61,7 @@ class Catalogue(StrictModel):
 
 @functools.lru_cache(maxsize=1)
 def _catalogue() -> Catalogue:
-    from planner.robot.registry import robot_names
-    from planner.scene.meshes import registered_meshes
-    from planner.scene.scenarios import builtin_names, load_builtin
-    from planner.stability.stances import BUILTIN_STANCES
+    from planner.api.catalogue import BUILTIN_STANCES, builtin_names, load_builtin, registered_meshes, robot_names
 
     entries = []
     for name in builtin_names():
@@ -126,7 +123,7 @@ def _mesh_file(filename: str, base: Path) -> Path | None:
 
 @functools.lru_cache(maxsize=16)
 def robot_model_files(name: str) -> RobotModelFiles:
-    from planner.robot.registry import UnknownRobotError, urdf_path
+    from planner.api.catalogue import UnknownRobotError, urdf_path
 
     try:
         return RobotModelFiles(name, urdf_path(name))
@@ -165,7 +162,7 @@ def robot_mesh(name: str = RobotName,
                              "description": "mesh file"}, **problems(401, 404, 422)})
 def object_mesh(name: str = PathParam(..., min_length=1, max_length=128, pattern=r"^[A-Za-z0-9_.-]+$"),
                 p: Principal = Depends(principal)) -> Response:
-    from planner.scene.meshes import UnknownMeshError, mesh_file
+    from planner.api.catalogue import UnknownMeshError, mesh_file
 
     try:
         path = mesh_file(name)

@@ -16,7 +16,7 @@ from fastapi import APIRouter, Body, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
-from planner.jobs.request_names import RequestNameError, check_request
+from planner.api.catalogue import RequestNameError, check_request
 from schemas.jobs import (
     CANCELABLE_STATES,
     EXECUTION_STATES,

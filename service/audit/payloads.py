@@ -66,7 +66,7 @@ def urdf_for(robot_name: str | None) -> str | None:
     if not robot_name:
         return None
     try:
-        from planner.robot.registry import urdf_path
+        from planner.api.catalogue import urdf_path
 
         return urdf_path(str(robot_name)).read_text()
     except Exception as exc:  # noqa: BLE001 - unknown robot: the file simply has no model

@@ -20,8 +20,8 @@ from .common import describe, fail
 
 
 def _stance_posture(robot: str, stance: str) -> tuple[list[str], list[float]]:
-    from planner.robot.model import load_robot
-    from planner.stability.stances import StanceError, solve_stance
+    from planner.api.catalogue import StanceError, solve_stance
+    from planner.api.robots import load_robot
 
     try:
         model = load_robot(robot)

@@ -23,13 +23,8 @@ from .common import console, fail
 
 def stance_step(out: Path, robot_name: str, fmt: str = "png") -> list[dict]:
     """Solve the built-in stances and draw them; returns one summary row per stance."""
-    from planner.robot.model import load_robot
-    from planner.stability.stances import (
-        BUILTIN_STANCES,
-        StanceError,
-        sole_size,
-        solve_stance,
-    )
+    from planner.api.catalogue import BUILTIN_STANCES, StanceError, sole_size, solve_stance
+    from planner.api.robots import load_robot
     from experiments.plots import plot_stance
 
     robot = load_robot(robot_name)
@@ -72,8 +67,8 @@ def stance_step(out: Path, robot_name: str, fmt: str = "png") -> list[dict]:
 def demo(out_dir: str, robot_name: str | None, stances_only: bool, scenario: str | None, survey_states: int | None,
          speed: float, plant: str, fmt: str) -> None:
     """Run the main job end to end on the embedded defaults and show its result."""
+    from planner.api.catalogue import load_scenario
     from planner.errors import InputError
-    from planner.scene.scenarios import load_scenario
     from service.demo import default_scenario
 
     try:
@@ -112,7 +107,7 @@ def demo(out_dir: str, robot_name: str | None, stances_only: bool, scenario: str
     if stances_only:
         console.print(f"[green]done[/]: artefacts in {out.resolve()}")
         return
-    from planner.warmup import warm_up
+    from planner.api.robots import warm_up
     from service.demo import DemoSettings, run_demo
 
     console.print("  compiling the planner's kernels (a machine's first run; later runs load them from cache) ...")

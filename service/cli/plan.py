@@ -133,9 +133,9 @@ def plan_summary(plan: dict, path: Path | None = None) -> dict:
 def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, solutions, time_limit_s, speed_scale, out_path,
          plot_path, fmt, compare_threshold_mm, as_json, quiet, no_limits, robot_ref, mass_kg) -> None:
     """Plan a regrasp task: pick, regrasp or hand over, and place, keeping the CoM margin."""
+    from planner.api.catalogue import resolve_scenario
+    from planner.api.jobs import PlanOptions, plan_scenario
     from planner.errors import InputError
-    from planner.jobs.plan_job import PlanOptions, plan_scenario
-    from planner.scene.scenarios import resolve_scenario
 
     ref = check_scenario_args(scenario_file, scenario_name)
     threshold_m = mm_to_m("--threshold-mm", threshold_mm)

@@ -16,7 +16,7 @@ def robot() -> None:
 @robot.command("list")
 def list_robots() -> None:
     """Print the available robots, one per line."""
-    from planner.robot.registry import DEFAULT_ROBOT, load_spec, robot_names
+    from planner.api.catalogue import DEFAULT_ROBOT, load_spec, robot_names
 
     from planner.errors import InputError
 
@@ -34,8 +34,8 @@ def list_robots() -> None:
 def urdf(name: str) -> None:
     """Print the absolute path of NAME's URDF (loads in pinocchio with a free-flyer root): the derived URDF (the
     spec's frames added, mesh collisions fitted) when the robot's own needs that, else its own."""
+    from planner.api.catalogue import urdf_path
     from planner.errors import InputError
-    from planner.robot.registry import urdf_path
 
     try:
         click.echo(str(urdf_path(name)))
@@ -54,8 +54,8 @@ def check(spec_file: str, plot_path: str | None, quiet: bool) -> None:
     posture and the stances, and the ready posture to paste into the spec when it gives none."""
     import time
 
+    from planner.api.robots import derive_spec_file as derive
     from planner.errors import InputError
-    from planner.robot.spec_file import derive
 
     started = time.monotonic()
 
@@ -152,8 +152,7 @@ def _check_model(spec_file: str, plot_path: str | None, progress, posture_given:
 @click.option("--json", "as_json", is_flag=True, help="Print machine-readable JSON.")
 def info(name: str, as_json: bool) -> None:
     """Describe a robot: mass, height, joints, limits and built-in stances."""
-    from planner.robot.info import robot_info
-    from planner.robot.model import load_robot
+    from planner.api.robots import load_robot, robot_info
     from planner.errors import InputError
 
     try:

@@ -17,7 +17,7 @@ def scenario() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print the list as JSON (one object per scenario).")
 def list_scenarios(as_json: bool) -> None:
     """Print the built-in scenarios with their stance, object and threshold."""
-    from planner.scene.scenarios import builtin_names, load_builtin
+    from planner.api.catalogue import builtin_names, load_builtin
 
     entries = []
     for name in builtin_names():
@@ -41,13 +41,13 @@ def show(name: str) -> None:
     """Print a built-in scenario (or a scenario file) as resolved YAML."""
 
 
-    from planner.scene.scenarios import ScenarioError, load_scenario
+    from planner.api.catalogue import ScenarioError, load_scenario
 
     try:
         sc = load_scenario(name)
     except ScenarioError as exc:
         fail(str(exc))
-    from planner.scene.meshes import portable_dump
+    from planner.api.catalogue import portable_dump
 
     # Meshes by registered name or as the file wrote them: the printed scenario works saved anywhere.
     click.echo(yaml.safe_dump(portable_dump(sc, by_alias=True, exclude_none=True), sort_keys=False))
@@ -57,8 +57,7 @@ def unknown_names(sc) -> list[str]:  # type: ignore[no-untyped-def]
     """The scenario's robot and stance names that are not registered (a stance file that exists counts as known)."""
     from pathlib import Path
 
-    from planner.jobs.request_names import registered_robots, registered_stances
-    from planner.robot.spec_file import is_spec_path
+    from planner.api.catalogue import is_spec_path, registered_robots, registered_stances
 
     out = []
     # on the command line a robot spec file is taken by its path, as `plan` takes it (the service takes names only)
@@ -76,7 +75,7 @@ def check(file: str) -> None:
 
     Exit codes: 0 valid, 1 it cannot be planned as written, 2 unreadable or an unknown name.
     """
-    from planner.scene.scenarios import ScenarioError, check_scenario, load_scenario
+    from planner.api.catalogue import ScenarioError, check_scenario, load_scenario
 
     try:
         sc = load_scenario(file)

@@ -166,11 +166,9 @@ def ray_seed_map(address: str):  # type: ignore[no-untyped-def]
 def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci_half_width, seeds_min, seeds_max, seed,
            no_limits, robot_ref, workers, ray_address, as_json, states_out, all_stances, plot_dir, fmt) -> None:
     """Count stable (C) and unstable (U) explored states per hand configuration; R = C / (C + U)."""
+    from planner.api.catalogue import BUILTIN_STANCES, resolve_scenario
+    from planner.api.jobs import SurveyCache, run_survey, write_states
     from planner.errors import InputError
-    from planner.scene.scenarios import resolve_scenario
-    from planner.stability.stances import BUILTIN_STANCES
-    from planner.survey.cache import SurveyCache
-    from planner.survey.runner import run_survey, write_states
 
     ref = check_scenario_args(scenario_file, scenario_name)
     # With --json, stdout carries the document alone; everything else goes to stderr. File paths are
@@ -239,7 +237,7 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci
         if len(reasons) == 1 and "inradius" in (next(iter(reasons)) or ""):
             fail(next(iter(reasons)))  # no state can be stable: nothing was surveyed
     if states_out:
-        from planner.robot.model import load_robot
+        from planner.api.robots import load_robot
 
         doc, outcomes = docs[0]
         n = write_states(states_out, doc, outcomes, {"joint_names": list(load_robot(doc["robot"]["name"]).joint_names)})

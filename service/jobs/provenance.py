@@ -47,7 +47,7 @@ def code_version() -> str:
 
 @lru_cache(maxsize=16)
 def robot_sha256(robot: str) -> str | None:
-    from planner.robot.registry import urdf_sha256
+    from planner.api.catalogue import urdf_sha256
 
     try:
         return urdf_sha256(robot)

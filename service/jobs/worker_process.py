@@ -27,8 +27,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from planner.forking import declare_fork_benign
-from planner.jobs.entry import JobContext
+from planner.api.jobs import JobContext, declare_fork_benign
 
 from .handlers import CANCELED_TYPES, HandlerError, JobCanceled, resolve
 from .results import InvalidResult, package
@@ -85,11 +84,11 @@ class JobHandlers:
             except Exception as exc:  # noqa: BLE001 - reported with each job of that kind; the worker stays up
                 self.errors[kind] = str(exc) if isinstance(exc, HandlerError) else f"job handler {target!r}: {exc!r}"
         if robot:
-            from planner.robot.model import load_robot
+            from planner.api.robots import load_robot
 
             load_robot(robot)  # cached for the life of the process: handlers reuse it
             try:
-                from planner.warmup import warm_up
+                from planner.api.robots import warm_up
 
                 warm_up(robot)  # the compiled kernels ready before the first job's time limit starts
             except Exception:  # an optimisation: a real fault shows again in the job that meets it

@@ -136,3 +136,28 @@ def bounded(x): return x
 """
     found = sorted(entry.split(":")[0] for entry in module_state(source))
     assert found == ["CACHE", "COUNT", "FILLED", "HOLDER", "LOCAL", "SEEN", "WATCHED", "g", "h"]
+
+
+#: What of the planner the service may import: its public interface and its error hierarchy.
+PLANNER_PUBLIC = ("planner.api", "planner.errors")
+
+
+def test_service_imports_only_the_planners_public_interface() -> None:
+    internal = sorted(
+        f"{module} -> {dep}"
+        for module, deps in import_graph().items()
+        if module.split(".")[0] == "service"
+        for dep in deps
+        if dep.split(".")[0] == "planner" and not any(dep == p or dep.startswith(p + ".") for p in PLANNER_PUBLIC)
+    )
+    assert not internal, f"service/ imports planner internals (use planner.api): {internal}"
+
+
+def test_the_planners_public_interface_names_what_it_exports() -> None:
+    """Each part of planner.api lists its names in ``__all__``, and every name listed is there."""
+    import importlib
+
+    for module in sorted(m for m in project_modules() if m.startswith("planner.api.")):
+        loaded = importlib.import_module(module)
+        missing = [name for name in loaded.__all__ if not hasattr(loaded, name)]
+        assert not missing, f"{module}.__all__ names what it does not have: {missing}"
