@@ -16,6 +16,7 @@ import networkx as nx
 
 from planner.regrasp.graph import SINK, SOURCE, RegraspGraph
 from planner.regrasp.hand_config_planner import HandConfigPlanner
+from planner.regrasp.search_data import SearchData
 from planner.regrasp.task import Task
 from planner.scene.scenarios import load_builtin
 
@@ -39,8 +40,9 @@ def main() -> None:
     for name in args.scenarios.split(","):
         sc = load_builtin(name)
         task = Task(sc, None, threshold_m=sc.threshold_m)
+        data = SearchData(task)
         for hands in args.hands.split(","):
-            planner = HandConfigPlanner(task, hands)
+            planner = HandConfigPlanner(task, hands, data=data)
             spec = planner.graph_spec()
             t0 = time.perf_counter()
             graph = RegraspGraph(spec, task.settings.weights)

@@ -20,6 +20,7 @@ import numpy as np
 
 from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.regrasp.settings import PlannerSettings
+from planner.regrasp.search_data import SearchData, solve_ik, stable_posture
 from planner.regrasp.task import Task
 from planner.scene.scenarios import resolve_scenario
 from planner.stability.evaluator import HoldSpec
@@ -34,7 +35,7 @@ def posture_costs(scenario_name: str, grasps: int) -> None:
     for side, placement in (("right", task.start_id), ("left", task.goal_id)):
         T_obj = task.placements[placement]
         for k, g in enumerate(task.grasps[side][:grasps]):
-            q = task.solve_ik(side, T_obj @ g.T_obj_tcp, task.home, np.random.default_rng(k))
+            q = solve_ik(task, SearchData(task), side, T_obj @ g.T_obj_tcp, task.home, np.random.default_rng(k))
             if q is None:
                 continue
             q[task.jaw[side]] = g.jaw_value
@@ -42,7 +43,7 @@ def posture_costs(scenario_name: str, grasps: int) -> None:
             if task.evaluator.evaluate_one(q, hold).stable:
                 continue
             t0 = time.perf_counter()
-            out = task.stable_posture(q, (side,), T_obj)
+            out = stable_posture(task, SearchData(task), q, (side,), T_obj)
             (found if out is not None else refused).append(time.perf_counter() - t0)
     n = len(found) + len(refused)
     print(f"{scenario_name}: {n} IK postures below the planning threshold at the start and goal grasps; "

@@ -23,6 +23,7 @@ from planner.regrasp.plan_timing import PlanTimer
 from planner.stability.effort import EffortEvaluator
 from planner.regrasp.results import PlannerResult
 from planner.regrasp.settings import PlannerSettings
+from planner.regrasp.search_data import SearchData
 from planner.regrasp.task import Task
 from planner.scene.meshes import portable_dump
 from planner.scene.objects import ObjectModelError
@@ -179,7 +180,7 @@ def _end_over_limits(planner: HandConfigPlanner, end: str) -> tuple[str, str] | 
     pid, hand = (t.start_id, planner.start_hand) if end == "start" else (t.goal_id, planner.goal_hand)
     T_obj = t.placements[pid]
     nodes = [PlacementNode(pid, g, hand) for g, grasp in enumerate(t.grasps[hand]) if planner.cheap_ok(hand, T_obj, grasp)]
-    probes = probe_grasps(t, nodes)
+    probes = probe_grasps(t, planner.data, nodes)
     reached = [n for n in nodes if probes[n].q is not None]
     if not reached:
         return None
@@ -235,6 +236,7 @@ def plan_scenario(
         code = "START_INVALID" if exc.end == "start" else "GOAL_INVALID"
         return _infeasible(None, scenario, code, str(exc), stats={"time_s": time.perf_counter() - t_start})
     zmp_margin_m = timing_zmp_margin(scenario, task.threshold_m)
+    data = SearchData(task)  # what the search learns: shared by the survey of `auto` and every configuration
     inradius = task.stance.polygon.inradius
     if task.threshold_m > inradius:
         return _infeasible(task, scenario, "THRESHOLD_TOO_LARGE",
@@ -260,8 +262,8 @@ def plan_scenario(
         progress(0.05, "surveying hand configurations (auto)")
         t_survey = time.perf_counter()
         try:
-            order, survey_doc = auto_order(task, termination.should_stop)
-            task.timings["auto_survey_s"] = time.perf_counter() - t_survey
+            order, survey_doc = auto_order(task, termination.should_stop, data)
+            data.timings["auto_survey_s"] = time.perf_counter() - t_survey
         except Canceled:
             if should_stop():
                 raise
@@ -276,7 +278,7 @@ def plan_scenario(
     solved: list[tuple[PlannerResult, HandConfigPlanner]] = []
     ran_out = False
     for k, hands in enumerate(order):
-        planner = HandConfigPlanner(task, hands, termination)
+        planner = HandConfigPlanner(task, hands, termination, data=data)
         base = 0.1 + 0.8 * k / len(order)
         span = 0.8 / len(order)
 
@@ -304,11 +306,11 @@ def plan_scenario(
             if hands_choice == "auto":
                 break
     stats: dict[str, Any] = {
-        "time_s": None, "setup": dict(task.timings), "grasp_cache_hit": task.grasp_cache_hit,
+        "time_s": None, "setup": {**task.setup_timings, **data.timings}, "grasp_cache_hit": dict(task.grasp_cache_hit),
         "grasps": {s: len(g) for s, g in task.grasps.items()}, "placements": len(task.placements),
-        "handover_poses": len(task._handover_cache or []), "seed": scenario.seed,
+        "handover_poses": data.handover_poses_known, "seed": scenario.seed,
         "configurations": {r.hands: {"status": r.status, "failures": r.failures, **r.stats} for r, _ in results},
-        "counters": dict(task.counters), "library_versions": library_versions(),
+        "counters": dict(data.counters), "library_versions": library_versions(),
     }
     if survey_doc is not None:
         stats["survey"] = {row["hands"]: row.get("ratio") for row in survey_doc["rows"]}
@@ -337,7 +339,7 @@ def plan_scenario(
     stats["failures"] = dict(best.failures)
     stats["cost"] = best.cost
     elapsed = stats["time_s"]
-    counters = task.counters
+    counters = data.counters
     stats["rates_per_s"] = {k.replace("_states", "_checks").replace("_solves", "_solves"): v / elapsed for k, v in counters.items()}
     progress(0.99, "writing the plan")
     alternatives = []

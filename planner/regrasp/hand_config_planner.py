@@ -3,8 +3,9 @@
 Pipeline (one task = one scenario and one hand configuration):
 
 1. **Task set-up** (:class:`Task`): robot, stance, object, grasps per hand (cached on
-   disk), placements (start, goal and a few intermediate spots), handover poses,
-   the collision world, IK solvers and the stability evaluator.
+   disk), placements (start, goal and a few intermediate spots), the collision world, IK
+   solvers and the stability evaluator; immutable. What the search learns (node validations,
+   probes, handover poses, counters) goes into its :class:`SearchData`.
 2. **Graph** (:mod:`planner.regrasp.graph`): abstract nodes after cheap checks.
 3. **Lazy validation**: a node's key poses (pre-grasp, grasp, lift; at a handover the
    exchange) must be IK-feasible, collision-free and stable (margin >= threshold);
@@ -49,6 +50,7 @@ from planner.regrasp.results import (
     PlannerResult,
 )
 from planner.regrasp.settings import HANDS_OF, Side
+from planner.regrasp.search_data import SearchData
 from planner.regrasp.task import Task
 from planner.termination import Termination
 
@@ -56,19 +58,23 @@ from planner.termination import Termination
 class HandConfigPlanner:
     """Plans one hand configuration of a task: graph, lazy validation, motions."""
 
-    def __init__(self, task: Task, hands: str, termination: Termination | None = None):
+    def __init__(self, task: Task, hands: str, termination: Termination | None = None, *,
+                 data: SearchData | None = None):
         """``termination`` (default: the scenario's ``limits``) caps each search's iterations; its deadline
-        (the user's budget, none by default) and cancel cover the whole planner, motions and smoothing included."""
+        (the user's budget, none by default) and cancel cover the whole planner, motions and smoothing included.
+        ``data``: the search's scratch, shared by the hand configurations of one plan or survey (a fresh one
+        when not given)."""
         if hands not in HANDS_OF:
             raise ValueError(f"unknown hands {hands!r}; valid: {', '.join(HANDS_OF)}")
         self.task = task
+        self.data = SearchData(task) if data is None else data
         self.hands = hands
         self.start_hand, self.goal_hand = HANDS_OF[hands]
         self.keyposes: dict[PlacementNode, KeyPoses] = {}
         self.handovers: dict[HandoverNode, HandoverPoses] = {}
         #: The motions of this configuration's hops (shares keyposes and handovers with this planner).
         self.termination = termination or Termination.of_limits(task.scenario.limits)
-        self.motions = MotionValidator(task, self.keyposes, self.handovers, self.termination)
+        self.motions = MotionValidator(task, self.data, self.keyposes, self.handovers, self.termination)
         self._validated: dict = {}
         # Why start and goal nodes failed, to tell "the start is out of reach" from "no path".
         self.start_failures: Counter = Counter()
@@ -130,7 +136,7 @@ class HandConfigPlanner:
         handovers: list[HandoverNode] = []
         if self.start_hand != self.goal_hand:
             giver = self.start_hand
-            for f, hp in enumerate(t.handover_poses):
+            for f, hp in enumerate(self.data.handover_poses(t)):
                 for r, l in hp.pairs:
                     gi, ti = (int(r), int(l)) if giver == "right" else (int(l), int(r))
                     handovers.append(HandoverNode(f, gi, ti, giver))
@@ -144,11 +150,12 @@ class HandConfigPlanner:
         if node in self._validated:
             return self._validated[node]
         t = self.task
-        v = t.node_cache.get(node)
+        v = self.data.node_cache.get(node)
         if v is None:
             rng = np.random.default_rng(t.node_seed(node))
-            v = validate_placement(t, node, rng) if isinstance(node, PlacementNode) else validate_handover(t, node, rng)
-            t.node_cache[node] = v  # shared with the other hand configurations of this task
+            v = (validate_placement(t, self.data, node, rng) if isinstance(node, PlacementNode)
+                 else validate_handover(t, self.data, node, rng))
+            self.data.node_cache[node] = v  # shared with the other hand configurations of this task
         if v.ok:
             if isinstance(node, PlacementNode):
                 self.keyposes[node] = v.payload
@@ -255,7 +262,7 @@ class HandConfigPlanner:
             b = todo[k][1]
             if res.handover is not None and not self.handovers[b].motions_planned:
                 self.handovers[b] = res.handover
-            self.task.counters.update(res.counts)
+            self.data.counters.update(res.counts)
             self.hops_by_helper += res.by_helper
             self._edges[todo[k]] = res.validation
         if error is not None:
@@ -268,11 +275,11 @@ class HandConfigPlanner:
         a, b, kind = hop
         if not in_child:
             return HopResult(self.motions.validate_hop(a, b, kind))
-        before = Counter(self.task.counters)
+        before = Counter(self.data.counters)
         v = self.motions.validate_hop(a, b, kind)
         hp = self.handovers.get(b) if isinstance(b, HandoverNode) else None
         return HopResult(v, hp if hp is not None and hp.motions_planned else None,
-                          Counter(self.task.counters) - before, True)
+                          Counter(self.data.counters) - before, True)
 
     def _timed_edge(self, a, b, kind: str) -> Validation:
         """Edge validation, cached across searches (the K best solutions share their motions)."""
@@ -322,16 +329,16 @@ class HandConfigPlanner:
         t = self.task
         handovers = [n for n in graph.nodes() if isinstance(n, HandoverNode)]
         if handovers:
-            probe_givers(t, handovers)
+            probe_givers(t, self.data, handovers)
         if graph.w.margin == 0.0:
             return
         nodes = [n for n in graph.nodes() if isinstance(n, PlacementNode)]
-        probes = probe_grasps(t, nodes)
+        probes = probe_grasps(t, self.data, nodes)
         for node in nodes:
             m = probes[node].margin_m
             graph._apply_margin_cost(node, 0.0 if m is None else m)
         for node in handovers:  # the giver's state there is one of the handover's states
-            giver = t.giver_at.get((node.pose, node.giver_grasp, node.giver))
+            giver = self.data.giver_at.get((node.pose, node.giver_grasp, node.giver))
             if giver is not None:
                 graph._apply_margin_cost(node, giver[3])
 
@@ -346,10 +353,10 @@ class HandConfigPlanner:
         for node in list(graph.nodes()):
             if not isinstance(node, (PlacementNode, HandoverNode)):  # hubs, source and sink
                 continue
-            v = t.node_cache.get(node)
+            v = self.data.node_cache.get(node)
             known = v is not None and not v.ok
             if isinstance(node, HandoverNode) and not known:
-                giver = t.giver_at.get((node.pose, node.giver_grasp, node.giver))
+                giver = self.data.giver_at.get((node.pose, node.giver_grasp, node.giver))
                 known = giver is not None and giver[2] is not None
             if known:
                 v = self.validate_node(node)  # the cached verdict, and the start/goal bookkeeping

@@ -19,6 +19,7 @@ from planner.regrasp.graph import HOP_KINDS, HandoverNode, PlacementNode, Valida
 from planner.regrasp.plan_assembly import MotionPiece
 from planner.regrasp.results import HandoverPoses, KeyPoses
 from planner.regrasp.settings import Side
+from planner.regrasp.search_data import SearchData
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
 from planner.termination import Termination
@@ -31,9 +32,10 @@ class MotionValidator:
     handover's transits are planned into its pieces once a path through it is otherwise valid.
     """
 
-    def __init__(self, task: Task, keyposes: dict[PlacementNode, KeyPoses], handovers: dict[HandoverNode, HandoverPoses],
-                 termination: Termination):
+    def __init__(self, task: Task, data: SearchData, keyposes: dict[PlacementNode, KeyPoses],
+                 handovers: dict[HandoverNode, HandoverPoses], termination: Termination):
         self.task = task
+        self.data = data
         self.keyposes = keyposes
         self.handovers = handovers
         #: the plan's termination; each motion takes its deadline and cancel with the T-RRT's own iteration cap
@@ -43,7 +45,7 @@ class MotionValidator:
                 free_object: np.ndarray | None, grasping: str | None, rng: np.random.Generator) -> np.ndarray | None:
         """A valid joint path qa -> qb (T-RRT, then shortcuts), or None."""
         t, s = self.task, self.task.settings
-        validity = t.checker.validity(hold, free_object, grasping, active=None)
+        validity = self.data.checker.validity(hold, free_object, grasping, active=None)
         via = self._via_ready(qa, qb, active, validity, rng)
         if via is not None:
             return via
@@ -96,7 +98,7 @@ class MotionValidator:
         T = t.tcp(q, side)
         T[2, 3] += t.settings.via_lift_m
         res = t.ik_arm_only.solve_arm(side, T, q, rng, rest_q=q)
-        t.counters["ik_solves"] += 1
+        self.data.counters["ik_solves"] += 1
         if res.q is None:
             return None
         out = res.q
@@ -159,7 +161,7 @@ class MotionValidator:
             if not self.plan_handover_motions(b):
                 return Validation(False, "motion", "handover transits", remove_node=True)
             hold = HoldSpec(a.hand, ka.T_obj_tcp)
-            cause, _ = t.checker.classify(hp.q_giver_at, hold, None)
+            cause, _ = self.data.checker.classify(hp.q_giver_at, hold, None)
             if cause:
                 return Validation(False, cause, "giver at the handover with its own grasp")
             path = self.motion(ka.q_lift, hp.q_giver_at, t.active[a.hand], hold, None, None, rng)
@@ -170,7 +172,7 @@ class MotionValidator:
             hp, kb = self.handovers[a], self.keyposes[b]
             hold = HoldSpec(b.hand, hp.T_taker_obj_tcp)
             target = self.with_arm_of(kb.q_lift, hp.q_after, b.hand)
-            cause, _ = t.checker.classify(target, hold, None)
+            cause, _ = self.data.checker.classify(target, hold, None)
             if cause:
                 return Validation(False, cause, "taker at the lift pose with the handover grasp")
             path = self.motion(hp.q_after, target, t.active[b.hand], hold, None, None, rng)

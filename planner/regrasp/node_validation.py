@@ -7,9 +7,11 @@ is valid when the giver can hold the object there, the taker can approach and cl
 and the giver can release and retreat, each move collision-free and stable. Cheapest decisive
 checks first; a failure names its cause (ik, collision, com_margin) and where it happened.
 A key posture that fails the CoM margin is first replaced by the nearest one that keeps the hands
-where they are and the margin (:meth:`Task.stable_posture`: the waist leans back, the arm
+where they are and the margin (:func:`planner.regrasp.search_data.stable_posture`: the waist leans back, the arm
 re-poses); only when there is none does the node fail the margin.
-Each node draws from its own generator, so a verdict does not depend on the search order.
+Each node draws from its own generator, so a verdict does not depend on the search order. The task is
+only read; what a validation learns on the way (the giver alone at a handover pose, counters) goes into
+the search's :class:`~planner.regrasp.search_data.SearchData`.
 """
 
 from __future__ import annotations
@@ -22,13 +24,14 @@ from planner.regrasp.plan_assembly import MotionPiece
 from planner.regrasp.probes import probe_grasps_with_waist, steady_giver
 from planner.regrasp.results import HandoverPoses, KeyPoses
 from planner.regrasp.settings import HANDS_INDEX
+from planner.regrasp.search_data import SearchData, solve_ik, stable_posture
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
 from planner.transforms import inverse
 
 
-def validate_placement(task: Task, node: PlacementNode, rng: np.random.Generator) -> Validation:
-    t, s = task, task.settings
+def validate_placement(task: Task, data: SearchData, node: PlacementNode, rng: np.random.Generator) -> Validation:
+    t, d, s = task, data, task.settings
     side = node.hand
     grasp = t.grasps[side][node.grasp]
     T_obj = t.placements[node.placement]
@@ -36,14 +39,14 @@ def validate_placement(task: Task, node: PlacementNode, rng: np.random.Generator
     targets = key_pose_targets(T_grasp, approach_m=s.pregrasp_m, lift_m=s.lift_m)
     T_pre, T_lift = targets["pregrasp"], targets["lift"]
     # Cheapest decisive checks first: the grasp pose, then the held object there, then lift, then pre-grasp.
-    probe = t.grasp_probes.get(node)
-    if probe is not None and probe.q is None and node not in t.waist_probed:
-        probe_grasps_with_waist(t, side)
-        v = t.node_cache.get(node)
+    probe = d.grasp_probes.get(node)
+    if probe is not None and probe.q is None and node not in d.waist_probed:
+        probe_grasps_with_waist(t, d, side)
+        v = d.node_cache.get(node)
         if v is not None:
             return v  # the batch found what this validation would find first
-        probe = t.grasp_probes[node]
-    q_grasp = probe.q.copy() if probe is not None and probe.q is not None else t.solve_ik(side, T_grasp, t.home, rng)
+        probe = d.grasp_probes[node]
+    q_grasp = probe.q.copy() if probe is not None and probe.q is not None else solve_ik(t, d, side, T_grasp, t.home, rng)
     if q_grasp is None:
         return Validation(False, "ik", "grasp pose out of reach")
     q_grasp[t.jaw[side]] = t.robot.upper[t.jaw[side]]
@@ -52,31 +55,31 @@ def validate_placement(task: Task, node: PlacementNode, rng: np.random.Generator
     T_obj_tcp = inverse(T_obj) @ t.tcp(q_closed, side)
     hold = HoldSpec(side, T_obj_tcp)
     if t.constrained and not t.evaluator.evaluate_one(q_closed, hold).stable:
-        q_stable = t.stable_posture(q_closed, (side,), T_obj)
+        q_stable = stable_posture(t, d, q_closed, (side,), T_obj)
         if q_stable is None:
             return Validation(False, "com_margin", "holding the object at the grasp pose")
         q_closed = q_stable
         q_grasp = q_stable.copy()
         q_grasp[t.jaw[side]] = t.robot.upper[t.jaw[side]]
-    cause, m2 = t.checker.classify(t.line(q_grasp, q_closed, 3), None, T_obj, grasping=side)
+    cause, m2 = d.checker.classify(t.line(q_grasp, q_closed, 3), None, T_obj, grasping=side)
     if cause:
         return Validation(False, cause, "closing the jaw", margin_m=m2)
-    q_lift = t.solve_ik(side, T_lift, q_grasp, rng)
+    q_lift = solve_ik(t, d, side, T_lift, q_grasp, rng)
     if q_lift is None:
         return Validation(False, "ik", "lift pose out of reach")
     q_lift[t.jaw[side]] = grasp.jaw_value
     if t.constrained and not t.evaluator.evaluate_one(q_lift, hold).stable:
-        q_lift = t.stable_posture(q_lift, (side,), t.tcp(q_lift, side) @ hold.T_tcp_obj)
+        q_lift = stable_posture(t, d, q_lift, (side,), t.tcp(q_lift, side) @ hold.T_tcp_obj)
         if q_lift is None:
             return Validation(False, "com_margin", "holding the object at the lift pose")
-    cause, m3 = t.checker.classify(t.line(q_closed, q_lift), hold, None)
+    cause, m3 = d.checker.classify(t.line(q_closed, q_lift), hold, None)
     if cause:
         return Validation(False, cause, "lift", margin_m=m3)
-    q_pre = t.solve_ik(side, T_pre, q_grasp, rng)
+    q_pre = solve_ik(t, d, side, T_pre, q_grasp, rng)
     if q_pre is None:
         return Validation(False, "ik", "pre-grasp pose out of reach")
     q_pre[t.jaw[side]] = t.robot.upper[t.jaw[side]]
-    cause, m1 = t.checker.classify(np.vstack([q_pre[None], t.line(q_pre, q_grasp)]), None, T_obj, grasping=side)
+    cause, m1 = d.checker.classify(np.vstack([q_pre[None], t.line(q_pre, q_grasp)]), None, T_obj, grasping=side)
     if cause:
         return Validation(False, cause, "approach", margin_m=m1)
     kp = KeyPoses(q_pre=q_pre, q_grasp_open=q_grasp, q_grasp=q_closed, q_lift=q_lift, T_obj=T_obj,
@@ -84,11 +87,11 @@ def validate_placement(task: Task, node: PlacementNode, rng: np.random.Generator
     return Validation(True, margin_m=kp.margin, payload=kp)
 
 
-def validate_handover(task: Task, node: HandoverNode, rng: np.random.Generator) -> Validation:
-    t = task
+def validate_handover(task: Task, data: SearchData, node: HandoverNode, rng: np.random.Generator) -> Validation:
+    t, d = task, data
     giver, taker = node.giver, node.taker
     gg, tg = t.grasps[giver][node.giver_grasp], t.grasps[taker][node.taker_grasp]
-    T_obj = t.handover_poses[node.pose].T_world_obj
+    T_obj = d.handover_poses(t)[node.pose].T_world_obj
     T_g = T_obj @ gg.T_obj_tcp
     T_t = T_obj @ tg.T_obj_tcp
     # Arms without the waist first: a turning waist swings the idle arm into the table. With the
@@ -96,27 +99,27 @@ def validate_handover(task: Task, node: HandoverNode, rng: np.random.Generator) 
     # (pose, giver grasp): most handover nodes fail there (the object or the giver's arm
     # against the body), and the pairs of a pose share their giver grasps.
     giver_key = (node.pose, node.giver_grasp, giver)
-    if giver_key not in t.giver_at:
-        q_g = t.solve_ik(giver, T_g, t.home, np.random.default_rng([t.seed, 2, *giver_key[:2], HANDS_INDEX[giver]]),
+    if giver_key not in d.giver_at:
+        q_g = solve_ik(t, d, giver, T_g, t.home, np.random.default_rng([t.seed, 2, *giver_key[:2], HANDS_INDEX[giver]]),
                          arm_only=True)
         checked = None
         if q_g is not None:
             q_g[t.jaw[giver]] = gg.jaw_value
-            checked = steady_giver(t, giver, q_g, HoldSpec(giver, inverse(T_obj) @ t.tcp(q_g, giver)), T_obj)
-        t.giver_at[giver_key] = checked
-    checked = t.giver_at[giver_key]
+            checked = steady_giver(t, d, giver, q_g, HoldSpec(giver, inverse(T_obj) @ t.tcp(q_g, giver)), T_obj)
+        d.giver_at[giver_key] = checked
+    checked = d.giver_at[giver_key]
     q_both = None
     if checked is not None:
         q_g, hold_g, cause, m0 = checked
         if cause:
             return Validation(False, cause, "giver at the handover pose", margin_m=m0)
-        q_t = t.solve_ik(taker, T_t, q_g, rng, arm_only=True)
+        q_t = solve_ik(t, d, taker, T_t, q_g, rng, arm_only=True)
         if q_t is not None:
             q_both = q_g.copy()
             q_both[t.arm_only[taker]] = q_t[t.arm_only[taker]]
     if q_both is None:
         # Both arms with the waist, which they share.
-        t.counters["ik_solves"] += 1
+        d.counters["ik_solves"] += 1
         res = t.ik.solve({giver: T_g, taker: T_t}, t.home, rng, rest_q=t.home)
         if res.q is None:
             return Validation(False, "ik", "handover pose out of reach for both hands")
@@ -125,27 +128,27 @@ def validate_handover(task: Task, node: HandoverNode, rng: np.random.Generator) 
         hold_g = HoldSpec(giver, inverse(T_obj) @ t.tcp(q_both, giver))
         q_g = q_both.copy()
         q_g[t.arm_only[taker]] = t.home[t.arm_only[taker]]
-        cause, m0 = t.checker.classify(q_g, hold_g, None)
+        cause, m0 = d.checker.classify(q_g, hold_g, None)
         if cause:
             return Validation(False, cause, "giver at the handover pose", margin_m=m0)
     q_both[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
-    v = _exchange(t, node, q_g, hold_g, m0, q_both, rng)
+    v = _exchange(t, d, node, q_g, hold_g, m0, q_both, rng)
     if v.ok or (v.cause, v.detail) != ("com_margin", "taker approach"):
         return v
     # The taker's arm reaching out costs the margin the giver kept: the nearest posture of the waist and
     # both arms with both hands where they are and the margin kept, and the giver's part again from it.
-    q_stable = t.stable_posture(q_both, (giver, taker), T_obj)
+    q_stable = stable_posture(t, d, q_both, (giver, taker), T_obj)
     if q_stable is None:
         return v
     q_g = q_stable.copy()
     q_g[t.arm_only[taker]] = t.home[t.arm_only[taker]]
-    cause, m0 = t.checker.classify(q_g, hold_g, None)
+    cause, m0 = d.checker.classify(q_g, hold_g, None)
     if cause:
         return Validation(False, cause, "giver at the handover pose, steadied for the exchange", margin_m=m0)
-    return _exchange(t, node, q_g, hold_g, m0, q_stable, rng)
+    return _exchange(t, d, node, q_g, hold_g, m0, q_stable, rng)
 
 
-def _exchange(t: Task, node: HandoverNode, q_giver_at: np.ndarray, hold_g: HoldSpec, m0: float, q_both: np.ndarray,
+def _exchange(t: Task, d: SearchData, node: HandoverNode, q_giver_at: np.ndarray, hold_g: HoldSpec, m0: float, q_both: np.ndarray,
               rng: np.random.Generator) -> Validation:
     """A handover from the giver at the handover pose (``q_giver_at``, holding as ``hold_g``, margin ``m0``)
     to both hands on the object (``q_both``, the taker's jaw open): the taker's approach and closing, the
@@ -153,24 +156,24 @@ def _exchange(t: Task, node: HandoverNode, q_giver_at: np.ndarray, hold_g: HoldS
     s = t.settings
     giver, taker = node.giver, node.taker
     gg, tg = t.grasps[giver][node.giver_grasp], t.grasps[taker][node.taker_grasp]
-    T_obj = t.handover_poses[node.pose].T_world_obj
+    T_obj = d.handover_poses(t)[node.pose].T_world_obj
     T_g = T_obj @ gg.T_obj_tcp
     T_t = T_obj @ tg.T_obj_tcp
     G_g = hold_g.T_obj_tcp
     T_pre_t = key_pose_targets(T_t, approach_m=s.pregrasp_m)["pregrasp"]
-    q_taker_pre = t.solve_ik(taker, T_pre_t, q_both, rng, arm_only=True)
+    q_taker_pre = solve_ik(t, d, taker, T_pre_t, q_both, rng, arm_only=True)
     if q_taker_pre is None:
         return Validation(False, "ik", "taker pre-grasp out of reach")
     q_taker_pre[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
     T_pre_g = key_pose_targets(T_g, approach_m=s.pregrasp_m)["pregrasp"]
-    q_giver_pre = t.solve_ik(giver, T_pre_g, q_both, rng, arm_only=True)
+    q_giver_pre = solve_ik(t, d, giver, T_pre_g, q_both, rng, arm_only=True)
     if q_giver_pre is None:
         return Validation(False, "ik", "giver retreat out of reach")
     # Taker: home -> pre-grasp (T-RRT, arm only), approach, close.
     q_taker_pre_full = q_giver_at.copy()
     q_taker_pre_full[t.arm_only[taker]] = q_taker_pre[t.arm_only[taker]]
     approach_end = q_both.copy()
-    cause, m1 = t.checker.classify(t.line(q_taker_pre_full, approach_end), hold_g, None, grasping=taker)
+    cause, m1 = d.checker.classify(t.line(q_taker_pre_full, approach_end), hold_g, None, grasping=taker)
     if cause:
         return Validation(False, cause, "taker approach", margin_m=m1)
     q_both_closed = approach_end.copy()
@@ -180,13 +183,13 @@ def _exchange(t: Task, node: HandoverNode, q_giver_at: np.ndarray, hold_g: HoldS
     hold_t = HoldSpec(taker, G_t)
     q_released = q_both_closed.copy()
     q_released[t.jaw[giver]] = t.robot.upper[t.jaw[giver]]
-    cause, m2 = t.checker.classify(t.line(q_both_closed, q_released, 3), hold_t, None, grasping=giver)
+    cause, m2 = d.checker.classify(t.line(q_both_closed, q_released, 3), hold_t, None, grasping=giver)
     if cause:
         return Validation(False, cause, "exchange", margin_m=m2)
     # Giver: retreat along its approach axis, then home (arm only).
     q_giver_back = q_released.copy()
     q_giver_back[t.arm_only[giver]] = q_giver_pre[t.arm_only[giver]]
-    cause, m3 = t.checker.classify(t.line(q_released, q_giver_back), hold_t, None, grasping=giver)
+    cause, m3 = d.checker.classify(t.line(q_released, q_giver_back), hold_t, None, grasping=giver)
     if cause:
         return Validation(False, cause, "giver retreat", margin_m=m3)
     q_after = q_giver_back.copy()

@@ -4,8 +4,9 @@ The search weighs nodes by what the probes find (the margin of holding the objec
 and drops those whose verdict they already know: the held object unstable at the grasp, the jaw
 closing into the table, the giver of a handover unable to reach or unstable. Each probe is a
 batched IK descent over many nodes at once, then the state evaluator and the collision screen on
-the whole batch; the outcomes go into the task's caches (``grasp_probes``, ``giver_at``,
-``node_cache``), exactly as the one-by-one validation would find them first.
+the whole batch; the outcomes go into the search's data (``grasp_probes``, ``giver_at``,
+``node_cache`` of :class:`~planner.regrasp.search_data.SearchData`), exactly as the one-by-one
+validation would find them first. The task itself is only read.
 """
 
 from __future__ import annotations
@@ -17,12 +18,13 @@ from planner.motion.ik_batch import BatchIkResult
 from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
 from planner.regrasp.results import GraspProbe
 from planner.regrasp.settings import HANDS_INDEX, Side
+from planner.regrasp.search_data import SearchData, stable_posture
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
 from planner.transforms import inverse
 
 
-def probe_grasps(task: Task, nodes: list[PlacementNode]) -> dict[PlacementNode, GraspProbe]:
+def probe_grasps(task: Task, data: SearchData, nodes: list[PlacementNode]) -> dict[PlacementNode, GraspProbe]:
     """The IK solution at each node's grasp pose and the CoM margin of holding the object there, for
     the nodes not probed yet: batched descents per hand (:mod:`planner.motion.ik_batch`).
 
@@ -32,18 +34,18 @@ def probe_grasps(task: Task, nodes: list[PlacementNode]) -> dict[PlacementNode, 
     validates a few nodes where it validated every grasp of the start and goal placements
     (measured on the upright survey: 100 placement validations for left-left, 18 with the probes).
     """
-    todo = [n for n in dict.fromkeys(nodes) if n not in task.grasp_probes]
+    todo = [n for n in dict.fromkeys(nodes) if n not in data.grasp_probes]
     for side in ("left", "right"):
         mine = [n for n in todo if n.hand == side]
         if not mine:
             continue
         T_obj, targets = _grasp_targets(task, side, mine)
-        res = _batch_arm_ik(task, side, targets, [task.node_seed(n) for n in mine])
-        _record_probes(task, side, mine, T_obj, res, task.arm_only[side])
-    return task.grasp_probes
+        res = _batch_arm_ik(task, data, side, targets, [task.node_seed(n) for n in mine])
+        _record_probes(task, data, side, mine, T_obj, res, task.arm_only[side])
+    return data.grasp_probes
 
 
-def probe_grasps_with_waist(task: Task, side: Side) -> None:
+def probe_grasps_with_waist(task: Task, data: SearchData, side: Side) -> None:
     """For every placement node of ``side`` whose probe missed (the arm alone did not reach) and
     that has no verdict yet: one batched descent with the waist helping, from home, then the same
     margin and jaw-closing probes; a node's validation starts from the posture found.
@@ -52,17 +54,17 @@ def probe_grasps_with_waist(task: Task, side: Side) -> None:
     margin, the highest cost), so most searches never get there; one that does validates them
     by the dozen (measured on crouched left-right, which has no key path: 67 of them, 8 ms each
     one by one, most failing on the margin at the grasp)."""
-    mine = [n for n, p in task.grasp_probes.items()
-            if p.q is None and n.hand == side and n not in task.waist_probed and n not in task.node_cache]
+    mine = [n for n, p in data.grasp_probes.items()
+            if p.q is None and n.hand == side and n not in data.waist_probed and n not in data.node_cache]
     if not mine:
         return
-    task.waist_probed.update(mine)
+    data.waist_probed.update(mine)
     T_obj, targets = _grasp_targets(task, side, mine)
     res = task.ik.batch.solve(side, targets, task.stance.base_pose, task.home, task.home)
-    task.counters["ik_solves"] += len(mine)
+    data.counters["ik_solves"] += len(mine)
     reached = np.flatnonzero(res.ok)
     if reached.size:
-        _record_probes(task, side, [mine[k] for k in reached], T_obj[reached], res.take(reached), task.active[side])
+        _record_probes(task, data, side, [mine[k] for k in reached], T_obj[reached], res.take(reached), task.active[side])
 
 
 def _grasp_targets(task: Task, side: Side, nodes: list[PlacementNode]) -> tuple[np.ndarray, np.ndarray]:
@@ -71,7 +73,7 @@ def _grasp_targets(task: Task, side: Side, nodes: list[PlacementNode]) -> tuple[
     return T_obj, T_obj @ np.array([task.grasps[side][n.grasp].T_obj_tcp for n in nodes])
 
 
-def _record_probes(task: Task, side: Side, nodes: list[PlacementNode], T_obj: np.ndarray, res: BatchIkResult,
+def _record_probes(task: Task, data: SearchData, side: Side, nodes: list[PlacementNode], T_obj: np.ndarray, res: BatchIkResult,
                    moving: np.ndarray) -> None:
     """Store the probes of ``nodes`` from their batched IK (``moving``: the columns it moved), with the
     margin of holding the object at the grasp; cache the verdicts the validation would reach first."""
@@ -80,19 +82,19 @@ def _record_probes(task: Task, side: Side, nodes: list[PlacementNode], T_obj: np
     task.put_jaw(Q, side, [grasps[n.grasp].jaw_value for n in nodes])
     robot_com = task.evaluator.evaluate(Q, active=[*moving, *task.jaw[side]]).robot_com
     held = task.evaluator.with_object(robot_com, T_obj)  # the object stays where it rests
-    task.counters["com_states"] += len(nodes)
+    data.counters["com_states"] += len(nodes)
     for k, n in enumerate(nodes):
         q, margin = (res.q[k], float(held.margin[k])) if res.ok[k] else (None, None)
         if res.ok[k] and not held.stable[k] and task.constrained:
             # Exactly what the node's validation would find first, from the same state: the nearest
             # posture that holds the object there with the margin kept, or the node fails the margin.
-            q_stable = task.stable_posture(Q[k], (side,), T_obj[k])
+            q_stable = stable_posture(task, data, Q[k], (side,), T_obj[k])
             if q_stable is None:
-                task.node_cache.setdefault(n, Validation(False, "com_margin", "holding the object at the grasp pose"))
+                data.node_cache.setdefault(n, Validation(False, "com_margin", "holding the object at the grasp pose"))
             else:
                 q, margin = q_stable, task.evaluator.evaluate_one(q_stable, _hold_at(task, side, q_stable, T_obj[k])).margin
-        task.grasp_probes[n] = GraspProbe(q, margin)
-    _probe_jaw_closing(task, side, [n for k, n in enumerate(nodes) if res.ok[k] and n not in task.node_cache], grasps)
+        data.grasp_probes[n] = GraspProbe(q, margin)
+    _probe_jaw_closing(task, data, side, [n for k, n in enumerate(nodes) if res.ok[k] and n not in data.node_cache], grasps)
 
 
 def _hold_at(task: Task, side: Side, q: np.ndarray, T_obj: np.ndarray) -> HoldSpec:
@@ -100,7 +102,7 @@ def _hold_at(task: Task, side: Side, q: np.ndarray, T_obj: np.ndarray) -> HoldSp
     return HoldSpec(side, inverse(T_obj) @ task.tcp(q, side))
 
 
-def _probe_jaw_closing(task: Task, side: Side, nodes: list[PlacementNode], grasps: list[Grasp]) -> None:
+def _probe_jaw_closing(task: Task, data: SearchData, side: Side, nodes: list[PlacementNode], grasps: list[Grasp]) -> None:
     """The node validation's second check, batched over probed nodes: the jaw closing on the resting
     object from the probe's posture (three states, robot alone for the margin, the object where it
     rests for collision, ``side``'s fingers allowed to touch it). A failure is cached as the
@@ -109,37 +111,37 @@ def _probe_jaw_closing(task: Task, side: Side, nodes: list[PlacementNode], grasp
     if not nodes:
         return
     jaw = task.jaw[side]
-    q_open = np.array([task.grasp_probes[n].q for n in nodes])
+    q_open = np.array([data.grasp_probes[n].q for n in nodes])
     q_open[:, jaw] = task.robot.upper[jaw]
     q_closed = q_open.copy()
     task.put_jaw(q_closed, side, [grasps[n.grasp].jaw_value for n in nodes])
     s = np.linspace(0.0, 1.0, 3)[None, :, None]  # :func:`planner.motion.interpolation.interpolate` with three states, per node
     Q = (q_open[:, None] * (1 - s) + q_closed[:, None] * s).reshape(-1, task.robot.nq)
     T_obj = np.repeat(np.array([task.placements[n.placement] for n in nodes]), 3, axis=0)
-    causes, margins = task.checker.classify_groups(Q, len(nodes), None, T_obj, grasping=side)
+    causes, margins = data.checker.classify_groups(Q, len(nodes), None, T_obj, grasping=side)
     for n, cause, margin in zip(nodes, causes, margins):
         if cause:
-            task.node_cache[n] = Validation(False, cause, "closing the jaw", margin_m=float(margin))
+            data.node_cache[n] = Validation(False, cause, "closing the jaw", margin_m=float(margin))
 
 
-def probe_givers(task: Task, nodes: list[HandoverNode]) -> None:
-    """The giver alone at each handover pose (the task's ``giver_at``), for the (pose, giver grasp) pairs
+def probe_givers(task: Task, data: SearchData, nodes: list[HandoverNode]) -> None:
+    """The giver alone at each handover pose (the search's ``giver_at``), for the (pose, giver grasp) pairs
     of ``nodes`` not known yet, in batches: arm-only IK, margin and collisions holding the object.
 
     Most handover nodes fail right there (the giver's arm or the object against the body); one
     by one that was 4-10 ms per pair. Where the arm alone misses (the same two attempts as the
     one-by-one solve), the node's validation lets the waist help."""
-    keys = [k for k in dict.fromkeys((n.pose, n.giver_grasp, n.giver) for n in nodes) if k not in task.giver_at]
+    keys = [k for k in dict.fromkeys((n.pose, n.giver_grasp, n.giver) for n in nodes) if k not in data.giver_at]
     for side in ("left", "right"):
         mine = [k for k in keys if k[2] == side]
         if not mine:
             continue
         grasps = task.grasps[side]
-        T_obj = np.array([task.handover_poses[k[0]].T_world_obj for k in mine])
+        T_obj = np.array([data.handover_poses(task)[k[0]].T_world_obj for k in mine])
         targets = T_obj @ np.array([grasps[k[1]].T_obj_tcp for k in mine])
-        res = _batch_arm_ik(task, side, targets, [[task.seed, 2, k[0], k[1], HANDS_INDEX[side]] for k in mine])
+        res = _batch_arm_ik(task, data, side, targets, [[task.seed, 2, k[0], k[1], HANDS_INDEX[side]] for k in mine])
         for k in np.flatnonzero(~res.ok):
-            task.giver_at[mine[k]] = None  # the same two attempts the one-by-one solve makes missed
+            data.giver_at[mine[k]] = None  # the same two attempts the one-by-one solve makes missed
         ok = np.flatnonzero(res.ok)
         if not ok.size:
             continue
@@ -153,34 +155,34 @@ def probe_givers(task: Task, nodes: list[HandoverNode]) -> None:
         held = task.evaluator.with_object(robot_com, T_obj[ok])
         collides = task.world.check_batch(task.stance.base_pose, Q, held=[(side, np.eye(4))],
                                           held_object_poses=T_obj[ok]).collides
-        task.counters["com_states"] += len(ok)
-        task.counters["collision_states"] += len(ok)
+        data.counters["com_states"] += len(ok)
+        data.counters["collision_states"] += len(ok)
         for row, k in enumerate(ok):
             hold = HoldSpec(side, inverse(T_obj[k]) @ T_tcp[row])
             if task.constrained and not held.stable[row]:
-                task.giver_at[mine[k]] = steady_giver(task, side, Q[row], hold, T_obj[k])
+                data.giver_at[mine[k]] = steady_giver(task, data, side, Q[row], hold, T_obj[k])
             else:
-                task.giver_at[mine[k]] = (Q[row], hold, "collision" if collides[row] else None, float(held.margin[row]))
+                data.giver_at[mine[k]] = (Q[row], hold, "collision" if collides[row] else None, float(held.margin[row]))
 
 
-def steady_giver(task: Task, side: Side, q: np.ndarray, hold: HoldSpec, T_obj: np.ndarray) -> tuple:
+def steady_giver(task: Task, data: SearchData, side: Side, q: np.ndarray, hold: HoldSpec, T_obj: np.ndarray) -> tuple:
     """The giver holding the object at a handover pose, checked: ``(q, hold, cause, margin)``. Where the
     posture fails the margin, the nearest posture that keeps the hand there and the margin (the waist
     leaning back) is checked instead."""
-    cause, margin = task.checker.classify(q, hold, None)
+    cause, margin = data.checker.classify(q, hold, None)
     if cause == "com_margin":
-        q_stable = task.stable_posture(q, (side,), T_obj)
+        q_stable = stable_posture(task, data, q, (side,), T_obj)
         if q_stable is not None:
-            q, (cause, margin) = q_stable, task.checker.classify(q_stable, hold, None)
+            q, (cause, margin) = q_stable, data.checker.classify(q_stable, hold, None)
     return q, hold, cause, margin
 
 
-def _batch_arm_ik(task: Task, side: Side, targets: np.ndarray, seeds: list) -> BatchIkResult:
-    """:meth:`Task.solve_ik` with the arm alone for many targets at once: the attempt from home, then,
+def _batch_arm_ik(task: Task, data: SearchData, side: Side, targets: np.ndarray, seeds: list) -> BatchIkResult:
+    """:func:`planner.regrasp.search_data.solve_ik` with the arm alone for many targets at once: the attempt from home, then,
     where it missed, the first restart from the draw the one-by-one solve would make with the
     generator seeded by ``seeds[k]``."""
     res = task.ik_arm_only.batch.solve(side, targets, task.stance.base_pose, task.home, task.home)
-    task.counters["ik_solves"] += len(targets)
+    data.counters["ik_solves"] += len(targets)
     missed = np.flatnonzero(~res.ok)
     if missed.size and task.ik_arm_only.settings.restarts > 0:
         cols = task.ik_arm_only.batch.active_columns(side)

@@ -25,6 +25,7 @@ from planner.regrasp.graph import HandoverNode, PlacementNode, RegraspGraph, Val
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.path_assembly import carried
 from planner.regrasp.settings import HANDS_OF, PlannerSettings
+from planner.regrasp.search_data import SearchData
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
 from planner.survey import limits as survey_limits
@@ -159,10 +160,10 @@ class RemoteSeeds:
                             trrt=self.trrt, keep_states=keep_states)
 
 
-def _row_work(task: Task, hands: str, should_stop: Callable[[], bool]) -> RowWork:
+def _row_work(task: Task, data: SearchData, hands: str, should_stop: Callable[[], bool]) -> RowWork:
     """A configuration's legs (from its key-pose path), with this task's collision checks."""
     t0 = time.perf_counter()
-    planner = HandConfigPlanner(task, hands, key_pose_termination(task, should_stop))
+    planner = HandConfigPlanner(task, hands, key_pose_termination(task, should_stop), data=data)
     path, reason = key_path(planner)
     stats = {"key_poses_s": time.perf_counter() - t0}
     if path is None:
@@ -215,6 +216,7 @@ def run_survey(
     should_stop: Callable[[], bool] = lambda: False,
     progress: Callable[[float, str], None] = lambda f, m: None,
     task: Task | None = None,
+    data: SearchData | None = None,
     keep_states: bool = True,
     no_limits: bool = False,
     counting: CountingSettings | None = None,
@@ -225,7 +227,8 @@ def run_survey(
     ``estimator`` defaults to the scenario's ``survey:`` field; ``states`` switches it to a fixed
     number of states per seed. Seeds start at ``seed`` (default: the scenario's). ``seed_map`` runs
     the seeds elsewhere (a Ray cluster: :class:`RemoteSeeds` is what it runs); by default they run in
-    ``workers`` forked processes where forking is safe, else in this process."""
+    ``workers`` forked processes where forking is safe, else in this process. ``data`` is the search's
+    scratch over ``task`` (shared with a plan that surveys first; a fresh one when not given)."""
     t0 = time.perf_counter()
     est = estimator or estimator_of(scenario, states)
     if estimator is not None and states is not None:
@@ -239,6 +242,7 @@ def run_survey(
     if no_limits and task is None:
         settings = (settings or PlannerSettings()).model_copy(update={"limits": False})
     task = task or Task(scenario, settings, threshold_m=threshold)
+    data = SearchData(task) if data is None else data
     no_limits = task.limits is None
     inradius = task.stance.polygon.inradius
     if threshold > inradius:
@@ -251,7 +255,7 @@ def run_survey(
         progress(0.02, f"key poses of {len(configs)} hand configurations")
         # Single-arm configurations first: a dual-arm one then finds both hands' grasps probed.
         order = sorted(range(len(configs)), key=lambda k: (configs[k] not in SINGLE_ARM, k))
-        by_k = {k: _row_work(task, configs[k], should_stop) for k in order}
+        by_k = {k: _row_work(task, data, configs[k], should_stop) for k in order}
         rows = [by_k[k] for k in range(len(configs))]
         n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
         progress(0.05, f"exploring {len(configs)} hand configurations ({est.until})")

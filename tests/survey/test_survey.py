@@ -14,6 +14,7 @@ from click.testing import CliRunner
 
 from planner.regrasp.node_validation import validate_placement
 from planner.regrasp.probes import probe_givers, probe_grasps
+from planner.regrasp.search_data import SearchData
 from planner.scene.collision import CollisionWorld
 from planner.scene.scenarios import load_scenario
 from planner.survey.estimator import Estimator
@@ -174,17 +175,19 @@ def test_key_poses_do_not_depend_on_which_configuration_ran_first(scenario):
     from planner.regrasp.task import Task
     from planner.survey.runner import key_path, key_pose_termination
 
-    def path_of(task, hands):
-        path, reason = key_path(HandConfigPlanner(task, hands, key_pose_termination(task, lambda: False)))
+    def path_of(task, data, hands):
+        path, reason = key_path(HandConfigPlanner(task, hands, key_pose_termination(task, lambda: False), data=data))
         assert path is not None, reason
         return path
 
-    alone = path_of(Task(scenario), "left-left")
+    alone_task = Task(scenario)
+    alone = path_of(alone_task, SearchData(alone_task), "left-left")
     shared = Task(scenario)
-    path_of(shared, "right-right")
-    path_of(shared, "left-right")
-    assert len(shared.node_cache) > 0
-    assert path_of(shared, "left-left") == alone
+    shared_data = SearchData(shared)
+    path_of(shared, shared_data, "right-right")
+    path_of(shared, shared_data, "left-right")
+    assert len(shared_data.node_cache) > 0
+    assert path_of(shared, shared_data, "left-left") == alone
 
 
 def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenario, monkeypatch):
@@ -196,20 +199,25 @@ def test_a_parallel_survey_hands_its_node_validations_to_the_callers_task(scenar
     from planner.survey.runner import key_path, key_pose_termination
 
     task = Task(scenario)
-    run_survey(scenario, estimator=seeds_of(2, 50), hands=["right-right", "left-left"], workers=2, task=task)
-    assert task.node_cache, "the workers' validations did not reach the caller"
-    before = dict(task.node_cache)
+    data = SearchData(task)
+    run_survey(scenario, estimator=seeds_of(2, 50), hands=["right-right", "left-left"], workers=2, task=task,
+               data=data)
+    assert data.node_cache, "the workers' validations did not reach the caller"
+    before = dict(data.node_cache)
     fresh_calls = []
-    planner = HandConfigPlanner(task, "left-left", key_pose_termination(task, lambda: False))
+    planner = HandConfigPlanner(task, "left-left", key_pose_termination(task, lambda: False), data=data)
     validate = hcp.validate_placement
-    monkeypatch.setattr(hcp, "validate_placement", lambda t, node, rng: fresh_calls.append(node) or validate(t, node, rng))
+    monkeypatch.setattr(hcp, "validate_placement",
+                        lambda t, d, node, rng: fresh_calls.append(node) or validate(t, d, node, rng))
     path, reason = key_path(planner)
     assert path is not None, reason
-    assert fresh_calls == [] and task.node_cache == before
+    assert fresh_calls == [] and data.node_cache == before
     monkeypatch.undo()
     # and they are the validations a one-process run makes (each node has its own generator)
     alone = Task(scenario)
-    assert key_path(HandConfigPlanner(alone, "left-left", key_pose_termination(alone, lambda: False)))[0] == path
+    alone_data = SearchData(alone)
+    assert key_path(HandConfigPlanner(alone, "left-left", key_pose_termination(alone, lambda: False),
+                                      data=alone_data))[0] == path
 
 
 def test_the_cli_progress_bar_leaves_the_process_single_threaded():
@@ -257,27 +265,29 @@ def test_grasp_probes_bound_the_validated_margin_and_prefill_only_certain_failur
     from planner.regrasp.task import Task
     settings = PlannerSettings(stable_postures=stable_postures)
     probe_task = Task(scenario, settings)
-    planner = HandConfigPlanner(probe_task, "right-right")
+    probe_data = SearchData(probe_task)
+    planner = HandConfigPlanner(probe_task, "right-right", data=probe_data)
     nodes = [n for n in planner.graph_spec().placement_nodes if isinstance(n, PlacementNode)][:40]
-    margins = np.array([m for m in (p.margin_m for p in probe_grasps(probe_task, nodes).values()) if m is not None])
+    margins = np.array([m for m in (p.margin_m for p in probe_grasps(probe_task, probe_data, nodes).values()) if m is not None])
     assert len(margins) >= 10  # many grasps of a spec are beyond the arm alone (from below, behind)
     # A threshold between the probed margins: some nodes are stable at their grasp, some are not.
     threshold = float(np.median(margins)) - probe_task.settings.planning_buffer_m
     task = Task(scenario, settings, threshold_m=threshold)
-    probes = probe_grasps(task, nodes)
-    prefilled = {n: task.node_cache[n] for n in nodes if n in task.node_cache}
+    data = SearchData(task)
+    probes = probe_grasps(task, data, nodes)
+    prefilled = {n: data.node_cache[n] for n in nodes if n in data.node_cache}
     if stable_postures:
-        assert task.counters["stable_postures_found"] > 0
+        assert data.counters["stable_postures_found"] > 0
         for n in nodes:
             if probes[n].q is not None and n not in prefilled:
                 assert probes[n].margin_m >= task.evaluator.threshold_m - 1e-9
     else:
         assert any(v.cause == "com_margin" for v in prefilled.values()), "no node was marked as failing on the margin"
-    planner = HandConfigPlanner(task, "right-right")
+    planner = HandConfigPlanner(task, "right-right", data=data)
     validated_ok = 0
     for node in nodes[:24]:
-        task.node_cache.pop(node, None)
-        v = validate_placement(task, node, np.random.default_rng(task.node_seed(node)))
+        data.node_cache.pop(node, None)
+        v = validate_placement(task, data, node, np.random.default_rng(task.node_seed(node)))
         if node in prefilled:
             assert not v.ok and (v.cause, v.detail) == (prefilled[node].cause, prefilled[node].detail)
         elif v.ok and probes[node].margin_m is not None:
@@ -293,15 +303,16 @@ def test_batched_giver_probes_classify_as_the_one_state_check_does(scenario):
     from planner.regrasp.hand_config_planner import HandConfigPlanner
     from planner.regrasp.task import Task
     task = Task(scenario, threshold_m=0.05)
-    planner = HandConfigPlanner(task, "right-left")
+    data = SearchData(task)
+    planner = HandConfigPlanner(task, "right-left", data=data)
     nodes = [n for n in planner.graph_spec().handover_nodes if isinstance(n, HandoverNode)]
-    probe_givers(task, nodes)
-    entries = [v for v in task.giver_at.values() if v is not None]
+    probe_givers(task, data, nodes)
+    entries = [v for v in data.giver_at.values() if v is not None]
     assert len(entries) >= 20
     causes = set()
     for q, hold, cause, margin in entries[:60]:
         assert np.linalg.norm(hold.T_obj_tcp[:3, 3]) < 0.5  # the object really is in that hand
-        want_cause, want_margin = task.checker.classify(q, hold, None)
+        want_cause, want_margin = data.checker.classify(q, hold, None)
         assert cause == want_cause
         assert margin == pytest.approx(want_margin, abs=1e-9)
         causes.add(cause)
@@ -315,19 +326,20 @@ def test_the_jaw_closing_probe_caches_the_verdict_the_validation_reaches(scenari
     from planner.regrasp.hand_config_planner import HandConfigPlanner
     from planner.regrasp.task import Task
     task = Task(scenario)
-    planner = HandConfigPlanner(task, "right-right")
+    data = SearchData(task)
+    planner = HandConfigPlanner(task, "right-right", data=data)
     nodes = planner.graph_spec().placement_nodes
-    probes = probe_grasps(task, nodes)
-    closing = [n for n in nodes if n in task.node_cache and task.node_cache[n].detail == "closing the jaw"]
-    passed = [n for n in nodes if probes[n].q is not None and n not in task.node_cache]
+    probes = probe_grasps(task, data, nodes)
+    closing = [n for n in nodes if n in data.node_cache and data.node_cache[n].detail == "closing the jaw"]
+    passed = [n for n in nodes if probes[n].q is not None and n not in data.node_cache]
     assert len(closing) >= 10 and len(passed) >= 10
     for node in closing[:12]:
-        cached = task.node_cache.pop(node)
-        v = validate_placement(task, node, np.random.default_rng(task.node_seed(node)))
+        cached = data.node_cache.pop(node)
+        v = validate_placement(task, data, node, np.random.default_rng(task.node_seed(node)))
         assert (v.ok, v.cause, v.detail) == (False, cached.cause, "closing the jaw")
         assert v.margin_m == pytest.approx(cached.margin_m, abs=1e-9)
     for node in passed[:12]:
-        v = validate_placement(task, node, np.random.default_rng(task.node_seed(node)))
+        v = validate_placement(task, data, node, np.random.default_rng(task.node_seed(node)))
         assert v.ok or v.detail != "closing the jaw", node
 
 
@@ -340,19 +352,20 @@ def test_a_search_reaching_a_node_the_arm_alone_missed_probes_all_such_nodes_wit
     from planner.regrasp.hand_config_planner import HandConfigPlanner
     from planner.regrasp.task import Task
     task = Task(scenario)
-    planner = HandConfigPlanner(task, "right-right")
+    data = SearchData(task)
+    planner = HandConfigPlanner(task, "right-right", data=data)
     nodes = planner.graph_spec().placement_nodes
-    probes = probe_grasps(task, nodes)
-    missed = [n for n in nodes if probes[n].q is None and n not in task.node_cache]
+    probes = probe_grasps(task, data, nodes)
+    missed = [n for n in nodes if probes[n].q is None and n not in data.node_cache]
     assert len(missed) >= 10
     planner.validate_node(missed[0])
-    assert set(missed) <= task.waist_probed
-    reached = [n for n in missed if task.grasp_probes[n].q is not None]
+    assert set(missed) <= data.waist_probed
+    reached = [n for n in missed if data.grasp_probes[n].q is not None]
     assert len(reached) >= 5, "the waist reached none of the grasps the arm alone missed"
     waist = task.robot.waist_indices()
     moved = 0
     for node in reached:
-        q, margin = task.grasp_probes[node].q, task.grasp_probes[node].margin_m
+        q, margin = data.grasp_probes[node].q, data.grasp_probes[node].margin_m
         assert np.all(q >= task.robot.lower - 1e-9) and np.all(q <= task.robot.upper + 1e-9)
         moved += bool(np.any(np.abs(q[waist] - task.home[waist]) > 1e-6))
         grasp = task.grasps["right"][node.grasp]
@@ -364,27 +377,28 @@ def test_a_search_reaching_a_node_the_arm_alone_missed_probes_all_such_nodes_wit
         robot_com = task.evaluator.evaluate_one(closed).robot_com
         assert margin == pytest.approx(float(task.evaluator.with_object(robot_com[None], T_obj[None]).margin[0]), abs=1e-9)
     assert moved >= 1  # the waist did help
-    cached = [n for n in reached if n in task.node_cache and task.node_cache[n].cause == "com_margin"]
-    fresh = [n for n in reached if n not in task.node_cache]
+    cached = [n for n in reached if n in data.node_cache and data.node_cache[n].cause == "com_margin"]
+    fresh = [n for n in reached if n not in data.node_cache]
     assert cached and fresh
     for node in cached[:8]:
-        verdict = task.node_cache.pop(node)
-        v = validate_placement(task, node, np.random.default_rng(task.node_seed(node)))
+        verdict = data.node_cache.pop(node)
+        v = validate_placement(task, data, node, np.random.default_rng(task.node_seed(node)))
         assert (v.ok, v.cause, v.detail) == (False, verdict.cause, verdict.detail)
     started = 0
     for node in fresh[:8]:
-        v = validate_placement(task, node, np.random.default_rng(task.node_seed(node)))
+        v = validate_placement(task, data, node, np.random.default_rng(task.node_seed(node)))
         if v.ok:  # the key poses start from the probed posture
-            assert np.array_equal(v.payload.q_grasp_open[waist], task.grasp_probes[node].q[waist])
+            assert np.array_equal(v.payload.q_grasp_open[waist], data.grasp_probes[node].q[waist])
             started += 1
     assert started >= 1
     # A survey worker hands this over: another copy of the task, whose arm-only probes missed the same
     # nodes, takes the waist's postures and does not probe them again.
     other = Task(scenario)
-    probe_grasps(other, nodes)
-    other.adopt(task.validations())
-    assert set(missed) <= other.waist_probed
-    assert all(np.array_equal(other.grasp_probes[n].q, task.grasp_probes[n].q) for n in reached)
+    other_data = SearchData(other)
+    probe_grasps(other, other_data, nodes)
+    other_data.adopt(data.validations())
+    assert set(missed) <= other_data.waist_probed
+    assert all(np.array_equal(other_data.grasp_probes[n].q, data.grasp_probes[n].q) for n in reached)
 
 
 def test_nodes_known_to_fail_leave_the_graph_before_the_search_and_are_counted(scenario):
@@ -394,12 +408,13 @@ def test_nodes_known_to_fail_leave_the_graph_before_the_search_and_are_counted(s
     from planner.regrasp.hand_config_planner import HandConfigPlanner
     from planner.regrasp.task import Task
     task = Task(scenario)
-    planner = HandConfigPlanner(task, "right-left")
+    data = SearchData(task)
+    planner = HandConfigPlanner(task, "right-left", data=data)
     graph = RegraspGraph(planner.graph_spec(), task.settings.weights)
     planner._weigh_nodes(graph)
-    known = {n for n in graph.nodes() if n in task.node_cache and not task.node_cache[n].ok}
+    known = {n for n in graph.nodes() if n in data.node_cache and not data.node_cache[n].ok}
     givers = {n for n in graph.nodes() if getattr(n, "pose", None) is not None
-              and (task.giver_at.get((n.pose, n.giver_grasp, n.giver)) or (None, None, None))[2] is not None}
+              and (data.giver_at.get((n.pose, n.giver_grasp, n.giver)) or (None, None, None))[2] is not None}
     assert len(known) >= 10 and len(givers) >= 10
     before = sum(planner.screen_failures.values())
     planner._drop_known_failures(graph)
@@ -407,4 +422,4 @@ def test_nodes_known_to_fail_leave_the_graph_before_the_search_and_are_counted(s
     assert not (known | givers) & alive
     assert sum(planner.screen_failures.values()) - before == len(known | givers)
     # everything else is still there for the search
-    assert all(n in alive for n in planner.graph_spec().placement_nodes if n not in task.node_cache)
+    assert all(n in alive for n in planner.graph_spec().placement_nodes if n not in data.node_cache)

@@ -53,9 +53,11 @@ def run(tmp_path_factory):
     captured = {}
 
     def two_configurations(scenario, **kwargs):
+        from planner.regrasp.search_data import SearchData
         from planner.regrasp.task import Task
         captured["task"] = Task(scenario)  # what run_survey would build; kept for its handover poses
-        doc, outcomes = real(scenario, hands=HANDS, task=captured["task"], **kwargs)
+        captured["data"] = SearchData(captured["task"])
+        doc, outcomes = real(scenario, hands=HANDS, task=captured["task"], data=captured["data"], **kwargs)
         captured["outcomes"] = outcomes
         return doc, outcomes
 
@@ -68,7 +70,7 @@ def run(tmp_path_factory):
     with np.load(out / "states.npz", allow_pickle=False) as npz:
         states = {k: npz[k] for k in npz.files}
     return SimpleNamespace(doc=json.loads(res.stdout), states=states, plots=out / "plots", stderr=res.stderr,
-                           outcomes=captured["outcomes"], task=captured["task"])
+                           outcomes=captured["outcomes"], task=captured["task"], data=captured["data"])
 
 
 @pytest.fixture(scope="module")
@@ -286,7 +288,7 @@ def test_the_dual_arm_survey_goes_through_the_handover_pose(run, groups, indep):
     by = {(g.hands, g.side): g for g in groups}
     giver, taker = by[("right-left", "right")], by[("right-left", "left")]
     label = next(p for p in run.doc["stats"]["configurations"]["right-left"]["path"] if p.startswith("handover pose"))
-    T_handover = pin.SE3(run.task.handover_poses[int(label.split()[2])].T_world_obj)
+    T_handover = pin.SE3(run.data.handover_poses(run.task)[int(label.split()[2])].T_world_obj)
     start, goal = np.array(run.doc["object"]["start_pose"][:3]), np.array(run.doc["object"]["goal_pose"][:3])
     # One extension (0.3 rad over waist and arm) moves the object by well under 0.25 m.
     near_handover = np.linalg.norm(s["object_pose"][taker.idx][:, :3] - T_handover.translation, axis=1)

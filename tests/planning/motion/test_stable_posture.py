@@ -15,6 +15,7 @@ from plan_checker import check_plan
 
 from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.regrasp.settings import PlannerSettings
+from planner.regrasp.search_data import SearchData, solve_ik, stable_posture
 from planner.regrasp.task import Task
 from planner.scene.scenarios import resolve_scenario
 from planner.stability.evaluator import HoldSpec
@@ -31,7 +32,7 @@ def _unstable_grasps(task: Task, side: str, placement: int, want: int = 6):
     out = []
     T_obj = task.placements[placement]
     for k, g in enumerate(task.grasps[side]):
-        q = task.solve_ik(side, T_obj @ g.T_obj_tcp, task.home, np.random.default_rng(k))
+        q = solve_ik(task, SearchData(task), side, T_obj @ g.T_obj_tcp, task.home, np.random.default_rng(k))
         if q is None:
             continue
         q[task.jaw[side]] = g.jaw_value
@@ -51,7 +52,7 @@ def test_the_stable_posture_keeps_the_hand_the_limits_and_the_legs_and_reaches_t
     for q, hold, T_obj in cases:
         side = hold.tcp_side
         before = t.evaluator.evaluate_one(q, hold).margin
-        q2 = t.stable_posture(q, (side,), T_obj)
+        q2 = stable_posture(t, SearchData(t), q, (side,), T_obj)
         if q2 is None:
             continue
         found += 1
@@ -82,7 +83,7 @@ def test_no_stable_posture_when_the_threshold_is_beyond_the_polygon(crouched_tas
 def test_stable_postures_off_removes_the_node_as_before(crouched_task):
     t = Task(resolve_scenario("crouched"), PlannerSettings(limits=False, stable_postures=False))
     q, hold, T_obj = _unstable_grasps(t, "right", t.start_id, want=1)[0]
-    assert t.stable_posture(q, ("right",), T_obj) is None
+    assert stable_posture(t, SearchData(t), q, ("right",), T_obj) is None
 
 
 @pytest.mark.parametrize("hands", ["left-left", "right-left"])
