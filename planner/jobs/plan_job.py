@@ -17,6 +17,7 @@ from typing import Any, Callable
 
 from planner.errors import Canceled, InputError
 from planner.jobs.survey_job import survey_overrides
+from planner.regrasp.failure_cause import FailureCause
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import assemble, effort_ratios, trajectory_points
 from planner.regrasp.plan_timing import PlanTimer
@@ -140,7 +141,7 @@ def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]
                                     ("goal", planner.goal_failures, planner.goal_ok, planner.goal_hand)):
         if failures and not ok:
             dominant = max(failures, key=failures.get)
-            limited = {c: failures[c] for c in ("effort", "grip") if failures.get(c)}
+            limited = {c: failures[c] for c in (FailureCause.EFFORT, FailureCause.GRIP) if failures.get(c)}
             # which joints (or the grip) the limits refuse there, to name them
             over = _end_over_limits(planner, end)
             if limited:  # nodes the limits refused might have held the end: the limits decide (counts in the message)
@@ -151,12 +152,12 @@ def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]
                 return dominant.upper(), (f"no grasp of the object at its {end} pose with the {hand} hand is valid, and the "
                                           f"robot's limits refuse grasps there: {over[1]} (the validations: "
                                           f"{dict(failures)})")
-            if dominant in ("effort", "grip"):
-                what = ("a joint's static torque over its effort limit" if dominant == "effort"
+            if dominant in (FailureCause.EFFORT, FailureCause.GRIP):
+                what = ("a joint's static torque over its effort limit" if dominant == FailureCause.EFFORT
                         else "the grip slipping (the object's weight or moment about the jaw's closing axis)")
                 return dominant.upper(), (f"no grasp of the object at its {end} pose with the {hand} hand is within the "
                                           f"robot's limits: {what} ({dict(failures)})")
-            if dominant == "com_margin":
+            if dominant == FailureCause.COM_MARGIN:
                 return "NO_STABLE_GRASP", (f"no grasp of the object at its {end} pose keeps the CoM margin >= the "
                                            f"threshold with the {hand} hand ({dict(failures)})")
             return f"{end.upper()}_INVALID", f"the {end} pose cannot be grasped by the {hand} hand: {dict(failures)}"
@@ -195,10 +196,10 @@ def _end_over_limits(planner: HandConfigPlanner, end: str) -> tuple[str, str] | 
         worst = np.abs(res.torque[effort]) / table.limit
         joints = sorted({table.checked[k] for k in worst.argmax(axis=1)})
         ratio = res.effort_ratio[effort]
-        return "effort", (f"{int(effort.sum())} of the {len(reached)} grasps the arm reaches there are over the effort "
+        return FailureCause.EFFORT, (f"{int(effort.sum())} of the {len(reached)} grasps the arm reaches there are over the effort "
                           f"limits, ratio {ratio.min():.2f} to {ratio.max():.2f} ({', '.join(joints)})")
     ratio = res.grip_ratio[grip]
-    return "grip", (f"{int(grip.sum())} of the {len(reached)} grasps the arm reaches there slip, grip ratio "
+    return FailureCause.GRIP, (f"{int(grip.sum())} of the {len(reached)} grasps the arm reaches there slip, grip ratio "
                     f"{ratio.min():.2f} to {ratio.max():.2f}")
 
 

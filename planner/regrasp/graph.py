@@ -29,6 +29,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from planner.errors import Canceled
+from planner.regrasp.failure_cause import FailureCause
 from planner.termination import Termination
 
 Hand = Literal["left", "right"]
@@ -96,7 +97,7 @@ class Validation(Generic[Payload]):
     to drop the edge's arriving node, not only the edge (its own motions cannot be planned)."""
 
     ok: bool
-    cause: str | None = None
+    cause: FailureCause | None = None
     detail: str = ""
     margin_m: float | None = None
     payload: Payload | None = None
@@ -404,7 +405,7 @@ class RegraspGraph:
                 if not v.ok:
                     # Stop at the first invalid node: the rest of this path may never be needed
                     # (measured: a third of the validations were of nodes after a failed one).
-                    failures[v.cause or "ik"] += 1
+                    failures[v.cause or FailureCause.IK] += 1
                     self.remove_node(node)
                     bad = True
                     break
@@ -442,7 +443,7 @@ class RegraspGraph:
                     edge_cache[key] = validate_edge(a, b, kind)
                 v = edge_cache[key]
                 if not v.ok:
-                    failures[v.cause or "motion"] += 1
+                    failures[v.cause or FailureCause.MOTION] += 1
                     if v.remove_node and b is not None and b in self:
                         self.remove_node(b)
                     else:
@@ -485,5 +486,4 @@ class RegraspGraph:
 
 def _dominant_code(failures: Counter) -> str:
     cause = failures.most_common(1)[0][0]
-    return {"ik": "IK_FAIL", "collision": "COLLISION", "com_margin": "COM_MARGIN", "motion": "MOTION",
-            "effort": "EFFORT", "grip": "GRIP"}.get(cause, "NO_PATH")
+    return FailureCause(cause).code if cause in set(FailureCause) else "NO_PATH"

@@ -30,6 +30,7 @@ import numpy as np
 from planner.errors import Canceled
 from planner.forking import fork_is_safe, spare_cores
 from planner.grasping.grasps import Grasp
+from planner.regrasp.failure_cause import FailureCause
 from planner.regrasp.fork_share import share_with_child
 from planner.regrasp.graph import (
     GraphSpec,
@@ -169,7 +170,7 @@ class HandConfigPlanner:
                     if v.ok:
                         setattr(self, flag, True)
                     else:
-                        counter[v.cause or "ik"] += 1
+                        counter[v.cause or FailureCause.IK] += 1
         self._validated[node] = v
         return v
 
@@ -186,7 +187,7 @@ class HandConfigPlanner:
         if self.end_problems:  # an end no hand pose can reach: no search can succeed
             end = "start" if "start" in self.end_problems else "goal"
             return PlannerResult("infeasible", self.hands, failure_code=f"{end.upper()}_INVALID", message=self.end_problems[end],
-                                 failures={"ik": len(self.end_problems)}, stats={"time_s": time.perf_counter() - t0})
+                                 failures={FailureCause.IK: len(self.end_problems)}, stats={"time_s": time.perf_counter() - t0})
         spec = self.screen(spec)
         weights = self.task.settings.weights
         if not self.task.constrained:  # the unconstrained planner: no margin cost either
@@ -313,7 +314,7 @@ class HandConfigPlanner:
                     found += 1
                 else:
                     bad.add(n)
-                    self.screen_failures[v.cause or "ik"] += 1
+                    self.screen_failures[v.cause or FailureCause.IK] += 1
         return dataclasses.replace(spec, placement_nodes=[n for n in spec.placement_nodes if n not in bad])
 
     def prepare_search(self, graph: RegraspGraph) -> None:
@@ -362,6 +363,6 @@ class HandConfigPlanner:
                 v = self.validate_node(node)  # the cached verdict, and the start/goal bookkeeping
                 if not v.ok:
                     graph.remove_node(node)
-                    self.screen_failures[v.cause or "ik"] += 1
+                    self.screen_failures[v.cause or FailureCause.IK] += 1
                     self.dropped_known += 1
 

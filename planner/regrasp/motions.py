@@ -15,6 +15,7 @@ import numpy as np
 from planner.motion.smoothing import shortcut
 from planner.motion.timing import time_path
 from planner.motion.trrt import plan_motion
+from planner.regrasp.failure_cause import FailureCause
 from planner.regrasp.graph import HOP_KINDS, HandoverNode, PlacementNode, Validation
 from planner.regrasp.plan_assembly import MotionPiece
 from planner.regrasp.results import HandoverPoses, KeyPoses
@@ -135,38 +136,38 @@ class MotionValidator:
             kp = self.keyposes[b]
             path = self.motion(t.home, kp.q_pre, t.active[b.hand], None, kp.T_obj, None, rng)
             if path is None:
-                return Validation(False, "motion", "home to the first pre-grasp")
+                return Validation(False, FailureCause.MOTION, "home to the first pre-grasp")
             pieces.append(MotionPiece("transit", b.hand, path, "none", None))
         elif b is None:  # last node: release, retreat, home
             kp = self.keyposes[a]
             path = self.motion(kp.q_pre, self.home_from(kp.q_pre, a.hand), t.active[a.hand], None, kp.T_obj, None, rng)
             if path is None:
-                return Validation(False, "motion", "back home after placing")
+                return Validation(False, FailureCause.MOTION, "back home after placing")
             pieces.append(MotionPiece("transit", a.hand, path, "none", None))
         elif kind == "transit":  # regrasp at the same placement
             ka, kb = self.keyposes[a], self.keyposes[b]
             path = self.motion(ka.q_pre, self.with_arm_of(kb.q_pre, ka.q_pre, b.hand), t.active[b.hand], None, ka.T_obj, None, rng)
             if path is None:
-                return Validation(False, "motion", "regrasp transit")
+                return Validation(False, FailureCause.MOTION, "regrasp transit")
             pieces.append(MotionPiece("transit", b.hand, path, "none", None))
         elif kind == "transfer":
             ka, kb = self.keyposes[a], self.keyposes[b]
             hold = HoldSpec(a.hand, ka.T_obj_tcp)
             path = self.motion(ka.q_lift, self.with_arm_of(kb.q_lift, ka.q_lift, a.hand), t.active[a.hand], hold, None, None, rng)
             if path is None:
-                return Validation(False, "motion", "transfer between placements")
+                return Validation(False, FailureCause.MOTION, "transfer between placements")
             pieces.append(MotionPiece("transfer", a.hand, path, a.hand, hold))
         elif kind == "handover" and isinstance(b, HandoverNode):
             ka, hp = self.keyposes[a], self.handovers[b]
             if not self.plan_handover_motions(b):
-                return Validation(False, "motion", "handover transits", remove_node=True)
+                return Validation(False, FailureCause.MOTION, "handover transits", remove_node=True)
             hold = HoldSpec(a.hand, ka.T_obj_tcp)
             cause, _ = self.data.checker.classify(hp.q_giver_at, hold, None)
             if cause:
                 return Validation(False, cause, "giver at the handover with its own grasp")
             path = self.motion(ka.q_lift, hp.q_giver_at, t.active[a.hand], hold, None, None, rng)
             if path is None:
-                return Validation(False, "motion", "transfer to the handover pose")
+                return Validation(False, FailureCause.MOTION, "transfer to the handover pose")
             pieces.append(MotionPiece("transfer", a.hand, path, a.hand, hold))
         elif kind == "handover":  # handover node -> placement node of the taker
             hp, kb = self.handovers[a], self.keyposes[b]
@@ -177,15 +178,15 @@ class MotionValidator:
                 return Validation(False, cause, "taker at the lift pose with the handover grasp")
             path = self.motion(hp.q_after, target, t.active[b.hand], hold, None, None, rng)
             if path is None:
-                return Validation(False, "motion", "transfer from the handover to the goal")
+                return Validation(False, FailureCause.MOTION, "transfer from the handover to the goal")
             pieces.append(MotionPiece("transfer", b.hand, path, b.hand, hold))
         else:  # pragma: no cover - the graph only makes the kinds above
-            return Validation(False, "motion", f"unknown edge kind {kind}")
+            return Validation(False, FailureCause.MOTION, f"unknown edge kind {kind}")
         timed = []
         for p in pieces:
             tp = self.timed(p)
             if tp is None:
-                return Validation(False, "com_margin" if t.constrained else "motion", "timing: ZMP or dense margin")
+                return Validation(False, FailureCause.COM_MARGIN if t.constrained else FailureCause.MOTION, "timing: ZMP or dense margin")
             timed.append(tp)
         return Validation(True, payload=timed)
 

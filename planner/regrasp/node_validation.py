@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from planner.motion.ik import key_pose_targets
+from planner.regrasp.failure_cause import FailureCause
 from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
 from planner.regrasp.plan_assembly import MotionPiece
 from planner.regrasp.probes import probe_grasps_with_waist, steady_giver
@@ -48,7 +49,7 @@ def validate_placement(task: Task, data: SearchData, node: PlacementNode, rng: n
         probe = d.grasp_probes[node]
     q_grasp = probe.q.copy() if probe is not None and probe.q is not None else solve_ik(t, d, side, T_grasp, t.home, rng)
     if q_grasp is None:
-        return Validation(False, "ik", "grasp pose out of reach")
+        return Validation(False, FailureCause.IK, "grasp pose out of reach")
     q_grasp[t.jaw[side]] = t.robot.upper[t.jaw[side]]
     q_closed = q_grasp.copy()
     q_closed[t.jaw[side]] = grasp.jaw_value
@@ -57,7 +58,7 @@ def validate_placement(task: Task, data: SearchData, node: PlacementNode, rng: n
     if t.constrained and not t.evaluator.evaluate_one(q_closed, hold).stable:
         q_stable = stable_posture(t, d, q_closed, (side,), T_obj)
         if q_stable is None:
-            return Validation(False, "com_margin", "holding the object at the grasp pose")
+            return Validation(False, FailureCause.COM_MARGIN, "holding the object at the grasp pose")
         q_closed = q_stable
         q_grasp = q_stable.copy()
         q_grasp[t.jaw[side]] = t.robot.upper[t.jaw[side]]
@@ -66,18 +67,18 @@ def validate_placement(task: Task, data: SearchData, node: PlacementNode, rng: n
         return Validation(False, cause, "closing the jaw", margin_m=m2)
     q_lift = solve_ik(t, d, side, T_lift, q_grasp, rng)
     if q_lift is None:
-        return Validation(False, "ik", "lift pose out of reach")
+        return Validation(False, FailureCause.IK, "lift pose out of reach")
     q_lift[t.jaw[side]] = grasp.jaw_value
     if t.constrained and not t.evaluator.evaluate_one(q_lift, hold).stable:
         q_lift = stable_posture(t, d, q_lift, (side,), t.tcp(q_lift, side) @ hold.T_tcp_obj)
         if q_lift is None:
-            return Validation(False, "com_margin", "holding the object at the lift pose")
+            return Validation(False, FailureCause.COM_MARGIN, "holding the object at the lift pose")
     cause, m3 = d.checker.classify(t.line(q_closed, q_lift), hold, None)
     if cause:
         return Validation(False, cause, "lift", margin_m=m3)
     q_pre = solve_ik(t, d, side, T_pre, q_grasp, rng)
     if q_pre is None:
-        return Validation(False, "ik", "pre-grasp pose out of reach")
+        return Validation(False, FailureCause.IK, "pre-grasp pose out of reach")
     q_pre[t.jaw[side]] = t.robot.upper[t.jaw[side]]
     cause, m1 = d.checker.classify(np.vstack([q_pre[None], t.line(q_pre, q_grasp)]), None, T_obj, grasping=side)
     if cause:
@@ -122,7 +123,7 @@ def validate_handover(task: Task, data: SearchData, node: HandoverNode, rng: np.
         d.counters["ik_solves"] += 1
         res = t.ik.solve({giver: T_g, taker: T_t}, t.home, rng, rest_q=t.home)
         if res.q is None:
-            return Validation(False, "ik", "handover pose out of reach for both hands")
+            return Validation(False, FailureCause.IK, "handover pose out of reach for both hands")
         q_both = res.q
         q_both[t.jaw[giver]] = gg.jaw_value
         hold_g = HoldSpec(giver, inverse(T_obj) @ t.tcp(q_both, giver))
@@ -133,7 +134,7 @@ def validate_handover(task: Task, data: SearchData, node: HandoverNode, rng: np.
             return Validation(False, cause, "giver at the handover pose", margin_m=m0)
     q_both[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
     v = _exchange(t, d, node, q_g, hold_g, m0, q_both, rng)
-    if v.ok or (v.cause, v.detail) != ("com_margin", "taker approach"):
+    if v.ok or (v.cause, v.detail) != (FailureCause.COM_MARGIN, "taker approach"):
         return v
     # The taker's arm reaching out costs the margin the giver kept: the nearest posture of the waist and
     # both arms with both hands where they are and the margin kept, and the giver's part again from it.
@@ -163,12 +164,12 @@ def _exchange(t: Task, d: SearchData, node: HandoverNode, q_giver_at: np.ndarray
     T_pre_t = key_pose_targets(T_t, approach_m=s.pregrasp_m)["pregrasp"]
     q_taker_pre = solve_ik(t, d, taker, T_pre_t, q_both, rng, arm_only=True)
     if q_taker_pre is None:
-        return Validation(False, "ik", "taker pre-grasp out of reach")
+        return Validation(False, FailureCause.IK, "taker pre-grasp out of reach")
     q_taker_pre[t.jaw[taker]] = t.robot.upper[t.jaw[taker]]
     T_pre_g = key_pose_targets(T_g, approach_m=s.pregrasp_m)["pregrasp"]
     q_giver_pre = solve_ik(t, d, giver, T_pre_g, q_both, rng, arm_only=True)
     if q_giver_pre is None:
-        return Validation(False, "ik", "giver retreat out of reach")
+        return Validation(False, FailureCause.IK, "giver retreat out of reach")
     # Taker: home -> pre-grasp (T-RRT, arm only), approach, close.
     q_taker_pre_full = q_giver_at.copy()
     q_taker_pre_full[t.arm_only[taker]] = q_taker_pre[t.arm_only[taker]]

@@ -15,6 +15,7 @@ import numpy as np
 
 from planner.grasping.grasps import Grasp
 from planner.motion.ik_batch import BatchIkResult
+from planner.regrasp.failure_cause import FailureCause
 from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
 from planner.regrasp.results import GraspProbe
 from planner.regrasp.settings import HANDS_INDEX, Side
@@ -90,7 +91,7 @@ def _record_probes(task: Task, data: SearchData, side: Side, nodes: list[Placeme
             # posture that holds the object there with the margin kept, or the node fails the margin.
             q_stable = stable_posture(task, data, Q[k], (side,), T_obj[k])
             if q_stable is None:
-                data.node_cache.setdefault(n, Validation(False, "com_margin", "holding the object at the grasp pose"))
+                data.node_cache.setdefault(n, Validation(False, FailureCause.COM_MARGIN, "holding the object at the grasp pose"))
             else:
                 q, margin = q_stable, task.evaluator.evaluate_one(q_stable, _hold_at(task, side, q_stable, T_obj[k])).margin
         data.grasp_probes[n] = GraspProbe(q, margin)
@@ -162,7 +163,7 @@ def probe_givers(task: Task, data: SearchData, nodes: list[HandoverNode]) -> Non
             if task.constrained and not held.stable[row]:
                 data.giver_at[mine[k]] = steady_giver(task, data, side, Q[row], hold, T_obj[k])
             else:
-                data.giver_at[mine[k]] = (Q[row], hold, "collision" if collides[row] else None, float(held.margin[row]))
+                data.giver_at[mine[k]] = (Q[row], hold, FailureCause.COLLISION if collides[row] else None, float(held.margin[row]))
 
 
 def steady_giver(task: Task, data: SearchData, side: Side, q: np.ndarray, hold: HoldSpec, T_obj: np.ndarray) -> tuple:
@@ -170,7 +171,7 @@ def steady_giver(task: Task, data: SearchData, side: Side, q: np.ndarray, hold: 
     posture fails the margin, the nearest posture that keeps the hand there and the margin (the waist
     leaning back) is checked instead."""
     cause, margin = data.checker.classify(q, hold, None)
-    if cause == "com_margin":
+    if cause == FailureCause.COM_MARGIN:
         q_stable = stable_posture(task, data, q, (side,), T_obj)
         if q_stable is not None:
             q, (cause, margin) = q_stable, data.checker.classify(q_stable, hold, None)

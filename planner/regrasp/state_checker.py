@@ -17,6 +17,7 @@ from typing import Callable
 import numpy as np
 
 from planner.kinematics.batch import select_states
+from planner.regrasp.failure_cause import FailureCause
 from planner.scene.collision import CollisionWorld
 from planner.stability.effort import EffortEvaluator
 from planner.stability.evaluator import HoldSpec, StateEvaluator
@@ -66,13 +67,13 @@ class StateChecker:
         return check
 
     def classify(self, Q: np.ndarray, hold: HoldSpec | None, free_object: np.ndarray | None,
-                 grasping: str | None = None) -> tuple[str | None, float]:
+                 grasping: str | None = None) -> tuple[FailureCause | None, float]:
         """The first failing cause over states Q (com_margin before collision), and the min margin."""
         causes, margins = self.classify_groups(np.atleast_2d(Q), 1, hold, free_object, grasping)
         return causes[0], float(margins[0])
 
     def classify_groups(self, Q: np.ndarray, groups: int, hold: HoldSpec | None, free_object: np.ndarray | None,
-                        grasping: str | None = None) -> tuple[list[str | None], np.ndarray]:
+                        grasping: str | None = None) -> tuple[list[FailureCause | None], np.ndarray]:
         """:meth:`classify` for ``groups`` equal runs of consecutive states of Q at once: each run's first
         failing cause and min margin. ``free_object`` is one pose, or one per state (N, 4, 4); runs that
         fail on the margin are not checked for collision."""
@@ -81,7 +82,7 @@ class StateChecker:
         self.counters["com_states"] += len(Q)
         margins = batch.margin.reshape(groups, k).min(axis=1)
         unstable = ~batch.stable.reshape(groups, k).all(axis=1) if self.constrained else np.zeros(groups, dtype=bool)
-        causes: list[str | None] = ["com_margin" if u else None for u in unstable]
+        causes: list[FailureCause | None] = [FailureCause.COM_MARGIN if u else None for u in unstable]
         groups_in = np.flatnonzero(~unstable)
         if not groups_in.size:
             return causes, margins
@@ -107,7 +108,7 @@ class StateChecker:
                                            grasping=grasping)
             self.counters["collision_states"] += len(rows)
             for g in check[res.collides.reshape(-1, k).any(axis=1)]:
-                causes[g] = "collision"
+                causes[g] = FailureCause.COLLISION
         return causes, margins
 
 
@@ -120,4 +121,4 @@ class StateChecker:
         return np.where(~res.effort_ok, 1, np.where(~res.grip_ok, 2, 0))
 
 
-_LIMIT_CAUSE = {1: "effort", 2: "grip"}
+_LIMIT_CAUSE = {1: FailureCause.EFFORT, 2: FailureCause.GRIP}

@@ -61,3 +61,16 @@ def test_two_searches_over_one_task_share_only_what_is_handed_over(task):
         mine, theirs = planner.data.grasp_probes[n], other.grasp_probes[n]
         assert (mine.q is None) == (theirs.q is None)
         assert mine.q is None or np.array_equal(mine.q, theirs.q)
+
+
+def test_failed_validations_carry_a_failure_cause(task):
+    from planner.regrasp.failure_cause import FailureCause
+
+    data = SearchData(task)
+    planner = HandConfigPlanner(task, "left-left", data=data)
+    nodes = [n for n in planner.graph_spec().placement_nodes if isinstance(n, PlacementNode)][:30]
+    probe_grasps(task, data, nodes)
+    verdicts = list(data.node_cache.values()) + [
+        validate_placement(task, data, n, np.random.default_rng(task.node_seed(n))) for n in nodes[:10]]
+    failed = [v for v in verdicts if not v.ok]
+    assert failed and all(isinstance(v.cause, FailureCause) for v in failed)
