@@ -7,6 +7,7 @@ from planner.jobs.entry import JobContext
 from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.survey.cache import SurveyCache
 from planner.survey.runner import run_survey, write_states
+from planner.survey.seed_map import SeedFn, SeedMap
 
-__all__ = ["JobContext", "PlanOptions", "SurveyCache", "declare_fork_benign", "plan_scenario", "run_survey",
-           "write_states"]
+__all__ = ["JobContext", "PlanOptions", "SeedFn", "SeedMap", "SurveyCache", "declare_fork_benign", "plan_scenario",
+           "run_survey", "write_states"]

@@ -14,7 +14,7 @@ import threading
 from concurrent.futures import Future
 from typing import Any
 
-from planner.survey.seed_map import SeedFn
+from planner.api.jobs import SeedFn
 
 
 #: How long a cluster's head may take to accept a connection before the address counts as wrong.

@@ -8,6 +8,7 @@ import ast
 
 from tests.architecture.import_graph import (
     PACKAGES,
+    ROOT,
     cycles,
     import_graph,
     project_modules,
@@ -161,3 +162,13 @@ def test_the_planners_public_interface_names_what_it_exports() -> None:
         loaded = importlib.import_module(module)
         missing = [name for name in loaded.__all__ if not hasattr(loaded, name)]
         assert not missing, f"{module}.__all__ names what it does not have: {missing}"
+#: At most this many modules and packages at the top of service/: the rest is grouped by concept.
+MAX_SERVICE_TOP_LEVEL = 14
+
+
+def test_service_top_level_stays_small() -> None:
+    service = ROOT / "service"
+    entries = sorted([p.name for p in service.glob("*.py")]
+                     + [p.name + "/" for p in service.iterdir() if (p / "__init__.py").is_file()])
+    assert len(entries) <= MAX_SERVICE_TOP_LEVEL, (
+        f"service/ has {len(entries)} top-level modules and packages (at most {MAX_SERVICE_TOP_LEVEL}): {entries}")
