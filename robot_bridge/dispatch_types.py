@@ -16,6 +16,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from schemas.bridge import MAX_SEGMENT_DURATION_S, GateVerdict, TrajectorySegment
 
+from .errors import BridgeError
 from .gate import ExecutablePlan
 from .signing import Signer, canonical_bytes
 
@@ -88,15 +89,15 @@ class DispatchSettings(BaseSettings):
                                                                  "state: it overrides the gate's own setting)")
 
 
-class ControllerUnavailableError(RuntimeError):
+class ControllerUnavailableError(BridgeError, RuntimeError):
     """No controller is alive, or its state is unknown: nothing was started (HTTP 409)."""
 
 
-class BusyError(RuntimeError):
+class BusyError(BridgeError, RuntimeError):
     """Another execution is running on this dispatcher."""
 
 
-class NoSigningKeyError(RuntimeError):
+class NoSigningKeyError(BridgeError, RuntimeError):
     """The dispatcher has no signing key: the controller would refuse every command, so nothing is sent (HTTP 409)."""
 
 

@@ -11,6 +11,7 @@ from typing import Sequence
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from .errors import BridgeError
 from .robot_files import RobotFiles
 from .urdf_kinematics import UrdfModel
 
@@ -53,7 +54,7 @@ class MeasuredState:
     tolerance_rad: float | None = None
 
 
-class Veto(Exception):
+class Veto(BridgeError):
     """Raised inside the gate to stop at the first failing check."""
 
     def __init__(self, check: str, message: str, sample_index: int | None = None):

@@ -28,10 +28,12 @@ import yaml
 
 import robot_data
 
+from robot_bridge.errors import BridgeError
+
 ROBOT_SCHEMA = "regrasp.robot/1"
 
 
-class RobotFilesError(ValueError):
+class RobotFilesError(BridgeError, ValueError):
     """A robot's files are missing, unknown or malformed."""
 
 

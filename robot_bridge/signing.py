@@ -30,6 +30,8 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import (
 )
 from pydantic_core import from_json
 
+from robot_bridge.errors import BridgeError
+
 #: File names written by :func:`generate_keys` (``regrasp keys generate DIR``).
 PRIVATE_KEY_FILE = "dispatcher.key"
 PUBLIC_KEY_FILE = "dispatcher.pub"
@@ -37,7 +39,7 @@ PUBLIC_KEY_FILE = "dispatcher.pub"
 SIG_FIELD = "sig"
 
 
-class KeyFileError(ValueError):
+class KeyFileError(BridgeError, ValueError):
     """A key file that is missing, unreadable or not an Ed25519 key of the expected kind."""
 
 

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import BridgeError
 from .urdf_kinematics import UrdfModel, quaternion_matrix
 
 
-class PolygonError(ValueError):
+class PolygonError(BridgeError, ValueError):
     """No support: no foot in contact, or a polygon without area."""
 
 

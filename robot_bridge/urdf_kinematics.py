@@ -27,6 +27,8 @@ from typing import Sequence
 
 import numpy as np
 
+from robot_bridge.errors import BridgeError
+
 _MOVABLE = ("revolute", "continuous", "prismatic")
 #: States per evaluation chunk: the moving joints' temporaries stay in the CPU cache
 #: (measured on 2-core x86: 8192 beats 2048 by ~25% and one 24,000-state block by ~2x).
@@ -34,7 +36,7 @@ CHUNK = 8192
 _SUPPORTED = (*_MOVABLE, "fixed")
 
 
-class UrdfError(ValueError):
+class UrdfError(BridgeError, ValueError):
     """A URDF the gate cannot use (malformed, unsupported joint type, unknown name)."""
 
 

@@ -20,12 +20,13 @@ from typing import Any, Callable, Iterable, Iterator
 import httpx
 
 from schemas.jobs import TERMINAL_STATES
+from service.errors import RegraspServiceError
 
 #: States :meth:`ServiceClient.wait` stops at by default: a plan is ready for review, or the job ended.
 SETTLED_STATES: frozenset[str] = TERMINAL_STATES | {"planned"}
 
 
-class ServiceError(RuntimeError):
+class ServiceError(RegraspServiceError, RuntimeError):
     """An error answer of the service (its RFC 9457 problem document in ``problem``)."""
 
     def __init__(self, status: int, problem: dict[str, Any]) -> None:

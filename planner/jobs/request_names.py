@@ -20,6 +20,7 @@ import re
 from functools import lru_cache
 from typing import Any
 
+from planner.errors import InputError
 from planner.scene.meshes import registered_meshes
 
 #: A registered name: letters, digits, ``_``, ``-`` and ``.``, starting with a letter or digit.
@@ -30,7 +31,7 @@ FILE_SUFFIX_RE = re.compile(r"\.[A-Za-z][A-Za-z0-9]*$")
 QUOTE_CHARS = 60
 
 
-class RequestNameError(ValueError):
+class RequestNameError(InputError):
     """A request names something that is not registered, or names a file."""
 
     def __init__(self, field: str, message: str, valid: list[str] | None = None) -> None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from planner.errors import InputError
 from schemas.scenario import MeshSource, Scenario
 
 #: Where the registered meshes live (next to the built-in scenarios that use them).
@@ -19,7 +20,7 @@ MESH_DIR = Path(__file__).parent / "scenario_data"
 MESH_SUFFIXES = (".obj", ".stl")
 
 
-class UnknownMeshError(ValueError):
+class UnknownMeshError(InputError):
     """A mesh name that is not registered."""
 
 

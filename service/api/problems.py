@@ -21,6 +21,8 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.exc import DBAPIError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from service.errors import RegraspServiceError
+
 PROBLEM_MEDIA_TYPE = "application/problem+json"
 PROBLEM_TYPE_BASE = "https://regrasp.invalid/problems/"
 log = logging.getLogger("regrasp.api")
@@ -28,7 +30,7 @@ log = logging.getLogger("regrasp.api")
 MAX_REPORTED_ERRORS = 20
 
 
-class ProblemError(Exception):
+class ProblemError(RegraspServiceError):
     """An error answered as a problem document."""
 
     def __init__(self, status: int, detail: str, *, title: str | None = None, type_: str | None = None,

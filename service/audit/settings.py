@@ -6,6 +6,8 @@ from typing import Literal
 
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from service.errors import RegraspServiceError
+
 
 class AuditSettings(BaseSettings):
     """Tunables of the audit writer (environment: ``REGRASP_AUDIT_*``)."""
@@ -39,5 +41,5 @@ class AuditSettings(BaseSettings):
     attach_layout: bool = True
 
 
-class AuditError(RuntimeError):
+class AuditError(RegraspServiceError, RuntimeError):
     """The audit file cannot be written (closed writer, bad input)."""

@@ -30,6 +30,7 @@ from mcap.stream_reader import get_chunk_data_stream
 
 from schemas.fast_json import loads
 
+from ..errors import RegraspServiceError
 from .chain import GENESIS, is_sha256_hex, record_digest
 from .topics import KIND_CLOSE, KIND_OPEN, TOPIC_EVENTS
 
@@ -114,7 +115,7 @@ class VerifyResult:
         }
 
 
-class _Broken(Exception):
+class _Broken(RegraspServiceError):
     def __init__(self, detail: str, where: Where, *, from_chain: bool = False) -> None:
         super().__init__(detail)
         self.detail = detail

@@ -60,14 +60,10 @@ def cli() -> None:
     """Regrasp planning for the HRP-5P humanoid under bipedal stability constraints."""
 
 
-#: Exceptions that mean "this name is not known" (module, class): every command ends on them with exit 2.
+#: Exceptions that mean "this name is not known" or "this input is unusable" (module, class): every command
+#: ends on them with exit 2. The planner's input errors all derive from its InputError (planner.errors).
 UNKNOWN_NAME_ERRORS: tuple[tuple[str, str], ...] = (
-    ("planner.robot.model", "UnknownNameError"),
-    ("planner.robot.registry", "UnknownRobotError"),
-    ("planner.jobs.request_names", "RequestNameError"),
-    ("planner.scene.scenarios", "ScenarioError"),
-    ("planner.jobs.plan_job", "InputError"),
-    ("planner.stability.stances", "StanceError"),
+    ("planner.errors", "InputError"),
 )
 #: Exit code of a usage error (service.cli.common.EXIT_USAGE, kept here so --help imports nothing).
 EXIT_USAGE = 2

@@ -17,6 +17,7 @@ import time
 from datetime import datetime, timedelta
 from typing import Any
 
+from ..errors import RegraspServiceError
 from ..jobs.owners import LiveOwners, make_owner_id
 from ..settings import ServiceSettings
 from ..store.repo import JobStore
@@ -51,7 +52,8 @@ def _check_of(verdict: Any) -> str | None:
     check = verdict.get("check") if isinstance(verdict, dict) else getattr(verdict, "check", None)
     return str(check) if check is not None else None
 
-class RobotBusy(Exception):
+
+class RobotBusy(RegraspServiceError):
     """Another job of the robot is dispatching or executing (one dispatch at a time): HTTP 409 naming it."""
 
     def __init__(self, running_job_id: str) -> None:

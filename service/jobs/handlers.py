@@ -10,11 +10,12 @@ import importlib
 from typing import Any, Callable
 
 from planner.errors import Canceled
+from service.errors import RegraspServiceError
 
 Handler = Callable[[dict[str, Any], Any], dict[str, Any]]
 
 
-class HandlerError(ValueError):
+class HandlerError(RegraspServiceError, ValueError):
     """A handler target that cannot be imported."""
 
 
@@ -33,7 +34,7 @@ def resolve(target: str) -> Handler:
     return fn
 
 
-class JobCanceled(Canceled):
+class JobCanceled(RegraspServiceError, Canceled):
     """Raised by service-side contexts when a cancelled job polls: the planner's one cancellation type."""
 
 

@@ -16,9 +16,10 @@ from pydantic import ValidationError
 
 from schemas.plan import PLAN_SCHEMA, Plan, canonical_json
 from schemas.survey import SURVEY_SCHEMA, Survey
+from service.errors import RegraspServiceError
 
 
-class InvalidResult(ValueError):
+class InvalidResult(RegraspServiceError, ValueError):
     """The handler returned something that is not a valid result document."""
 
 

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import sqlalchemy as sa
 
+from service.errors import RegraspServiceError
+
 log = logging.getLogger("regrasp.store")
 
 SQLITE_MAGIC = b"SQLite format 3\x00"
@@ -31,7 +33,7 @@ SQLITE_MAGIC = b"SQLite format 3\x00"
 STORE_TABLES = frozenset({"alembic_version", "jobs"})
 
 
-class StoreIntegrityError(Exception):
+class StoreIntegrityError(RegraspServiceError):
     """The job store cannot be used as it is; the message says why and what to do."""
 
 

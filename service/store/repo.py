@@ -22,6 +22,7 @@ from sqlalchemy.exc import IntegrityError
 from schemas import fast_json
 from schemas.jobs import TERMINAL_STATES
 
+from ..errors import RegraspServiceError
 from .tables import job_events, job_results, jobs
 
 
@@ -29,15 +30,15 @@ def utcnow() -> datetime:
     return datetime.now(timezone.utc)
 
 
-class Conflict(Exception):
+class Conflict(RegraspServiceError):
     """The job is not in a state that allows the action (HTTP 409)."""
 
 
-class IdempotencyMismatch(Exception):
+class IdempotencyMismatch(RegraspServiceError):
     """An Idempotency-Key was reused with a different request body."""
 
 
-class QueueFull(Exception):
+class QueueFull(RegraspServiceError):
     """The queue holds ``depth`` jobs, at or past the limit a new submission was checked against (HTTP 429)."""
 
     def __init__(self, depth: int) -> None:
@@ -45,7 +46,7 @@ class QueueFull(Exception):
         self.depth = depth
 
 
-class UserQueueFull(Exception):
+class UserQueueFull(RegraspServiceError):
     """The submitter has ``count`` jobs queued or planning, at or past their own limit (HTTP 429)."""
 
     def __init__(self, count: int) -> None:

@@ -172,3 +172,24 @@ def test_service_top_level_stays_small() -> None:
                      + [p.name + "/" for p in service.iterdir() if (p / "__init__.py").is_file()])
     assert len(entries) <= MAX_SERVICE_TOP_LEVEL, (
         f"service/ has {len(entries)} top-level modules and packages (at most {MAX_SERVICE_TOP_LEVEL}): {entries}")
+
+
+#: Each package's one exception base: every error it raises on purpose derives from it.
+ERROR_BASES = {"planner": "PlannerError", "robot_bridge": "BridgeError", "service": "RegraspServiceError"}
+
+
+def test_each_package_has_one_exception_base() -> None:
+    from tests.architecture.error_bases import class_bases, exceptions_outside
+
+    classes = class_bases(project_modules())
+    outside = {package: exceptions_outside(package, base, classes) for package, base in ERROR_BASES.items()}
+    assert not any(outside.values()), f"exception classes outside their package's base: {outside}"
+
+
+def test_the_exception_base_check_sees_a_stray_error() -> None:
+    from tests.architecture.error_bases import ancestors, exceptions_outside
+
+    classes = {"PlannerError": ("planner.errors", {"Exception"}), "InputError": ("planner.errors", {"PlannerError", "ValueError"}),
+               "Good": ("planner.a", {"InputError"}), "Stray": ("planner.b", {"ValueError"}), "Plain": ("planner.c", {"object"})}
+    assert ancestors("Good", classes) == {"InputError", "PlannerError", "ValueError", "Exception"}
+    assert exceptions_outside("planner", "PlannerError", classes) == ["planner.b.Stray"]
