@@ -10,7 +10,7 @@ from typing import Any, Iterator
 def freeze_startup_objects() -> None:
     """Move what exists now (modules, schemas, settings, sessions: it lives as long as the process) out of
     the garbage collector's reach. A full collection over it stops every thread, zenoh callbacks and the
-    dispatcher's sends included: 20-40 ms in the controller (~40k objects), ~67 ms in the service (~113k)."""
+    dispatcher's sends included, for tens of milliseconds when the objects number in the tens of thousands."""
     gc.collect()
     gc.freeze()
 

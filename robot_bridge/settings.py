@@ -41,7 +41,7 @@ class BridgeSettings(BaseSettings):
         False,
         description="zenoh's shared-memory transport between peers of one host. Off: the robot's controller is on "
                     "another host, where it is never used, and on one host its lazily created pool and segment mappings "
-                    "held the first ~16 messages over 3 kB of each new link for 3-13 ms (measured on loopback)",
+                    "held the first messages over 3 kB of each new link for milliseconds",
     )
     stop_repeats: int = Field(3, ge=1, le=20, description="a stop is re-sent this many times until acknowledged")
     stop_repeat_period_s: float = Field(0.02, gt=0, le=1.0)

@@ -6,8 +6,8 @@ peer on the network joins). The transport lease is shortened so a frozen peer's
 liveliness token goes away in about a second; the application heartbeat covers
 the rest. Shared memory between peers of one host is off by default: the robot's
 controller is on another host, so loopback then measures the TCP path the robot
-uses (zenoh's lazily set-up shared memory delayed the first large messages of
-each link by up to 13 ms).
+uses (zenoh's lazily set-up shared memory delays the first large messages of
+each link).
 
 zenoh's own mutual TLS is switched on by the settings' ``tls_root_ca``,
 ``tls_cert`` and ``tls_key`` (both peers; endpoints ``tls/HOST:PORT``): each peer

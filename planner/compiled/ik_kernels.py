@@ -3,7 +3,7 @@
 Why compiled: each target's descent is a short loop (15-60 iterations) of tiny linear algebra (an
 arm chain's forward pass, a 6 x k Jacobian, a 6 x 6 solve). Advanced together in numpy the batch
 paid ~40 array operations per iteration whatever the number of targets still running, and the
-stragglers kept it iterating (measured: 0.14 s for 1,088 giver targets). Here every target runs its
+stragglers kept it iterating. Here every target runs its
 own loop to its own end. The iteration is that of :mod:`planner.motion.ik_batch` and :class:`planner.motion.ik.IkSolver`:
 world-aligned errors and geometric Jacobian, the pull to the rest posture, joints pinned at a limit
 that the step pushes further frozen and the step re-solved, the step capped, the stall rule.

@@ -1,10 +1,10 @@
 """Compiled inner loops of the batched kinematics: the joint-tree walk and the weighted CoM sum.
 
 Why compiled: a batch of a T-RRT extension is ~40 configurations, and a numpy walk of the joint
-tree spends its time in call overhead, not arithmetic (~300 array operations, ~1 ms per batch
-whatever its size; measured). numba compiles these two loops once per machine (``cache=True``:
-the machine code is kept next to this file, or in numba's user cache when that is read-only),
-after which a batch of 40 costs tens of microseconds.
+tree spends its time in call overhead, not arithmetic (hundreds of array operations per batch
+whatever its size). numba compiles these two loops once per machine (``cache=True``: the machine
+code is kept next to this file, or in numba's user cache when that is read-only), after which a
+batch costs what its arithmetic costs (``benchmarks/bench_stability.py`` prints the rate).
 
 A tree is a :class:`TreeSpec`: slots in parent-before-child order, each a fixed placement in its
 parent slot's frame followed by a one-degree-of-freedom joint driven by one column of the

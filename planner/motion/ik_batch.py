@@ -2,9 +2,9 @@
 in compiled code (:mod:`planner.compiled.ik_kernels`).
 
 Why: the regrasp search weighs every grasp node by the CoM margin it will have, and that margin
-depends on the arm's posture at the grasp, which only IK gives. Solved one by one (pinocchio,
-~0.7 ms per target) that is about a second for the ~1,400 nodes of a paper scenario; batched it
-is a few microseconds per iteration of a target (``benchmarks/bench_motion.py``).
+depends on the arm's posture at the grasp, which only IK gives. Solved one by one (pinocchio) that
+adds up over the ~1,400 nodes of a paper scenario; batched, an iteration of a target is a short
+compiled loop (``benchmarks/bench_motion.py`` prints both rates).
 
 The descent is the first attempt of :class:`planner.motion.ik.IkSolver` (same settings, seed, rest
 posture, step cap, joint-limit handling and stall rule), in world-aligned errors and Jacobians

@@ -14,8 +14,8 @@ the IK's posture) subject to
 - the joint limits.
 
 The held object's CoM does not move while the hands stay put, so only the robot's CoM varies;
-planner/stability gives it and its Jacobian (pinocchio), and SciPy's SLSQP solves the small problem (0.7 ms for a
-posture found on a 2-core machine, an arm and the waist; a refusal runs to the iteration cap).
+planner/stability gives it and its Jacobian (pinocchio), and SciPy's SLSQP solves the small problem (an arm and
+the waist; a refusal runs to the iteration cap; ``benchmarks/bench_stable_posture.py`` prints the times).
 Leg joints are not moved: they hold the stance.
 """
 
@@ -33,9 +33,9 @@ from planner.stability.com import system_com_xy_fixed_object
 from planner.stability.robot_com import robot_com_jacobian
 from planner.stability.support_polygon import SupportPolygon
 
-#: SLSQP iterations at most. The postures found converge in 5-15; one with none runs to the cap, so the cap
-#: sets what a refusal costs (measured on crouched right-left, 1,070 calls: 60 iterations 10.7 ms per refusal,
-#: 25 iterations 4.7 ms with the same 317 postures found, 15 iterations 2.4 ms with 3 fewer found).
+#: SLSQP iterations at most. The postures found converge in far fewer; one with none runs to the cap, so the
+#: cap sets what a refusal costs: low enough to make refusals cheap, high enough to lose no posture found
+#: (``benchmarks/bench_stable_posture.py`` prints the times).
 MAX_ITERATIONS = 25
 #: How close the hands must stay to their poses for the posture to count (m, rad).
 HAND_POS_TOL_M = 1e-4

@@ -306,9 +306,8 @@ class RegraspGraph:
 
         For analysis, drawing and export, and as the reference the compiled search is tested
         against (networkx's Dijkstra on this graph finds the same cost). The search itself runs on
-        the flat arrays: measured on the built-in graphs (``benchmarks/bench_graph.py``),
-        networkx takes 20-40x longer per search, 10-13 ms on a dual-arm graph of ~18,000 edges,
-        which a lazy search repeating it a few hundred times would turn into seconds.
+        the flat arrays: networkx takes far longer per search (``benchmarks/bench_graph.py`` prints
+        both), which a lazy search repeating it a few hundred times would turn into seconds.
         """
         import networkx as nx
 
@@ -403,8 +402,7 @@ class RegraspGraph:
                         weight_changed |= self._apply_margin_cost(node, v.margin_m)
                 v = node_cache[node]
                 if not v.ok:
-                    # Stop at the first invalid node: the rest of this path may never be needed
-                    # (measured: a third of the validations were of nodes after a failed one).
+                    # Stop at the first invalid node: the rest of this path may never be needed.
                     failures[v.cause or FailureCause.IK] += 1
                     self.remove_node(node)
                     bad = True

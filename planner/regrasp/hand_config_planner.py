@@ -245,7 +245,7 @@ class HandConfigPlanner:
         """Plan a candidate path's motions in this process and a forked helper at once
         (:func:`planner.regrasp.fork_share.share_with_child`), longest first so that neither process is left
         with a long one at the end: a hop into a handover whose own motions are not planned yet (it
-        plans them too: two T-RRT motions, measured 1.3 s of upright left-right's 2.1 s), then the
+        plans them too: two T-RRT motions, most of a dual-arm path's motion time), then the
         transits (T-RRT around the table), then the rest. Each hop draws from its own generator, so
         the verdicts are those the search would get one by one; a hop after a failing one is planned
         for nothing, and kept for later paths."""
@@ -348,8 +348,8 @@ class HandConfigPlanner:
         of the task validated, the grasps whose probe found the held object unstable, the handovers whose
         giver the probe found unstable or colliding (:meth:`validate_node` returns their verdict without
         new IK). The search would remove each only when it lay on the cheapest path, one search per
-        node: measured on crouched left-right, which has no valid handover, 400 searches (the iteration
-        cap) before it gave up. Counted like the screening's failures."""
+        node, and a configuration with no valid handover would reach the iteration cap before it gave up.
+        Counted like the screening's failures."""
         t = self.task
         for node in list(graph.nodes()):
             if not isinstance(node, (PlacementNode, HandoverNode)):  # hubs, source and sink

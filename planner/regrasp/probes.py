@@ -32,8 +32,7 @@ def probe_grasps(task: Task, data: SearchData, nodes: list[PlacementNode]) -> di
     The search weighs nodes by these margins before validating any: they bound a node's validated
     margin from above (its lift starts from this very state), so the cheapest path stays the
     cheapest once validated far more often than with the home-posture guess, and the search
-    validates a few nodes where it validated every grasp of the start and goal placements
-    (measured on the upright survey: 100 placement validations for left-left, 18 with the probes).
+    validates a few nodes where it validated every grasp of the start and goal placements.
     """
     todo = [n for n in dict.fromkeys(nodes) if n not in data.grasp_probes]
     for side in ("left", "right"):
@@ -52,9 +51,9 @@ def probe_grasps_with_waist(task: Task, data: SearchData, side: Side) -> None:
     margin and jaw-closing probes; a node's validation starts from the posture found.
 
     Called when a search first validates such a node. Those nodes come last in the search (no
-    margin, the highest cost), so most searches never get there; one that does validates them
-    by the dozen (measured on crouched left-right, which has no key path: 67 of them, 8 ms each
-    one by one, most failing on the margin at the grasp)."""
+    margin, the highest cost), so most searches never get there; one that does (a configuration
+    with no key path) would otherwise validate them by the dozen, one by one, most failing on the
+    margin at the grasp."""
     mine = [n for n, p in data.grasp_probes.items()
             if p.q is None and n.hand == side and n not in data.waist_probed and n not in data.node_cache]
     if not mine:
@@ -107,8 +106,8 @@ def _probe_jaw_closing(task: Task, data: SearchData, side: Side, nodes: list[Pla
     """The node validation's second check, batched over probed nodes: the jaw closing on the resting
     object from the probe's posture (three states, robot alone for the margin, the object where it
     rests for collision, ``side``'s fingers allowed to touch it). A failure is cached as the
-    validation's own verdict. Measured on one-legged left-right: 280 of 430 placement validations
-    failed here, one by one, each after a search."""
+    validation's own verdict: many placement validations fail here, and one by one each would cost
+    a search."""
     if not nodes:
         return
     jaw = task.jaw[side]
@@ -129,8 +128,8 @@ def probe_givers(task: Task, data: SearchData, nodes: list[HandoverNode]) -> Non
     """The giver alone at each handover pose (the search's ``giver_at``), for the (pose, giver grasp) pairs
     of ``nodes`` not known yet, in batches: arm-only IK, margin and collisions holding the object.
 
-    Most handover nodes fail right there (the giver's arm or the object against the body); one
-    by one that was 4-10 ms per pair. Where the arm alone misses (the same two attempts as the
+    Most handover nodes fail right there (the giver's arm or the object against the body), so a
+    batch spares a one-by-one solve per pair. Where the arm alone misses (the same two attempts as the
     one-by-one solve), the node's validation lets the waist help."""
     keys = [k for k in dict.fromkeys((n.pose, n.giver_grasp, n.giver) for n in nodes) if k not in data.giver_at]
     for side in ("left", "right"):

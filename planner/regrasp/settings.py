@@ -43,8 +43,8 @@ class PlannerSettings(BaseModel):
     grasp: GraspSettings = Field(default_factory=GraspSettings)
     ik: IkSettings = Field(default_factory=lambda: IkSettings(restarts=2, max_iterations=60))
     # Larger steps and a stronger goal bias than T-RRT's exploration defaults: between key poses
-    # the trees mostly need to connect, and edges are still checked every 0.02 rad (measured:
-    # 2-5x less motion time on the built-in scenarios).
+    # the trees mostly need to connect, and edges are still checked every 0.02 rad
+    # (benchmarks/bench_motion.py shows what it saves).
     trrt: TrrtSettings = Field(default_factory=lambda: TrrtSettings(max_iterations=300, step_rad=0.6, goal_bias=0.25))
     smoothing: SmoothingSettings = Field(default_factory=SmoothingSettings)
     timing: TimingSettings = Field(default_factory=TimingSettings)
@@ -52,8 +52,8 @@ class PlannerSettings(BaseModel):
     arm_only_restarts: int = Field(1, ge=0, description="random restarts of the arm-only IK attempt")
     motion_attempts: int = Field(
         2, ge=1, description="T-RRT runs per motion before it counts as failed: a run that reaches its round cap is "
-        "one random draw, not proof (measured on crouched, where 80 % of transit extensions hit the table: with one "
-        "run the return home failed on 2 of 20 seeds and took its goal node with it)")
+        "one random draw, not proof: where most transit extensions hit the table, one failed run would "
+        "remove a goal node that a second run reaches")
     parallel_motions: bool = Field(
         True, description="plan the motions of a candidate path's hops in this process and one forked helper at once, "
         "where forking is safe and a second core exists (results are the same either way: each hop draws from its "

@@ -367,8 +367,8 @@ class CollisionWorld:
         hits = np.zeros((P, N), dtype=bool)
         if P == 0:
             return hits
-        # Box screens (each body's box over the whole batch, then per state: measured on T-RRT batches,
-        # 12 % of the pairs pass the first), then the separating-axis test where boxes meet: the
+        # Box screens (each body's box over the whole batch, then per state: most pairs of a T-RRT batch
+        # stop at the first), then the separating-axis test where boxes meet: the
         # candidates are the (pair, state)s whose oriented boxes penetrate deeper than the tolerance.
         kp, ks = screen_pairs(Rw, pw, self._half[: Rw.shape[0]], ia, ib, _SCREEN_SLACK_M - tol, tol,
                               _ENVELOPE_ROUNDING_M)

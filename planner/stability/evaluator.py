@@ -56,7 +56,7 @@ class HoldSpec:
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise ValueError(f"T_obj_tcp must be a finite 4x4 transform, got shape {T.shape}")
         # Orthonormal with determinant 1, to 1e-6. Plain arithmetic: the planner builds one per probed
-        # giver posture (~900 per dual-arm survey), where np.allclose and det cost 0.1 ms each.
+        # giver posture (hundreds per dual-arm survey), where np.allclose and det would dominate.
         R = T[:3, :3]
         (a, b, c), (d, e, f), (g, h, i) = R.tolist()
         det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
