@@ -18,8 +18,8 @@ from experiments.claims import (
 )
 from experiments.runs import PaperSettings, Results
 from experiments.tables import STANCES
-from planner.robot.model import load_robot
-from planner.stability.stances import builtin_stance
+from planner.api.catalogue import builtin_stance
+from planner.api.robots import load_robot
 
 
 

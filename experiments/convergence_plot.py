@@ -16,7 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from planner.survey.estimator import bootstrap_rng, ratio_interval  # noqa: E402
+from planner.api.jobs import bootstrap_rng, ratio_interval  # noqa: E402
 
 from .plots import HANDS_COLOURS  # noqa: E402 - one colour per hand configuration in every plot
 

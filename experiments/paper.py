@@ -29,7 +29,7 @@ from experiments.plots import plot_com_trace
 from experiments.render import render
 from experiments.runs import PaperSettings, Results
 from experiments.tables import DRILL_TASKS, STANCES
-from planner.survey.handovers import handover_diagnosis
+from planner.api.jobs import handover_diagnosis
 
 __all__ = ["PaperSettings", "Results", "run", "run_limits"]
 

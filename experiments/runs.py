@@ -10,9 +10,8 @@ from typing import Any
 import numpy as np
 
 from experiments.tables import PAPER_TABLES
-from planner.jobs.plan_job import PlanOptions, plan_scenario
-from planner.scene.scenarios import resolve_scenario, with_overrides
-from planner.survey.runner import run_survey
+from planner.api.catalogue import resolve_scenario, with_overrides
+from planner.api.jobs import PlanOptions, plan_scenario, run_survey
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from planner.stability.stances import BUILTIN_STANCES as STANCES
+from planner.api.catalogue import BUILTIN_STANCES as STANCES
 
 __all__ = ["DRILL_TASKS", "INCONSISTENCIES", "PAPER_TABLES", "STANCES"]
 
