@@ -21,13 +21,14 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from ..errors import BridgeError
 from .settings import SimSection, TwinSettings, sim_section
 
 #: Sides of the robot, in the order the twin reports them.
 SIDES = ("left", "right")
 
 
-class TwinModelError(ValueError):
+class TwinModelError(BridgeError, ValueError):
     """The robot cannot be built in the twin (names the file or joint)."""
 
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from schemas.plan import plan_sha256
 
+from ..errors import BridgeError
 from ..robot_files import RobotFilesError, robot_files
 from .model import SIDES, TwinModelError, build_twin_model
 from .settings import TwinSettings
@@ -32,7 +33,7 @@ SAMPLE_COLUMNS = ("t", "plan_margin_m", "plan_zmp_x", "plan_zmp_y", "cop_x", "co
 HOLDINGS = ("none", "left", "right", "both")
 
 
-class SimulateInputError(ValueError):
+class SimulateInputError(BridgeError, ValueError):
     """A plan the twin cannot play (one line saying what is wrong)."""
 
 

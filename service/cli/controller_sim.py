@@ -33,8 +33,8 @@ def _stance_posture(robot: str, stance: str) -> tuple[list[str], list[float]]:
 
 def _stance_support(robot: str, stance: str, spec: dict) -> tuple[list[float], dict[str, bool]]:
     """The stance's base pose and which feet carry the robot (the physics plant stands on those soles)."""
-    from planner.robot.model import load_robot
-    from planner.stability.stances import StanceError, solve_stance
+    from planner.api.catalogue import StanceError, solve_stance
+    from planner.api.robots import load_robot
 
     try:
         st = solve_stance(load_robot(robot), stance).result().model_dump()

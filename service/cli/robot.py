@@ -100,9 +100,8 @@ def _pairs(pairs) -> str:  # type: ignore[no-untyped-def]
 
 def _check_model(spec_file: str, plot_path: str | None, progress, posture_given: bool) -> None:  # type: ignore[no-untyped-def]
     """The model-level part of ``robot check``: ready posture, collision matrix, collisions, feet."""
+    from planner.api.robots import load_robot, robot_report
     from planner.errors import InputError
-    from planner.robot.model import load_robot
-    from planner.scene.robot_report import robot_report
 
     progress("loading the model (and the ready posture)")
     try:
@@ -142,7 +141,7 @@ def _check_model(spec_file: str, plot_path: str | None, progress, posture_given:
                       f"mm forward, {1000 * (fp.com[1] - centre[1]):+.1f} mm left of the polygon's centre", highlight=False,
                       soft_wrap=True)
     if plot_path:
-        from service.footprint_plot import plot_footprints
+        from experiments.footprint_plot import plot_footprints
 
         console.print(f"plot {plot_footprints(robot.name, report.footprints, plot_path)}", highlight=False, soft_wrap=True)
 
