@@ -326,7 +326,8 @@ def plan_scenario(
     best, planner = min(solved, key=lambda rp: rp[0].cost)
     t_timing = time.perf_counter()
     dt = task.settings.timing.dt_s
-    timing = PlanTimer(task, task.settings.plan_timing, scenario.speed_scale, zmp_margin_m, dt).time_plan(best.pieces)
+    timing = PlanTimer(task, task.settings.plan_timing, scenario.speed_scale, zmp_margin_m, dt,
+                       checker=data.checker).time_plan(best.pieces)
     stats["timing"] = {**timing.stats, "time_s": time.perf_counter() - t_timing}
     t_asm = time.perf_counter()
     traj = assemble(timing.pieces, task.evaluator, dt, task.placements[task.start_id])

@@ -28,6 +28,7 @@ rest to rest (:mod:`planner.motion.timing`). Here the plan is timed again as it 
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
@@ -46,6 +47,7 @@ from planner.motion.topp import (
     zmp_rows,
 )
 from planner.regrasp.plan_assembly import MotionPiece, object_states
+from planner.regrasp.state_checker import StateChecker
 from planner.stability.com_path import com_path_terms
 from planner.stability.effort import EffortEvaluator
 from planner.stability.evaluator import HoldSpec
@@ -151,8 +153,12 @@ def _waypoints(run: Run) -> tuple[np.ndarray, list[int]]:
 class PlanTimer:
     """Times the runs of one plan for one task."""
 
-    def __init__(self, task, settings: PlanTimingSettings, speed_scale: float, zmp_margin_m: float, dt: float):
+    def __init__(self, task, settings: PlanTimingSettings, speed_scale: float, zmp_margin_m: float, dt: float, *,
+                 checker: StateChecker | None = None):
+        """``checker``: the search's state checker (its counts go to the plan); a fresh one when not given."""
         self.task = task
+        self.checker = checker or StateChecker(task.evaluator, task.world, task.stance.base_pose, task.constrained,
+                                               Counter(), limits=task.limits)
         self.s = settings
         self.speed_scale = float(speed_scale)
         self.zmp_margin_m = float(zmp_margin_m)
@@ -251,7 +257,7 @@ class PlanTimer:
             if not idx.size:
                 continue
             grasping = piece.hand if piece.kind in ("approach", "retreat") and piece.hand in ("left", "right") else None
-            ok, _ = t.checker.validity(run.hold, run.free_object, grasping, active=None)(Q[idx])
+            ok, _ = self.checker.validity(run.hold, run.free_object, grasping, active=None)(Q[idx])
             bad[idx] |= ~ok
         bad_s = [s[bad]]
         if len(Q) >= 2:
@@ -369,7 +375,7 @@ class PlanTimer:
             if piece.path is None or len(piece.path) <= 2 or self.s.shortcut_iterations == 0:
                 out.append(piece)
                 continue
-            validity = t.checker.validity(hold, None if hold is not None else current, None, active=None)
+            validity = self.checker.validity(hold, None if hold is not None else current, None, active=None)
             rng = np.random.default_rng([t.scenario.seed, SHORTCUT_STREAM, k])
             res = shortcut(np.asarray(piece.path, dtype=float), validity, rng, settings, weights=1.0 / self.vlim)
             self.stats["shortened_s"] += res.length_before - res.length_after
