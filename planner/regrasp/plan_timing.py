@@ -155,10 +155,10 @@ class PlanTimer:
 
     def __init__(self, task, settings: PlanTimingSettings, speed_scale: float, zmp_margin_m: float, dt: float, *,
                  checker: StateChecker | None = None):
-        """``checker``: the search's state checker (its counts go to the plan); a fresh one when not given."""
+        """``checker``: the search's state checker (its counts go to the plan); a fresh one, on first use, when
+        not given."""
         self.task = task
-        self.checker = checker or StateChecker(task.evaluator, task.world, task.stance.base_pose, task.constrained,
-                                               Counter(), limits=task.limits)
+        self._checker = checker
         self.s = settings
         self.speed_scale = float(speed_scale)
         self.zmp_margin_m = float(zmp_margin_m)
@@ -171,6 +171,15 @@ class PlanTimer:
         self.stats = {"shortened_s": 0.0, "shortcuts_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0}
 
     # -- constraints ------------------------------------------------------------------------------------------------
+    @property
+    def checker(self) -> StateChecker:
+        """The state checker the timed samples go through."""
+        if self._checker is None:
+            t = self.task
+            self._checker = StateChecker(t.evaluator, t.world, t.stance.base_pose, t.constrained, Counter(),
+                                         limits=t.limits)
+        return self._checker
+
     def _rows(self, run: Run, path: BlendedPath, grid: np.ndarray) -> tuple[list[LinearRows], np.ndarray]:
         P0, P1, P2 = path(grid, 0), path(grid, 1), path(grid, 2)
         t = self.task
