@@ -201,7 +201,7 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci
         for st in stance_list:
             sc = resolve_scenario(ref, stance=st, threshold_m=threshold, seed=seed, survey=overrides)
             if robot_ref is not None:
-                from planner.scene.task_fitting import fit_to_robot
+                from planner.api.catalogue import fit_to_robot
 
                 # a built-in task run with another robot is fitted to it, as `plan` fits it
                 sc = fit_to_robot(sc.model_copy(update={"robot": robot_ref}), robot_ref)
