@@ -10,7 +10,9 @@ How a leg is explored: a tree grows from the leg's start (the pick's lift pose, 
 pose) and, taking turns with it, one from the leg's goal (``bidirectional``, as the planner's
 own T-RRT does: a goal reached only through a narrow approach, such as a handover in front of
 the chest, is found from its side); a share ``goal_bias`` of each tree's samples aims at the
-other tree, at one of its nodes drawn at random (``goal_aim``). Each round steers ``batch_size``
+other tree, at one of its nodes drawn at random (``goal_aim``); the others are drawn near the leg's
+start or goal (``sampler: ends``, the paper's bias towards the path's starting and ending points)
+or, for comparison, uniformly over the joint box (``sampler: box``). Each round steers ``batch_size``
 samples from the trees as they stand; the new poses are evaluated in one batch, then judged one
 by one in a fixed order:
 
@@ -78,6 +80,13 @@ class CountingSettings(BaseModel):
         "cap, and those seeds' R outweighed the rest. Aiming at the tree, the largest of 256 upright seeds counted 892")
     bidirectional: bool = Field(True, description="a second tree grows from the goal; the leg ends when the trees meet")
     step_rad: float = Field(0.3, gt=0, description="largest extension (Euclidean, active joints)")
+    sampler: Literal["ends", "box"] = Field(
+        "ends", description="where the samples that do not aim at the other tree go. ends: the paper's reading (its "
+        "exploration has 'a bias towards the starting and ending points of a given path'): near the leg's start or "
+        "its goal, one of the two drawn at random, each active joint within +-ends_spread_rad of it (clipped to the "
+        "limits); box: uniform over the whole box of the waist and the holding arm's joint limits")
+    ends_spread_rad: float = Field(0.3, gt=0, description="half-width of the box around the start or goal the ends "
+                                   "sampler draws from (one step)")
 
 
 @dataclass
@@ -181,6 +190,7 @@ class _Leg:
         self.trees = self.search.trees  # from the start; from the goal (grown when bidirectional)
         self.turn = 0
         self.goal = goal[self.active]
+        self.start = start[self.active]
         self.count = LegCount()
         self.sampled: set[bytes] = set()  # every pose this leg steered to, by its exact values
         self.label = leg.hold.label if leg.hold is not None else "none"
@@ -213,7 +223,7 @@ class _Leg:
             if rng.random() < self.settings.goal_bias:
                 target = self._aim(ti, rng)
             else:
-                target = rng.uniform(s.lo, s.hi)
+                target = self._sample(rng)
             near, dist = tree.nearest(target)
             if dist < 1e-12:
                 continue
@@ -227,6 +237,15 @@ class _Leg:
             self.sampled.add(key)
             out.append((ti, near, new, dist))
         return out
+
+    def _sample(self, rng: np.random.Generator) -> np.ndarray:
+        """A sample that does not aim at the other tree (``CountingSettings.sampler``)."""
+        s = self.search
+        if self.settings.sampler == "box":
+            return rng.uniform(s.lo, s.hi)
+        end = self.start if rng.random() < 0.5 else self.goal
+        spread = self.settings.ends_spread_rad
+        return np.clip(end + rng.uniform(-spread, spread, end.shape), s.lo, s.hi)
 
     def _aim(self, ti: int, rng: np.random.Generator) -> np.ndarray:
         """Where tree ``ti``'s goal-biased sample aims: the goal, or the other tree (its root or a random node)."""

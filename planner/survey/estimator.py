@@ -54,6 +54,10 @@ class Estimator(BaseModel):
     seeds_max: int = Field(256, ge=1, le=10_000)
     states_per_seed: int | None = Field(None, ge=1, le=1_000_000, description="until: states only")
     leg_cap_states: int = Field(20_000, ge=1, le=1_000_000, description="a leg that counted this many poses ends unsolved")
+    key_paths: Literal["stratified"] = Field("stratified", description="stratified: each row explores the planner's "
+                                             "key paths for the key-path seeds 1..key_path_pool, an equal share of seeds "
+                                             "each (planner.survey.key_paths)")
+    key_path_pool: int = Field(8, ge=1, le=64, description="key-path seeds per row")
 
     @model_validator(mode="after")
     def _check(self) -> "Estimator":
@@ -66,7 +70,8 @@ class Estimator(BaseModel):
     def document(self) -> dict[str, Any]:
         """The survey document's ``estimator`` field."""
         doc = {"until": self.until, "ci_half_width": self.ci_half_width, "seeds_min": self.seeds_min,
-               "seeds_max": self.seeds_max, "leg_cap_states": self.leg_cap_states}
+               "seeds_max": self.seeds_max, "leg_cap_states": self.leg_cap_states, "key_paths": self.key_paths,
+               "key_path_pool": self.key_path_pool}
         if self.until == "states":
             doc["states_per_seed"] = self.states_per_seed
         return doc
@@ -120,9 +125,14 @@ class SeedCount:
     states: CountedExploration | None = None
     #: counted poses over an effort or grip limit (None: the limits are off)
     over_limits: int | None = None
+    #: the key path this seed explored (its key-path seed and nodes: planner.survey.key_paths)
+    key_path: dict | None = None
 
     def entry(self) -> dict[str, Any]:
-        return {"seed": self.seed, "stable": self.stable, "unstable": self.unstable, "solved": self.solved}
+        out = {"seed": self.seed, "stable": self.stable, "unstable": self.unstable, "solved": self.solved}
+        if self.key_path is not None:
+            out["key_path"] = self.key_path
+        return out
 
 
 @dataclass
@@ -183,14 +193,28 @@ def explore_seed(legs: list[ExploreLeg], evaluator, hands: str, seed: int, estim
 
 @dataclass
 class RowWork:
-    """What one configuration's seeds need: its legs (None with the reason when it has none)."""
+    """What one configuration's seeds need: its pool of key paths' legs (None with the reason when it has
+    none); seed ``base + j`` explores pool member ``j mod len(legs)`` (planner.survey.key_paths)."""
 
     hands: str
-    legs: list[ExploreLeg] | None
+    legs: list[list[ExploreLeg]] | None
     reason: str | None = None
     stats: dict = field(default_factory=dict)
     counts: list[SeedCount] = field(default_factory=list)
     verdict: Judgement | None = None
+    #: what each pool member's per-seed entry names (its key-path seed and nodes), in pool order
+    key_paths: list[dict] = field(default_factory=list)
+
+    def member(self, seed: int, base: int) -> int:
+        """The pool member survey seed ``seed`` explores (seeds counted from ``base``)."""
+        return (int(seed) - int(base)) % len(self.legs)
+
+    def explore(self, evaluator, seed: int, base: int, estimator: "Estimator", **kw: Any) -> SeedCount:
+        """Survey seed ``seed`` on its pool member's legs: a pure function of (row, seed)."""
+        k = self.member(seed, base)
+        count = explore_seed(self.legs[k], evaluator, self.hands, seed, estimator, **kw)
+        count.key_path = self.key_paths[k] if k < len(self.key_paths) else None
+        return count
 
 
 def run_rows(rows: list[RowWork], evaluator, estimator: Estimator, seed: int, *, workers: int = 1,
@@ -228,8 +252,8 @@ def run_rows(rows: list[RowWork], evaluator, estimator: Estimator, seed: int, *,
                 if should_stop():
                     raise Canceled()
                 sd = seed + len(r.counts)
-                r.counts.append(explore_seed(r.legs, evaluator, r.hands, sd, estimator, settings=settings, trrt=trrt,
-                                             should_stop=should_stop, keep_states=keep_states))
+                r.counts.append(r.explore(evaluator, sd, seed, estimator, settings=settings, trrt=trrt,
+                                          should_stop=should_stop, keep_states=keep_states))
                 if r.counts[-1].status == "canceled":
                     raise Canceled()
                 done = settle(r)
@@ -239,8 +263,7 @@ def run_rows(rows: list[RowWork], evaluator, estimator: Estimator, seed: int, *,
     by_hands = {r.hands: r for r in live}
 
     def in_process(hands: str, sd: int, keep: bool) -> SeedCount:
-        return explore_seed(by_hands[hands].legs, evaluator, hands, sd, estimator, settings=settings, trrt=trrt,
-                            keep_states=keep)
+        return by_hands[hands].explore(evaluator, sd, seed, estimator, settings=settings, trrt=trrt, keep_states=keep)
 
     seed_map = seed_map or ForkedSeeds(workers)
     session = seed_map.open(seed_fn or in_process)

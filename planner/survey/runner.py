@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import os
 import time
+from concurrent.futures import wait
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
 
+from planner.errors import Canceled
 from planner.forking import pool_may_fork
 from planner.motion.trrt import TrrtSettings
 from planner.regrasp.graph import HandoverNode, PlacementNode, RegraspGraph, Validation
@@ -30,8 +32,9 @@ from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
 from planner.survey import limits as survey_limits
 from planner.survey.counting import CountingSettings, ExploreLeg
-from planner.survey.estimator import Estimator, RowWork, SeedCount, explore_seed, run_rows
-from planner.survey.seed_map import SeedMap
+from planner.survey.estimator import Estimator, RowWork, SeedCount, run_rows
+from planner.survey.key_paths import KeyPathDraw, node_id, pool_seeds, task_for_seed
+from planner.survey.seed_map import ForkedSeeds, SeedMap
 from planner.termination import Termination
 from schemas.common import HAND_CONFIGS
 from schemas.scenario import Scenario
@@ -109,6 +112,13 @@ def _node_label(n) -> str:
     return f"handover pose {n.pose} grasps {n.giver_grasp}->{n.taker_grasp}"
 
 
+def _node_label_of(ids: dict) -> str:
+    """:func:`_node_label` of a node given by its ids (:func:`planner.survey.key_paths.node_id`)."""
+    if "placement" in ids:
+        return f"placement {ids['placement']} grasp {ids['grasp']} {ids['hand']}"
+    return f"handover pose {ids['handover_pose']} grasps {ids['giver_grasp']}->{ids['taker_grasp']}"
+
+
 #: The configurations that pick and place with the same hand.
 SINGLE_ARM = tuple(h for h, (pick, place) in HANDS_OF.items() if pick == place)
 
@@ -140,12 +150,15 @@ class RemoteSeeds:
     scenario and the legs (not the built task) and builds the task once per worker process that runs it."""
 
     def __init__(self, task: Task, rows: list[RowWork], estimator: Estimator, counting: CountingSettings | None,
-                 trrt: TrrtSettings, threshold_m: float) -> None:
+                 trrt: TrrtSettings, threshold_m: float, base_seed: int) -> None:
         self.scenario, self.settings = task.scenario, task.settings
         self.task_threshold_m, self.threshold_m, self.seed = task.threshold_m, threshold_m, task.seed
-        self.legs = {r.hands: [ExploreLeg(g.start, g.goal, g.hold, g.active) for g in r.legs] for r in rows if r.legs}
+        self.base_seed = base_seed
+        self.rows = {r.hands: RowWork(r.hands, [[ExploreLeg(g.start, g.goal, g.hold, g.active) for g in member]
+                                                for member in r.legs], key_paths=list(r.key_paths))
+                     for r in rows if r.legs}
         self.estimator, self.counting, self.trrt = estimator, counting, trrt
-        self._built: tuple[Any, dict[str, list[ExploreLeg]]] | None = None
+        self._built: tuple[Any, dict[str, RowWork]] | None = None
 
     def __getstate__(self) -> dict[str, Any]:
         return dict(self.__dict__, _built=None)
@@ -154,25 +167,78 @@ class RemoteSeeds:
         if self._built is None:
             task = Task(self.scenario, self.settings, threshold_m=self.task_threshold_m, seed=self.seed)
             evaluator = survey_limits.limited(task, task.evaluator.with_threshold(self.threshold_m))
-            self._built = evaluator, {h: [_leg_collisions(task, g) for g in legs] for h, legs in self.legs.items()}
-        evaluator, legs = self._built
-        return explore_seed(legs[hands], evaluator, hands, seed, self.estimator, settings=self.counting,
-                            trrt=self.trrt, keep_states=keep_states)
+            self._built = evaluator, {h: RowWork(h, [[_leg_collisions(task, g) for g in member] for member in r.legs],
+                                                 key_paths=r.key_paths) for h, r in self.rows.items()}
+        evaluator, rows = self._built
+        return rows[hands].explore(evaluator, seed, self.base_seed, self.estimator, settings=self.counting,
+                                   trrt=self.trrt, keep_states=keep_states)
 
 
-def _row_work(task: Task, data: SearchData, hands: str, should_stop: Callable[[], bool]) -> RowWork:
-    """A configuration's legs (from its key-pose path), with this task's collision checks."""
+def draw_key_path(task: Task, data: SearchData, hands: str, kp_seed: int,
+                  should_stop: Callable[[], bool] = lambda: False) -> KeyPathDraw:
+    """The planner's key path for ``hands`` with ``task`` (seeded ``kp_seed``: :func:`task_for_seed`) and its
+    search's scratch ``data``, and the legs it carries the object on."""
     t0 = time.perf_counter()
     planner = HandConfigPlanner(task, hands, key_pose_termination(task, should_stop), data=data)
     path, reason = key_path(planner)
-    stats = {"key_poses_s": time.perf_counter() - t0}
     if path is None:
-        return RowWork(hands, None, f"no feasible grasp or key poses: {reason}", stats)
-    legs = [_leg_collisions(task, leg) for leg in _legs(planner, path)]
-    if not legs:
-        return RowWork(hands, None, "the key-pose path carries the object nowhere", stats)
-    stats["path"] = [_node_label(n) for n in path]
-    return RowWork(hands, legs, None, stats)
+        return KeyPathDraw(hands, kp_seed, None, reason=f"no feasible grasp or key poses: {reason}",
+                           time_s=time.perf_counter() - t0)
+    legs = [ExploreLeg(g.start, g.goal, g.hold, g.active) for g in _legs(planner, path)]
+    return KeyPathDraw(hands, kp_seed, [node_id(n) for n in path], legs,
+                       None if legs else "the key-pose path carries the object nowhere", time.perf_counter() - t0)
+
+
+def draw_seed(task: Task, configs: list[str], kp_seed: int, should_stop: Callable[[], bool] = lambda: False,
+              data: SearchData | None = None) -> dict[str, KeyPathDraw]:
+    """The planner's key path of each configuration at one key-path seed: a pure function of (task, configurations,
+    key-path seed). As a plan's search does, the configurations share one search scratch (``data``, the run's
+    own at the task's seed, else a fresh one), single-arm ones first (a dual-arm one then finds both hands'
+    grasps probed)."""
+    t = task_for_seed(task, kp_seed)
+    d = data if data is not None and t is task else SearchData(t)
+    order = sorted(configs, key=lambda h: (h not in SINGLE_ARM, configs.index(h)))
+    return {h: draw_key_path(t, d, h, kp_seed, should_stop) for h in order}
+
+
+def draw_pools(task: Task, configs: list[str], estimator: Estimator, *, workers: int, can_fork: bool,
+               should_stop: Callable[[], bool], data: SearchData | None = None) -> dict[str, list[KeyPathDraw]]:
+    """Every row's pool of key paths (:mod:`planner.survey.key_paths`), one key-path seed per job, in forked
+    workers where forking is safe; the draws are the same either way."""
+    seeds = pool_seeds(estimator.key_path_pool)
+    by_seed: dict[int, dict[str, KeyPathDraw]] = {}
+    if workers > 1 and can_fork and len(seeds) > 1:
+        session = ForkedSeeds(min(workers, len(seeds))).open(lambda _hands, kp_seed, _keep: draw_seed(task, configs, kp_seed))
+        canceled = True
+        try:
+            futures = {session.submit("", k, False): k for k in seeds}
+            for f, k in futures.items():
+                while not f.done():
+                    if should_stop():
+                        raise Canceled()
+                    wait([f], timeout=0.2)
+                by_seed[k] = f.result()
+            canceled = False
+        finally:
+            session.close(cancel=canceled)
+    else:
+        for k in seeds:
+            if should_stop():
+                raise Canceled()
+            by_seed[k] = draw_seed(task, configs, k, should_stop, data)
+    return {h: [by_seed[k][h] for k in seeds] for h in configs}
+
+
+def _row_work(task: Task, hands: str, pool: list[KeyPathDraw]) -> RowWork:
+    """A configuration's pool of legs (the draws that found a key path), with this task's collision checks."""
+    found = [d for d in pool if d.ok]
+    stats = {"key_poses_s": sum(d.time_s for d in pool), "key_path_seeds": [d.seed for d in pool],
+             "key_paths_found": len(found), "distinct_key_paths": len({repr(d.nodes) for d in found})}
+    if not found:
+        return RowWork(hands, None, pool[0].reason if pool else "no key path drawn", stats)
+    stats["path"] = [_node_label_of(n) for n in found[0].nodes]
+    legs = [[_leg_collisions(task, g) for g in d.legs] for d in found]
+    return RowWork(hands, legs, None, stats, key_paths=[d.label() for d in found])
 
 
 def _outcome(r: RowWork, estimator: Estimator, keep_states: bool) -> ConfigOutcome:
@@ -252,12 +318,11 @@ def run_survey(
         for r in rows:
             r.verdict = None
     else:
-        progress(0.02, f"key poses of {len(configs)} hand configurations")
-        # Single-arm configurations first: a dual-arm one then finds both hands' grasps probed.
-        order = sorted(range(len(configs)), key=lambda k: (configs[k] not in SINGLE_ARM, k))
-        by_k = {k: _row_work(task, data, configs[k], should_stop) for k in order}
-        rows = [by_k[k] for k in range(len(configs))]
         n_workers = max(1, workers if workers is not None else (os.cpu_count() or 1))
+        progress(0.02, f"key paths of {len(configs)} hand configurations ({est.key_path_pool} key-path seeds each)")
+        pools = draw_pools(task, configs, est, workers=n_workers, can_fork=pool_may_fork(), should_stop=should_stop,
+                           data=data)
+        rows = [_row_work(task, h, pools[h]) for h in configs]
         progress(0.05, f"exploring {len(configs)} hand configurations ({est.until})")
         # A pose over an effort or grip limit counts as unstable (planner.survey.limits).
         trrt = TrrtSettings(margin_cost=task.constrained)
@@ -265,7 +330,7 @@ def run_survey(
                  settings=counting, trrt=trrt, should_stop=should_stop,
                  progress=lambda f, m: progress(0.05 + 0.9 * f, m), keep_states=keep_states,
                  can_fork=pool_may_fork(), seed_map=seed_map,
-                 seed_fn=None if seed_map is None else RemoteSeeds(task, rows, est, counting, trrt, threshold))
+                 seed_fn=None if seed_map is None else RemoteSeeds(task, rows, est, counting, trrt, threshold, first_seed))
     outcomes = [_outcome(r, est, keep_states) for r in rows]
     survey_rows = [SurveyRow(hands=o.hands, stable=o.stable, unstable=o.unstable, ratio=o.ratio, reason=o.reason,
                              ratio_ci95=o.interval, seeds=len(o.per_seed), converged=o.converged, per_seed=o.per_seed,
