@@ -9,6 +9,7 @@ from typing import Any, Callable
 
 from experiments import runs
 from experiments.claims import (
+    NO_REMOVAL_HANDS,
     ORDERINGS,
     judge_all_stable,
     judge_best_stance,
@@ -33,7 +34,7 @@ CAUSES: dict[str, tuple[tuple[str, str, str | None], ...]] = {
     "upright-right-left-least-stable": (
         ("the object's CoM side", "the upright task with the object's CoM mirrored front to back", "mirrored-com"),
         ("the threshold", "the upright task at 30 mm instead of 60 mm", "upright-30mm")),
-    "upright-left-no-removal": (("the threshold", "the left-left plan at 40 mm instead of 60 mm", None),),
+    "upright-left-no-removal": (("the threshold", "the left-left and left-right plans at 40 mm instead of 60 mm", None),),
     "staggered-left-left-most-stable": (
         ("the pelvis placement", "the staggered stance with the pelvis moved so the CoM stands over the centre of the new "
          "polygon (com_over: support-centre)", "staggered-centred"),),
@@ -135,8 +136,10 @@ def _cause_run(res: Results, settings: PaperSettings, cid: str, variant: str | N
                 held, why = judge_all_stable(lighter["rows"])
                 run["sweep"].append({"mass_kg": mass, "verdict": "reproduced" if held else "not reproduced", "evidence": why})
     elif cid == "upright-left-no-removal":
-        run["plan"] = runs.plan_summary(runs.plan("upright", "left-left", 0.04, settings.plan_iterations))
-        ok, ev = judge_no_removal(run["plan"])
+        run["plans"] = {h: runs.plan_summary(runs.plan("upright", h, 0.04, settings.plan_iterations,
+                                                       stable_postures=settings.stable_postures))
+                        for h in NO_REMOVAL_HANDS}
+        ok, ev = judge_no_removal(run["plans"])
     elif cid == "threshold-changes-motion":
         crouched = runs.scenario("crouched", object={"mass_kg": 8.0})
         pair, _, _ = runs.plan_pair(crouched, res.plans["crouched"]["constrained"]["hands"] or "right-right", settings)

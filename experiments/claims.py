@@ -18,7 +18,8 @@ CLAIM_TEXT: dict[str, str] = {
     "upright-left-hand-most-stable": "Upright: the left-hand configurations (left-left, left-right) are more stable than "
                                      "right-right and right-left.",
     "upright-right-left-least-stable": "Upright: right-left is the least stable configuration.",
-    "upright-left-no-removal": "Upright: planning with left-left removed no node for the CoM margin.",
+    "upright-left-no-removal": "Upright: planning with the left hand first (left-left and left-right) removed no node "
+                               "for the CoM margin.",
     "staggered-left-left-most-stable": "Staggered: left-left is the most stable configuration.",
     "staggered-right-hand-endings-least-stable": "Staggered: the configurations ending with the right hand (left-right, "
                                                  "right-right) are less stable than left-left and right-left.",
@@ -41,6 +42,8 @@ ORDERINGS: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
     "one-legged-right-hand-endings-less-stable": ("one-legged", ("left-left", "right-left"), ("right-right", "left-right")),
 }
 
+#: The configurations ``upright-left-no-removal`` names: the left hand first, as the paper states it.
+NO_REMOVAL_HANDS = ("left-left", "left-right")
 #: Lower bound every crouched row must reach.
 ALL_STABLE_BOUND = 0.99
 
@@ -131,12 +134,20 @@ def judge_threshold_motion(plans: dict[str, dict[str, Any]]) -> tuple[bool, str]
     return (not bad), text + (f". The constrained plan fails it in: {', '.join(bad)}" if bad else "")
 
 
-def judge_no_removal(plan: dict[str, Any]) -> tuple[bool, str]:
-    """The left-left plan removed no node for the CoM margin (its failures by cause)."""
-    if plan.get("status") != "solved":
-        return False, f"the left-left plan is {plan.get('status')} ({plan.get('failure')})"
-    removed = int((plan.get("failures") or {}).get("com_margin", 0))
-    return removed == 0, f"left-left plan: {removed} nodes removed for the CoM margin (failures by cause: {plan.get('failures')})"
+def judge_no_removal(plans: dict[str, dict[str, Any]]) -> tuple[bool, str]:
+    """Every named plan (hands -> plan summary: left-left and left-right) solved with no node removed for the
+    CoM margin (their failures by cause)."""
+    fails, text = [], []
+    for hands, plan in plans.items():
+        if plan.get("status") != "solved":
+            fails.append(hands)
+            text.append(f"the {hands} plan is {plan.get('status')} ({plan.get('failure')})")
+            continue
+        removed = int((plan.get("failures") or {}).get("com_margin", 0))
+        if removed:
+            fails.append(hands)
+        text.append(f"{hands} plan: {removed} nodes removed for the CoM margin (failures by cause: {plan.get('failures')})")
+    return not fails, "; ".join(text)
 
 
 def _mm(v: float | None) -> str:
@@ -153,7 +164,7 @@ def evaluate_claims(res: Any) -> list[dict[str, Any]]:
         elif cid == "crouched-all-stable":
             ok, ev = judge_all_stable(res.tables["crouched"]["rows"])
         elif cid == "upright-left-no-removal":
-            ok, ev = judge_no_removal(res.plans["upright-left-left"]["constrained"])
+            ok, ev = judge_no_removal({h: res.plans[f"upright-{h}"]["constrained"] for h in NO_REMOVAL_HANDS})
         elif cid == "threshold-changes-motion":
             ok, ev = judge_threshold_motion({s: res.plans[s] for s in STANCES})
         else:

@@ -7,9 +7,12 @@ the real-robot drill tasks, planning times with and without the constraint, and 
 on each of the paper's claims (:mod:`experiments.claims`). Every claim not reproduced names a
 cause and shows a run that changes that one thing (the pelvis placement, the object's CoM side,
 its mass, the threshold), with the claim judged again on it. The numbers are also written to
-``report.json`` (docs/contract.md section 4b). The tables are reproduced without effort and grip
-limits, as the paper had none; beside them, the same surveys and plans with the limits on show what the
-limits change (left out with ``--no-limits``).
+``report.json`` (docs/contract.md section 4b). The tables and claims run on the paper's planner:
+without effort and grip limits and without stable key postures, as the paper had neither
+(``paper_planner`` in report.json). Beside them, the section *extensions* runs the same surveys
+and plans with the stable key postures on, and the limits section with the limits on (left out
+with ``--no-limits``); a sampler ablation runs the upright table with the exploration's samples
+uniform over the joint box instead of near each leg's start and goal.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import numpy as np
 
 from experiments import runs
 from experiments.causes import run_causes
-from experiments.claims import evaluate_claims
+from experiments.claims import NO_REMOVAL_HANDS, evaluate_claims
 from experiments.convergence_plot import plot_convergence
 from experiments.plots import plot_com_trace
 from experiments.render import render
@@ -31,7 +34,7 @@ from experiments.runs import PaperSettings, Results
 from experiments.tables import DRILL_TASKS, STANCES
 from planner.api.jobs import handover_diagnosis
 
-__all__ = ["PaperSettings", "Results", "run", "run_limits"]
+__all__ = ["PaperSettings", "Results", "run", "run_extensions", "run_limits", "run_sampler_ablation"]
 
 
 def run(out: Path, settings: PaperSettings, progress: Callable[[str], None] = print) -> Results:
@@ -69,12 +72,15 @@ def run(out: Path, settings: PaperSettings, progress: Callable[[str], None] = pr
         plot_com_trace(fig, title=f"{stance} stance, {hands}: CoM at {thr * 1000:.0f} mm vs 0 mm", polygon=polygon,
                        threshold_m=thr, traces=traces)
         res.figures[stance] = fig.name
-    progress("plan: upright, left-left (node removals)")
-    res.plans["upright-left-left"] = {"constrained": runs.plan_summary(runs.plan("upright", "left-left", None, settings.plan_iterations))}
+    for hands in NO_REMOVAL_HANDS:
+        progress(f"plan: upright, {hands} (node removals)")
+        res.plans[f"upright-{hands}"] = {"constrained": runs.plan_summary(
+            runs.plan("upright", hands, None, settings.plan_iterations, stable_postures=settings.stable_postures))}
     # 4. The real-robot tasks at 55 mm.
     for name in DRILL_TASKS:
         progress(f"real-robot task: {name}")
-        doc = runs.plan(name, None, None, settings.plan_iterations, estimator=settings.estimator)
+        doc = runs.plan(name, None, None, settings.plan_iterations, estimator=settings.estimator,
+                        stable_postures=settings.stable_postures)
         res.drills[name] = runs.plan_summary(doc)
         if doc["status"] == "solved":
             fig = out / f"com-trace-{name}.png"
@@ -87,12 +93,56 @@ def run(out: Path, settings: PaperSettings, progress: Callable[[str], None] = pr
                      "upright": handover_diagnosis(runs.scenario("upright"))}
     res.claims = evaluate_claims(res)
     run_causes(res, settings, progress)
+    run_sampler_ablation(res, settings, progress)
+    if settings.extensions_section:
+        run_extensions(res, settings, progress)
     if settings.limits_section:
         run_limits(res, settings, progress)
     res.timings["total_s"] = time.perf_counter() - t_all
     (out / "report.json").write_text(json.dumps(_to_json(res), indent=2, allow_nan=False))
     (out / "report.md").write_text(render(res))
     return res
+
+
+def run_sampler_ablation(res: Results, settings: PaperSettings, progress: Callable[[str], None]) -> None:
+    """What the exploration's sampler changes: the upright table again with samples uniform over the whole joint
+    box (the exploration's former sampler) instead of near each leg's start and goal (the paper's reading)."""
+    t0 = time.perf_counter()
+    progress("sampler ablation: the upright survey with whole-box sampling")
+    box = runs.survey(runs.scenario("upright"), settings, sampler="box")
+    ends = {r["hands"]: r for r in res.tables["upright"]["rows"]}
+    res.sampler_ablation = {
+        "stance": "upright",
+        "rows": [{"hands": r["hands"], "ratio_ends": ends[r["hands"]]["ratio"],
+                  "ratio_ci95_ends": ends[r["hands"]].get("ratio_ci95"), "ratio_box": r["ratio"],
+                  "ratio_ci95_box": r.get("ratio_ci95"), "reason": r.get("reason")} for r in box["rows"]],
+        "recommended_ends": res.tables["upright"]["recommended"], "recommended_box": box["recommended"]}
+    res.timings["sampler_ablation_s"] = time.perf_counter() - t0
+
+
+def run_extensions(res: Results, settings: PaperSettings, progress: Callable[[str], None]) -> None:
+    """What the product's stable key postures change: each table's survey and plan, and the node-removal plans,
+    again with them on (a key pose that fails the margin is replaced by the nearest stable one before it is
+    removed)."""
+    t0 = time.perf_counter()
+    for stance in STANCES:
+        progress(f"extensions: {stance} stance survey and plan with stable key postures")
+        with_sp = runs.survey(runs.scenario(stance), settings, stable_postures=True)
+        hands = res.tables[stance]["recommended"] or "right-right"
+        plan = runs.plan(stance, hands, None, settings.plan_iterations, stable_postures=True)
+        rows = {r["hands"]: r for r in res.tables[stance]["rows"]}
+        res.extensions[stance] = {
+            "rows": [{"hands": r["hands"], "ratio_without": rows.get(r["hands"], {}).get("ratio"),
+                      "ratio_ci95_without": rows.get(r["hands"], {}).get("ratio_ci95"),
+                      "ratio_with": r["ratio"], "ratio_ci95_with": r.get("ratio_ci95"), "reason_with": r.get("reason")}
+                     for r in with_sp["rows"]],
+            "recommended_without": res.tables[stance]["recommended"], "recommended_with": with_sp["recommended"],
+            "plan": {"hands": hands, "without": res.plans[stance]["constrained"], "with": runs.plan_summary(plan)}}
+    res.extensions["node_removals"] = {
+        hands: {"without": res.plans[f"upright-{hands}"]["constrained"],
+                "with": runs.plan_summary(runs.plan("upright", hands, None, settings.plan_iterations, stable_postures=True))}
+        for hands in NO_REMOVAL_HANDS}
+    res.timings["extensions_s"] = time.perf_counter() - t0
 
 
 def run_limits(res: Results, settings: PaperSettings, progress: Callable[[str], None]) -> None:
@@ -102,7 +152,7 @@ def run_limits(res: Results, settings: PaperSettings, progress: Callable[[str], 
         progress(f"limits: {stance} stance survey and plan with effort and grip checked")
         with_limits = runs.survey(runs.scenario(stance), settings, no_limits=False)
         hands = res.tables[stance]["recommended"] or "right-right"
-        plan = runs.plan(stance, hands, None, settings.plan_iterations, limits=True)
+        plan = runs.plan(stance, hands, None, settings.plan_iterations, limits=True, stable_postures=settings.stable_postures)
         rows = {r["hands"]: r for r in res.tables[stance]["rows"]}
         res.limits[stance] = {
             "rows": [{"hands": r["hands"], "ratio_without": rows.get(r["hands"], {}).get("ratio"),
@@ -121,8 +171,10 @@ def _table_json(t: dict[str, Any]) -> dict[str, Any]:
 
 
 def _to_json(res: Results) -> dict[str, Any]:
-    return {"settings": res.settings.document(), "tables": {s: _table_json(t) for s, t in res.tables.items()},
+    return {"settings": res.settings.document(), "paper_planner": res.settings.paper_planner(), "tables": {s: _table_json(t) for s, t in res.tables.items()},
             "comparison": {s: _table_json(t) for s, t in res.comparison.items()}, "plans": res.plans,
             "drills": res.drills, "handovers": res.handovers, "claims": res.claims,
             "limits": {"reproduction": "off (--no-limits): the paper had none", "with_limits": res.limits},
+            "extensions": {"stable_postures": res.extensions, "limits": res.limits},
+            "sampler_ablation": res.sampler_ablation,
             "timings": res.timings, "figures": res.figures}

@@ -36,9 +36,14 @@ def render(res: Results) -> str:
         "- Model: the project's HRP-5P-like robot (1.82 m, 101 kg, 37 DoF).",
         f"- Survey estimator: {budget}; R is pooled over the seeds and its 95 % interval is the percentile bootstrap "
         "over seeds. A claim is reproduced only when the orderings it names hold between intervals that do not overlap.",
-        "- Tables, comparison and plans without effort and grip limits, as the paper had none; the section "
-        "*What the limits change* runs the same surveys and plans with them on"
-        + ("." if res.limits else " (left out of this run: `--no-limits`)."),
+        "- The paper's planner: tables, comparison, plans and claims without effort and grip limits and without "
+        "stable key postures, as the paper had neither (`paper_planner` in report.json: "
+        f"{res.settings.paper_planner()}). The section *Extensions* runs the same surveys and plans with the stable "
+        "postures on" + ("" if res.extensions else " (left out of this run)") + "; *What the limits change* with the "
+        "limits on" + ("." if res.limits else " (left out of this run: `--no-limits`)."),
+        "- Each row explores the planner's key paths for the key-path seeds 1 to "
+        f"{(res.tables.get('upright') or {}).get('estimator', {}).get('key_path_pool', 'n')} (the same for every base "
+        "seed), an equal share of seeds each, so R is the task's and not one key path's (docs/survey.md).",
         f"- Total run time: {res.timings.get('total_s', 0):.1f} s.", "",
         "## Tables I-IV: stability per hand configuration", "",
     ]
@@ -118,6 +123,47 @@ def render(res: Results) -> str:
                                          "reason": row["reason_with"]})
                 lines.append(f"| {stance if k == 0 else ''} | {row['hands']} | {_fmt(row['ratio_without'])} | {with_cell} | "
                              f"{row['over_limits'] if row['over_limits'] is not None else 'n/a'} | {verdict if k == 0 else ''} |")
+    if res.sampler_ablation:
+        ab = res.sampler_ablation
+        lines += ["", "## Sampler ablation (the upright table)", "",
+                  "The exploration's samples that do not aim at the other tree: near each leg's start or goal (the "
+                  "paper's bias towards the path's starting and ending points; the tables above) against uniform over "
+                  "the whole box of the waist and the holding arm (the former sampler).", "",
+                  "| hand configuration | R near the ends [95 %] | R whole box [95 %] |", "|---|---|---|"]
+        for row in ab["rows"]:
+            ends = _ratio_cell({"ratio": row["ratio_ends"], "ratio_ci95": row["ratio_ci95_ends"], "reason": row["reason"]})
+            box = _ratio_cell({"ratio": row["ratio_box"], "ratio_ci95": row["ratio_ci95_box"], "reason": row["reason"]})
+            lines.append(f"| {row['hands']} | {ends} | {box} |")
+        lines += ["", f"Recommended: {ab['recommended_ends']} near the ends, {ab['recommended_box']} over the whole box."]
+    if res.extensions:
+        lines += ["", "## Extensions: what the stable key postures change", "",
+                  "The product replaces a key posture that fails the margin by the nearest one with the hands in place "
+                  "that keeps it, before removing it (docs/motion.md, *Stable key postures*); the paper's planner "
+                  "removes it. The tables' surveys and plans again with them on:", "",
+                  "| stance | hand configuration | R paper's planner [95 %] | R with stable postures [95 %] | plan |",
+                  "|---|---|---|---|---|"]
+        for stance in STANCES:
+            ext = res.extensions.get(stance)
+            if not ext:
+                continue
+            p = ext["plan"]
+            verdict = (f"{p['hands']}: {p['without']['status']} -> {p['with']['status']}, nodes removed for the margin "
+                       f"{(p['without'].get('failures') or {}).get('com_margin', 0)} -> "
+                       f"{(p['with'].get('failures') or {}).get('com_margin', 0)}")
+            for k, row in enumerate(ext["rows"]):
+                without = _ratio_cell({"ratio": row["ratio_without"], "ratio_ci95": row["ratio_ci95_without"]})
+                with_ = _ratio_cell({"ratio": row["ratio_with"], "ratio_ci95": row["ratio_ci95_with"],
+                                     "reason": row["reason_with"]})
+                lines.append(f"| {stance if k == 0 else ''} | {row['hands']} | {without} | {with_} | "
+                             f"{verdict if k == 0 else ''} |")
+        removals = res.extensions.get("node_removals") or {}
+        if removals:
+            lines += ["", "Nodes removed for the CoM margin by the upright plans `upright-left-no-removal` judges:", "",
+                      "| hands | paper's planner | with stable postures |", "|---|---|---|"]
+            for hands, pair in removals.items():
+                lines.append(f"| {hands} | {(pair['without'].get('failures') or {}).get('com_margin', 0)} "
+                             f"({pair['without']['status']}) | {(pair['with'].get('failures') or {}).get('com_margin', 0)} "
+                             f"({pair['with']['status']}) |")
     lines += ["", "## Where we agree and where we differ", ""]
     for c in res.claims:
         lines.append(f"- **{c['verdict']}** (`{c['id']}`): {c['text']} Evidence: {c['evidence']}.")

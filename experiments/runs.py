@@ -11,12 +11,12 @@ import numpy as np
 
 from experiments.tables import PAPER_TABLES
 from planner.api.catalogue import resolve_scenario, with_overrides
-from planner.api.jobs import PlanOptions, plan_scenario, run_survey
+from planner.api.jobs import CountingSettings, PlannerSettings, PlanOptions, plan_scenario, run_survey
 
 
 @dataclass(frozen=True)
 class PaperSettings:
-    """Sample sizes: the survey estimator of the tables, the plans' iteration cap."""
+    """Sample sizes: the survey estimator of the tables, the plans' iteration cap; the planner the paper's runs use."""
 
     estimator: dict[str, Any]
     plan_iterations: int
@@ -26,6 +26,11 @@ class PaperSettings:
     quick: bool = False
     #: beside the reproduction, the tables' surveys and the stances' plans again with the limits on
     limits_section: bool = True
+    #: beside the reproduction, the tables' surveys and plans again with the stable key postures on
+    extensions_section: bool = True
+    #: the reproduction's key postures as the paper's planner has them: a key pose that fails the margin is removed,
+    #: never replaced by a stable posture (the section *extensions* shows what the stable postures change)
+    stable_postures: bool = False
     #: where the surveys' seeds run (a planner.survey.seed_map.SeedMap, e.g. a Ray cluster's); None: on this machine
     seed_map: Any = field(default=None, compare=False, repr=False)
 
@@ -37,13 +42,18 @@ class PaperSettings:
 
     @classmethod
     def quick_run(cls) -> "PaperSettings":
-        return cls(estimator={"until": "states", "states_per_seed": 150, "seeds_min": 3, "seeds_max": 3,
-                              "leg_cap_states": 150}, plan_iterations=300, quick=True)
+        return cls(estimator={"until": "states", "states_per_seed": 150, "seeds_min": 4, "seeds_max": 4,
+                              "leg_cap_states": 150, "key_path_pool": 2}, plan_iterations=300, quick=True)
 
     def document(self) -> dict[str, Any]:
         return {"estimator": dict(self.estimator), "plan_iterations": self.plan_iterations, "workers": self.workers,
                 "no_limits": self.no_limits, "quick": self.quick,
-                "limits_section": self.limits_section}
+                "limits_section": self.limits_section, "extensions_section": self.extensions_section,
+                "stable_postures": self.stable_postures}
+
+    def paper_planner(self) -> dict[str, bool]:
+        """What the reproduction's planner has of the product's extensions (report.json ``paper_planner``)."""
+        return {"limits": not self.no_limits, "stable_postures": self.stable_postures}
 
 
 @dataclass
@@ -59,26 +69,32 @@ class Results:
     cause_runs: dict[str, Any] = field(default_factory=dict)
     handovers: dict[str, Any] = field(default_factory=dict)
     limits: dict[str, Any] = field(default_factory=dict)
+    #: what the stable key postures change: the tables' surveys and plans again with them on
+    extensions: dict[str, Any] = field(default_factory=dict)
+    #: the exploration's sampler: the upright table again with the whole-box sampler
+    sampler_ablation: dict[str, Any] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     figures: dict[str, str] = field(default_factory=dict)
 
 
 def scenario(name: str, stance: Any = None, **changes: Any):
-
     sc = resolve_scenario(name, stance=stance)
     if changes.get("object"):
         sc = sc.model_copy(update={"object": sc.object.model_copy(update=changes.pop("object"))})
     return sc.model_copy(update=changes) if changes else sc
 
 
-def survey(sc, settings: PaperSettings, no_limits: bool | None = None) -> dict[str, Any]:
-    """A survey with the report's estimator: its rows (docs/contract.md section 4) and what it ran with
-    (without the limits unless ``no_limits`` is False)."""
-
+def survey(sc, settings: PaperSettings, no_limits: bool | None = None, stable_postures: bool | None = None,
+           sampler: str | None = None) -> dict[str, Any]:
+    """A survey with the report's estimator: its rows (docs/contract.md section 4) and what it ran with. On the
+    paper's planner (without the limits and the stable key postures) unless ``no_limits`` is False or
+    ``stable_postures`` True; ``sampler`` changes the exploration's sampler (the ablation)."""
     t0 = time.perf_counter()
     sc = with_overrides(sc, survey=settings.estimator)
-    doc, _ = run_survey(sc, workers=settings.workers, keep_states=False, seed_map=settings.seed_map,
-                        no_limits=settings.no_limits if no_limits is None else no_limits)
+    planner = PlannerSettings(stable_postures=settings.stable_postures if stable_postures is None else stable_postures)
+    doc, _ = run_survey(sc, workers=settings.workers, keep_states=False, seed_map=settings.seed_map, settings=planner,
+                        no_limits=settings.no_limits if no_limits is None else no_limits,
+                        counting=None if sampler is None else CountingSettings(sampler=sampler))
     return {"rows": doc["rows"], "recommended": doc["recommended"], "indistinguishable": doc["indistinguishable"],
             "estimator": doc["estimator"], "seed": doc["seed"], "threshold_m": doc["threshold_m"], "object": doc["object"],
             "stance": doc["stance"]["name"], "time_s": time.perf_counter() - t0, "doc": doc}
@@ -91,16 +107,17 @@ def table(stance: str, settings: PaperSettings) -> dict[str, Any]:
 
 
 def plan(scenario: Any, hands: str | None, threshold_m: float | None, iterations: int, stance: str | None = None,
-          estimator: dict[str, Any] | None = None, limits: bool = False) -> dict[str, Any]:
+         estimator: dict[str, Any] | None = None, limits: bool = False, stable_postures: bool = False) -> dict[str, Any]:
     """A plan of a scenario (a name or a Scenario); ``hands: auto`` surveys with ``estimator`` (the report's).
-    Without effort and grip limits, as the paper, unless ``limits``."""
-
+    On the paper's planner (without effort and grip limits, without stable key postures) unless ``limits`` or
+    ``stable_postures``."""
     sc = scenario if not isinstance(scenario, str) else resolve_scenario(scenario, stance=stance)
     if estimator:
         sc = with_overrides(sc, survey=estimator)
     sc = sc.model_copy(update={"limits": sc.limits.model_copy(update={"max_iterations": iterations})})
     t0 = time.perf_counter()
-    doc = plan_scenario(sc, PlanOptions(hands=hands, threshold_m=threshold_m, limits=limits))
+    doc = plan_scenario(sc, PlanOptions(hands=hands, threshold_m=threshold_m, limits=limits),
+                        settings=PlannerSettings(stable_postures=stable_postures))
     doc.setdefault("stats", {})["wall_s"] = time.perf_counter() - t0
     return doc
 
@@ -119,8 +136,8 @@ def plan_summary(doc: dict) -> dict[str, Any]:
 
 
 def plan_pair(scenario: Any, hands: str, settings: PaperSettings, threshold_m: float | None = None) -> tuple[dict, dict, dict]:
-    constrained = plan(scenario, hands, threshold_m, settings.plan_iterations)
-    free = plan(scenario, hands, 0.0, settings.plan_iterations)
+    constrained = plan(scenario, hands, threshold_m, settings.plan_iterations, stable_postures=settings.stable_postures)
+    free = plan(scenario, hands, 0.0, settings.plan_iterations, stable_postures=settings.stable_postures)
     differ = (constrained["status"] == "solved" and free["status"] == "solved"
               and [p["q"] for p in constrained["trajectory"]] != [p["q"] for p in free["trajectory"]])
     thr = constrained["threshold_m"]

@@ -106,6 +106,9 @@ class SurveySettings(StrictModel):
     seeds_max: int = Field(256, ge=1, le=10_000)
     states_per_seed: int | None = Field(None, ge=1, le=1_000_000, description="until: states: states counted per seed")
     leg_cap_states: int = Field(20_000, ge=1, le=1_000_000, description="a leg that counted this many states ends unsolved")
+    key_paths: Literal["stratified"] = Field("stratified", description="each row explores the planner's key paths for "
+                                             "the key-path seeds 1..key_path_pool, an equal share of seeds each")
+    key_path_pool: int = Field(8, ge=1, le=64, description="key-path seeds per row (docs/survey.md, Key paths)")
     states_per_configuration: int | None = Field(None, ge=1, le=1_000_000,
                                                  description="the regrasp.survey/1 field: read as until: states with "
                                                  "this many states per seed")

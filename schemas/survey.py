@@ -70,3 +70,20 @@ def indistinguishable(rows: list[SurveyRow], best: HandConfig | None) -> list[Ha
     top = next(r for r in rows if r.hands == best)
     out = [r.hands for r in rows if r.hands != best and r.ratio is not None and overlaps(r.ratio_ci95, top.ratio_ci95)]
     return sorted(out, key=TIE_ORDER.index)
+
+
+def recommendation_text(doc: dict[str, Any]) -> str:
+    """One line for a person: the recommended configuration with its R, 95 % interval and seeds, and its ties."""
+    best = doc.get("recommended")
+    if best is None:
+        return "no hand configuration has a ratio"
+    row = next((r for r in doc.get("rows") or [] if r["hands"] == best), {})
+    ci = row.get("ratio_ci95")
+    text = (f"{best}: R = {row.get('ratio'):.3f}" + (f" [{ci[0]:.3f}, {ci[1]:.3f}]" if ci else "")
+            + f" over {row.get('seeds')} seeds")
+    ties = list(doc.get("indistinguishable") or [])
+    if ties:
+        text += "; a tie with " + ", ".join(
+            f"{r['hands']} {r['ratio']:.3f}" + (f" [{r['ratio_ci95'][0]:.3f}, {r['ratio_ci95'][1]:.3f}]" if r.get("ratio_ci95") else "")
+            for r in doc.get("rows") or [] if r["hands"] in ties)
+    return text

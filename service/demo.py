@@ -31,6 +31,8 @@ from typing import Any, Callable, Literal
 
 from pydantic import BaseModel, Field
 
+from schemas.survey import recommendation_text
+
 #: Measured joint states the demo asks the bridge for per second of motion (CONTRACT 7: at least 50 kept; the
 #: bridge loop ticks every 5 ms, so a period of 1/70 s gives about 66).
 MEASURED_STATES_PER_MOTION_S = 70.0
@@ -234,7 +236,11 @@ def _run_demo(out: Path, settings: DemoSettings, say: Narrator) -> DemoResult:
         result.summary["robot"] = survey["robot"]["name"]
         result.summary["survey"] = {r["hands"]: r["ratio"] for r in survey["rows"]}
         result.summary["recommended"] = hands
-        result.steps.append(("survey", f"recommended {hands}"))
+        # The interval, the seeds and the ties, as the survey gives them (one recommendation per task).
+        result.summary["survey_intervals"] = {r["hands"]: {"ratio": r["ratio"], "ratio_ci95": r.get("ratio_ci95"),
+                                                           "seeds": r.get("seeds")} for r in survey["rows"]}
+        result.summary["survey_ties"] = list(survey.get("indistinguishable") or [])
+        result.steps.append(("survey", f"recommended {recommendation_text(survey)}"))
 
         say(f"alice submits the plan with hands: auto (the survey's answer, {hands}, from the service's survey cache)")
         job = alice.submit("plan", {"scenario": settings.scenario, "hands": "auto", **budget})

@@ -14,7 +14,7 @@ from typing import Any, Callable
 from planner.survey.cache import SurveyCache
 from planner.survey.runner import run_survey
 from schemas.common import HAND_CONFIGS
-from schemas.survey import TIE_ORDER
+from schemas.survey import TIE_ORDER, recommendation_text
 
 
 def auto_order(task, should_stop: Callable[[], bool], data=None) -> tuple[list[str], dict[str, Any]]:
@@ -46,7 +46,15 @@ def order_from(doc: dict[str, Any]) -> list[str]:
 def survey_summary(doc: dict[str, Any]) -> dict[str, Any]:
     """What a plan says about the survey it followed: the recommendation, and whether it is a tie."""
     ties = list(doc.get("indistinguishable") or [])
-    return {"recommended": doc.get("recommended"), "indistinguishable": ties, "tie": bool(ties),
+    rows = {r["hands"]: {"ratio": r.get("ratio"), "ratio_ci95": r.get("ratio_ci95"), "seeds": r.get("seeds")}
+            for r in doc.get("rows") or []}
+    best = doc.get("recommended")
+    return {"recommended": best, "indistinguishable": ties, "tie": bool(ties),
+            "ratio": (rows.get(best) or {}).get("ratio"), "ratio_ci95": (rows.get(best) or {}).get("ratio_ci95"),
+            "seeds": (rows.get(best) or {}).get("seeds"), "first_seed": doc.get("seed"),
+            "key_paths": (doc.get("estimator") or {}).get("key_paths"), "rows": rows,
             "task_key": (doc.get("stats") or {}).get("task_key"), "cache": (doc.get("stats") or {}).get("cache"),
-            "note": (f"a tie: {doc.get('recommended')} cannot be told from {', '.join(ties)} (overlapping 95 % "
+            "text": recommendation_text(doc),
+            "note": (f"a tie: {best} cannot be told from {', '.join(ties)} (overlapping 95 % "
                      f"intervals); tried in the tie order" if ties else None)}
+

@@ -127,7 +127,8 @@ def estimator_of(scenario: Scenario, states: int | None = None) -> Estimator:
     """The scenario's estimator (its ``survey:`` field); ``states`` asks for ``until: states`` instead."""
     sv = scenario.survey
     est = Estimator(until=sv.until, ci_half_width=sv.ci_half_width, seeds_min=sv.seeds_min, seeds_max=sv.seeds_max,
-                    states_per_seed=sv.states_per_seed, leg_cap_states=sv.leg_cap_states)
+                    states_per_seed=sv.states_per_seed, leg_cap_states=sv.leg_cap_states, key_paths=sv.key_paths,
+                    key_path_pool=sv.key_path_pool)
     if states is not None:
         if states < 1:
             raise ValueError(f"states per seed must be >= 1, got {states}")
@@ -208,10 +209,14 @@ def draw_pools(task: Task, configs: list[str], estimator: Estimator, *, workers:
     seeds = pool_seeds(estimator.key_path_pool)
     by_seed: dict[int, dict[str, KeyPathDraw]] = {}
     if workers > 1 and can_fork and len(seeds) > 1:
+        # The task's own seed is drawn here, so its validations stay with the task (a plan after the survey
+        # reuses them); the others in forked workers meanwhile.
         session = ForkedSeeds(min(workers, len(seeds))).open(lambda _hands, kp_seed, _keep: draw_seed(task, configs, kp_seed))
         canceled = True
         try:
-            futures = {session.submit("", k, False): k for k in seeds}
+            futures = {session.submit("", k, False): k for k in seeds if k != task.seed}
+            if task.seed in seeds:
+                by_seed[task.seed] = draw_seed(task, configs, task.seed, should_stop)
             for f, k in futures.items():
                 while not f.done():
                     if should_stop():

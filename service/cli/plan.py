@@ -105,6 +105,7 @@ def plan_summary(plan: dict, path: Path | None = None) -> dict:
             "headroom_m": plan["min_margin_m"] - plan["threshold_m"] if plan.get("min_margin_m") is not None else None,
             "points": len(traj), "duration_s": traj[-1]["t"] if traj else None, "segments": len(plan.get("segments") or []),
             "planning_time_s": st.get("time_s"), "failures": st.get("failures") or {},
+            "survey_recommendation": st.get("survey_recommendation"),
             "plan_file": str(path.resolve()) if path is not None else None}
 
 
@@ -183,6 +184,9 @@ def plan(scenario_file, scenario_name, stance, threshold_mm, hands, seed, soluti
     if compare is not None:
         plans.append((f"at {compare_threshold_mm:g} mm", compare))
     console.print(summary_table(plans))
+    said = (doc.get("stats") or {}).get("survey_recommendation")
+    if said:  # hands: auto followed the task's survey: its recommendation with the interval, the seeds and the ties
+        console.print(f"survey (hands: auto): {said.get('text') or said.get('recommended')}", highlight=False)
     if doc["status"] != "solved":
         console.print(f"[yellow]infeasible[/] ({doc['failure']['code']}): {doc['failure']['message']}")
     for figure in figures:

@@ -153,3 +153,44 @@ def test_drill_and_planning_time_tables_match_the_json(report):
         p = data["plans"][stance]
         assert times[stance][1] == f"{p['constrained']['planning_time_s']:.2f} s"
         assert times[stance][2] == f"{p['unconstrained']['planning_time_s']:.2f} s"
+
+
+def test_the_paper_runs_on_the_paper_s_planner_and_the_extensions_beside_it(report):
+    """The tables and claims without limits and without stable key postures; a section shows what the stable
+    postures change, and the node-removal claim covers left-left and left-right."""
+    md, data, _ = report
+    assert data["paper_planner"] == {"limits": False, "stable_postures": False}
+    assert data["settings"]["stable_postures"] is False and data["settings"]["no_limits"] is True
+    assert "## Extensions: what the stable key postures change" in md
+    ext = data["extensions"]["stable_postures"]
+    for stance in STANCES:
+        assert {r["hands"] for r in ext[stance]["rows"]} == set(HANDS)
+        by = {r["hands"]: r for r in data["tables"][stance]["rows"]}
+        for row in ext[stance]["rows"]:
+            assert row["ratio_without"] == by[row["hands"]]["ratio"]
+    assert set(ext["node_removals"]) == {"left-left", "left-right"}
+    claim = next(c for c in data["claims"] if c["id"] == "upright-left-no-removal")
+    assert "left-left plan" in claim["evidence"] or "the left-left plan" in claim["evidence"]
+    assert "left-right plan" in claim["evidence"] or "the left-right plan" in claim["evidence"]
+    for hands in ("left-left", "left-right"):
+        assert data["plans"][f"upright-{hands}"]["constrained"]["hands"] in (hands, None)
+    ab = data["sampler_ablation"]
+    assert ab["stance"] == "upright" and {r["hands"] for r in ab["rows"]} == set(HANDS)
+    assert "## Sampler ablation (the upright table)" in md
+    for row in data["tables"]["upright"]["rows"]:
+        for entry in row["per_seed"]:
+            assert entry["key_path"]["nodes"], entry  # each seed names the key path it explored
+
+
+def test_the_claim_verdicts_follow_the_intervals(report):
+    """An ordering claim is reproduced exactly when every pair it names has intervals that do not overlap, the
+    higher row above (recomputed here from the rows in report.json)."""
+    from experiments.claims import ORDERINGS
+
+    _, data, _ = report
+    verdicts = {c["id"]: c["verdict"] for c in data["claims"]}
+    for cid, (stance, higher, lower) in ORDERINGS.items():
+        by = {r["hands"]: r for r in data["tables"][stance]["rows"]}
+        held = all(by[a]["ratio"] is not None and by[b]["ratio"] is not None and by[a]["ratio_ci95"] and by[b]["ratio_ci95"]
+                   and by[a]["ratio_ci95"][0] > by[b]["ratio_ci95"][1] for a in higher for b in lower)
+        assert verdicts[cid] == ("reproduced" if held else "not reproduced"), (cid, [by[h] for h in (*higher, *lower)])
