@@ -82,9 +82,11 @@ class CountingSettings(BaseModel):
     step_rad: float = Field(0.3, gt=0, description="largest extension (Euclidean, active joints)")
     sampler: Literal["ends", "box"] = Field(
         "ends", description="where the samples that do not aim at the other tree go. ends: the paper's reading (its "
-        "exploration has 'a bias towards the starting and ending points of a given path'): near the leg's start or "
-        "its goal, one of the two drawn at random, each active joint within +-ends_spread_rad of it (clipped to the "
-        "limits); box: uniform over the whole box of the waist and the holding arm's joint limits")
+        "exploration has 'a bias towards the starting and ending points of a given path'): a share ends_share of them "
+        "near the leg's start or its goal, one of the two drawn at random, each active joint within +-ends_spread_rad "
+        "of it (clipped to the limits), the rest uniform over the joint box as T-RRT samples; box: all uniform over "
+        "the whole box of the waist and the holding arm's joint limits")
+    ends_share: float = Field(0.5, gt=0, le=1, description="share of the non-aimed samples drawn near an end (ends)")
     ends_spread_rad: float = Field(0.3, gt=0, description="half-width of the box around the start or goal the ends "
                                    "sampler draws from (one step)")
 
@@ -241,7 +243,7 @@ class _Leg:
     def _sample(self, rng: np.random.Generator) -> np.ndarray:
         """A sample that does not aim at the other tree (``CountingSettings.sampler``)."""
         s = self.search
-        if self.settings.sampler == "box":
+        if self.settings.sampler == "box" or rng.random() >= self.settings.ends_share:
             return rng.uniform(s.lo, s.hi)
         end = self.start if rng.random() < 0.5 else self.goal
         spread = self.settings.ends_spread_rad

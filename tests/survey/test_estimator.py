@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from planner.survey.counting import ExploreLeg, explore_counted
+from planner.survey.counting import CountingSettings, ExploreLeg, explore_counted
 from planner.survey.estimator import (
     Estimator,
     SeedCount,
@@ -29,6 +29,10 @@ class Batch:
     margin: np.ndarray
     com: np.ndarray
     object_pose: None = None
+
+
+#: The counting rules below are checked with the whole-box sampler (the toy's obstacle sits between the ends).
+BOX = CountingSettings(sampler="box")
 
 
 class Toy:
@@ -56,7 +60,7 @@ def leg(start, goal):
 
 def test_each_sampled_pose_is_counted_once_and_edge_checks_are_not():
     toy = Toy()
-    ex = explore_counted([leg([-0.8, -0.8], [0.4, 0.5])], toy, np.random.default_rng(3))
+    ex = explore_counted([leg([-0.8, -0.8], [0.4, 0.5])], toy, np.random.default_rng(3), settings=BOX)
     assert ex.status == "done" and ex.solved
     count = ex.legs[0]
     n = len(ex.stable)
@@ -87,7 +91,7 @@ def test_a_pose_steered_to_again_is_not_counted_again(aim):
     for seed in range(5):
         ex = explore_counted([ExploreLeg(np.array([-0.5, -0.6]), np.array([0.4, -0.6]), None, np.array([0, 1]), wall)],
                              Toy(), np.random.default_rng(seed), leg_cap_states=3000,
-                             settings=CountingSettings(step_rad=0.1, goal_aim=aim))
+                             settings=CountingSettings(step_rad=0.1, goal_aim=aim, sampler="box"))
         assert ex.solved and len(ex.q) == ex.legs[0].counted
         assert len(np.unique(ex.q, axis=0)) == len(ex.q)
         repeats += ex.legs[0].repeats
@@ -102,7 +106,7 @@ def test_goal_biased_samples_aimed_at_the_other_tree_repeat_less_than_aimed_at_i
     def repeats(aim):
         return sum(explore_counted([ExploreLeg(np.array([-0.5, -0.6]), np.array([0.4, -0.6]), None, np.array([0, 1]), wall)],
                                    Toy(), np.random.default_rng(seed), leg_cap_states=3000,
-                                   settings=CountingSettings(step_rad=0.1, goal_aim=aim)).legs[0].repeats
+                                   settings=CountingSettings(step_rad=0.1, goal_aim=aim, sampler="box")).legs[0].repeats
                    for seed in range(10))
 
     assert repeats("tree") < 0.6 * repeats("root")
@@ -138,7 +142,7 @@ def test_goal_biased_samples_aim_at_nodes_of_the_other_tree():
 
 def test_no_straight_line_shortcut_even_when_the_goal_is_one_step_away():
     """Start and goal 0.2 apart (under one 0.3 step): the leg still counts the poses its tree grew to reach it."""
-    ex = explore_counted([leg([0.0, 0.0], [0.2, 0.0])], Toy(), np.random.default_rng(1))
+    ex = explore_counted([leg([0.0, 0.0], [0.2, 0.0])], Toy(), np.random.default_rng(1), settings=BOX)
     assert ex.solved and ex.legs[0].counted >= 1 and ex.legs[0].nodes >= 2
 
 
@@ -148,7 +152,7 @@ def test_unstable_poses_are_counted_and_not_grown_from():
     from planner.survey.counting import CountingSettings
 
     ex = explore_counted([leg([-0.9, -0.9], [0.45, 0.0])], Toy(), np.random.default_rng(7), leg_cap_states=2000,
-                         settings=CountingSettings(goal_bias=0.02))
+                         settings=CountingSettings(goal_bias=0.02, sampler="box"))
     c = ex.legs[0]
     assert c.unstable > 0
     assert c.nodes - 1 <= c.stable
@@ -156,7 +160,8 @@ def test_unstable_poses_are_counted_and_not_grown_from():
 
 def test_a_leg_ends_at_its_cap_unsolved_and_a_budget_counts_exactly():
     """A goal inside the obstacle can never be reached: the leg stops at its cap; a budget is met to the pose."""
-    ex = explore_counted([leg([-0.5, 0.0], [0.0, 0.95])], Toy(), np.random.default_rng(2), leg_cap_states=57)
+    ex = explore_counted([leg([-0.5, 0.0], [0.0, 0.95])], Toy(), np.random.default_rng(2), leg_cap_states=57,
+                         settings=BOX)
     assert ex.status == "leg_cap" and not ex.solved and len(ex.stable) == 57
     two = [leg([-0.5, 0.0], [0.0, 0.5]), leg([0.0, 0.5], [-0.5, -0.5])]
     ex = explore_counted(two, Toy(), np.random.default_rng(2), budget=137)

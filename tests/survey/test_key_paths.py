@@ -139,17 +139,23 @@ def test_the_transition_test_prefers_high_margin_samples():
 
 
 def test_the_ends_sampler_draws_near_the_leg_s_start_and_goal():
-    """The samples that do not aim at the other tree: within +-ends_spread_rad of the leg's start or goal
-    (each about half of them) with the ends sampler; all over the joint box with the box sampler."""
+    """The samples that do not aim at the other tree: a share ends_share within +-ends_spread_rad of the leg's
+    start or goal (each about half of those), the rest uniform, with the ends sampler; all over the joint box
+    with the box sampler."""
     from planner.survey.counting import _Leg
 
     leg = ExploreLeg(np.array([0.0, -2.5]), np.array([0.0, 2.5]), None, np.array([0, 1]))
-    ends = _Leg(0, leg, _Landscape(), TrrtSettings(), CountingSettings(sampler="ends", ends_spread_rad=0.3))
+    ends = _Leg(0, leg, _Landscape(), TrrtSettings(), CountingSettings(sampler="ends", ends_share=1.0,
+                                                                        ends_spread_rad=0.3))
+    mixed = _Leg(0, leg, _Landscape(), TrrtSettings(), CountingSettings(sampler="ends", ends_share=0.5))
     box = _Leg(0, leg, _Landscape(), TrrtSettings(), CountingSettings(sampler="box"))
     rng = np.random.default_rng(5)
     X = np.array([ends._sample(rng) for _ in range(2000)])
     to_start, to_goal = np.abs(X - leg.start).max(axis=1), np.abs(X - leg.goal).max(axis=1)
     assert (np.minimum(to_start, to_goal) <= 0.3 + 1e-12).all()
     assert 0.4 < (to_start <= 0.3).mean() < 0.6
+    M = np.array([mixed._sample(rng) for _ in range(4000)])
+    near = np.minimum(np.abs(M - leg.start).max(axis=1), np.abs(M - leg.goal).max(axis=1)) <= 0.3
+    assert 0.5 < near.mean() < 0.6  # half near an end, and a few of the uniform ones fall there too
     Y = np.array([box._sample(rng) for _ in range(2000)])
     assert np.minimum(np.abs(Y - leg.start).max(axis=1), np.abs(Y - leg.goal).max(axis=1)).max() > 2.0

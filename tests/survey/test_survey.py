@@ -242,7 +242,7 @@ def test_the_estimator_defaults_to_the_scenario_s_and_the_old_count_reads_as_unt
     doc, _ = run_survey(scenario, threshold_m=1.0, workers=1, task=task)
     assert doc["schema"] == "regrasp.survey/2"
     assert doc["estimator"] == {"until": "solved", "ci_half_width": 0.02, "seeds_min": 10, "seeds_max": 256,
-                                "leg_cap_states": 20000}
+                                "leg_cap_states": 20000, "key_paths": "stratified", "key_path_pool": 8}
     assert all(row["ratio"] is None and "inradius" in row["reason"] for row in doc["rows"])
     own = with_overrides(scenario, states_per_configuration=1234)
     doc, _ = run_survey(own, threshold_m=1.0, workers=1, task=task)
