@@ -43,7 +43,7 @@ class PaperSettings:
     @classmethod
     def quick_run(cls) -> "PaperSettings":
         return cls(estimator={"until": "states", "states_per_seed": 150, "seeds_min": 4, "seeds_max": 4,
-                              "leg_cap_states": 150, "key_path_pool": 2}, plan_iterations=300, quick=True)
+                              "leg_cap_states": 150, "key_path_pool": 1}, plan_iterations=300, quick=True)
 
     def document(self) -> dict[str, Any]:
         return {"estimator": dict(self.estimator), "plan_iterations": self.plan_iterations, "workers": self.workers,

@@ -12,8 +12,8 @@ from .common import console
 
 @click.command()
 @click.option("--out", "out_dir", default="paper-out", show_default=True, type=click.Path(file_okay=False))
-@click.option("--quick", is_flag=True, help="Small sample counts (a few minutes, for CI: 150 states x 3 seeds per "
-              "configuration); the full run repeats seeds until every interval is within +-0.02.")
+@click.option("--quick", is_flag=True, help="Small sample counts (for CI: 150 states x 4 seeds per "
+              "configuration, one key path each); the full run repeats seeds until every interval is within +-0.02.")
 @click.option("--no-limits", is_flag=True, help="Leave out the section that runs the surveys and plans again with effort "
               "and grip checked (the reproduction is always without them, as the paper had none).")
 @click.option("--workers", type=click.IntRange(1, 64), help="Worker processes per survey (default: one per core).")

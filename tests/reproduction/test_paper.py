@@ -12,7 +12,7 @@ from service.cli.main import cli
 
 HANDS = ("left-left", "right-right", "left-right", "right-left")
 #: The quick run plans and surveys every stance for real: minutes, not the suite's 5-minute default.
-pytestmark = pytest.mark.timeout(1500)
+pytestmark = pytest.mark.timeout(2700)
 
 
 @pytest.fixture(scope="module")
