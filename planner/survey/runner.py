@@ -216,7 +216,7 @@ def draw_pools(task: Task, configs: list[str], estimator: Estimator, *, workers:
         try:
             futures = {session.submit("", k, False): k for k in seeds if k != task.seed}
             if task.seed in seeds:
-                by_seed[task.seed] = draw_seed(task, configs, task.seed, should_stop)
+                by_seed[task.seed] = draw_seed(task, configs, task.seed, should_stop, data)
             for f, k in futures.items():
                 while not f.done():
                     if should_stop():
