@@ -46,6 +46,7 @@ def test_the_card_reports_the_gates_worst_moments(plans):
     per_point = verdict.stats["time"]["samples_per_point"]
     assert card["gate"]["passed"] is True and card["gate"]["failed_at"] is None
     assert card["plan_sha256"] == verdict.plan_sha256
+    assert card["margin_floor_m"] == SafetyGate().policy.margin_floor_m  # the floor the console measures against
     com = card["com_margin"]
     assert com["min_margin_m"] == verdict.stats["com_margin"]["min_margin_m"]
     assert com["headroom_m"] == pytest.approx(com["min_margin_m"] - plan["threshold_m"])

@@ -95,6 +95,8 @@ def risk_card(plan: dict[str, Any], plan_text: str | bytes | None = None) -> dic
         "schema": RISK_SCHEMA,
         "plan_sha256": verdict.plan_sha256,
         "threshold_m": threshold,
+        # the site's floor the gate judged by: headroom figures are measured against max(task threshold, floor)
+        "margin_floor_m": gate.policy.margin_floor_m,
         "gate": {"passed": verdict.passed, "check": verdict.check, "message": verdict.message,
                  "failed_at": _moment(plan, verdict.sample_index, per_point) if not verdict.passed else None,
                  "samples": verdict.samples, "checks_passed": verdict.checks_passed, "skipped": verdict.skipped,
