@@ -60,10 +60,13 @@ def check_policy_limits(ctx: _Context, p: _Parsed, policy: SafetyPolicy, physics
 
 
 def _check_physics(ctx: _Context, policy: SafetyPolicy, report: dict[str, Any] | None) -> None:
-    """The physics dry run (``regrasp.simreport/1`` of this plan's hash) stood, with the policy's CoP floor."""
+    """The physics dry run (``regrasp.simreport/1`` of this plan's hash) stood, with the policy's CoP floor.
+
+    The gate runs no physics: without a report given to it the check is skipped (and says so); the service
+    refuses to dispatch a plan without its risk card's dry run (service.execution.physics_gate)."""
     if report is None:
-        raise Veto("policy", f"the {policy.describe()} requires a physics dry run that stood; none was given "
-                   "for this plan (regrasp simulate)")
+        ctx.skip("physics_dry_run")
+        return
     if ctx.plan_sha256 is not None and report.get("plan_sha256") != ctx.plan_sha256:
         raise Veto("policy", f"the physics dry run given is of plan {report.get('plan_sha256')!r}, not of this one")
     if report.get("fell") or report.get("fault"):
