@@ -101,12 +101,12 @@ def rest() -> None:
               f"{np.linalg.norm(ms.cop - ms.com[:2]) * 1000:.3f} mm | {ms.tracking_error_rad:.1e} rad |")
 
 
-def scenarios(plans: Path) -> None:
+def scenarios(plans: Path, names: tuple[str, ...] = SCENARIOS) -> None:
     print("\n## Built-in scenarios (seed 1): min CoP margin (cop_margin_ratio)\n")
     print("| scenario | plan min CoM margin | stabilizer 1x | no stabilizer 1x | stabilizer 2x | object x6 | "
           "real time x (1x run) |")
     print("|---|---|---|---|---|---|---|")
-    for name in SCENARIOS:
+    for name in names:
         path = plan_file(plans, name)
         if not path.is_file():
             print(f"| {name} | not planned | | | | | |")
@@ -220,6 +220,7 @@ def jvrc1(plans: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--section", choices=("all", "rest", "scenarios", "sweep", "jvrc1"), default="all")
+    ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated built-in scenarios")
     ap.add_argument("--plans", type=Path, default=Path("~/.cache/hrp-regrasp/bench-physics").expanduser(),
                     help="folder of the seed-1 plans (made once)")
     args = ap.parse_args()
@@ -230,7 +231,7 @@ def main() -> None:
     if args.section in ("all", "rest"):
         rest()
     if args.section in ("all", "scenarios"):
-        scenarios(args.plans)
+        scenarios(args.plans, tuple(n for n in args.scenarios.split(",") if n))
     if args.section in ("all", "sweep"):
         sweep(args.plans)
     if args.section in ("all", "jvrc1"):
