@@ -59,6 +59,7 @@ from robot_bridge.signing import Signer, Verifier, generate_keys, open_signed  #
 from schemas.bridge import CommandHeartbeat, TrajectorySegment  # noqa: E402
 from schemas.plan import plan_sha256  # noqa: E402
 from tests.bridge.plans import build_plan, stance_state  # noqa: E402
+from robot_bridge.process_tuning import cpu_competitor_command  # noqa: E402
 
 ROBOT_ID = "benchsafety"
 #: SCHED_RR priority of the ``process-rt`` mode (both peers).
@@ -135,7 +136,7 @@ def crypto_costs(iterations: int, signer: Signer, verifier: Verifier) -> None:
 
 
 def burner() -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    return subprocess.Popen(cpu_competitor_command())
 
 
 def gil_load(stop: threading.Event, doc: dict) -> None:

@@ -44,6 +44,7 @@ from robot_bridge.signing import generate_keys  # noqa: E402
 from robot_bridge.zenoh_session import open_session  # noqa: E402
 from schemas.plan import plan_sha256  # noqa: E402
 from tests.bridge.plans import build_plan, stance_state  # noqa: E402
+from robot_bridge.process_tuning import cpu_competitor_command  # noqa: E402
 
 ROBOT_ID = "benchdeadlines"
 #: The controller's dead-man (production) and the contract's loss deadline, s.
@@ -139,7 +140,7 @@ def bench_mode(mode: str, args: argparse.Namespace, qfile: Path, keys: tuple[Pat
     plan = build_plan({"RSP": -0.4, "REP": -0.3}, duration_s=args.plan_s)
     back = json.loads(json.dumps(plan))
     back["trajectory"] = [dict(p, q=q["q"]) for p, q in zip(plan["trajectory"], reversed(plan["trajectory"]))]
-    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.competitors)]
+    hogs = [subprocess.Popen(cpu_competitor_command()) for _ in range(args.competitors)]
     period = BridgeSettings().heartbeat_period_s
     try:
         # 1. heartbeats of healthy executions

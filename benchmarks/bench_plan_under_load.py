@@ -18,6 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from robot_bridge.process_tuning import cpu_competitor_command
+
 
 def plan_once(args: argparse.Namespace, out: Path) -> dict:
     cmd = [sys.executable, "-m", "service.cli.main", "plan", "--scenario", args.scenario, "--seed", str(args.seed),
@@ -44,7 +46,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         quiet = plan_once(args, Path(tmp) / "quiet.json")
         print(f"alone:           {quiet}", flush=True)
-        spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.competitors)]
+        spinners = [subprocess.Popen(cpu_competitor_command()) for _ in range(args.competitors)]
         try:
             loaded = plan_once(args, Path(tmp) / "loaded.json")
         finally:

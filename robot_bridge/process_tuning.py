@@ -33,6 +33,9 @@ def use_realtime_scheduling(priority: int | None) -> bool:
     ``priority`` (1-99): it then preempts every ordinary process, however busy the cores are. Needs
     CAP_SYS_NICE; without it nothing changes and False is returned. None leaves the policy alone.
 
+    The policy carries SCHED_RESET_ON_FORK: a process started from such a thread (a competitor a benchmark
+    spawns, a subprocess of the service) begins at ordinary priority, never real-time.
+
     Only for threads that sleep between short pieces of work (the bridge's): the kernel's real-time
     throttling (95 % of each second by default) is the safety net should one ever spin."""
     import os
@@ -41,7 +44,8 @@ def use_realtime_scheduling(priority: int | None) -> bool:
     if priority is None or not hasattr(os, "sched_setscheduler"):
         return False
     try:
-        os.sched_setscheduler(threading.get_native_id(), os.SCHED_RR, os.sched_param(priority))
+        policy = os.SCHED_RR | getattr(os, "SCHED_RESET_ON_FORK", 0)
+        os.sched_setscheduler(threading.get_native_id(), policy, os.sched_param(priority))
     except (PermissionError, OSError):
         return False
     return True
@@ -98,3 +102,25 @@ def bridge_priority(nice: int | None, realtime: int | None) -> Iterator[None]:
                 pass
         if before_nice is not None:
             raise_thread_priority(before_nice)
+
+
+#: A CPU-bound process for benchmarks and tests that load the machine: it first puts itself at ordinary
+#: priority (SCHED_OTHER, niceness 0), whatever the thread that started it ran at, so it competes like any
+#: other program and never starves the machine.
+_COMPETITOR_CODE = (
+    "import os\n"
+    "try:\n"
+    "    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))\n"
+    "    os.setpriority(os.PRIO_PROCESS, 0, 0)\n"
+    "except OSError:\n"
+    "    pass\n"
+    "while True:\n"
+    "    pass\n"
+)
+
+
+def cpu_competitor_command() -> list[str]:
+    """The command line of one CPU-bound competitor at ordinary priority (see ``_COMPETITOR_CODE``)."""
+    import sys
+
+    return [sys.executable, "-c", _COMPETITOR_CODE]

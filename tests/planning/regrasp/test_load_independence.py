@@ -14,6 +14,7 @@ import pytest
 
 from planner.scene.scenarios import builtin_names, resolve_scenario
 from planner.termination import Termination
+from robot_bridge.process_tuning import cpu_competitor_command
 
 ROOT = Path(__file__).resolve().parents[3]
 SMALL_BOX = ROOT / "tests" / "data" / "small-box.yaml"
@@ -64,7 +65,7 @@ def test_the_same_plan_on_a_quiet_and_on_a_loaded_machine():
     """Two CPU-bound competitors on a 2-core machine slow the plan down; its trajectory stays the same."""
     quiet = _plan_once()
     assert quiet["status"] == "solved" and quiet["points"] > 0
-    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    spinners = [subprocess.Popen(cpu_competitor_command()) for _ in range(2)]
     try:
         loaded = _plan_once()
     finally:
