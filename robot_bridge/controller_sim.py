@@ -31,7 +31,7 @@ from schemas.bridge import CommandHeartbeat, ExecStatus, Heartbeat, JointState, 
 
 from .controller_auth import CommandAuth
 from .controller_job import Job, segment_columns
-from .controller_settings import ControllerSimSettings, JointLimits, PlantKind, limits_from_urdf
+from .controller_settings import ControllerSimSettings, JointLimits, PlantKind, control_period, limits_from_urdf
 from .plant import KinematicPlant, Plant, PlantFault
 from .process_tuning import raise_thread_priority
 from .settings import BridgeSettings, Keys
@@ -304,8 +304,9 @@ class ControllerSim:
 
     # ------------------------------------------------------------------ control loop
     def _control_loop(self) -> None:
-        period = 1.0 / self.sim.rate_hz
+        period, every = control_period(self.sim)
         next_tick = time.monotonic()
+        tick = 0
         next_heartbeat = next_balance = next_progress = next_tick
         beats = 0
         while not self._closing.is_set():
@@ -328,9 +329,11 @@ class ControllerSim:
                 seq = job.last_seq if job is not None else None
             for status, reason in events:
                 self._status(job_id, seq, status, reason, None, index)
-            self._pub_joints.put(encode(JointState(stamp=now, joint_names=self.joint_names, q=q.tolist(),
-                                                   job_id=job_id if executing else None, index=index if executing else None,
-                                                   stance=self.sim.stance, holding=holding)))
+            if tick % every == 0:  # CONTRACT 7: >= 50 measured states per second of motion at any speed
+                self._pub_joints.put(encode(JointState(stamp=now, joint_names=self.joint_names, q=q.tolist(),
+                    job_id=job_id if executing else None, index=index if executing else None, stance=self.sim.stance,
+                    holding=holding)))
+            tick += 1
             balance = self.plant.balance() if now >= next_balance else None
             if balance is not None:
                 self._pub_balance.put(encode({"stamp": now, **balance, "overruns": self.overruns}))

@@ -118,14 +118,26 @@ class Execution:
                     run.index = st.index
         result = ExecutionResult("aborted", reason, verdict, run.index, run.sent, time.monotonic() - started,
                                  {"stop_acknowledged": acked} if wait_ack else {})
+        self.report_measured(emit)
         emit("finished", result.to_dict())
         return result
+
+    def report_measured(self, emit: EventCallback) -> None:
+        """One ``robot_state`` event with every measured state received since the last one (``samples``, oldest
+        first, each ``{stamp, q, index}``); the newest also at the top level, for readers of one state."""
+        batch = self.watch.take_measured()
+        if not batch:
+            return
+        last = batch[-1]
+        emit("robot_state", {"stamp": last.stamp, "joint_names": last.joint_names, "q": last.q, "index": last.index,
+                             "samples": [{"stamp": js.stamp, "q": js.q, "index": js.index} for js in batch]})
 
     def run(self, run: _Run, emit: EventCallback, stop_event: threading.Event, verdict: GateVerdict,
             started: float) -> ExecutionResult:
         """Follow ``run`` to its end; whatever breaks on the way, the robot is told to stop."""
         # Serialised once, now: a send (and a re-send) then only splices in its expires_at and signs.
         self._payloads = {seg.seq: SignedSegment(seg) for seg in run.segments}
+        self.watch.collect_measured(True)
         try:
             # This loop takes the interpreter lock on the bridge's path: at the heartbeat's priority while it runs.
             with bridge_priority(self.settings.thread_nice, self.settings.realtime_priority):
@@ -137,6 +149,7 @@ class Execution:
             return ExecutionResult("aborted", f"bridge error: {type(exc).__name__}: {exc}", verdict, run.index, run.sent,
                                    time.monotonic() - started)
         finally:
+            self.watch.collect_measured(False)
             self.loss.disarm()
             self.heartbeat.end()
             self._payloads = {}  # a finished execution's bytes are not kept until the next one
@@ -210,6 +223,7 @@ class Execution:
                     self.loss.disarm()
                     result = ExecutionResult("succeeded", st.reason or "trajectory executed", verdict, st.index, run.sent,
                                              now - started)
+                    self.report_measured(emit)
                     emit("finished", result.to_dict())
                     return result
                 elif st.status in ("rejected", "refused") and not st.fatal:
@@ -250,7 +264,5 @@ class Execution:
             if now - max(last_progress, thawed_at) > d.progress_timeout_s:
                 return self._abort(run, emit, f"no progress from the controller for {d.progress_timeout_s:.1f} s", verdict, started)
             if now - last_state_event >= d.robot_state_event_period_s:
-                js = self.watch.measured_state()
-                if js is not None:
-                    emit("robot_state", {"stamp": js.stamp, "joint_names": js.joint_names, "q": js.q, "index": js.index})
+                self.report_measured(emit)
                 last_state_event = now

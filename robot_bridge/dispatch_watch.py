@@ -13,6 +13,7 @@ Part of the dispatcher (:mod:`robot_bridge.dispatcher`). Two directions:
 
 from __future__ import annotations
 
+import collections
 import math
 import queue
 import threading
@@ -27,6 +28,9 @@ from schemas.bridge import ExecStatus, Heartbeat, JointState
 from .dispatch_io import DispatcherIO
 from .process_tuning import raise_thread_priority, use_realtime_scheduling
 from .settings import BridgeSettings
+
+#: Measured states kept between two ``robot_state`` events at most (a 2 kHz controller for 5 s).
+MEASURED_KEPT = 10_000
 
 
 class ControllerWatch:
@@ -45,6 +49,9 @@ class ControllerWatch:
         self._beat: Heartbeat | None = None  # the last heartbeat's content (the controller's state and its job)
         self._joint_state: JointState | None = None
         self._joint_state_at: float | None = None
+        #: Every measured state received since the last ``take_measured()`` (while one is collecting), in order.
+        self._measured: collections.deque[JointState] = collections.deque(maxlen=MEASURED_KEPT)
+        self._collecting = False
         #: (receipt time, status) of every ``state/exec`` message, for the running execution.
         self.exec: queue.Queue = queue.Queue()
         self._lost: dict[str, dict[str, Any]] = {}  # job id -> why it was aborted, while its controller is away
@@ -75,6 +82,8 @@ class ControllerWatch:
             return
         with self._lock:
             self._joint_state, self._joint_state_at = js, time.monotonic()
+            if self._collecting:
+                self._measured.append(js)
 
     def on_exec(self, sample: zenoh.Sample) -> None:
         try:
@@ -87,6 +96,20 @@ class ControllerWatch:
             lost = bool(self._lost)
         if lost:
             self.on_back(how)
+
+    # ------------------------------------------------------------------ measured states
+    def collect_measured(self, on: bool) -> None:
+        """Keep every measured state from now on (an execution's, for its ``robot_state`` batches), or stop."""
+        with self._lock:
+            self._collecting = on
+            self._measured.clear()
+
+    def take_measured(self) -> list[JointState]:
+        """The measured states received since the last call (oldest first), forgotten from now on."""
+        with self._lock:
+            taken = list(self._measured)
+            self._measured.clear()
+        return taken
 
     # ------------------------------------------------------------------ lost jobs
     def mark_lost(self, job_id: str, reason: str) -> None:

@@ -33,9 +33,6 @@ from pydantic import BaseModel, Field
 
 from schemas.survey import recommendation_text
 
-#: Measured joint states the demo asks the bridge for per second of motion (CONTRACT 7: at least 50 kept; the
-#: bridge loop ticks every 5 ms, so a period of 1/70 s gives about 66).
-MEASURED_STATES_PER_MOTION_S = 70.0
 #: Longest the demo stays silent, s (then it says what it is still waiting for).
 QUIET_S = 2.5
 
@@ -112,12 +109,6 @@ def _stop(proc: subprocess.Popen) -> None:
                 pass
 
 
-def measured_state_period_s(speed: float) -> float:
-    """How often the bridge reports a measured joint state, so that 50 or more land per second of motion
-    (at most every 5 ms of the bridge's loop: a controller much faster than real time keeps fewer)."""
-    return max(0.005, 1.0 / (MEASURED_STATES_PER_MOTION_S * speed))
-
-
 class Narrator:
     """The demo's voice: says each line, and says what is still going on when nothing was said for a while,
     so that a person watching never waits in silence (a survey's seeds can run for many seconds)."""
@@ -189,8 +180,6 @@ def _run_demo(out: Path, settings: DemoSettings, say: Narrator) -> DemoResult:
                REGRASP_BRIDGE_ROBOT_ID=robot,  # the service talks to the controller of the robot the plan is for
                REGRASP_BRIDGE_SIGNING_KEY=str(signing_key), REGRASP_BRIDGE_TRUSTED_KEY=str(trusted_key),
                REGRASP_DISPATCH_LOOKAHEAD_SEGMENTS=str(_lookahead_segments(settings.controller_speed)),
-               # measured joint states kept at 50 or more per second of motion (CONTRACT 7) in the job's audit file
-               REGRASP_DISPATCH_ROBOT_STATE_EVENT_PERIOD_S=str(measured_state_period_s(settings.controller_speed)),
                # The simulated controller shares the machine's cores with planning workers; on a loaded
                # host a 0.25 s heartbeat gap is the scheduler, not a dead controller. A robot keeps 0.25 s.
                REGRASP_BRIDGE_WATCHDOG_TIMEOUT_S=str(settings.watchdog_timeout_s),

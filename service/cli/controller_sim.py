@@ -83,6 +83,8 @@ def _initial_q_file(path: str) -> tuple[list[str], list[float]]:
 @click.option("--speed", type=float, default=1.0, show_default=True,
               help="Play trajectories K times faster than real time (physics: simulated time up to K x the wall clock; "
                    "the overrun is reported when the machine cannot keep up, no step is skipped).")
+@click.option("--states-per-motion-s", type=click.FloatRange(1.0, 2000.0), default=None,
+              help="Measured joint states published per second of motion (default 60; CONTRACT 7 asks for 50).")
 @click.option("--plant", type=click.Choice(["kinematic", "physics"]), default="kinematic", show_default=True,
               help="kinematic: replay the commands; physics: the MuJoCo twin (measured joints, state/balance, faults).")
 @click.option("--object-mass-kg", type=click.FloatRange(0.0, 100.0), default=0.0, show_default=True,
@@ -119,7 +121,8 @@ def _initial_q_file(path: str) -> tuple[list[str], list[float]]:
                    "(default: REGRASP_BRIDGE_TRUSTED_KEY).")
 @click.option("--watchdog-ms", type=click.FloatRange(min=1.0, max=5000.0), default=None,
               help="Dead-man: stop when no dispatcher heartbeat came for this long (default 250 ms).")
-def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str | None, speed: float, plant: str,
+def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str | None, speed: float,
+                   states_per_motion_s: float | None, plant: str,
                    object_mass_kg: float, no_stabilizer: bool, push_n: float, push_s: float, effort_scale: float,
                    foot_tilt_limit_rad: float | None, foot_lift_limit_mm: float | None, start_buffer_ms: float | None, listen: tuple[str, ...],
                    connect: tuple[str, ...], drop_rate: float, delay_ms: float, crash_after: int | None,
@@ -156,6 +159,8 @@ def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str
             except KeyFileError as exc:
                 fail(f"--trusted-key: {exc}")
         buffer = {} if start_buffer_ms is None else {"start_buffer_s": start_buffer_ms / 1000.0}
+        if states_per_motion_s is not None:
+            buffer["joint_states_per_motion_s"] = states_per_motion_s
         sim = ControllerSimSettings(speed=speed, plant=plant, **buffer, drop_rate=drop_rate, delay_ms=delay_ms, crash_after=crash_after,
                                     freeze_heartbeat_after_s=freeze_heartbeat_after_s, seed=seed,
                                     stance=stance)

@@ -42,6 +42,8 @@ pytestmark = pytest.mark.host_pauses(limit_s=0.2)
 
 #: The contract's control period (200 Hz).
 PERIOD_S = 0.005
+#: A joint state at every control tick of a 1x controller (200 per second of motion: the 200 Hz loop's rate).
+ONE_STATE_PER_TICK = ("--states-per-motion-s", "200")
 #: A bounded wait for anything the controller should do at once.
 REPLY_TIMEOUT_S = 5.0
 
@@ -159,7 +161,8 @@ def new_job() -> str:
 @pytest.fixture(scope="module")
 def sim(initial_q_file, key_pair):
     """One controller at real-time speed (trusting the session's key, its dead-man relaxed) and its test peer."""
-    ctl = start_controller(initial_q_file, speed=1.0, trusted_key=key_pair.public, watchdog_s=RELAXED_WATCHDOG_S)
+    ctl = start_controller(initial_q_file, *ONE_STATE_PER_TICK, speed=1.0, trusted_key=key_pair.public,
+                           watchdog_s=RELAXED_WATCHDOG_S)
     peer = Peer(ctl, key_pair.private)
     yield ctl, peer
     peer.close()
@@ -454,7 +457,7 @@ def test_speed_scales_playback_time(sim, spawn_controller, open_peer, host_stall
     names, q0 = _idle(peer)
     dt, duration = 0.01, 2.0
     t1, run1, lead1, tick1 = _play_time(peer, names, q0, dt, duration, 1.0, host_stalls)
-    fast_peer = open_peer(spawn_controller(speed=4.0, watchdog_s=RELAXED_WATCHDOG_S))
+    fast_peer = open_peer(spawn_controller("--states-per-motion-s", "50", speed=4.0, watchdog_s=RELAXED_WATCHDOG_S))
     names4, q4 = _idle(fast_peer)
     t4, run4, lead4, tick4 = _play_time(fast_peer, names4, q4, dt, duration, 4.0, host_stalls)
     print(f"{duration} s of plan: {t1:.3f} s at --speed 1, {t4:.3f} s at --speed 4 (ratio {t1 / t4:.2f}; "
