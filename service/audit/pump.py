@@ -175,49 +175,63 @@ class JobAuditor:
         self.stop()
 
     def pump_once(self) -> int:
+        """Record the events stored since the last pump. The store is read once per job and written once per job
+        per pump (not per event: at tens of events a second, a read and a committed write for each one kept the
+        pump behind the bridge); the job row's audit fields reach the store at the end of the pump."""
         for job_id in list(self._unsaved):
             self._save(job_id)
         events = self.store.all_events_after(self._cursor)
-        for event in events:
-            job_id = event["job_id"]
-            job = self.store.get(job_id)
-            if job is None:
-                self._cursor = event["id"]
-                continue
-            done = self._done_upto.get(job_id)
-            if done is None:
-                done = job.get("audit_event_id") or 0
-                self._done_upto[job_id] = done
-            after_end = (job.get("audit_closed") and event["kind"] == "bridge"
-                         and (event.get("data") or {}).get("event") in AFTER_END_EVENTS)
-            if event["id"] <= done or (job.get("audit_closed") and not after_end):
-                self._cursor = event["id"]
-                continue
-            try:
-                writer, path = self._writer(job, "recorded after the job ended" if after_end else None)
-                head = None
-                for kind, payload, at_ns in records_for_event(event, job, self.store):
-                    head = writer.record(kind, payload, at_ns)
-                closing = (event["kind"] == "state" and event.get("state") in TERMINAL_STATES) or after_end
-                if closing:
-                    writer.close()
-                    self._writers.pop(job_id, None)
-            except Exception:
-                # The event is recorded again (in a continuation file) at the next pump; the cursor stays before it.
-                self._drop_writer(job_id)
-                raise
-            self._done_upto[job_id] = event["id"]
-            self._cursor = event["id"]
-            # The stored file and head are always the newest file's and its last record's (also for a record
-            # added after the job ended): `regrasp audit verify --head` agrees with the job's stored head.
-            fields: dict[str, Any] = {"audit_event_id": event["id"], "audit_path": str(path)}
-            if isinstance(head, str):
-                fields["audit_head"] = head
-            if closing:
-                fields["audit_closed"] = True
-            self._unsaved[job_id] = {**self._unsaved.get(job_id, {}), **fields}
-            self._save(job_id)
+        rows: dict[str, dict[str, Any] | None] = {}  # job id -> its row, read once in this pump
+        try:
+            for event in events:
+                self._pump_event(event, rows)
+        finally:
+            for job_id in list(self._unsaved):
+                self._save(job_id)
         return len(events)
+
+    def _pump_event(self, event: dict[str, Any], rows: dict[str, dict[str, Any] | None]) -> None:
+        """Record one event (its job row from ``rows``, read from the store the first time it is needed)."""
+        job_id = event["job_id"]
+        if job_id not in rows:
+            rows[job_id] = self.store.get(job_id)
+        job = rows[job_id]
+        if job is None:
+            self._cursor = event["id"]
+            return
+        done = self._done_upto.get(job_id)
+        if done is None:
+            done = job.get("audit_event_id") or 0
+            self._done_upto[job_id] = done
+        after_end = (job.get("audit_closed") and event["kind"] == "bridge"
+                     and (event.get("data") or {}).get("event") in AFTER_END_EVENTS)
+        if event["id"] <= done or (job.get("audit_closed") and not after_end):
+            self._cursor = event["id"]
+            return
+        try:
+            writer, path = self._writer(job, "recorded after the job ended" if after_end else None)
+            head = None
+            for kind, payload, at_ns in records_for_event(event, job, self.store):
+                head = writer.record(kind, payload, at_ns)
+            closing = (event["kind"] == "state" and event.get("state") in TERMINAL_STATES) or after_end
+            if closing:
+                writer.close()
+                self._writers.pop(job_id, None)
+        except Exception:
+            # The event is recorded again (in a continuation file) at the next pump; the cursor stays before it.
+            self._drop_writer(job_id)
+            raise
+        self._done_upto[job_id] = event["id"]
+        self._cursor = event["id"]
+        # The stored file and head are always the newest file's and its last record's (also for a record
+        # added after the job ended): `regrasp audit verify --head` agrees with the job's stored head.
+        fields: dict[str, Any] = {"audit_event_id": event["id"], "audit_path": str(path)}
+        if isinstance(head, str):
+            fields["audit_head"] = head
+        if closing:
+            fields["audit_closed"] = True
+        self._unsaved[job_id] = {**self._unsaved.get(job_id, {}), **fields}
+        job.update(fields)  # this pump's later events of the job see the row as it will be stored
 
     def _writer(self, job: dict[str, Any], continued_because: str | None = None) -> tuple[Any, Path]:
         job_id = job["id"]
