@@ -17,7 +17,7 @@ from typing import Any, Callable
 
 from planner.errors import Canceled, InputError
 from planner.jobs.survey_job import survey_overrides
-from planner.regrasp.failure_cause import FailureCause
+from planner.regrasp.failure_cause import FailureCause, failures_in_words
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import assemble, effort_ratios, trajectory_points
 from planner.regrasp.plan_timing import PlanTimer
@@ -151,17 +151,19 @@ def _code_for(res: PlannerResult, planner: HandConfigPlanner) -> tuple[str, str]
             if over is not None and over[0] == dominant:
                 return dominant.upper(), (f"no grasp of the object at its {end} pose with the {hand} hand is valid, and the "
                                           f"robot's limits refuse grasps there: {over[1]} (the validations: "
-                                          f"{dict(failures)})")
+                                          f"{failures_in_words(failures, 'refused')})")
             if dominant in (FailureCause.EFFORT, FailureCause.GRIP):
                 what = ("a joint's static torque over its effort limit" if dominant == FailureCause.EFFORT
                         else "the grip slipping (the object's weight or moment about the jaw's closing axis)")
                 return dominant.upper(), (f"no grasp of the object at its {end} pose with the {hand} hand is within the "
-                                          f"robot's limits: {what} ({dict(failures)})")
+                                          f"robot's limits: {what} ({failures_in_words(failures, 'refused')})")
             if dominant == FailureCause.COM_MARGIN:
                 return "NO_STABLE_GRASP", (f"no grasp of the object at its {end} pose keeps the CoM margin >= the "
-                                           f"threshold with the {hand} hand ({dict(failures)})")
-            return f"{end.upper()}_INVALID", f"the {end} pose cannot be grasped by the {hand} hand: {dict(failures)}"
-    return res.failure_code or "NO_PATH", res.message or f"no valid plan; failures by cause: {dict(res.failures)}"
+                                           f"threshold with the {hand} hand ({failures_in_words(failures, 'refused')})")
+            return f"{end.upper()}_INVALID", (f"the {end} pose cannot be grasped by the {hand} hand: "
+                                              f"{failures_in_words(failures, 'refused')}")
+    return res.failure_code or "NO_PATH", (res.message
+                                           or f"no valid plan; {failures_in_words(res.failures, 'states removed')}")
 
 
 def _end_over_limits(planner: HandConfigPlanner, end: str) -> tuple[str, str] | None:
@@ -285,7 +287,7 @@ def plan_scenario(
 
         def on_iter(i: int, failures: dict, base=base, span=span, hands=hands) -> None:
             progress(base + span * min(i / scenario.limits.max_iterations, 1.0) * 0.5,
-                     f"{hands}: search iteration {i}, failures {failures}")
+                     f"{hands}: search iteration {i}: {failures_in_words(failures, 'states removed')}")
 
         if termination.past_deadline():
             ran_out = True

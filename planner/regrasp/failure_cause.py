@@ -8,6 +8,7 @@ by cause reads ``{'com_margin': 3}``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from enum import StrEnum
 from types import MappingProxyType
 
@@ -35,3 +36,19 @@ _CODES = MappingProxyType({
     FailureCause.IK: "IK_FAIL", FailureCause.COLLISION: "COLLISION", FailureCause.COM_MARGIN: "COM_MARGIN",
     FailureCause.MOTION: "MOTION", FailureCause.EFFORT: "EFFORT", FailureCause.GRIP: "GRIP",
 })
+
+#: How a person reads each cause in a message.
+_WORDS = MappingProxyType({
+    FailureCause.IK: "IK", FailureCause.COLLISION: "collision", FailureCause.COM_MARGIN: "CoM margin",
+    FailureCause.MOTION: "motion", FailureCause.EFFORT: "effort", FailureCause.GRIP: "grip",
+})
+
+
+def failures_in_words(failures: Mapping[str, int], what: str = "removed") -> str:
+    """Failures counted by cause as words for people: ``"12 removed (IK 5, collision 7)"``, the largest
+    first, ``"0 removed"`` when there are none (never a raw dict in a message)."""
+    counts = sorted(((c, n) for c, n in failures.items() if n), key=lambda cn: (-cn[1], str(cn[0])))
+    if not counts:
+        return f"0 {what}"
+    parts = ", ".join(f"{_WORDS.get(c, str(c).replace('_', ' '))} {n}" for c, n in counts)  # type: ignore[call-overload]
+    return f"{sum(n for _, n in counts)} {what} ({parts})"

@@ -29,7 +29,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from planner.errors import Canceled
-from planner.regrasp.failure_cause import FailureCause
+from planner.regrasp.failure_cause import FailureCause, failures_in_words
 from planner.termination import Termination
 
 Hand = Literal["left", "right"]
@@ -464,7 +464,7 @@ class RegraspGraph:
         result.failures = failures
         if result.status != "solved" and result.code in ("NO_PATH",) and failures:
             result.code = _dominant_code(failures)
-            result.message += f"; removed states by cause: {dict(failures)}"
+            result.message += f"; {failures_in_words(failures, 'states removed')}"
         return result
 
     def _remove_hop(self, a: Node | None, b: Node | None, kind: str) -> None:
