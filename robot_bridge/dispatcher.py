@@ -176,7 +176,8 @@ class Dispatcher:
     # ------------------------------------------------------------------ execution
     def execute(self, plan: dict[str, Any] | str | bytes, *, job_id: str, approved_sha256: str, approval_expires_at: datetime,
                 threshold_m: float | None = None, on_event: EventCallback | None = None,
-                stop_event: threading.Event | None = None, recovery: bool = False) -> ExecutionResult:
+                stop_event: threading.Event | None = None, recovery: bool = False,
+                physics: dict[str, Any] | None = None) -> ExecutionResult:
         """Gate the plan, send it, follow it to the end.
 
         ``plan`` is the plan dict, or its canonical JSON text or bytes (``schemas.plan.canonical_json``):
@@ -185,7 +186,9 @@ class Dispatcher:
         Raises :class:`NoSigningKeyError` without a signing key, :class:`ControllerUnavailableError`
         before anything happens when no controller is alive or its state is unknown (the job stays
         approved), and :class:`BusyError` when another execution runs. ``recovery``: the plan is a
-        recover job's (the gate's margin floor is then its start where that is under the threshold).
+        recover job's (the gate's margin floor is then its start where that is under the threshold). ``physics``:
+        the plan's physics dry run (``regrasp.simreport/1``, bound to its hash), judged by the gate when the safety
+        policy requires one.
         """
         if self.signer is None:
             raise NoSigningKeyError("the bridge has no signing key (REGRASP_BRIDGE_SIGNING_KEY): a controller refuses "
@@ -195,13 +198,13 @@ class Dispatcher:
             raise BusyError("another execution is running on this dispatcher")
         try:
             return self._execute(plan, job_id, approved_sha256, approval_expires_at, threshold_m, on_event or (lambda k, d: None),
-                                 stop_event or threading.Event(), recovery)
+                                 stop_event or threading.Event(), recovery, physics)
         finally:
             self._run_lock.release()
 
     def _execute(self, plan: dict[str, Any] | str | bytes, job_id: str, approved_sha256: str, expires_at: datetime,
                  threshold_m: float | None, emit: EventCallback, stop_event: threading.Event,
-                 recovery: bool = False) -> ExecutionResult:
+                 recovery: bool = False, physics: dict[str, Any] | None = None) -> ExecutionResult:
         started = time.monotonic()
         if self._watch.token_alive():
             self.wait_for_controller(self.dispatch.state_wait_s)
@@ -218,11 +221,11 @@ class Dispatcher:
         measured = MeasuredState(state.joint_names, state.q, self.dispatch.start_tolerance_rad)
         if isinstance(plan, (bytes, bytearray, str)):
             verdict, parsed = self.gate.check_json(plan, approval=approval, measured=measured, threshold_m=threshold_m,
-                                                   recovery=recovery)
+                                                   recovery=recovery, physics=physics)
             plan = parsed if parsed is not None else {}  # None only with a veto (the plan is not read on)
         else:
             verdict = self.gate.check(plan, approval=approval, measured=measured, threshold_m=threshold_m,
-                                      recovery=recovery)
+                                      recovery=recovery, physics=physics)
         emit("gate", verdict.model_dump(mode="json"))
         if not verdict.passed:
             return ExecutionResult("rejected", verdict.summary(), verdict, duration_s=time.monotonic() - started)

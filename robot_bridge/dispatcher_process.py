@@ -162,7 +162,8 @@ class DispatcherProcess:
     def execute(self, plan: dict[str, Any] | str | bytes, *, job_id: str, approved_sha256: str,
                 approval_expires_at: datetime, threshold_m: float | None = None,
                 on_event: Callable[[str, dict[str, Any]], None] | None = None,
-                stop_event: threading.Event | None = None, recovery: bool = False) -> ExecutionResult:
+                stop_event: threading.Event | None = None, recovery: bool = False,
+                physics: dict[str, Any] | None = None) -> ExecutionResult:
         if self._dead:
             raise ControllerUnavailableError(self._dead)
         cid = next(self._ids)
@@ -171,7 +172,7 @@ class DispatcherProcess:
         try:
             self._send(("execute", cid, plan, {"job_id": job_id, "approved_sha256": approved_sha256,
                                                "approval_expires_at": approval_expires_at, "threshold_m": threshold_m,
-                                               "recovery": recovery}))
+                                               "recovery": recovery, "physics": physics}))
             stop_sent = False
             while not call["done"].wait(0.005 if stop_event is not None else 0.5):
                 if stop_event is not None and stop_event.is_set() and not stop_sent:

@@ -34,7 +34,7 @@ from schemas.scenario import Scenario
 
 from ..context import Service
 from ..execution.dispatch import RobotBusy
-from ..execution.physics_gate import dispatch_refusal
+from ..execution.physics_gate import dispatch_physics
 from ..jobs.provenance import provenance
 from ..store.repo import Conflict, IdempotencyMismatch, QueueFull, UserQueueFull
 from .auth import Principal
@@ -447,7 +447,8 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
     if text is None or hashlib.sha256(text.encode("utf-8")).hexdigest() != row["approved_sha256"]:
         raise ProblemError(409, f"the stored plan of job {job_id} no longer matches the approved hash "
                                 f"{row['approved_sha256']}; it cannot be dispatched")
-    physics = dispatch_refusal(svc, row)  # the policy's physics dry run: the card's, bound to the plan's hash
+    # The policy's physics dry run: the card's, bound to the plan's hash; its report goes on to the bridge's gate.
+    physics, physics_report = dispatch_physics(svc, row)
     if physics is not None:
         raise ProblemError(409, f"job {job_id} is not dispatched: {physics}")
     signing = getattr(svc.bridge, "signing_problem", None)
@@ -461,7 +462,7 @@ def dispatch(job_id: str, p: Principal = Depends(principal), svc: Service = Depe
     # One dispatch at a time per robot, decided in the job store. The canonical text goes down as it is:
     # the gate hashes these bytes instead of re-serialising a dict.
     try:
-        began = svc.executions.begin(row, text, p.user)
+        began = svc.executions.begin(row, text, p.user, physics=physics_report)
     except RobotBusy as exc:
         raise ProblemError(409, f"job {exc.running_job_id} is executing on the robot; one execution at a time "
                                 "(stop it or wait for it to end)") from None

@@ -92,12 +92,13 @@ class Executions:
         except Exception:  # noqa: BLE001 - called from a zenoh thread: never raise into it
             log.exception("storing the re-sent stop of job %s failed", job_id)
 
-    def begin(self, job: dict[str, Any], plan: str | bytes, by: str) -> bool:
+    def begin(self, job: dict[str, Any], plan: str | bytes, by: str, physics: dict[str, Any] | None = None) -> bool:
         """Move the job to dispatching and start executing it; False if it was no longer approved.
 
         The move is decided in the job store, atomically with every other dispatch of the robot: raises
         :class:`RobotBusy` naming the running job when another one is dispatching or executing.
-        ``plan`` is the stored plan's canonical JSON text, whose SHA-256 is the approved hash."""
+        ``plan`` is the stored plan's canonical JSON text, whose SHA-256 is the approved hash. ``physics``: its
+        physics dry run's report, for the bridge's gate when the safety policy requires one."""
         job_id = job["id"]
         lease = datetime.now(job["approval_expires_at"].tzinfo) + timedelta(seconds=self.settings.lease_s)
         ok, running = self.store.begin_dispatch(job_id, message=f"dispatched by {by}",
@@ -108,14 +109,15 @@ class Executions:
         if not ok:
             return False
         stop = threading.Event()
-        thread = threading.Thread(target=self._run, args=(job, plan, stop), name=f"exec-{job_id[:8]}", daemon=True)
+        thread = threading.Thread(target=self._run, args=(job, plan, stop, physics), name=f"exec-{job_id[:8]}", daemon=True)
         with self._lock:
             self._stops[job_id] = stop
             self._threads[job_id] = thread
         thread.start()
         return True
 
-    def _run(self, job: dict[str, Any], plan: str | bytes, stop: threading.Event) -> None:
+    def _run(self, job: dict[str, Any], plan: str | bytes, stop: threading.Event,
+             physics: dict[str, Any] | None = None) -> None:
         job_id = job["id"]
 
         # The control path never waits on the database: events are queued here and written by another thread.
@@ -145,6 +147,7 @@ class Executions:
                 threshold_m=None,
                 on_event=on_event, stop_event=stop,
                 **({"recovery": True} if job.get("kind") == "recover" else {}),
+                **({"physics": physics} if physics is not None else {}),
             )
             status, reason, verdict = outcome.status, outcome.reason, outcome.verdict
             details = outcome.details

@@ -69,10 +69,15 @@ def stored_card(svc: Any, job_id: str, plan_sha256: str) -> dict[str, Any] | Non
         cursor = page[-1]["id"]
 
 
-def dispatch_refusal(svc: Any, row: dict[str, Any]) -> str | None:
-    """Why the site's policy refuses to dispatch this approved job on its physics dry run, or None."""
+def dispatch_physics(svc: Any, row: dict[str, Any]) -> tuple[str | None, dict[str, Any] | None]:
+    """Why the site's policy refuses to dispatch this approved job on its physics dry run (or None), and the dry
+    run's report (``regrasp.simreport/1``) that the bridge's gate is given to judge on its own, when the policy
+    requires one and the plan has it (None otherwise: the gate is then not asked to judge physics)."""
     policy = site_policy(svc)
     if not policy.require_physics_pass:
-        return None
+        return None, None
     sha = row.get("approved_sha256") or row.get("plan_sha256") or ""
-    return physics_problem(policy, stored_card(svc, row["id"], sha), sha)
+    card = stored_card(svc, row["id"], sha)
+    physics = (card or {}).get("physics") if isinstance(card, dict) else None
+    report = physics.get("report") if isinstance(physics, dict) else None
+    return physics_problem(policy, card, sha), report if isinstance(report, dict) else None

@@ -124,3 +124,69 @@ def test_the_gate_at_dispatch_vetoes_a_plan_below_the_services_floor_and_the_aud
         if proc is not None:
             stop_process(proc)
         srv.stop()
+
+
+def _strip_risk_cards(data_dir: Path, job_id: str) -> int:
+    """Remove the job's stored risk cards (as a plan planned before dry runs existed has none); how many."""
+    import sqlite3
+
+    (db,) = [p for p in data_dir.glob("*.sqlite")]
+    with sqlite3.connect(db) as conn:
+        rows = conn.execute("SELECT id, data FROM job_events WHERE job_id = ?", (job_id,)).fetchall()
+        stripped = 0
+        for event_id, text in rows:
+            data = json.loads(text) if text else {}
+            if isinstance(data, dict) and "risk" in data:
+                data.pop("risk")
+                conn.execute("UPDATE job_events SET data = ? WHERE id = ?", (json.dumps(data), event_id))
+                stripped += 1
+    return stripped
+
+
+def test_a_site_policy_requiring_the_physics_pass_dispatches_a_plan_whose_dry_run_stood(tmp_path: Path) -> None:
+    """``require_physics_pass: true`` in a site policy file: the plan's dry run (the risk card's, bound to its hash)
+    goes to the bridge's gate, which judges it and lets the plan run; a plan without a dry run, and one whose dry
+    run misses the policy's CoP floor, are refused with the reason and nothing is sent."""
+    port = free_port()
+    policy_file = tmp_path / "site-policy.yaml"
+    policy_file.write_text("schema: regrasp.policy/1\nrequire_physics_pass: true\n")
+    data = tmp_path / "data"
+    srv = Server(data, workers=1, bridge_port=port, policy=str(policy_file)).start()
+    proc = start_controller_sim(srv.data_dir, port, speed=1)
+    try:
+        wait_controller_alive(srv, proc, CONTROLLER_UP_TIMEOUT_S)
+        stood = submit_approved_plan(srv, {"scenario": "stand-1", "threshold_m": 0.03})
+        bare = submit_approved_plan(srv, {"scenario": "stand-1", "threshold_m": 0.031})
+        low = submit_approved_plan(srv, {"scenario": "stand-1", "threshold_m": 0.032})
+        with srv.client("bob") as bob:
+            card = bob.get(f"/v1/jobs/{stood}/risk").json()["planning"]
+            assert card["physics"]["stood"] is True, card.get("physics")
+            cop = card["physics"]["report"]["min_cop_margin_m"]
+            assert bob.post(f"/v1/jobs/{stood}/dispatch").status_code == 202
+            done = wait_state(bob, stood, END_STATES, timeout=30)
+            assert done["state"] == "succeeded", (done["message"], done["error"])
+            gate = [e["data"]["payload"] for e in job_events(bob, stood)
+                    if e["kind"] == "bridge" and e["data"].get("event") == "gate"]
+            # the bridge's gate was given the dry run and judged it (not skipped for want of a report)
+            assert gate and gate[0]["passed"] and "physics_dry_run" not in gate[0]["skipped"], gate
+
+        assert _strip_risk_cards(srv.data_dir, bare) >= 1
+        with srv.client("bob") as bob:
+            r = bob.post(f"/v1/jobs/{bare}/dispatch")
+            assert r.status_code == 409 and "requires a physics dry run, and this plan has none" in r.json()["detail"]
+            assert bob.get(f"/v1/jobs/{bare}").json()["state"] == "approved"
+
+        # A stricter site policy: a CoP floor above what this plan's dry run kept.
+        srv.stop()
+        policy_file.write_text(f"schema: regrasp.policy/1\nrequire_physics_pass: true\nmin_cop_margin_m: {cop + 0.005}\n")
+        srv = Server(data, workers=1, bridge_port=port, policy=str(policy_file)).start()
+        wait_controller_alive(srv, proc, CONTROLLER_UP_TIMEOUT_S)
+        with srv.client("bob") as bob:
+            r = bob.post(f"/v1/jobs/{low}/dispatch")
+            assert r.status_code == 409, r.text
+            assert "below the safety policy's min_cop_margin_m" in r.json()["detail"], r.text
+            history = [e for e in job_events(bob, low) if e["kind"] == "bridge"]
+            assert not any(e["data"].get("event") == "segment" for e in history)  # nothing was sent
+    finally:
+        stop_process(proc)
+        srv.stop()
