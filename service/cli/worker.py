@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 from pathlib import Path
@@ -35,13 +36,21 @@ def worker(data_dir: Path | None, database_url: str | None, workers: int | None,
                                     executor=executor, ray_address=ray_address)
     if settings.workers < 1:
         fail("regrasp worker needs --workers 1 or more")
+    from schemas.policy import POLICY_ENV, PolicyError
+
+    try:  # read before anything starts: a bad file is one line and exit 2, never a traceback in a worker
+        site_policy = settings.safety_policy()
+    except PolicyError as exc:
+        fail(str(exc))
+    if settings.policy is not None:  # the workers' processes (risk card's gate dry run) read the same file
+        os.environ[POLICY_ENV] = str(Path(settings.policy).resolve())
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     open_store_or_exit(settings.resolved_database_url, init_store or settings.init_store)
     engine = make_engine(settings.resolved_database_url)
     migrate(engine)
     store = JobStore(engine)
     executor_obj = make_executor(settings)
-    runner = Runner(store, executor_obj, settings)
+    runner = Runner(store, executor_obj, settings, policy=site_policy)
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())

@@ -64,3 +64,18 @@ def test_bad_input_exits_2_with_one_line(case: str, files: Path) -> None:
     assert len(lines) == 1, f"{case}: {len(lines)} lines\n{out}"
     assert "Traceback" not in out and "pydantic" not in out and "For further information" not in out, out
     assert len(lines[0]) > len("error: ") + 10, out
+
+
+@pytest.mark.parametrize("content", ["margin_floor_m: 0.03\n", "schema: regrasp.policy/1\nmargin_floor_m: -1\n", None])
+def test_worker_with_a_bad_policy_file_exits_2_with_one_line(content: str | None, files: Path) -> None:
+    """``REGRASP_POLICY`` naming a file without its schema, with a bad value, or no file at all."""
+    policy = files / f"policy-{abs(hash(content))}.yaml"
+    if content is not None:
+        policy.write_text(content)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "80", "REGRASP_POLICY": str(policy)}
+    res = subprocess.run([sys.executable, "-c", RUN, "worker", "--data-dir", str(files / "worker-var")], cwd=files,
+                         env=env, capture_output=True, text=True, timeout=120)
+    out = (res.stdout + res.stderr).strip()
+    assert res.returncode == 2, f"exit {res.returncode}\n{out}"
+    lines = [line for line in out.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in out and "policy" in lines[0], out
