@@ -8,8 +8,11 @@ the forearms and hands clear of the body; otherwise each arm's joints are solved
 (position IK from seeded starts, within the joint limits) to put its TCP below the shoulder, a little forward
 and out (the same for both arms, mirrored, so the arms keep the CoM over the polygon's centre sideways), and of
 the solutions whose forearm and hand stay clear of the body the one nearest its target with the least joint
-motion is kept (the robot's CoM is computed in planner/stability, which builds on this package, so it is
-reported by ``robot check``, not optimised here). Jaws are open. The hands then hang well behind any table whose near
+motion is kept. Then the legs stand the body over the feet: with the pelvis upright at the spec's pelvis height
+and both soles flat at the upright stance's placements, the hip, knee and ankle joints (within their limits)
+lean it until the CoM is over the centre of the support polygon (:func:`planner.stability.standing.centred_legs`:
+the CoM is computed in planner/stability; that module takes the robot as an argument and imports nothing from
+this package, so the loader can call it without an import cycle). Jaws are open. The hands then hang well behind any table whose near
 edge is in front of them (the fitted tasks put it there), and the posture is printed by ``robot check`` so it
 can be pasted into the spec. Results are cached by the URDF's and the spec's content.
 """
@@ -24,7 +27,9 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from planner.errors import StanceError
 from planner.robot.urdf_geometry import collision_primitives
+from planner.stability.standing import centred_legs
 
 #: the TCP's target below the shoulder, forward and out, as shares of the arm's length
 DOWN, FORWARD, OUT = 0.8, 0.12, 0.12
@@ -35,7 +40,7 @@ AHEAD_AT_MOST = 0.25
 #: the forearm and hand points must stay this far outside the body's boxes (m)
 CLEARANCE_M = 0.02
 STARTS, ITERATIONS, SEED = 16, 150, 7
-POSTURE_VERSION = 1
+POSTURE_VERSION = 2
 
 
 def _posture_key(robot) -> str:  # type: ignore[no-untyped-def]
@@ -112,7 +117,7 @@ def _clear(model: pin.Model, data: pin.Data, body: _Body, moving: set[str], fixe
 
 
 def derive_ready_posture(robot) -> dict[str, float]:  # type: ignore[no-untyped-def]
-    """Joint values (arm joints and jaws) of a ready posture (module docstring), rounded to 0.1 mrad."""
+    """Joint values (arm, leg and jaw joints) of a ready posture (module docstring), rounded to 0.1 mrad."""
     model, data = robot.pin_model, robot.create_data()
     spec = robot.spec
     q = np.clip(np.zeros(robot.nq), robot.lower, robot.upper)
@@ -176,6 +181,11 @@ def derive_ready_posture(robot) -> dict[str, float]:  # type: ignore[no-untyped-
         if best is None:
             continue  # nothing better found: the zero posture's arm stays (robot check reports its collisions)
         q[idx] = best
+    try:
+        # the legs then lean the body over the feet (planner/stability stands it: the CoM is computed there)
+        q = centred_legs(robot, q)
+    except StanceError:
+        pass  # the legs cannot: they stay as they are (robot check reports the upright stance's error)
     for k, name in enumerate(robot.joint_names):
         if q[k] != 0.0:
             out[name] = float(np.clip(round(float(q[k]), 4), robot.lower[k], robot.upper[k]))
