@@ -15,12 +15,11 @@ from planner.scene.scenarios import (
     resolve_scenario,
     with_overrides,
 )
-from planner.scene.task_fitting import fit_to_robot
 from planner.stability.stances import BUILTIN_STANCES, StanceError, builtin_stance, sole_size, solve_stance
 
 __all__ = [
     "BUILTIN_STANCES", "DEFAULT_ROBOT", "RequestNameError", "ScenarioError", "StanceError", "UnknownMeshError",
-    "UnknownRobotError", "builtin_names", "builtin_stance", "check_request", "check_scenario", "fit_to_robot",
+    "UnknownRobotError", "builtin_names", "builtin_stance", "check_request", "check_scenario",
     "is_spec_path", "load_builtin", "load_scenario", "load_spec", "mesh_file", "portable_dump", "registered_meshes",
     "registered_robots", "registered_stances", "resolve_scenario", "robot_names", "sole_size", "solve_stance",
     "urdf_path", "urdf_sha256", "with_overrides",

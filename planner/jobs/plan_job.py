@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from planner.errors import Canceled, InputError
+from planner.jobs.robot_task import scenario_for_robot
 from planner.jobs.survey_job import survey_overrides
 from planner.regrasp.failure_cause import FailureCause, failures_in_words
 from planner.regrasp.hand_config_planner import HandConfigPlanner
@@ -221,12 +222,8 @@ def plan_scenario(
     scenario = with_overrides(scenario, stance=options.stance, threshold_m=options.threshold_m,
                               hands=options.hands, seed=options.seed, time_limit_s=options.time_limit_s,
                               speed_scale=options.speed_scale)
-    if options.robot is not None:
-        scenario = scenario.model_copy(update={"robot": options.robot})
     progress(0.02, "setting up the task")
-    from planner.scene.task_fitting import fit_to_robot
-
-    scenario = fit_to_robot(scenario, scenario.robot)  # a built-in task run with another robot is fitted to it
+    scenario = scenario_for_robot(scenario, options.robot)  # a built-in task run with another robot is fitted to it
     if options.mass_kg is not None:
         scenario = with_overrides(scenario, mass_kg=options.mass_kg)
     if not options.limits:

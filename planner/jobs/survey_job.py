@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from planner.jobs.robot_task import scenario_for_robot
 from planner.scene.scenarios import resolve_scenario
 from planner.survey.cache import SurveyCache
 from planner.survey.runner import run_survey
@@ -25,6 +26,8 @@ def survey_job(request: dict[str, Any], ctx: Any) -> dict[str, Any]:
     scenario = resolve_scenario(request["scenario"], stance=request.get("stance"), threshold_m=request.get("threshold_m"),
                                 seed=request.get("seed"), time_limit_s=request.get("time_limit_s"),
                                 survey=survey_overrides(request))
+    # the request's robot is in the scenario (resolve_request): a built-in task is fitted to it, as a plan's is
+    scenario = scenario_for_robot(scenario)
     return SurveyCache.default().get_or_run(
         scenario, lambda: run_survey(scenario, should_stop=lambda: bool(ctx.cancelled()), progress=ctx.progress,
                                      keep_states=False, seed_map=getattr(ctx, "seed_map", None))[0])

@@ -167,7 +167,7 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci
            no_limits, robot_ref, workers, ray_address, as_json, states_out, all_stances, plot_dir, fmt) -> None:
     """Count stable (C) and unstable (U) explored states per hand configuration; R = C / (C + U)."""
     from planner.api.catalogue import BUILTIN_STANCES, resolve_scenario
-    from planner.api.jobs import SurveyCache, run_survey, write_states
+    from planner.api.jobs import SurveyCache, run_survey, scenario_for_robot, write_states
     from planner.errors import InputError
 
     ref = check_scenario_args(scenario_file, scenario_name)
@@ -200,11 +200,8 @@ def survey(scenario_file, scenario_name, stance, threshold_mm, until, states, ci
     try:
         for st in stance_list:
             sc = resolve_scenario(ref, stance=st, threshold_m=threshold, seed=seed, survey=overrides)
-            if robot_ref is not None:
-                from planner.api.catalogue import fit_to_robot
-
-                # a built-in task run with another robot is fitted to it, as `plan` fits it
-                sc = fit_to_robot(sc.model_copy(update={"robot": robot_ref}), robot_ref)
+            # a built-in task run with another robot is fitted to it, where `plan` and the service fit it
+            sc = scenario_for_robot(sc, robot_ref)
             label = f"survey {sc.name} ({sc.stance if isinstance(sc.stance, str) else sc.stance.name})"
             want_states = bool(states_out or plot_dir)
             cache = SurveyCache.default()
