@@ -40,7 +40,7 @@ AHEAD_AT_MOST = 0.25
 #: the forearm and hand points must stay this far outside the body's boxes (m)
 CLEARANCE_M = 0.02
 STARTS, ITERATIONS, SEED = 16, 150, 7
-POSTURE_VERSION = 2
+POSTURE_VERSION = 3
 
 
 def _posture_key(robot) -> str:  # type: ignore[no-untyped-def]
@@ -187,6 +187,7 @@ def derive_ready_posture(robot) -> dict[str, float]:  # type: ignore[no-untyped-
     except StanceError:
         pass  # the legs cannot: they stay as they are (robot check reports the upright stance's error)
     for k, name in enumerate(robot.joint_names):
-        if q[k] != 0.0:
-            out[name] = float(np.clip(round(float(q[k]), 4), robot.lower[k], robot.upper[k]))
+        value = float(np.clip(round(float(q[k]), 4), robot.lower[k], robot.upper[k]))
+        if value != 0.0:
+            out[name] = value
     return out

@@ -41,6 +41,9 @@ class RobotReport:
     colliding: dict[str, list[tuple[str, str]]] = field(default_factory=dict)
     stance_errors: dict[str, str] = field(default_factory=dict)
     footprints: list[FootPrint] = field(default_factory=list)
+    #: the ready posture's CoM minus its soles' polygon centre (x, y; m) and its soles' largest tilt (rad)
+    ready_com_offset_m: np.ndarray | None = None
+    ready_sole_tilt_rad: float = 0.0
 
 
 def colliding_pairs(world: CollisionWorld, base: np.ndarray, q: np.ndarray, skip: set[tuple[str, str]]
@@ -75,6 +78,7 @@ def _footprint(robot: RobotModel, stance) -> FootPrint:  # type: ignore[no-untyp
 def robot_report(robot: RobotModel, progress: Callable[[str], None] = lambda m: None) -> RobotReport:
     """The matrix (computed and cached, unless the spec has an SRDF), the pairs in collision at the ready posture
     and the built-in stances, and each stance's feet, polygon and CoM."""
+    from planner.stability.standing import posture_com_offset
     from planner.stability.stances import StanceError, solve_stance
 
     progress("building the collision model")
@@ -88,6 +92,7 @@ def robot_report(robot: RobotModel, progress: Callable[[str], None] = lambda m: 
     report = RobotReport(matrix, cached, len(robot.spec.disabled_collisions))
     base = np.array([0, 0, robot.spec.upright.pelvis_height_m, 0, 0, 0, 1.0])
     report.colliding["ready posture"] = colliding_pairs(world, base, robot.default_q(), skip)
+    report.ready_com_offset_m, report.ready_sole_tilt_rad = posture_com_offset(robot, robot.default_q())
     for name in BUILTIN_STANCES:
         progress(f"stance {name}")
         try:

@@ -163,3 +163,21 @@ def centred_legs(robot: Any, q: np.ndarray) -> np.ndarray:
     stand(robot, robot.create_data(), out, targets, spec.upright.pelvis_height_m, np.zeros(2), centre,
           "ready posture", "the centre of the support polygon")
     return out
+
+
+def posture_com_offset(robot: Any, q: np.ndarray) -> tuple[np.ndarray, float]:
+    """Where the posture ``q`` stands its CoM: (CoM minus the centre of the support polygon of both soles, x and y
+    in m; the largest tilt of a sole from flat, rad), with the pelvis upright at the spec's pelvis height and the
+    soles where ``q`` puts them (the ready posture's own balance, as ``robot check`` prints it)."""
+    base = np.array([0.0, 0.0, robot.spec.upright.pelvis_height_m, *base_orientation(robot)])
+    model, data = robot.pin_model, robot.create_data()
+    q_pin = robot.to_pin_q(base, q)
+    pin.framesForwardKinematics(model, data, q_pin)
+    soles, tilt = [], 0.0
+    for foot in robot.spec.feet.values():
+        M = data.oMf[robot.frame_id(foot.frame)]
+        tilt = max(tilt, float(np.arccos(np.clip(M.rotation[2, 2], -1.0, 1.0))))
+        soles.append((M.rotation, M.translation, *sole_box(robot, foot.frame), True))
+    centre = polygon_centroid(support_polygon(soles))
+    com = pin.centerOfMass(model, data, q_pin, False)
+    return np.asarray(com[:2]) - centre, tilt

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import click
 from rich.table import Table
 
@@ -118,6 +120,11 @@ def _check_model(spec_file: str, plot_path: str | None, progress, posture_given:
         else:
             console.print("ready posture: the zero posture (the spec gives none; its arms already hang down, clear "
                           "of the body)", highlight=False, soft_wrap=True)
+    if report.ready_com_offset_m is not None:
+        dx, dy = 1000 * report.ready_com_offset_m
+        console.print(f"ready posture: CoM {dx:+.1f} mm forward, {dy:+.1f} mm left of its soles' polygon centre "
+                      f"(pelvis upright at {robot.spec.upright.pelvis_height_m:.3f} m, soles "
+                      f"{math.degrees(report.ready_sole_tilt_rad):.2f} deg from flat)", highlight=False, soft_wrap=True)
     m = report.matrix
     if m is None:
         console.print(f"collision matrix: the SRDF's ({report.spec_pairs} pairs with the spec's own)", highlight=False)

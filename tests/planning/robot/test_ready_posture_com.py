@@ -78,6 +78,8 @@ def test_the_derived_ready_posture_stands_the_com_over_the_polygon_centre_and_pl
     # robot check prints it to paste; pasted into the spec, it is the posture and the task plans
     res = CliRunner().invoke(cli, ["robot", "check", str(spec_path), "--quiet"], catch_exceptions=False)
     assert res.exit_code == 0, res.output
+    printed = re.search(r"ready posture: CoM ([-+.0-9]+) mm forward, ([-+.0-9]+) mm left", res.output)
+    assert printed and np.hypot(float(printed[1]), float(printed[2])) < 2.0, res.output
     line = next(x for x in res.output.replace("\n", " ").split("default_posture_rad: ")[1:]).split("}")[0] + "}"
     pasted = yaml.safe_load(line)
     assert pasted == pytest.approx(robot.spec.default_posture_rad)
