@@ -77,22 +77,18 @@ def test_goal_not_resting_on_a_table_is_rejected(small_box):
     assert "50 mm above table" in doc["failure"]["message"]
 
 
-def test_object_too_heavy_is_infeasible_within_its_time_limit(small_box):
+def test_object_too_heavy_is_infeasible_within_its_iteration_cap(small_box):
     from planner.scene.scenarios import parse_scenario
 
     data = small_box.model_dump(by_alias=True)
     data["object"]["mass_kg"] = 60.0
-    data["limits"] = {"time_s": 60, "max_iterations": 50}
-    import time
-
-    t0 = time.perf_counter()
+    data["limits"] = {"max_iterations": 50}  # the iteration cap decides, never the machine's speed
     doc = plan_scenario(parse_scenario(data), PlanOptions())
-    assert time.perf_counter() - t0 < 60 + 15
     assert doc["status"] == "infeasible"
     # 60 kg slips out of the jaws (589 N against 2 x 0.6 x 400 N): the margin refuses those grasps first, and
     # the limits decide the code, naming the margin's refusals in the message.
     assert doc["failure"]["code"] == "GRIP", doc["failure"]
-    assert "slip" in doc["failure"]["message"] and "com_margin" in doc["failure"]["message"]
+    assert "slip" in doc["failure"]["message"] and "CoM margin" in doc["failure"]["message"]
     assert doc["failure"]["counts"].get("com_margin", 0) > 0
 
 
