@@ -253,8 +253,12 @@ def test_robot_state_echoes_follow_the_plan(audited: AuditedJob) -> None:
         assert echo["data"]["joint_names"] == names
         assert np.max(np.abs(np.array(echo["data"]["q"]) - planned_q)) < ECHO_TOLERANCE_RAD
     # Each echo is also an executed joint state for Foxglove, beside the plan's own playback.
+    # Each measured sample an echo carries (one, or the batch under ``samples``) is one executed joint state.
     executed = [m["body"] for m in audited.messages if m["topic"] == "/robot/joint_states"]
-    assert len(executed) == len(echoes)
+    samples = [s for _, echo in echoes for s in (echo["data"].get("samples") or [echo["data"]])]
+    assert len(executed) == len(samples) > len(echoes)
+    for s in samples:
+        assert np.max(np.abs(np.array(s["q"]) - planned_q)) < ECHO_TOLERANCE_RAD
     assert [j["name"] for j in executed[0]["joints"]] == names
     topics = {m["topic"]: m["schema"] for m in audited.messages}
     assert topics["/plan/joint_states"] == topics["/robot/joint_states"] == "foxglove.JointStates"
