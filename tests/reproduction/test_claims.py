@@ -54,10 +54,13 @@ def test_the_best_stance_needs_a_separate_band():
     assert not judge_best_stance({"upright": close, "crouched": crouched})[0]
 
 
-def test_no_removal_reads_the_plan_s_failures_by_cause():
-    assert judge_no_removal({"status": "solved", "failures": {"collision": 3}})[0]
-    ok, ev = judge_no_removal({"status": "solved", "failures": {"com_margin": 2}})
-    assert not ok and "2 nodes removed" in ev
+def test_no_removal_reads_each_plan_s_failures_by_cause():
+    clean = {"status": "solved", "failures": {"collision": 3}}
+    assert judge_no_removal({"left-left": clean, "left-right": clean})[0]
+    ok, ev = judge_no_removal({"left-left": clean, "left-right": {"status": "solved", "failures": {"com_margin": 2}}})
+    assert not ok and "left-right plan: 2 nodes removed" in ev and "left-left plan: 0 nodes removed" in ev
+    ok, ev = judge_no_removal({"left-left": clean, "left-right": {"status": "infeasible", "failure": "IK"}})
+    assert not ok and "left-right plan is infeasible" in ev
 
 
 def test_the_threshold_claim_needs_a_breaking_plan_and_a_constrained_plan_that_keeps_it():
