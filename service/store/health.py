@@ -34,6 +34,8 @@ STORAGE_ERRNOS = {errno.ENOSPC: "full", errno.EDQUOT: "over its quota", errno.ER
 #: What SQLite says when its file cannot be written.
 STORE_MESSAGES = {"database or disk is full": "full", "readonly database": "read-only",
                   "disk i/o error": "failing (I/O error)", "unable to open database file": "not writable"}
+#: The one SQLite message that may be the store's own fault rather than the disk's (see ``note_failure``).
+UNOPENABLE = STORE_MESSAGES["unable to open database file"]
 
 
 def storage_trouble(exc: BaseException) -> str | None:
@@ -144,7 +146,15 @@ class StorageHealth:
         trouble = storage_trouble(exc)
         if trouble is None:
             return None
-        reason = f"the disk of the data directory {self.data_dir} is {trouble} ({what} failed)"
+        if trouble == UNOPENABLE:
+            # SQLite says the same of a missing or damaged store file as of a disk it cannot write: only the
+            # disk's own look decides; a healthy disk leaves it the store's error.
+            seen = self._look()
+            if seen is None:
+                return None
+            reason = f"{seen} ({what} failed)"
+        else:
+            reason = f"the disk of the data directory {self.data_dir} is {trouble} ({what} failed)"
         with self._lock:
             self._noted, self._noted_at = reason, time.monotonic()
             was, self._problem = self._problem, self._problem or reason
