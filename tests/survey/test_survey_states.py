@@ -94,23 +94,25 @@ def margins(run, indep, robot_com):
 
 @pytest.fixture(scope="module")
 def groups(run, indep):
-    """The stored states by (hands, holding hand), each with its grasp: the holding TCP in the object frame.
+    """The stored states by (hands, holding hand, seed), each with its grasp: the holding TCP in the object frame.
 
-    The grasp is read off each state (pinocchio's TCP, the stored object pose); ``spread`` is how much
-    it varies within the group (m, rad).
+    Each seed explores one key path of its row's pool, so one grasp per leg and seed. The grasp is read off each
+    state (pinocchio's TCP, the stored object pose); ``spread`` is how much it varies within the group (m, rad).
     """
     s = run.states
     out = []
     for hands in HANDS:
         for side in ("left", "right"):
-            idx = np.flatnonzero((s["hands"] == hands) & (s["holding"] == side))
-            if not len(idx):
-                continue
-            grasps = [pin.XYZQUATToSE3(s["object_pose"][i]).actInv(
-                indep.frame(s["base_pose"], s["q"][i], f"{side[0]}_tcp")) for i in idx]
-            spread = max(max(np.linalg.norm(pin.log6(grasps[0].actInv(g)).linear),
-                             np.linalg.norm(pin.log6(grasps[0].actInv(g)).angular)) for g in grasps)
-            out.append(SimpleNamespace(hands=hands, side=side, idx=idx, T_obj_tcp=grasps[0].homogeneous, spread=spread))
+            for seed in np.unique(s["seed"]):
+                idx = np.flatnonzero((s["hands"] == hands) & (s["holding"] == side) & (s["seed"] == seed))
+                if not len(idx):
+                    continue
+                grasps = [pin.XYZQUATToSE3(s["object_pose"][i]).actInv(
+                    indep.frame(s["base_pose"], s["q"][i], f"{side[0]}_tcp")) for i in idx]
+                spread = max(max(np.linalg.norm(pin.log6(grasps[0].actInv(g)).linear),
+                                 np.linalg.norm(pin.log6(grasps[0].actInv(g)).angular)) for g in grasps)
+                out.append(SimpleNamespace(hands=hands, side=side, seed=int(seed), idx=idx,
+                                           T_obj_tcp=grasps[0].homogeneous, spread=spread))
     return out
 
 
@@ -187,7 +189,7 @@ def test_an_independent_recomputation_agrees_with_the_flags_on_both_sides(run, i
 # -- properties through the project's StateEvaluator ----------------------------------------------
 
 def test_the_object_moves_rigidly_with_the_holding_hand(groups):
-    """Per leg one grasp: the stored object pose follows the holding TCP (so the grasp can be read off)."""
+    """Per leg and seed one grasp: the stored object pose follows the holding TCP (so the grasp can be read off)."""
     assert {(g.hands, g.side) for g in groups} == {("left-left", "left"), ("right-left", "right"), ("right-left", "left")}
     for g in groups:
         assert g.spread < 1e-6, (g.hands, g.side, g.spread)
