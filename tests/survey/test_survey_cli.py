@@ -27,6 +27,7 @@ HANDS = ["left-left"]
 
 @pytest.fixture(scope="module")
 def all_stances(tmp_path_factory):
+    import planner.api.jobs
     import planner.survey.runner as survey_module
 
     out = tmp_path_factory.mktemp("all-stances")
@@ -39,7 +40,10 @@ def all_stances(tmp_path_factory):
         return doc, outcomes
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(survey_module, "run_survey", one_configuration)
+        patched = one_configuration
+        # The CLI calls it through the planner's public interface, which binds it when first imported.
+        mp.setattr(survey_module, "run_survey", patched)
+        mp.setattr(planner.api.jobs, "run_survey", patched)
         res = CliRunner(env={"COLUMNS": "250"}).invoke(
             cli, ["survey", str(DATA / "small-box.yaml"), "--all-stances", "--threshold-mm", "70", "--states", "40",
                   "--seeds-min", "2", "--seeds-max", "2", "--workers", "1", "--plot", str(out)])
@@ -120,11 +124,15 @@ def test_the_matrix_json_form_holds_every_stance_document(tmp_path):
     stance but the staggered one could meet, and there no key poses either, so nothing is explored)."""
     import json
 
+    import planner.api.jobs
     import planner.survey.runner as survey_module
 
     real = survey_module.run_survey
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(survey_module, "run_survey", lambda scenario, **kw: real(scenario, hands=["left-left"], **kw))
+        patched = lambda scenario, **kw: real(scenario, hands=["left-left"], **kw)
+        # The CLI calls it through the planner's public interface, which binds it when first imported.
+        mp.setattr(survey_module, "run_survey", patched)
+        mp.setattr(planner.api.jobs, "run_survey", patched)
         res = CliRunner().invoke(cli, ["survey", str(DATA / "small-box.yaml"), "--all-stances", "--threshold-mm", "118",
                                        "--states", "10", "--seeds-min", "1", "--seeds-max", "1", "--workers", "1", "--json"])
     assert res.exit_code == 0, res.output

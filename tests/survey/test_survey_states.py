@@ -46,6 +46,7 @@ NEAR = 1e-9
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
+    import planner.api.jobs
     import planner.survey.runner as survey_module
 
     out = tmp_path_factory.mktemp("one-legged-survey")
@@ -62,7 +63,10 @@ def run(tmp_path_factory):
         return doc, outcomes
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(survey_module, "run_survey", two_configurations)
+        patched = two_configurations
+        # The CLI calls it through the planner's public interface, which binds it when first imported.
+        mp.setattr(survey_module, "run_survey", patched)
+        mp.setattr(planner.api.jobs, "run_survey", patched)
         res = CliRunner().invoke(cli, ["survey", str(SCENARIO), "--states", str(STATES), "--seeds-min", str(SEEDS),
                                        "--seeds-max", str(SEEDS), "--workers", "1", "--json",
                                        "--states-out", str(out / "states.npz"), "--plot", str(out / "plots")])
