@@ -39,6 +39,8 @@ STARTUP_TIMEOUT_S = 60.0
 END_STATES = {"succeeded", "aborted", "rejected", "failed"}
 #: How long a spawned simulated controller may take to be heard (a first run compiles kernels).
 CONTROLLER_UP_TIMEOUT_S = 60.0
+#: The first bytes of every MCAP file (an audit download starts with them).
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def inline_scenario(**changes: Any) -> dict[str, Any]:
@@ -243,6 +245,31 @@ def submit_approved_plan(srv: Server, request: dict[str, Any], timeout: float = 
         assert r.status_code == 200, r.text
         return job_id
 
+
+
+def closed_audit_events(srv: "Server", job_id: str, want: str | set[str] = "finished",
+                        timeout_s: float = 20.0) -> list[tuple[str, dict[str, Any]]]:
+    """(kind, payload) of the /audit/events records of every closed audit file of the job, in file order, once
+    they hold a record of a kind in ``want`` (bounded wait: the audit process writes them after the events)."""
+    from mcap.reader import make_reader
+
+    wanted = {want} if isinstance(want, str) else set(want)
+    deadline = time.monotonic() + timeout_s
+    audit_dir = srv.data_dir / "audit"
+    while True:
+        files = sorted(audit_dir.glob(f"{job_id}*.mcap"), key=lambda p: (len(p.name), p.name))
+        out: list[tuple[str, dict[str, Any]]] = []
+        if files and all(p.read_bytes().endswith(MCAP_MAGIC) for p in files):
+            for path in files:
+                with open(path, "rb") as f:
+                    for _, channel, msg in make_reader(f).iter_messages(log_time_order=False):
+                        if channel.topic == "/audit/events":
+                            body = json.loads(msg.data)
+                            out.append((body["kind"], body["payload"]))
+            if any(k in wanted for k, _ in out):
+                return out
+        assert time.monotonic() < deadline, f"no closed audit file of {job_id} with {sorted(wanted)}: {[p.name for p in files]}"
+        time.sleep(0.2)
 
 def job_events(client: httpx.Client, job_id: str) -> list[dict[str, Any]]:
     """The job's stored event history (the SSE stream without following)."""

@@ -15,6 +15,7 @@ from typing import Any
 
 import pytest
 from conftest import (
+    MCAP_MAGIC,
     CONTROLLER_UP_TIMEOUT_S,
     END_STATES,
     Server,
@@ -30,7 +31,6 @@ from mcap.reader import make_reader
 
 pytestmark = pytest.mark.host_pauses(limit_s=0.5)
 AUDIT_TIMEOUT_S = 30.0
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: CONTRACT 7: measured joint states per second of motion.
 MIN_PER_MOTION_S = 50.0
 

@@ -15,6 +15,8 @@ from typing import Any
 
 import pytest
 from conftest import (
+    closed_audit_events,
+    MCAP_MAGIC,
     CONTROLLER_UP_TIMEOUT_S,
     END_STATES,
     Server,
@@ -32,29 +34,12 @@ from schemas.policy import default_policy, load_policy
 
 pytestmark = pytest.mark.host_pauses(limit_s=0.5)
 AUDIT_TIMEOUT_S = 20.0
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def _gate_verdicts(srv: Server, job_id: str) -> list[dict[str, Any]]:
     """The gate verdicts recorded in the job's closed audit files (bounded wait for the audit process)."""
-    deadline = time.monotonic() + AUDIT_TIMEOUT_S
-    while True:
-        files = sorted((srv.data_dir / "audit").glob(f"{job_id}*.mcap"), key=lambda p: (len(p.name), p.name))
-        verdicts: list[dict[str, Any]] = []
-        if files and all(p.read_bytes().endswith(MCAP_MAGIC) for p in files):
-            for path in files:
-                with open(path, "rb") as f:
-                    for _, channel, msg in make_reader(f).iter_messages(log_time_order=False):
-                        if channel.topic == "/audit/events":
-                            body = json.loads(msg.data)
-                            if body["kind"] == "gate_verdict":
-                                verdicts.append(body["payload"]["verdict"])
-                            elif body["kind"] == "gate":
-                                verdicts.append(body["payload"]["data"])
-            if verdicts:
-                return verdicts
-        assert time.monotonic() < deadline, f"no gate verdict in the closed audit files of {job_id}"
-        time.sleep(0.2)
+    events = closed_audit_events(srv, job_id, {"gate_verdict", "gate"}, AUDIT_TIMEOUT_S)
+    return [p["verdict"] if k == "gate_verdict" else p["data"] for k, p in events if k in ("gate_verdict", "gate")]
 
 
 def test_a_plan_below_the_floor_is_a_comparison_never_approved_or_dispatched(tmp_path: Path) -> None:

@@ -18,6 +18,8 @@ from typing import Any, Iterator
 import httpx
 import pytest
 from conftest import (
+    closed_audit_events,
+    MCAP_MAGIC,
     BRIDGE_ROBOT_ID,
     CONTROLLER_UP_TIMEOUT_S,
     END_STATES,
@@ -36,7 +38,6 @@ from mcap.reader import make_reader
 #: paused the guest for 0.5 s or more measured the host, and the test runs again.
 pytestmark = pytest.mark.host_pauses(limit_s=0.5)
 AUDIT_TIMEOUT_S = 20.0
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 @pytest.fixture(scope="module")
@@ -53,24 +54,8 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Server, Any]
 
 
 def _audit_events(srv: Server, job_id: str, want: str = "finished") -> list[tuple[str, dict[str, Any]]]:
-    """(kind, payload) of the /audit/events records of every closed audit file of the job, in file order, once
-    they hold a ``want`` record (bounded wait: the audit process writes them a moment after the events)."""
-    deadline = time.monotonic() + AUDIT_TIMEOUT_S
-    audit_dir = srv.data_dir / "audit"
-    while True:
-        files = sorted(audit_dir.glob(f"{job_id}*.mcap"), key=lambda p: (len(p.name), p.name))
-        out: list[tuple[str, dict[str, Any]]] = []
-        if files and all(p.read_bytes().endswith(MCAP_MAGIC) for p in files):
-            for path in files:
-                with open(path, "rb") as f:
-                    for _, channel, msg in make_reader(f).iter_messages(log_time_order=False):
-                        if channel.topic == "/audit/events":
-                            body = json.loads(msg.data)
-                            out.append((body["kind"], body["payload"]))
-            if any(k == want for k, _ in out):
-                return out
-        assert time.monotonic() < deadline, f"no closed audit file of {job_id} with {want!r}: {[p.name for p in files]}"
-        time.sleep(0.2)
+    """The job's closed audit records once they hold a ``want`` record."""
+    return closed_audit_events(srv, job_id, want, AUDIT_TIMEOUT_S)
 
 
 def test_concurrent_dispatches_get_exactly_one_202(rig: tuple[Server, Any]) -> None:
