@@ -1358,7 +1358,10 @@
       window.regrasp3d.setIndex(state.cursor);  // the plan's robot back in its own colour, at the cursor
       const ok = window.regrasp3d.showGhost(last.joint_names, last.q);
       $("view3d").dataset.ghost = ok ? "measured" : "";
-      $("recovery").dataset.measuredIndex = String(last.index ?? "");
+      // A state measured after the stream ended (the robot holding) has no sample index: show the last one reached.
+      const reached = [...history].reverse().find((d) => typeof d.index === "number");
+      const index = typeof last.index === "number" ? last.index : reached ? reached.index : null;
+      $("recovery").dataset.measuredIndex = index === null ? "" : String(index);
       return true;
     };
     if (!place()) $("view3d").addEventListener("regrasp3d:drawn", place, { once: true });
