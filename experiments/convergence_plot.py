@@ -27,12 +27,13 @@ def convergence_series(row: dict[str, Any], first_seed: int) -> dict[str, np.nda
     per_seed = row.get("per_seed") or []
     c = np.array([p["stable"] for p in per_seed], dtype=float)
     u = np.array([p["unstable"] for p in per_seed], dtype=float)
+    strata = [(p.get("key_path") or {}).get("seed") for p in per_seed]  # the estimator's strata: key paths
     states, ratio, lo, hi = [], [], [], []
     for k in range(1, len(per_seed) + 1):
         n = c[:k].sum() + u[:k].sum()
         if n <= 0:
             continue
-        interval = ratio_interval(c[:k], u[:k], bootstrap_rng(first_seed, row["hands"], k))
+        interval = ratio_interval(c[:k], u[:k], bootstrap_rng(first_seed, row["hands"], k), strata=strata[:k])
         states.append(n)
         ratio.append(c[:k].sum() / n)
         lo.append(interval[0])

@@ -25,7 +25,7 @@ from planner.regrasp.plan_assembly import MotionPiece
 from planner.regrasp.probes import probe_grasps_with_waist, steady_giver
 from planner.regrasp.results import HandoverPoses, KeyPoses
 from planner.regrasp.settings import HANDS_INDEX
-from planner.regrasp.search_data import SearchData, solve_ik, stable_posture
+from planner.regrasp.search_data import SearchData, solve_ik, solve_targets, stable_posture
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
 from planner.transforms import inverse
@@ -121,10 +121,9 @@ def validate_handover(task: Task, data: SearchData, node: HandoverNode, rng: np.
     if q_both is None:
         # Both arms with the waist, which they share.
         d.counters["ik_solves"] += 1
-        res = t.ik.solve({giver: T_g, taker: T_t}, t.home, rng, rest_q=t.home)
-        if res.q is None:
+        q_both = solve_targets(t, d, "waist", {giver: T_g, taker: T_t}, t.home, rng)
+        if q_both is None:
             return Validation(False, FailureCause.IK, "handover pose out of reach for both hands")
-        q_both = res.q
         q_both[t.jaw[giver]] = gg.jaw_value
         hold_g = HoldSpec(giver, inverse(T_obj) @ t.tcp(q_both, giver))
         q_g = q_both.copy()

@@ -20,6 +20,7 @@ from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
 from planner.regrasp.results import GraspProbe
 from planner.regrasp.settings import HANDS_INDEX, Side
 from planner.regrasp.search_data import SearchData, stable_posture
+from planner.regrasp.seed_free import array_key
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
 from planner.transforms import inverse
@@ -60,7 +61,7 @@ def probe_grasps_with_waist(task: Task, data: SearchData, side: Side) -> None:
         return
     data.waist_probed.update(mine)
     T_obj, targets = _grasp_targets(task, side, mine)
-    res = task.ik.batch.solve(side, targets, task.stance.base_pose, task.home, task.home)
+    res = _batch_from_home(task, data, "waist", side, targets)
     data.counters["ik_solves"] += len(mine)
     reached = np.flatnonzero(res.ok)
     if reached.size:
@@ -177,11 +178,24 @@ def steady_giver(task: Task, data: SearchData, side: Side, q: np.ndarray, hold: 
     return q, hold, cause, margin
 
 
+def _batch_from_home(task: Task, data: SearchData, solver: str, side: Side, targets: np.ndarray) -> BatchIkResult:
+    """The batched IK of ``side`` to ``targets`` from home by the arm-only or the waist-and-arm solver: it draws
+    nothing, so the search's shared seed-free results keep it (:mod:`planner.regrasp.seed_free`)."""
+    ik = task.ik_arm_only if solver == "arm_only" else task.ik
+
+    def solve() -> BatchIkResult:
+        return ik.batch.solve(side, targets, task.stance.base_pose, task.home, task.home)
+
+    if data.seed_free is None:
+        return solve()
+    return data.seed_free.batch_ik((solver, side, *array_key(targets)), solve)
+
+
 def _batch_arm_ik(task: Task, data: SearchData, side: Side, targets: np.ndarray, seeds: list) -> BatchIkResult:
     """:func:`planner.regrasp.search_data.solve_ik` with the arm alone for many targets at once: the attempt from home, then,
     where it missed, the first restart from the draw the one-by-one solve would make with the
     generator seeded by ``seeds[k]``."""
-    res = task.ik_arm_only.batch.solve(side, targets, task.stance.base_pose, task.home, task.home)
+    res = _batch_from_home(task, data, "arm_only", side, targets)
     data.counters["ik_solves"] += len(targets)
     missed = np.flatnonzero(~res.ok)
     if missed.size and task.ik_arm_only.settings.restarts > 0:

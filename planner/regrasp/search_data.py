@@ -24,6 +24,7 @@ from planner.grasping.handover import HandoverPose
 from planner.motion.stable_posture import PostureProblem, stable_posture as nearest_stable_posture
 from planner.regrasp.graph import HandoverNode, PlacementNode
 from planner.regrasp.results import GraspProbe
+from planner.regrasp.seed_free import SeedFreeResults, array_key
 from planner.regrasp.settings import Side
 from planner.regrasp.state_checker import StateChecker
 from planner.regrasp.task import Task
@@ -31,9 +32,10 @@ from planner.regrasp.task_setup import task_handover_poses
 
 
 class SearchData:
-    """The scratch of one search over a task: ``SearchData(task)``."""
+    """The scratch of one search over a task: ``SearchData(task)``. ``seed_free`` shares the results of the
+    seed-free steps with searches of the same problem under other seeds (:mod:`planner.regrasp.seed_free`)."""
 
-    def __init__(self, task: Task) -> None:
+    def __init__(self, task: Task, seed_free: SeedFreeResults | None = None) -> None:
         #: Checks done in this search; a Counter, so that a helper process's counts add on (update adds).
         self.counters: Counter = Counter({"ik_solves": 0, "collision_states": 0, "com_states": 0})
         #: Seconds spent on what this search computed on first use (``handover_poses_s``, ...).
@@ -50,15 +52,29 @@ class SearchData:
         #: validity and clearance of states, counting into :attr:`counters`
         self.checker = StateChecker(task.evaluator, task.world, task.stance.base_pose, task.constrained, self.counters,
                                     limits=task.limits)
+        self.seed_free = seed_free
         #: pinocchio scratch of :func:`stable_posture`
         self.posture_data = task.robot.create_data()
         self._handover_poses: list[HandoverPose] | None = None
+
+    @property
+    def seed_free(self) -> SeedFreeResults | None:
+        """Seed-free results shared with the searches of the same problem under other seeds (None: not shared)."""
+        return self._seed_free
+
+    @seed_free.setter
+    def seed_free(self, shared: SeedFreeResults | None) -> None:
+        self._seed_free = shared
+        self.checker.seed_free = shared
 
     def handover_poses(self, task: Task) -> list[HandoverPose]:
         """The task's handover poses, computed on first use (single-arm plans never need them)."""
         if self._handover_poses is None:
             t0 = time.perf_counter()
-            self._handover_poses = task_handover_poses(task)
+            shared = self.seed_free.handover_poses if self.seed_free is not None else None
+            self._handover_poses = shared if shared is not None else task_handover_poses(task)
+            if self.seed_free is not None:
+                self.seed_free.handover_poses = self._handover_poses
             self.timings["handover_poses_s"] = time.perf_counter() - t0
         return self._handover_poses
 
@@ -97,11 +113,21 @@ def solve_ik(task: Task, data: SearchData, side: Side, target: np.ndarray, seed:
     """IK for one TCP target. The arm alone is tried first: bending the waist moves the heavy
     torso and costs CoM margin, so the waist joins only when the arm cannot reach."""
     data.counters["ik_solves"] += 1
-    res = task.ik_arm_only.solve_arm(side, target, seed, rng, rest_q=task.home)
-    if res.q is None and not arm_only:
+    q = solve_targets(task, data, "arm_only", {side: target}, seed, rng)
+    if q is None and not arm_only:
         data.counters["ik_solves"] += 1
-        res = task.ik.solve_arm(side, target, seed, rng, rest_q=task.home)
-    return res.q
+        q = solve_targets(task, data, "waist", {side: target}, seed, rng)
+    return q
+
+
+def solve_targets(task: Task, data: SearchData, solver: str, targets: dict[Side, np.ndarray], seed: np.ndarray,
+                  rng: np.random.Generator) -> np.ndarray | None:
+    """IK of ``targets`` by the task's arm-only (``"arm_only"``) or waist-and-arms (``"waist"``) solver from
+    ``seed``, pulled towards home; through the search's shared seed-free results when it has them."""
+    ik = task.ik_arm_only if solver == "arm_only" else task.ik
+    if data.seed_free is not None:
+        return data.seed_free.ik(solver, ik, targets, seed, rng, task.home)
+    return ik.solve(targets, seed, rng, rest_q=task.home).q
 
 
 def stable_posture(task: Task, data: SearchData, q: np.ndarray, sides: Sequence[Side],
@@ -120,8 +146,15 @@ def stable_posture(task: Task, data: SearchData, q: np.ndarray, sides: Sequence[
                              data=data.posture_data)
     hands = {task.robot.spec.arms[s].tcp: task.tcp(q, s) for s in sides}
     columns = np.unique(np.concatenate([task.active[s] for s in sides]))
-    out = nearest_stable_posture(problem, q, columns, hands,
-                                 task.evaluator.threshold_m + task.settings.stable_posture_slack_m)
+    threshold = task.evaluator.threshold_m + task.settings.stable_posture_slack_m
+
+    def solve() -> np.ndarray | None:
+        return nearest_stable_posture(problem, q, columns, hands, threshold)
+
+    if data.seed_free is None:
+        out = solve()
+    else:
+        out = data.seed_free.posture((tuple(sides), threshold, *array_key(q, T_obj)), solve)
     if out is not None:
         data.counters["stable_postures_found"] += 1
     return out

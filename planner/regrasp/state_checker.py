@@ -18,6 +18,7 @@ import numpy as np
 
 from planner.kinematics.batch import select_states
 from planner.regrasp.failure_cause import FailureCause
+from planner.regrasp.seed_free import SeedFreeResults, array_key
 from planner.scene.collision import CollisionWorld
 from planner.stability.effort import EffortEvaluator
 from planner.stability.evaluator import HoldSpec, StateEvaluator
@@ -37,6 +38,8 @@ class StateChecker:
         self.base_pose = base_pose
         self.constrained = constrained
         self.counters = counters
+        #: seed-free results shared with searches of the same problem under other seeds (None: not shared)
+        self.seed_free: SeedFreeResults | None = None
 
     def validity(self, hold: HoldSpec | None, free_object: np.ndarray | None, grasping: str | None = None,
                  active: np.ndarray | None = None) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
@@ -77,6 +80,14 @@ class StateChecker:
         """:meth:`classify` for ``groups`` equal runs of consecutive states of Q at once: each run's first
         failing cause and min margin. ``free_object`` is one pose, or one per state (N, 4, 4); runs that
         fail on the margin are not checked for collision."""
+        if self.seed_free is None:
+            return self._classify_groups(Q, groups, hold, free_object, grasping)
+        key = ("groups", groups, grasping, None if hold is None else hold.side,
+               *array_key(Q, None if hold is None else hold.T_obj_tcp, free_object))
+        return self.seed_free.checks(key, lambda: self._classify_groups(Q, groups, hold, free_object, grasping))
+
+    def _classify_groups(self, Q: np.ndarray, groups: int, hold: HoldSpec | None, free_object: np.ndarray | None,
+                         grasping: str | None) -> tuple[list[FailureCause | None], np.ndarray]:
         k = len(Q) // groups
         batch = self.evaluator.evaluate(Q, hold)
         self.counters["com_states"] += len(Q)

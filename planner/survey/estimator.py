@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import Any, Callable, Literal, Sequence
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -40,6 +40,8 @@ from schemas.common import HAND_CONFIGS
 BOOTSTRAP_RESAMPLES = 2000
 #: Seeds handed to the workers ahead of the judgement, per worker.
 LOOKAHEAD_PER_WORKER = 2
+#: Seeds of each key path a row with several needs before its stratified interval may call it converged.
+MIN_SEEDS_PER_KEY_PATH = 3
 
 
 class Estimator(BaseModel):
@@ -78,8 +80,17 @@ class Estimator(BaseModel):
 
 
 def ratio_interval(stable: np.ndarray, unstable: np.ndarray, rng: np.random.Generator,
-                   resamples: int = BOOTSTRAP_RESAMPLES) -> tuple[float, float] | None:
+                   resamples: int = BOOTSTRAP_RESAMPLES, strata: Sequence | None = None) -> tuple[float, float] | None:
     """The 95 % percentile-bootstrap interval of the pooled C / (C + U) over seeds (one entry per seed).
+
+    ``strata`` (one label per seed: its key path, planner.survey.key_paths) makes it the stratified
+    bootstrap: each stratum's seeds are resampled among themselves, so every resample keeps the
+    stratification's fixed shares, and the interval covers the exploration's noise on each key path,
+    not a spread between the key paths that the fixed shares do not have. It is the rescaling bootstrap
+    of Rao and Wu (1988): n_h - 1 draws from a stratum of n_h seeds, scaled by n_h / (n_h - 1), so that
+    its variance is the unbiased stratified one even with few seeds per stratum (a plain resample of n_h
+    would shrink it by (n_h - 1) / n_h). With one stratum, or a stratum of one seed, it is the plain
+    bootstrap over all seeds.
 
     With no unstable pose at all: [1 - 3/(C + U), 1]. None when nothing was counted.
     """
@@ -91,13 +102,46 @@ def ratio_interval(stable: np.ndarray, unstable: np.ndarray, rng: np.random.Gene
         return None
     if float(u.sum()) == 0.0:
         return max(0.0, 1.0 - 3.0 / total), 1.0
-    k = len(c)
-    idx = rng.integers(0, k, size=(resamples, k))
-    cs, ns = c[idx].sum(axis=1), n[idx].sum(axis=1)
+    groups = _strata_rows(strata, len(c))
+    if groups is None:
+        k = len(c)
+        idx = rng.integers(0, k, size=(resamples, k))
+        cs, ns = c[idx].sum(axis=1), n[idx].sum(axis=1)
+    else:
+        cs, ns = np.zeros(resamples), np.zeros(resamples)
+        for rows in groups:
+            m = len(rows)
+            idx = rows[rng.integers(0, m, size=(resamples, m - 1))]
+            cs += m / (m - 1) * c[idx].sum(axis=1)
+            ns += m / (m - 1) * n[idx].sum(axis=1)
     ok = ns > 0
     r = cs[ok] / ns[ok]
     lo, hi = np.percentile(r, [2.5, 97.5])
     return float(lo), float(hi)
+
+
+def _strata_rows(strata: Sequence | None, k: int) -> list[np.ndarray] | None:
+    """The seeds of each stratum (in order of first appearance), or None for the plain bootstrap: no strata,
+    one stratum, or a stratum with a single seed (whose noise the stratified resample could not see)."""
+    if strata is None:
+        return None
+    labels = list(strata)
+    if len(labels) != k:
+        raise ValueError(f"{len(labels)} strata labels for {k} seeds")
+    rows: dict = {}
+    for i, s in enumerate(labels):
+        rows.setdefault(s, []).append(i)
+    if len(rows) < 2 or min(len(r) for r in rows.values()) < 2:
+        return None
+    return [np.array(r) for r in rows.values()]
+
+
+def strata_sizes(strata: Sequence) -> list[int]:
+    """How many seeds each stratum (label) holds."""
+    sizes: dict = {}
+    for s in strata:
+        sizes[s] = sizes.get(s, 0) + 1
+    return list(sizes.values())
 
 
 def within(ratio: float, interval: tuple[float, float], half_width: float) -> bool:
@@ -147,14 +191,22 @@ class Judgement:
     converged: bool
 
 
+def strata_of(counts: list[SeedCount]) -> list:
+    """Each seed's stratum: the key-path seed it explored (None when it names none)."""
+    return [None if s.key_path is None else s.key_path.get("seed") for s in counts]
+
+
 def judge(counts: list[SeedCount], estimator: Estimator, seed: int, hands: str) -> Judgement:
     """R and its interval over ``counts`` (seeds in order), and whether the row may stop there."""
     c = np.array([s.stable for s in counts])
     u = np.array([s.unstable for s in counts])
     C, U = int(c.sum()), int(u.sum())
     ratio = C / (C + U) if C + U else None
-    interval = ratio_interval(c, u, bootstrap_rng(seed, hands, len(counts))) if counts else None
-    converged = (ratio is not None and interval is not None and len(counts) >= estimator.seeds_min
+    strata = strata_of(counts)
+    interval = ratio_interval(c, u, bootstrap_rng(seed, hands, len(counts)), strata=strata) if counts else None
+    sizes = strata_sizes(strata)
+    enough = len(sizes) < 2 or min(sizes) >= MIN_SEEDS_PER_KEY_PATH
+    converged = (ratio is not None and interval is not None and len(counts) >= estimator.seeds_min and enough
                  and within(ratio, interval, estimator.ci_half_width))
     return Judgement(len(counts), C, U, ratio, interval, converged)
 

@@ -28,6 +28,7 @@ from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.path_assembly import carried
 from planner.regrasp.settings import HANDS_OF, PlannerSettings
 from planner.regrasp.search_data import SearchData
+from planner.regrasp.seed_free import SeedFreeResults
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
 from planner.survey import limits as survey_limits
@@ -191,15 +192,22 @@ def draw_key_path(task: Task, data: SearchData, hands: str, kp_seed: int,
 
 
 def draw_seed(task: Task, configs: list[str], kp_seed: int, should_stop: Callable[[], bool] = lambda: False,
-              data: SearchData | None = None) -> dict[str, KeyPathDraw]:
+              data: SearchData | None = None, seed_free: SeedFreeResults | None = None) -> dict[str, KeyPathDraw]:
     """The planner's key path of each configuration at one key-path seed: a pure function of (task, configurations,
     key-path seed). As a plan's search does, the configurations share one search scratch (``data``, the run's
     own at the task's seed, else a fresh one), single-arm ones first (a dual-arm one then finds both hands'
-    grasps probed)."""
+    grasps probed). ``seed_free`` shares the seed-free steps' results with the pool's other key-path seeds
+    (:mod:`planner.regrasp.seed_free`: the same draws, computed once)."""
     t = task_for_seed(task, kp_seed)
-    d = data if data is not None and t is task else SearchData(t)
+    d = data if data is not None and t is task else SearchData(t, seed_free)
     order = sorted(configs, key=lambda h: (h not in SINGLE_ARM, configs.index(h)))
-    return {h: draw_key_path(t, d, h, kp_seed, should_stop) for h in order}
+    own = d.seed_free
+    if own is None:
+        d.seed_free = seed_free
+    try:
+        return {h: draw_key_path(t, d, h, kp_seed, should_stop) for h in order}
+    finally:
+        d.seed_free = own
 
 
 def draw_pools(task: Task, configs: list[str], estimator: Estimator, *, workers: int, can_fork: bool,
@@ -208,15 +216,18 @@ def draw_pools(task: Task, configs: list[str], estimator: Estimator, *, workers:
     workers where forking is safe; the draws are the same either way."""
     seeds = pool_seeds(estimator.key_path_pool)
     by_seed: dict[int, dict[str, KeyPathDraw]] = {}
+    # The draws' seed-free steps are computed once per process (each forked worker fills its own copy).
+    seed_free = SeedFreeResults()
     if workers > 1 and can_fork and len(seeds) > 1:
         # The task's own seed is drawn here, so its validations stay with the task (a plan after the survey
         # reuses them); the others in forked workers meanwhile.
-        session = ForkedSeeds(min(workers, len(seeds))).open(lambda _hands, kp_seed, _keep: draw_seed(task, configs, kp_seed))
+        session = ForkedSeeds(min(workers, len(seeds))).open(
+            lambda _hands, kp_seed, _keep: draw_seed(task, configs, kp_seed, seed_free=seed_free))
         canceled = True
         try:
             futures = {session.submit("", k, False): k for k in seeds if k != task.seed}
             if task.seed in seeds:
-                by_seed[task.seed] = draw_seed(task, configs, task.seed, should_stop, data)
+                by_seed[task.seed] = draw_seed(task, configs, task.seed, should_stop, data, seed_free)
             for f, k in futures.items():
                 while not f.done():
                     if should_stop():
@@ -230,7 +241,7 @@ def draw_pools(task: Task, configs: list[str], estimator: Estimator, *, workers:
         for k in seeds:
             if should_stop():
                 raise Canceled()
-            by_seed[k] = draw_seed(task, configs, k, should_stop, data)
+            by_seed[k] = draw_seed(task, configs, k, should_stop, data, seed_free)
     return {h: [by_seed[k][h] for k in seeds] for h in configs}
 
 

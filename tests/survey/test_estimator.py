@@ -184,6 +184,27 @@ def test_the_interval_covers_a_known_stable_fraction_in_at_least_90_of_50_repeat
     assert covered >= 45, covered
 
 
+def test_the_stratified_interval_covers_the_stated_mix_of_key_paths_in_at_least_90_of_50_repeats():
+    """Eight key paths with stable fractions 0.3 to 0.8, four seeds of each (30-300 states, the seed's own
+    fraction scattered around its path's): the stratified interval covers the equal-share mix (0.55) in at
+    least 45 of 50 repeats, and is narrower than the whole-seed bootstrap of the same seeds. (Measured over
+    1,000 repeats: 94 % with four seeds per path, 92.7 % with three; the whole-seed bootstrap 98.8 %,
+    about a third wider.)"""
+    rng = np.random.default_rng(2027)
+    p_path = np.linspace(0.3, 0.8, 8)
+    labels = np.tile(np.arange(8), 4)
+    covered, narrower = 0, 0
+    for rep in range(50):
+        n = rng.integers(30, 301, size=len(labels))
+        c = rng.binomial(n, rng.beta(10 * p_path[labels], 10 * (1 - p_path[labels])))
+        lo, hi = ratio_interval(c, n - c, np.random.default_rng([rep, 1]), strata=labels)
+        covered += lo <= p_path.mean() <= hi
+        whole = ratio_interval(c, n - c, np.random.default_rng([rep, 1]))
+        narrower += hi - lo < whole[1] - whole[0]
+    assert covered >= 45, covered
+    assert narrower >= 45, narrower
+
+
 def test_a_row_without_unstable_states_gets_the_rule_of_three():
     lo, hi = ratio_interval(np.array([100, 50]), np.array([0, 0]), np.random.default_rng(0))
     assert (lo, hi) == (pytest.approx(1 - 3 / 150), 1.0)

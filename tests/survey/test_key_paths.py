@@ -78,9 +78,13 @@ def test_a_key_path_draw_is_the_planner_s_choice_at_that_seed(scenario, task):
     assert [d.seed for d in pools["left-left"]] == [1, 2] and pools["left-left"][0].nodes == again.nodes
 
 
-def test_two_very_different_key_paths_widen_the_interval(scenario, task):
-    """A row whose pool holds two very different key paths (here: the single-arm path and the dual-arm
-    one of the task) gets an interval wider than either path's alone, around a ratio between theirs."""
+def test_two_very_different_key_paths_are_both_in_the_estimate_and_in_its_interval(scenario, task):
+    """A row whose pool holds two very different key paths (here: the single-arm path and the dual-arm one
+    of the task) estimates their stated mix: its R lies between theirs, runs from two base seeds agree, and
+    its interval is the stratified one: each path's exploration noise, not the spread between the paths
+    (which fixed equal shares do not have), so it is narrower than the whole-seed bootstrap of the same
+    seeds, which would mistake that spread for noise."""
+    from planner.survey.estimator import bootstrap_rng, ratio_interval
     from planner.survey.runner import _leg_collisions
 
     evaluator = task.evaluator.with_threshold(scenario.threshold_m)
@@ -88,17 +92,37 @@ def test_two_very_different_key_paths_widen_the_interval(scenario, task):
     two = [_leg_collisions(task, g) for g in draw_seed(task, ["right-left"], 1)["right-left"].legs]
     est = small_estimator(12, states=150)
 
-    def row(pool: list) -> dict:
+    def row(pool: list, base: int = 1) -> dict:
         r = RowWork("left-left", pool, key_paths=[{"seed": k + 1, "nodes": []} for k in range(len(pool))])
-        run_rows([r], evaluator, est, 1)
+        run_rows([r], evaluator, est, base)
         v = r.verdict
-        return {"ratio": v.stable / (v.stable + v.unstable), "lo": v.interval[0], "hi": v.interval[1]}
+        c = np.array([x.stable for x in r.counts])
+        u = np.array([x.unstable for x in r.counts])
+        whole = ratio_interval(c, u, bootstrap_rng(base, "left-left", len(c)))
+        return {"ratio": v.stable / (v.stable + v.unstable), "lo": v.interval[0], "hi": v.interval[1],
+                "whole_seed_width": whole[1] - whole[0]}
 
-    a, b, both = row([one]), row([two]), row([one, two])
+    a, b, both, again = row([one]), row([two]), row([one, two]), row([one, two], base=10001)
     assert abs(a["ratio"] - b["ratio"]) > 0.1, (a, b)  # the two key paths really differ
-    width = both["hi"] - both["lo"]
-    assert width > a["hi"] - a["lo"] and width > b["hi"] - b["lo"], (a, b, both)
     assert min(a["ratio"], b["ratio"]) < both["ratio"] < max(a["ratio"], b["ratio"])
+    assert both["lo"] <= again["hi"] and again["lo"] <= both["hi"], (both, again)
+    assert both["hi"] - both["lo"] < both["whole_seed_width"], both
+    assert both["hi"] - both["lo"] > 0.0
+
+
+def test_a_row_of_several_key_paths_converges_only_with_three_seeds_of_each():
+    """Identical seeds give a tight interval at once; with four key paths the row still waits for three
+    seeds of each (the stratified interval needs each path's own noise), with one it stops at seeds_min."""
+    from planner.survey.estimator import MIN_SEEDS_PER_KEY_PATH, SeedCount, first_converged
+
+    est = Estimator(ci_half_width=0.05, seeds_min=4, seeds_max=64)
+
+    def counts(pool: int) -> list:
+        return [SeedCount(seed=1 + k, stable=90, unstable=10, solved=True, status="done", time_s=0.0,
+                          key_path={"seed": 1 + k % pool, "nodes": []}) for k in range(64)]
+
+    assert first_converged(counts(1), est, 1, "left-left").seeds == 4
+    assert first_converged(counts(4), est, 1, "left-left").seeds == 4 * MIN_SEEDS_PER_KEY_PATH
 
 
 # -- the exploration: the planner's T-RRT --------------------------------------------------------
