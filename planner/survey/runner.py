@@ -216,18 +216,22 @@ def draw_pools(task: Task, configs: list[str], estimator: Estimator, *, workers:
     workers where forking is safe; the draws are the same either way."""
     seeds = pool_seeds(estimator.key_path_pool)
     by_seed: dict[int, dict[str, KeyPathDraw]] = {}
-    # The draws' seed-free steps are computed once per process (each forked worker fills its own copy).
+    # The draws' seed-free steps are computed once per process (planner.regrasp.seed_free). The first draw
+    # runs here and fills them; forked workers, started after it, inherit them for the other seeds. The
+    # task's own seed is drawn here when it is in the pool, so its validations stay with the task (a plan
+    # after the survey reuses them).
     seed_free = SeedFreeResults()
-    if workers > 1 and can_fork and len(seeds) > 1:
-        # The task's own seed is drawn here, so its validations stay with the task (a plan after the survey
-        # reuses them); the others in forked workers meanwhile.
-        session = ForkedSeeds(min(workers, len(seeds))).open(
+    first = task.seed if task.seed in seeds else seeds[0]
+    if should_stop():
+        raise Canceled()
+    by_seed[first] = draw_seed(task, configs, first, should_stop, data, seed_free)
+    rest = [k for k in seeds if k != first]
+    if workers > 1 and can_fork and len(rest) > 1:
+        session = ForkedSeeds(min(workers, len(rest))).open(
             lambda _hands, kp_seed, _keep: draw_seed(task, configs, kp_seed, seed_free=seed_free))
         canceled = True
         try:
-            futures = {session.submit("", k, False): k for k in seeds if k != task.seed}
-            if task.seed in seeds:
-                by_seed[task.seed] = draw_seed(task, configs, task.seed, should_stop, data, seed_free)
+            futures = {session.submit("", k, False): k for k in rest}
             for f, k in futures.items():
                 while not f.done():
                     if should_stop():
@@ -238,7 +242,7 @@ def draw_pools(task: Task, configs: list[str], estimator: Estimator, *, workers:
         finally:
             session.close(cancel=canceled)
     else:
-        for k in seeds:
+        for k in rest:
             if should_stop():
                 raise Canceled()
             by_seed[k] = draw_seed(task, configs, k, should_stop, data, seed_free)
