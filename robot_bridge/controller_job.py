@@ -36,6 +36,7 @@ class Job:
         self.plan_sha256 = seg.plan_sha256
         self.dt = seg.dt_s
         self.segment_count = seg.segment_count
+        self.object_mass_kg = seg.object_mass_kg  # the planned payload (the plant's payload check), None: not told
         self.columns = columns  # segment joint order -> own order
         self.last_seq = -1
         self.last_index = -1
@@ -75,8 +76,9 @@ class Job:
     def accept(self, seg: TrajectorySegment, q_now: np.ndarray, limits: JointLimits, names: list[str],
                sim: ControllerSimSettings) -> tuple[str, str]:
         """The controller's own checks on a segment; buffers it when they pass (called with the lock held)."""
-        if seg.plan_sha256 != self.plan_sha256 or abs(seg.dt_s - self.dt) > 1e-12 or seg.segment_count != self.segment_count:
-            return "rejected", "plan_sha256, dt_s or segment_count changed within a job"
+        if (seg.plan_sha256 != self.plan_sha256 or abs(seg.dt_s - self.dt) > 1e-12 or seg.segment_count != self.segment_count
+                or seg.object_mass_kg != self.object_mass_kg):
+            return "rejected", "plan_sha256, dt_s, segment_count or object_mass_kg changed within a job"
         first = int(round(seg.t_from_start / seg.dt_s))
         if first != self.count:
             return "rejected", f"t_from_start {seg.t_from_start} does not continue the buffered {self.count} points"

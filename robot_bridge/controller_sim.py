@@ -369,7 +369,7 @@ class ControllerSim:
             events.append(self._dead_man(job, now)[:2])
             running = False
         if running and not job.playing and (running := job.ready(now, self.sim)):
-            self.plant.on_playback()
+            self.plant.on_playback(job.object_mass_kg)
         commands = []
         for dt in self.plant.substeps(step):
             if running and self._fault is None:

@@ -148,16 +148,18 @@ def split_segments(plan: dict[str, Any] | ExecutablePlan, job_id: str, plan_sha2
     if isinstance(plan, ExecutablePlan):
         dt, names = float(plan.dt_s), list(plan.robot.joint_names)
         qs, holding = [p.q for p in plan.trajectory], [p.holding for p in plan.trajectory]
+        mass = float(plan.object.mass_kg)
     else:
         dt, names = float(plan["dt_s"]), list(plan["robot"]["joint_names"])
         qs, holding = [p["q"] for p in plan["trajectory"]], [p["holding"] for p in plan["trajectory"]]
+        mass = float(plan["object"]["mass_kg"]) if isinstance(plan.get("object"), dict) and "mass_kg" in plan["object"] else None
     per = max(1, int(math.floor(segment_duration_s / dt + 1e-9)) + 1)  # points spanning at most the duration
     starts = list(range(0, len(qs), per))
     return [
         TrajectorySegment(
             job_id=job_id, plan_sha256=plan_sha256, seq=first_seq + k, segment_index=k, segment_count=len(starts),
             joint_names=names, dt_s=dt, t_from_start=start * dt, first_index=start,
-            points=qs[start:start + per], holding=holding[start:start + per],
+            points=qs[start:start + per], holding=holding[start:start + per], object_mass_kg=mass,
         )
         for k, start in enumerate(starts)
     ]

@@ -46,8 +46,9 @@ class Plant(Protocol):
         """The ``state/balance`` message body (CONTRACT 6) without ``stamp``, or None (no contact model)."""
         ...
 
-    def on_playback(self) -> None:
-        """A job's playback starts (the plant's fault injection, if any, hooks onto it)."""
+    def on_playback(self, object_mass_kg: float | None = None) -> None:
+        """A job's playback starts (the plant's fault injection, if any, hooks onto it); ``object_mass_kg`` is the
+        job's planned object mass (the segments' ``object_mass_kg``; None: not told)."""
         ...
 
 
@@ -70,5 +71,5 @@ class KinematicPlant:
     def balance(self) -> dict[str, Any] | None:
         return None
 
-    def on_playback(self) -> None:
+    def on_playback(self, object_mass_kg: float | None = None) -> None:
         return None

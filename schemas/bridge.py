@@ -59,6 +59,9 @@ class TrajectorySegment(StrictModel):
     points: list[list[float]] = Field(min_length=1)
     holding: list[Holding] = Field(min_length=1)
     first_index: int | None = Field(None, ge=0, description="index of the first point in the plan's trajectory")
+    object_mass_kg: float | None = Field(None, ge=0, le=1000, allow_inf_nan=False,
+                                         description="the plan's object mass (kg): what the hands are planned to hold, "
+                                                     "for the controller's payload check (optional)")
     expires_at: float | None = Field(None, description="Unix time (s): the latest receipt the controller accepts")
     sig: str | None = Field(None, description="Ed25519 signature (base64) over the canonical JSON without sig")
 

@@ -2,8 +2,10 @@
 
 The controller's protocol-and-safety layer commands a posture per control step; the twin plays it for that long
 (1 ms physics steps) and reports the measured joints, a ``state/balance`` body and its faults. The controller
-knows no plan: the object's mass is given on its command line and its CoM is taken at the holding TCP; the
-stabilizer's reference is the commanded posture's CoM, as for ``regrasp simulate``.
+knows no plan but what the segments carry: the planned object's mass comes with them (``object_mass_kg``), and the
+object a closing hand takes on weighs that much unless the command line says otherwise (a payload mismatch test);
+its CoM is taken at the holding TCP. The stabilizer's reference is the commanded posture's CoM, as for
+``regrasp simulate``.
 """
 
 from __future__ import annotations
@@ -25,10 +27,16 @@ class PhysicsPlant:
     """A :class:`~robot_bridge.plant.Plant` backed by a :class:`Twin`; ``control_dt_s`` is the control period."""
 
     def __init__(self, twin: Twin, control_dt_s: float = 0.005, push_n: float = 0.0, push_s: float = 0.0,
-                 effort_scale: float = 1.0):
+                 effort_scale: float = 1.0, object_mass_kg: float | None = None):
         """Fault injection from the first job's playback: ``push_n`` N along +x on the base for ``push_s``;
-        ``effort_scale`` scales every joint's effort limit (weakened joints saturate)."""
+        ``effort_scale`` scales every joint's effort limit (weakened joints saturate); ``object_mass_kg``, when
+        given, is the mass the hands take on whatever the plan says (else the planned object's, times the
+        settings' ``mass_scale``)."""
         self.twin = twin
+        self._object_mass_kg = object_mass_kg
+        if object_mass_kg is not None:
+            twin.object_mass_kg = float(object_mass_kg)
+        twin.planned_mass_kg = None  # told by each job's segments
         self.control_dt_s = control_dt_s
         self._holding = "none"
         self._push = (float(push_n), float(push_s))
@@ -46,8 +54,13 @@ class PhysicsPlant:
         self.twin.extremes = type(self.twin.extremes)()
         return fault
 
-    def on_playback(self) -> None:
-        """Fault injection starts with the first job's playback: the push, the weakened joints."""
+    def on_playback(self, object_mass_kg: float | None = None) -> None:
+        """A job's playback starts: the payload check expects its planned object (None: not told, no check); fault
+        injection starts with the first job's: the push, the weakened joints."""
+        tw = self.twin
+        tw.planned_mass_kg = None if object_mass_kg is None else float(object_mass_kg)
+        if self._object_mass_kg is None:
+            tw.object_mass_kg = (object_mass_kg or 0.0) * tw.s.mass_scale
         if self._push_from is None:
             self._push_from = self.twin.t
             if self._effort_scale != 1.0:
@@ -93,7 +106,7 @@ class PhysicsPlant:
 
 
 def physics_plant(robot: str, joint_names: list[str], q0: np.ndarray, base_pose: np.ndarray,
-                  in_contact: dict[str, bool], settings: TwinSettings, *, object_mass_kg: float = 0.0,
+                  in_contact: dict[str, bool], settings: TwinSettings, *, object_mass_kg: float | None = None,
                   push_n: float = 0.0, push_s: float = 0.0, effort_scale: float = 1.0,
                   control_dt_s: float = 0.005) -> PhysicsPlant:
     """The twin of ``robot`` standing settled in ``q0`` at ``base_pose``: the controller-sim's plant.
@@ -104,8 +117,8 @@ def physics_plant(robot: str, joint_names: list[str], q0: np.ndarray, base_pose:
 
     files = robot_files(robot)
     tm = build_twin_model(files.urdf, files.spec, joint_names, settings)
-    plant = PhysicsPlant(Twin(tm, base_pose, q0, in_contact, settings, object_mass_kg=object_mass_kg), control_dt_s,
-                         push_n=push_n, push_s=push_s, effort_scale=effort_scale)
+    plant = PhysicsPlant(Twin(tm, base_pose, q0, in_contact, settings), control_dt_s, push_n=push_n, push_s=push_s,
+                         effort_scale=effort_scale, object_mass_kg=object_mass_kg)
     fault = plant.settle(np.asarray(q0, dtype=float), settings.settle_s)
     if fault is not None:
         raise ValueError(f"the twin cannot stand in this posture: {fault.reason}")

@@ -62,6 +62,14 @@ class FaultLimits(_Frozen):
     foot_tilt_rad: float = Field(0.05, gt=0, description="a supporting sole tilted beyond this rolls on its edge")
     foot_lift_m: float = Field(0.01, gt=0, description="a supporting sole's centre raised beyond this has lifted")
     saturation_s: float = Field(0.05, gt=0, description="a joint at its effort limit this long is saturated")
+    payload_tolerance: float = Field(0.5, gt=0, description="the held load the wrists' force/torque sensors read may "
+                                                            "differ from the planned object's weight by this share of "
+                                                            "it (plus payload_floor_n) before it is a payload mismatch")
+    payload_floor_n: float = Field(5.0, ge=0, description="added to the payload tolerance: sensor offset and the "
+                                                          "motion's own accelerations on a light object")
+    payload_settle_s: float = Field(0.1, ge=0, description="after a hand closes or opens the check waits the load ramp "
+                                                           "plus this long (the weight coming onto the hand)")
+    payload_debounce_s: float = Field(0.1, gt=0, description="a payload mismatch this long is a fault")
 
 
 class TwinSettings(_Frozen):

@@ -42,6 +42,7 @@ class Measurement:
     foot_slip_m: float
     torque_ratio: float
     tracking_error_rad: float
+    held_load_n: float = math.nan  # what the wrists' force/torque sensors read of the held object (N); NaN: no hand holds
 
 
 @dataclass
@@ -53,6 +54,7 @@ class _Extremes:
     foot_slip_m: float = 0.0
     foot_tilt_rad: float = 0.0
     saturated_since: dict[int, float] = field(default_factory=dict)
+    payload_off_since: float | None = None
 
 
 def _wxyz(xyzw: np.ndarray) -> np.ndarray:
@@ -60,7 +62,11 @@ def _wxyz(xyzw: np.ndarray) -> np.ndarray:
 
 
 class Twin:
-    """One robot in one MuJoCo world; ``control(q_cmd, holding, dt)`` advances it by ``dt`` of simulated time."""
+    """One robot in one MuJoCo world; ``control(q_cmd, holding, dt)`` advances it by ``dt`` of simulated time.
+
+    ``object_mass_kg`` is the planned object's mass: the hands take on that times ``settings.mass_scale``, and the
+    controller's payload check expects the planned mass (``planned_mass_kg``; None: the controller was not told,
+    no check)."""
 
     def __init__(self, tm: TwinModel, base_pose: np.ndarray, q0: np.ndarray, in_contact: dict[str, bool],
                  settings: TwinSettings, object_mass_kg: float = 0.0):
@@ -71,6 +77,9 @@ class Twin:
         self.base_pose = np.asarray(base_pose, dtype=float)
         self.in_contact = {s: bool(in_contact.get(s, True)) for s in SIDES}
         self.object_mass_kg = float(object_mass_kg) * settings.mass_scale
+        self.planned_mass_kg: float | None = float(object_mass_kg)
+        self.holding = "none"
+        self._holding_since = 0.0
         self.load_com = {s: np.zeros(3) for s in SIDES}  # the object's CoM in each TCP's frame while held
         self.load_mass = {s: 0.0 for s in SIDES}
         self.t = 0.0
@@ -183,6 +192,8 @@ class Twin:
             self.t += dt  # a fallen robot lies still: nothing more is simulated
             return self.fault
         self.q_cmd = np.asarray(q_cmd, dtype=float)
+        if holding != self.holding:
+            self.holding, self._holding_since = holding, self.t
         self._update_load(holding, dt)
         self.set_reference(self.q_cmd)
         tau = self._feedforward() + self._stabilizer(dt)
@@ -308,7 +319,17 @@ class Twin:
         err = np.abs(d.qpos[tm.qpos_adr[keep]] - self.q_cmd[keep])
         return Measurement(t=self.t, cop=cop, cop_margin_m=margin, foot_forces_n=forces,
                            com=d.subtree_com[tm.root_body].copy(), base_tilt_rad=tilt, foot_tilt_rad=foot_tilt,
-                           foot_slip_m=slip, torque_ratio=float(ratio.max()), tracking_error_rad=float(err.max()))
+                           foot_slip_m=slip, torque_ratio=float(ratio.max()), tracking_error_rad=float(err.max()),
+                           held_load_n=self.held_load_n() if self.holding != "none" else math.nan)
+
+    def held_load_n(self) -> float:
+        """The held object's load as the wrists' force/torque sensors read it (N): the magnitude of the sum of the
+        forces the hands exert on the object (each load body's interaction force with its TCP, from the last step's
+        constraint solution), so a two-handed grip's squeeze cancels. Standing still it is the object's weight;
+        the motion's accelerations add to it, as they do on a real sensor."""
+        mujoco.mj_rnePostConstraint(self.m, self.d)
+        f = sum(self.d.cfrc_int[self.tm.load_body[s], 3:] for s in SIDES)
+        return float(np.linalg.norm(f))
 
     def _check(self, ms: Measurement, dt: float) -> PlantFault | None:
         lim, tm, d = self.s.faults, self.tm, self.d
@@ -333,6 +354,9 @@ class Twin:
         if ms.foot_tilt_rad > lim.foot_tilt_rad:
             return PlantFault("foot_tilt", f"a supporting sole tilted {ms.foot_tilt_rad:.3f} rad (limit "
                                            f"{lim.foot_tilt_rad} rad)", ms.t)
+        payload = self._payload(ms, dt)
+        if payload is not None:
+            return payload
         sat = np.flatnonzero((np.abs(d.actuator_force[: len(tm.joint_names)]) >= tm.effort * (1 - 1e-6)) & ~tm.jaw_mask)
         for j in list(ex.saturated_since):
             if j not in sat:
@@ -344,3 +368,28 @@ class Twin:
                                                        f"{tm.effort[j]:.0f} N*m for {lim.saturation_s * 1000:.0f} ms",
                                   ms.t)
         return None
+
+    def _payload(self, ms: Measurement, dt: float) -> PlantFault | None:
+        """The controller's payload check: while the plan has a hand holding the object (after the load ramp and
+        ``payload_settle_s``), the wrists' measured held load must be the planned object's weight within
+        ``payload_tolerance`` of it plus ``payload_floor_n``, or for ``payload_debounce_s`` it is a fault. The
+        contract's fault kinds are closed: it is reported as ``torque_saturation`` (the arms carry torques the plan
+        did not size them for), its detail saying ``payload_mismatch``."""
+        lim, ex = self.s.faults, self.extremes
+        if (self.planned_mass_kg is None or self.holding == "none" or not math.isfinite(ms.held_load_n)
+                or self.t - self._holding_since < self.s.load_ramp_s + lim.payload_settle_s - 1e-9):
+            ex.payload_off_since = None
+            return None
+        planned = self.planned_mass_kg * G
+        tolerance = lim.payload_tolerance * planned + lim.payload_floor_n
+        if abs(ms.held_load_n - planned) <= tolerance:
+            ex.payload_off_since = None
+            return None
+        if ex.payload_off_since is None:
+            ex.payload_off_since = ms.t - dt
+        if ms.t - ex.payload_off_since < lim.payload_debounce_s - 1e-9:
+            return None
+        return PlantFault("torque_saturation", f"payload_mismatch: the wrists' force/torque sensors read "
+                                               f"{ms.held_load_n:.1f} N of held load, the planned "
+                                               f"{self.planned_mass_kg:.2f} kg object weighs {planned:.1f} N (tolerance "
+                                               f"{tolerance:.1f} N) for {lim.payload_debounce_s * 1000:.0f} ms", ms.t)

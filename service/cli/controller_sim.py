@@ -44,7 +44,7 @@ def _stance_support(robot: str, stance: str, spec: dict) -> tuple[list[float], d
     return list(st["base_pose"]), {side_of[f["frame"]]: bool(f["in_contact"]) for f in st["feet"] if f["frame"] in side_of}
 
 
-def _physics_plant(robot: str, stance: str, spec: dict, names: list[str], q: list[float], object_mass_kg: float,
+def _physics_plant(robot: str, stance: str, spec: dict, names: list[str], q: list[float], object_mass_kg: float | None,
                    stabilizer: bool, push_n: float, push_s: float, effort_scale: float, limits: dict[str, float]):
     """The MuJoCo twin, settled in the start posture (docs/physics.md)."""
     import numpy as np
@@ -87,8 +87,9 @@ def _initial_q_file(path: str) -> tuple[list[str], list[float]]:
               help="Measured joint states published per second of motion (default 60; CONTRACT 7 asks for 50).")
 @click.option("--plant", type=click.Choice(["kinematic", "physics"]), default="kinematic", show_default=True,
               help="kinematic: replay the commands; physics: the MuJoCo twin (measured joints, state/balance, faults).")
-@click.option("--object-mass-kg", type=click.FloatRange(0.0, 100.0), default=0.0, show_default=True,
-              help="Physics: the mass a closing hand takes on (its CoM at the TCP).")
+@click.option("--object-mass-kg", type=click.FloatRange(0.0, 100.0), default=None,
+              help="Physics: the mass a closing hand takes on (its CoM at the TCP); default the planned object's mass "
+                   "the segments carry. Another mass is a payload mismatch the twin's wrist sensors notice.")
 @click.option("--no-stabilizer", is_flag=True, help="Physics: the twin's stabilizer off.")
 @click.option("--push-n", type=click.FloatRange(-5000.0, 5000.0), default=0.0, show_default=True,
               help="Fault (physics): a horizontal force on the base (N, +x) from the first job's playback.")
@@ -123,7 +124,7 @@ def _initial_q_file(path: str) -> tuple[list[str], list[float]]:
               help="Dead-man: stop when no dispatcher heartbeat came for this long (default 250 ms).")
 def controller_sim(robot: str, robot_id: str | None, stance: str, initial_q: str | None, speed: float,
                    states_per_motion_s: float | None, plant: str,
-                   object_mass_kg: float, no_stabilizer: bool, push_n: float, push_s: float, effort_scale: float,
+                   object_mass_kg: float | None, no_stabilizer: bool, push_n: float, push_s: float, effort_scale: float,
                    foot_tilt_limit_rad: float | None, foot_lift_limit_mm: float | None, start_buffer_ms: float | None, listen: tuple[str, ...],
                    connect: tuple[str, ...], drop_rate: float, delay_ms: float, crash_after: int | None,
                    freeze_heartbeat_after_s: float | None, heartbeat_period_s: float | None, seed: int,

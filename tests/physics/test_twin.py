@@ -4,6 +4,7 @@ the same motion with a far heavier object does not; the same run gives the same 
 from __future__ import annotations
 
 import json
+import re
 from functools import lru_cache
 
 import numpy as np
@@ -52,6 +53,8 @@ def test_the_twin_at_rest_carries_its_weight_under_its_com(robot, stance, load_k
     assert sum(ms.foot_forces_n.values()) == pytest.approx(weight, rel=0.01)
     assert np.linalg.norm(ms.cop - ms.com[:2]) < 0.002, (ms.cop, ms.com)
     assert twin.load_mass["right"] == pytest.approx(load_kg)
+    if load_kg:  # the wrist sensors read the held object's weight
+        assert ms.held_load_n == pytest.approx(load_kg * G, rel=0.01)
 
 
 def test_the_planned_object_stands_and_a_six_times_heavier_one_does_not():
@@ -64,6 +67,28 @@ def test_the_planned_object_stands_and_a_six_times_heavier_one_does_not():
     assert not heavy.stood
     assert heavy.report["fault"]["kind"] in ("fall", "foot_tilt", "foot_lift", "torque_saturation")
     assert heavy.report["mass_scale"] == 6.0
+
+
+#: The drill tasks' object (drill-upright, drill-handover): the lightest built-in load, whose six-fold weight the arm
+#: and the stabilizer carry without a fall or a saturated joint.
+DRILL_KG = 1.3
+
+
+@pytest.mark.parametrize("scale,stands", [(1.0, True), (1.4, True), (6.0, False)])
+def test_the_payload_check_faults_a_load_far_from_the_planned_one(scale, stands):
+    """The controller's payload check: the wrists' sensors read the held load; within 50 % + 5 N of the planned
+    weight (1.4 x the drill) the plan stands, six times the drill faults (payload_mismatch) shortly after the
+    weight is on the hand (the load ramp, the settle time and the debounce: 0.45 s)."""
+    plan = json.loads(arm_plan(DRILL_KG))
+    res = simulate(plan, TwinSettings(mass_scale=scale))
+    assert res.stood is stands, res.report["fault"]
+    if not stands:
+        fault = res.report["fault"]
+        assert fault["kind"] == "torque_saturation" and fault["detail"].startswith("payload_mismatch:"), fault
+        read = float(re.search(r"read ([0-9.]+) N of held load", fault["detail"]).group(1))
+        assert read == pytest.approx(DRILL_KG * scale * G, rel=0.1)  # the sensors read the real, heavier load
+        # the hand holds from the first sample: the check judges from the settle's start (-1 s) on
+        assert fault["at_s"] == pytest.approx(-1.0 + 0.25 + 0.1 + 0.1, abs=0.011)
 
 
 def test_the_same_run_twice_gives_the_same_report_and_samples():
