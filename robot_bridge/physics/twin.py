@@ -89,11 +89,13 @@ class Twin:
         ctrl = {int(dof): i for i, dof in enumerate(tm.dof_adr)}
         hip = settings.stabilizer.hip_share
         # per side: ((pitch, roll) controller indices, share of the moment) for the ankle and the hip
-        self._moment_joints = {s: [((ctrl[a], ctrl[b]), w) for (a, b), w in ((tm.ankle_dofs[s], 1.0 - hip),
-                                                                              (tm.hip_dofs[s], hip))
+        # (and the MuJoCo joint ids whose axes turn a moment into those joints' torques)
+        self._moment_joints = {s: [(ctrl[a], ctrl[b], int(m.dof_jntid[a]), int(m.dof_jntid[b]), w)
+                                   for (a, b), w in ((tm.ankle_dofs[s], 1.0 - hip), (tm.hip_dofs[s], hip))
                                    if a in ctrl and b in ctrl and w > 0] for s in SIDES}
-        self._u = np.zeros(2)  # integrated CoP correction (m)
-        self._ref_hist: list[tuple[np.ndarray, dict[str, np.ndarray]]] = []
+        self._u = [0.0, 0.0]  # integrated CoP correction (m)
+        self._ref_hist: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (robot CoM, left, right load) x 3
+        self._load_body = (tm.load_body["left"], tm.load_body["right"])
         self._dt_prev = None
         self.q_cmd = np.asarray(q0, dtype=float).copy()
         self._pose(self.d, q0)
@@ -230,48 +232,64 @@ class Twin:
         tau = np.zeros(len(self.tm.joint_names))
         # The reference CoM's motion by finite differences of the posture alone: the robot's CoM and each load's
         # position are kept, and recombined with today's masses (a load's mass changing is no CoM acceleration).
-        r, tm = self.ref, self.tm
-        loads = {s: self.load_mass[s] for s in SIDES}
-        total = float(self.m.body_subtreemass[tm.root_body])
-        robot = total - sum(loads.values())
-        c_all = r.subtree_com[tm.root_body]
-        x_load = {s: r.xipos[tm.load_body[s]].copy() for s in SIDES}
-        c_robot = (total * c_all - sum(loads[s] * x_load[s] for s in SIDES)) / robot
-        self._ref_hist = (self._ref_hist + [(c_robot, x_load)])[-3:]
+        # Plain floats, component by component: a handful of 3-vectors, where numpy's per-call cost dominates.
+        r, root = self.ref, self.tm.root_body
+        ml, mr = self.load_mass["left"], self.load_mass["right"]
+        total = float(self.m.body_subtreemass[root])
+        robot = total - (ml + mr)
+        sc = r.subtree_com[root].tolist()
+        xl, xr = r.xipos[self._load_body[0]].tolist(), r.xipos[self._load_body[1]].tolist()
+        hist = self._ref_hist
+        hist.append(([(total * sc[k] - (ml * xl[k] + mr * xr[k])) / robot for k in range(3)], xl, xr))
+        if len(hist) > 3:
+            del hist[0]
         st = self.s.stabilizer
-        if not st.enabled or len(self._ref_hist) < 3 or self.last is None or not np.isfinite(self.last.cop[0]):
+        last = self.last
+        if not st.enabled or len(hist) < 3 or last is None or not math.isfinite(last.cop[0]):
             return tau
-        c0, c1, c2 = ((robot * cr + sum(loads[s] * xl[s] for s in SIDES)) / total for cr, xl in self._ref_hist)
-        v_ref = (c2 - c1) / dt
-        a_ref = (c2 - 2 * c1 + c0) / dt ** 2
-        height = max(float(c2[2]), 0.1)  # the floor is z = 0
+        c0, c1, c2 = ([(robot * cr[k] + (ml * a[k] + mr * b[k])) / total for k in range(3)] for cr, a, b in hist)
+        dt2 = dt ** 2
+        height = max(c2[2], 0.1)  # the floor is z = 0
         omega = math.sqrt(G / height)
-        p_ref = c2[:2] - height / G * a_ref[:2]
+        h_g = height / G
+        gain = 1.0 + st.dcm_gain / omega
         mujoco.mj_subtreeVel(self.m, self.d)
-        c = self.d.subtree_com[self.tm.root_body]
-        v = self.d.subtree_linvel[self.tm.root_body]
-        xi_err = (c[:2] - c2[:2]) + (v[:2] - v_ref[:2]) / omega
-        p_d = self._inside(p_ref + (1.0 + st.dcm_gain / omega) * xi_err)
-        self._u += dt * (st.cop_gain * (p_d - self.last.cop) - self._u / st.cop_leak_s)
-        shift = (p_d - p_ref) + self._u
+        c = self.d.subtree_com[root].tolist()
+        v = self.d.subtree_linvel[root].tolist()
+        p_ref, p = [0.0, 0.0], [0.0, 0.0]
+        for k in (0, 1):
+            v_ref = (c2[k] - c1[k]) / dt
+            a_ref = (c2[k] - 2 * c1[k] + c0[k]) / dt2
+            p_ref[k] = c2[k] - h_g * a_ref
+            xi_err = (c[k] - c2[k]) + (v[k] - v_ref) / omega
+            p[k] = p_ref[k] + gain * xi_err
+        p_d = self._inside(np.array(p)).tolist()
+        cop = last.cop.tolist()
+        u = self._u
+        shift = [0.0, 0.0]
+        for k in (0, 1):
+            u[k] = u[k] + dt * (st.cop_gain * (p_d[k] - cop[k]) - u[k] / st.cop_leak_s)
+            shift[k] = (p_d[k] - p_ref[k]) + u[k]
         forces = self.last.foot_forces_n
-        total = sum(forces.values())
+        total = forces["left"] + forces["right"]
         if total <= 0:
             return tau
         # Ground moment change that moves the CoP by `shift`: dM = F (dy, -dx); the joints supply -dM.
-        moment = -total * np.array([shift[1], -shift[0]])
+        moment_x, moment_y = -total * shift[1], -total * -shift[0]
+        xaxis = self.d.xaxis
         for side in SIDES:
             share = forces[side] / total
             if share <= 0:
                 continue
-            for (jp, jr), w in self._moment_joints[side]:
-                ap, ar = self.d.xaxis[self.m.dof_jntid[self.tm.dof_adr[jp]]], self.d.xaxis[self.m.dof_jntid[self.tm.dof_adr[jr]]]
-                mx, my = share * w * moment
-                det = ap[0] * ar[1] - ar[0] * ap[1]  # [ap ar] (xy) t = moment, by Cramer's rule
+            for jp, jr, jnt_p, jnt_r, w in self._moment_joints[side]:
+                ap0, ap1 = xaxis[jnt_p, :2].tolist()
+                ar0, ar1 = xaxis[jnt_r, :2].tolist()
+                mx, my = share * w * moment_x, share * w * moment_y
+                det = ap0 * ar1 - ar0 * ap1  # [ap ar] (xy) t = moment, by Cramer's rule
                 if abs(det) < 1e-9:
                     continue
-                tau[jp] += (mx * ar[1] - ar[0] * my) / det
-                tau[jr] += (ap[0] * my - mx * ap[1]) / det
+                tau[jp] += (mx * ar1 - ar0 * my) / det
+                tau[jr] += (ap0 * my - mx * ap1) / det
         return tau
 
     def _inside(self, p: np.ndarray) -> np.ndarray:
@@ -291,21 +309,30 @@ class Twin:
     # ------------------------------------------------------------------ measurement
     def measure(self) -> Measurement:
         m, d, tm = self.m, self.d, self.tm
-        forces = {s: 0.0 for s in SIDES}
-        mx = my = 0.0
+        left = right = mx = my = 0.0
         f6 = self._f6
-        for i in range(d.ncon):
-            con = d.contact[i]
-            side = self._geom_side.get(int(con.geom1)) or self._geom_side.get(int(con.geom2))
-            if side is None:
-                continue
-            mujoco.mj_contactForce(m, d, i, f6)
-            fr = con.frame
-            fz = abs(f6[0] * fr[2] + f6[1] * fr[5] + f6[2] * fr[8])  # world z of the contact force
-            forces[side] += fz
-            mx += fz * con.pos[0]
-            my += fz * con.pos[1]
-        total = forces["left"] + forces["right"]
+        ncon = d.ncon
+        if ncon:
+            con = d.contact
+            geom_side = self._geom_side
+            g1, g2 = con.geom1.tolist(), con.geom2.tolist()
+            frames, pos = con.frame.tolist(), con.pos.tolist()
+            for i in range(ncon):
+                side = geom_side.get(g1[i]) or geom_side.get(g2[i])
+                if side is None:
+                    continue
+                mujoco.mj_contactForce(m, d, i, f6)
+                fr = frames[i]
+                f0, f1, f2 = f6[:3].tolist()
+                fz = abs(f0 * fr[2] + f1 * fr[5] + f2 * fr[8])  # world z of the contact force
+                if side == "left":
+                    left += fz
+                else:
+                    right += fz
+                mx += fz * pos[i][0]
+                my += fz * pos[i][1]
+        forces = {"left": left, "right": right}
+        total = left + right
         cop = np.array([mx / total, my / total]) if total > 1e-6 else np.full(2, np.nan)
         margin = self._margin(cop) if total > 1e-6 else -math.inf
         tilt = math.acos(max(-1.0, min(1.0, float(d.xmat[tm.root_body][8]))))
