@@ -8,6 +8,9 @@ Sections (``--section``, default all):
 - ``scenarios``: each built-in scenario planned with seed 1, played with the stabilizer at 1x, without it at 1x,
   with it at 2x (informative) and with the object 6x heavier: stood or the fault, the smallest CoP margin and
   ``cop_margin_ratio`` (CoP margin over the plan's CoM margin), and the real-time factor of each run.
+- ``speed``: ``regrasp simulate``'s speed alone: each scenario's plan at 1x with the stabilizer, three runs, the
+  real-time factor (plan duration plus the 2 s of settling, over the wall time) of the fastest and the slowest, with
+  the machine's load average before and after (the figure depends on what else the 2 cores run).
 - ``sweep``: the upright plan with one setting changed at a time (contact softness, servo stiffness and damping,
   rotor inertia, load ramp, gravity feed-forward, stabilizer gains): how far each moves the smallest CoP margin.
 - ``jvrc1``: JVRC-1 swinging its right arm out holding 2 kg (3 s), with our derived gains and with gains of the size the HRP-5P
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import time
@@ -76,7 +80,9 @@ def run(plan: dict, settings: TwinSettings, speed: float = 1.0) -> dict:
 def cell(rep: dict) -> str:
     m = rep["min_cop_margin_m"]
     ratio = rep["cop_margin_ratio"]
-    head = "stood" if rep["fault"] is None else f"**{rep['fault']['kind']}** at {rep['fault']['at_s']:.1f} s"
+    fault = rep["fault"]
+    payload = " (payload_mismatch)" if fault is not None and fault["detail"].startswith("payload_mismatch") else ""
+    head = "stood" if fault is None else f"**{fault['kind']}**{payload} at {fault['at_s']:.1f} s"
     tail = "" if m is None else f", {m * 1000:.1f} mm ({ratio:.2f})"
     return head + tail
 
@@ -111,7 +117,7 @@ def rest() -> None:
 
 
 def scenarios(plans: Path, names: tuple[str, ...] = SCENARIOS) -> None:
-    print("\n## Built-in scenarios (seed 1): min CoP margin (cop_margin_ratio)\n")
+    print(f"\n## Built-in scenarios (seed 1): min CoP margin (cop_margin_ratio); {load_average()}\n")
     print("| scenario | plan min CoM margin | stabilizer 1x | no stabilizer 1x | stabilizer 2x | object x6 | "
           "real time x (1x run) |")
     print("|---|---|---|---|---|---|---|")
@@ -130,6 +136,34 @@ def scenarios(plans: Path, names: tuple[str, ...] = SCENARIOS) -> None:
         heavy = run(plan, TwinSettings(mass_scale=6.0))
         print(f"| {name} | {plan['min_margin_m'] * 1000:.1f} mm | {cell(on)} | {cell(off)} | {cell(fast)} | "
               f"{cell(heavy)} | {on['realtime_factor']:.1f} |", flush=True)
+    print(f"\n{load_average()}")
+
+
+def load_average() -> str:
+    return "load average " + ", ".join(f"{v:.2f}" for v in os.getloadavg())
+
+
+def speed(plans: Path, names: tuple[str, ...] = SCENARIOS, runs: int = 3) -> None:
+    print(f"\n## regrasp simulate speed (1 ms physics, control at 200 Hz, stabilizer on, 1x); {load_average()}\n")
+    print("| scenario | simulated s | wall s (fastest-slowest) | real time x (fastest-slowest) |")
+    print("|---|---|---|---|")
+    factors = []
+    for name in names:
+        path = plan_file(plans, name)
+        if not path.is_file():
+            continue
+        plan = json.loads(path.read_text())
+        if plan.get("status") != "solved":
+            continue
+        reps = [run(plan, TwinSettings()) for _ in range(runs)]
+        walls = sorted(r["wall_s"] for r in reps)
+        x = sorted(r["realtime_factor"] for r in reps)
+        factors += x
+        dur = plan["trajectory"][-1]["t"] + 2 * TwinSettings().settle_s
+        print(f"| {name} | {dur:.1f} | {walls[0]:.2f}-{walls[-1]:.2f} | {x[-1]:.1f}-{x[0]:.1f} |", flush=True)
+    if factors:
+        print(f"\nslowest run {min(factors):.1f}x, fastest {max(factors):.1f}x real time ({len(factors)} runs); "
+              f"{load_average()}")
 
 
 def sweep(plans: Path) -> None:
@@ -228,7 +262,7 @@ def jvrc1(plans: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--section", choices=("all", "rest", "scenarios", "sweep", "jvrc1"), default="all")
+    ap.add_argument("--section", choices=("all", "rest", "scenarios", "speed", "sweep", "jvrc1"), default="all")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated built-in scenarios")
     ap.add_argument("--plans", type=Path, default=Path("~/.cache/hrp-regrasp/bench-physics").expanduser(),
                     help="folder of the seed-1 plans (made once)")
@@ -241,6 +275,8 @@ def main() -> None:
         rest()
     if args.section in ("all", "scenarios"):
         scenarios(args.plans, tuple(n for n in args.scenarios.split(",") if n))
+    if args.section in ("all", "speed"):
+        speed(args.plans, tuple(n for n in args.scenarios.split(",") if n))
     if args.section in ("all", "sweep"):
         sweep(args.plans)
     if args.section in ("all", "jvrc1"):

@@ -98,5 +98,6 @@ def test_the_cop_trace_is_drawn_live_beside_the_planned_zmp(page, rig):
     zx, zy = zmp[0]  # the plan stands still: one planned ZMP
     worst = max(((x - zx) ** 2 + (y - zy) ** 2) ** 0.5 for x, y in points)
     assert worst <= MAX_COP_OFFSET_PX, f"the drawn CoP strays {worst:.1f} px from the planned ZMP"
+    print(f"\nCoP points drawn during the execution: {len(points)}; farthest from the planned ZMP: {worst:.1f} px")
     screenshot(page, "console-cop-live")
     assert page.js_errors == []
