@@ -11,6 +11,9 @@ Sections (``--section``, default all):
 - ``speed``: ``regrasp simulate``'s speed alone: each scenario's plan at 1x with the stabilizer, three runs, the
   real-time factor (plan duration plus the 2 s of settling, over the wall time) of the fastest and the slowest, with
   the machine's load average before and after (the figure depends on what else the 2 cores run).
+- ``payload``: what the wrist sensors read of the planned object at 1x and 2x (the held load over the planned
+  weight, smallest and largest, while the payload check judged it): how much of the check's 50 % + 5 N tolerance the
+  motion itself takes.
 - ``sweep``: the upright plan with one setting changed at a time (contact softness, servo stiffness and damping,
   rotor inertia, load ramp, gravity feed-forward, stabilizer gains): how far each moves the smallest CoP margin.
 - ``jvrc1``: JVRC-1 swinging its right arm out holding 2 kg (3 s), with our derived gains and with gains of the size the HRP-5P
@@ -166,6 +169,26 @@ def speed(plans: Path, names: tuple[str, ...] = SCENARIOS, runs: int = 3) -> Non
               f"{load_average()}")
 
 
+def payload(plans: Path, names: tuple[str, ...] = SCENARIOS) -> None:
+    print("\n## What the wrist sensors read of the planned object (held load / planned weight, smallest-largest)\n")
+    print("| scenario | object | 1x | 2x |")
+    print("|---|---|---|---|")
+    for name in names:
+        path = plan_file(plans, name)
+        if not path.is_file():
+            continue
+        plan = json.loads(path.read_text())
+        if plan.get("status") != "solved":
+            continue
+        cells = []
+        for sp in (1.0, 2.0):
+            res = simulate(plan, TwinSettings(), speed=sp)
+            r = res.held_load_ratio
+            tail = "" if res.report["fault"] is None else f" (until {res.report['fault']['kind']} at {res.report['fault']['at_s']:.1f} s)"
+            cells.append("n/a" if r is None else f"{r[0]:.2f}-{r[1]:.2f}{tail}")
+        print(f"| {name} | {plan['object']['mass_kg']:g} kg | {cells[0]} | {cells[1]} |", flush=True)
+
+
 def sweep(plans: Path) -> None:
     plan = json.loads(plan_file(plans, "upright").read_text())
     base = run(plan, TwinSettings())
@@ -262,7 +285,8 @@ def jvrc1(plans: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--section", choices=("all", "rest", "scenarios", "speed", "sweep", "jvrc1"), default="all")
+    ap.add_argument("--section", choices=("all", "rest", "scenarios", "speed", "payload", "sweep", "jvrc1"),
+                    default="all")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated built-in scenarios")
     ap.add_argument("--plans", type=Path, default=Path("~/.cache/hrp-regrasp/bench-physics").expanduser(),
                     help="folder of the seed-1 plans (made once)")
@@ -277,6 +301,8 @@ def main() -> None:
         scenarios(args.plans, tuple(n for n in args.scenarios.split(",") if n))
     if args.section in ("all", "speed"):
         speed(args.plans, tuple(n for n in args.scenarios.split(",") if n))
+    if args.section in ("all", "payload"):
+        payload(args.plans, tuple(n for n in args.scenarios.split(",") if n))
     if args.section in ("all", "sweep"):
         sweep(args.plans)
     if args.section in ("all", "jvrc1"):

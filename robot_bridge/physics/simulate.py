@@ -44,6 +44,9 @@ class SimResult:
     report: dict[str, Any]
     samples: list[tuple[float, ...]]
     polygon: np.ndarray
+    #: the held load the wrist sensors read while the payload check judged it, over the planned weight
+    #: (smallest, largest); None when it never judged
+    held_load_ratio: tuple[float, float] | None = None
 
     @property
     def stood(self) -> bool:
@@ -147,7 +150,8 @@ def simulate(plan: dict[str, Any], settings: TwinSettings | None = None, speed: 
         if twin.control(q[-1], holding, dt) is not None:
             break
     report = _report(plan, twin, settings, speed, time.perf_counter() - started)
-    return SimResult(report=report, samples=rows, polygon=twin.polygon.vertices.copy())
+    return SimResult(report=report, samples=rows, polygon=twin.polygon.vertices.copy(),
+                     held_load_ratio=twin.extremes.held_load_ratio)
 
 
 def _grasp(twin: Twin, plan: dict[str, Any], i: int, old: str, new: str, q_cmd: np.ndarray) -> None:

@@ -55,6 +55,8 @@ class _Extremes:
     foot_tilt_rad: float = 0.0
     saturated_since: dict[int, float] = field(default_factory=dict)
     payload_off_since: float | None = None
+    #: the held load the payload check judged, over the planned weight: (smallest, largest)
+    held_load_ratio: tuple[float, float] | None = None
 
 
 def _wxyz(xyzw: np.ndarray) -> np.ndarray:
@@ -408,6 +410,10 @@ class Twin:
             ex.payload_off_since = None
             return None
         planned = self.planned_mass_kg * G
+        if planned > 0:
+            ratio = ms.held_load_n / planned
+            lo, hi = ex.held_load_ratio or (ratio, ratio)
+            ex.held_load_ratio = (min(lo, ratio), max(hi, ratio))
         tolerance = lim.payload_tolerance * planned + lim.payload_floor_n
         if abs(ms.held_load_n - planned) <= tolerance:
             ex.payload_off_since = None
