@@ -91,6 +91,22 @@ def test_the_payload_check_faults_a_load_far_from_the_planned_one(scale, stands)
         assert fault["at_s"] == pytest.approx(-1.0 + 0.25 + 0.1 + 0.1, abs=0.011)
 
 
+def test_simulate_cli_with_a_six_times_heavier_drill_exits_faulted(tmp_path):
+    """`regrasp simulate --mass-scale 6` on a plan carrying the drill's mass: exit 1, the payload fault in the report;
+    the planned mass: exit 0."""
+    from service.cli.simulate import simulate as cli
+
+    plan_file = tmp_path / "drill.json"
+    plan_file.write_text(arm_plan(DRILL_KG))
+    runner = CliRunner()
+    heavy = runner.invoke(cli, [str(plan_file), "--mass-scale", "6", "--out", str(tmp_path / "heavy")])
+    assert heavy.exit_code == 1, heavy.output
+    report = json.loads((tmp_path / "heavy" / "simreport.json").read_text())
+    assert report["mass_scale"] == 6.0 and report["fault"]["detail"].startswith("payload_mismatch:"), report["fault"]
+    planned = runner.invoke(cli, [str(plan_file), "--out", str(tmp_path / "planned")])
+    assert planned.exit_code == 0, planned.output
+
+
 def test_the_same_run_twice_gives_the_same_report_and_samples():
     plan = _plan()
     a, b = simulate(plan), simulate(plan)
