@@ -2,7 +2,7 @@
 
 Like OMPL's ``MotionValidator``, it answers whether a hop can be made, here with the motion
 itself: simple via postures first (the straight line, the arm's ready posture, the hand lifted
-above either end), else the energy-based T-RRT (:mod:`planner.motion.trrt`) and shortcuts, then
+above either end or above the joint-space middle; the quickest valid one at the velocity limits), else the energy-based T-RRT (:mod:`planner.motion.trrt`) and shortcuts, then
 the time parametrisation within the velocity and acceleration limits with the ZMP inside the
 polygon (:mod:`planner.motion.timing`). Every state on the way is checked by the task's
 :class:`~planner.regrasp.state_checker.StateChecker`. Each hop draws from its own generator.
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from planner.motion.smoothing import shortcut
+from planner.motion.smoothing import path_length, shortcut
 from planner.motion.timing import time_path
 from planner.motion.trrt import plan_motion
 from planner.regrasp.failure_cause import FailureCause
@@ -60,16 +60,18 @@ class MotionValidator:
             return None
         path = res.path
         if len(path) > 2:
-            path = shortcut(path, validity, rng, s.smoothing, termination).path
+            path = shortcut(path, validity, rng, s.smoothing, termination, weights=1.0 / t.robot.velocity_limit).path
         return path
 
     def _via_ready(self, qa: np.ndarray, qb: np.ndarray, active: np.ndarray, validity,
                    rng: np.random.Generator) -> np.ndarray | None:
         """A short valid path through simple via postures, or None (then T-RRT searches).
 
-        Candidates, cheapest first: the straight line; through the moving arm's ready posture
-        (hand raised in front of the shoulder); through the hand lifted above either end
-        (IK from that end). Most moves between table poses are one of these.
+        Candidates: the straight line; through the moving arm's ready posture (hand raised in front
+        of the shoulder); through the hand lifted above either end (IK from that end) or above the
+        joint-space middle of the two. They are tried quickest first (the time the path takes at the
+        velocity limits), so the first valid one is the quickest. Most moves between table poses
+        are one of these.
         """
         t = self.task
         sides = [side for side in ("left", "right") if np.all(np.isin(t.arm_only[side], active))]
@@ -82,12 +84,25 @@ class MotionValidator:
                 ready[t.jaw[side]] = qa[t.jaw[side]]
                 candidates.append([qa, ready, qb])
             up_a, up_b = self._lifted(qa, side, rng), self._lifted(qb, side, rng)
+            if up_a is not None:
+                candidates.append([qa, up_a, qb])
+            if up_b is not None:
+                candidates.append([qa, up_b, qb])
             if up_a is not None and up_b is not None:
                 candidates.append([qa, up_a, up_b, qb])
+            over = self._over_middle(qa, qb, side, rng)
+            if over is not None:
+                candidates.append([qa, over, qb])
+                if up_a is not None and up_b is not None:
+                    candidates.append([qa, up_a, over, up_b, qb])
             if ready is not None and up_b is not None:
                 candidates.append([qa, ready, up_b, qb])
             if ready is not None and up_a is not None:
                 candidates.append([qa, up_a, ready, qb])
+        # shortest first in the time metric (the time the path takes at the velocity limits): the first valid one is
+        # the quickest of the simple motions (a stable sort keeps the order above among equals)
+        weights = 1.0 / t.robot.velocity_limit
+        candidates.sort(key=lambda w: path_length(np.array(w), weights))
         for waypoints in candidates:
             if self._path_valid(waypoints, validity):
                 return np.array(waypoints)
@@ -104,6 +119,22 @@ class MotionValidator:
             return None
         out = res.q
         out[t.jaw[side]] = q[t.jaw[side]]
+        return out
+
+    def _over_middle(self, qa: np.ndarray, qb: np.ndarray, side: Side, rng: np.random.Generator) -> np.ndarray | None:
+        """The joint-space middle of qa and qb with ``side``'s hand raised ``via_lift_m`` above the higher of the
+        two ends (arm-only IK from the middle), or None: a via posture near the straight line that clears what the
+        straight line itself hits (mostly the table under the hand)."""
+        t = self.task
+        mid = 0.5 * (qa + qb)
+        T = t.tcp(mid, side)
+        T[2, 3] = max(T[2, 3], t.tcp(qa, side)[2, 3], t.tcp(qb, side)[2, 3]) + t.settings.via_lift_m
+        res = t.ik_arm_only.solve_arm(side, T, mid, rng, rest_q=mid)
+        self.data.counters["ik_solves"] += 1
+        if res.q is None:
+            return None
+        out = res.q
+        out[t.jaw[side]] = qa[t.jaw[side]]
         return out
 
     def _path_valid(self, waypoints: list[np.ndarray], validity) -> bool:

@@ -35,7 +35,8 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from planner.motion.smoothing import shortcut
+from planner.motion.smoothing import partial_shortcut, path_length, shortcut
+from planner.motion.trrt import plan_motion
 from planner.motion.timing import MARGIN_TOLERANCE_M, zmp_cart_table
 from planner.motion.topp import (
     BlendedPath,
@@ -52,6 +53,7 @@ from planner.stability.com_path import com_path_terms
 from planner.stability.effort import EffortEvaluator
 from planner.stability.evaluator import HoldSpec
 from planner.stability.inertial_torques import InertialTorques
+from planner.termination import Termination
 
 METHOD = "topp-ra"
 #: The random stream of the timing's shortcuts (apart from the search's hop streams).
@@ -68,8 +70,17 @@ class PlanTimingSettings(BaseModel):
     velocity_scale: float = Field(0.98, gt=0, le=1, description="share of the URDF velocity limits TOPP-RA may use")
     acceleration_scale: float = Field(0.98, gt=0, le=1, description="share of the spec's acceleration limits TOPP-RA may use")
     effort_scale: float = Field(0.98, gt=0, le=1, description="share of the effort limits the static plus inertial torques may use")
-    shortcut_iterations: int = Field(200, ge=0, description="random shortcuts tried on each planned motion before "
+    shortcut_iterations: int = Field(60, ge=0, description="random shortcuts tried on each planned motion before "
                                      "it is blended (checked like the search's)")
+    replans: int = Field(4, ge=0, description="more T-RRT runs of each planned motion of the solved plan (own seeded "
+                         "streams); the quickest at the velocity limits after shortcuts replaces it (one run's detour "
+                         "around the table often costs seconds)")
+    partial_shortcut_iterations: int = Field(200, ge=0, description="partial shortcuts (one joint made linear "
+                                             "between two points) of each planned motion's quickest path")
+    alternatives: int = Field(4, ge=1, description="quickest paths of each planned motion kept, tried in order when "
+                              "a quicker one fails the dense checks of its samples")
+    replan_shortcut_iterations: int = Field(60, ge=0, description="random shortcuts of each replanned motion before "
+                                            "the quickest is chosen")
     blend_rad: float = Field(0.15, ge=0, description="largest half-length of a corner blend (joint-space arc length, rad)")
     blend_rounds: int = Field(3, ge=0, description="times a blend with an invalid sample is halved before it is removed")
     grid_step_rad: float = Field(0.02, gt=0, description="TOPP-RA gridpoint spacing along the path (rad)")
@@ -77,6 +88,9 @@ class PlanTimingSettings(BaseModel):
     zmp_inner_m: float = Field(0.0005, ge=0, description="extra ZMP margin inside TOPP-RA, for the finite differences between gridpoints")
     shaping_window_s: float = Field(0.0, ge=0, le=2.0, description="moving average of the path position over this "
                                     "time: jerk limited, starts and stops spread out (0: TOPP-RA's bang-bang profile)")
+    trust_search_segments: bool = Field(False, description="skip the state checks of samples on the search's own "
+                                        "straight segments (checked every 0.02 rad, so a graze between two checked "
+                                        "states passes); off: every sample is checked")
     check_rounds: int = Field(8, ge=1, description="time stretches of a run whose samples exceed a limit")
     rest_samples: int = Field(1, ge=0, description="extra copies of a run's first and last sample (exactly zero velocity)")
 
@@ -120,6 +134,16 @@ def runs_of(pieces: list[MotionPiece], task) -> list[Run]:
             runs.append(Run([piece], holding, hold, None if hold is not None else current.copy()))
         prev_jaw = jaw
     return runs
+
+
+def grasping_of(piece: MotionPiece, hold: HoldSpec | None) -> str | None:
+    """The hand whose fingers touch the object by design along a piece, as the search checked it: the moving hand
+    of an approach or a retreat; at a handover's jaw moves, the hand other than the one the object follows."""
+    if piece.kind in ("approach", "retreat") and piece.hand in ("left", "right"):
+        return piece.hand
+    if piece.kind == "handover" and hold is not None:
+        return "right" if hold.tcp_side == "left" else "left"
+    return None
 
 
 def off_path(Q: np.ndarray, W: np.ndarray | None, tol: float = 1e-7) -> np.ndarray:
@@ -168,7 +192,7 @@ class PlanTimer:
         self.alim = robot.acceleration_limit
         self.limits: EffortEvaluator | None = task.limits
         self.threshold = task.evaluator.threshold_m if task.constrained else -np.inf
-        self.stats = {"shortened_s": 0.0, "shortcuts_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0}
+        self.stats = {"shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "dense_failures": []}
 
     # -- constraints ------------------------------------------------------------------------------------------------
     @property
@@ -256,7 +280,7 @@ class PlanTimer:
         t = self.task
         bounds = [path.waypoint_s[i] for i in starts[1:]]
         piece_of = np.searchsorted(np.asarray(bounds), s, side="right") if bounds else np.zeros(len(s), int)
-        new = off_path(Q, run.validated)
+        new = off_path(Q, run.validated) if self.s.trust_search_segments else np.ones(len(Q), dtype=bool)
         self.stats["checked_samples"] += int(new.sum())
         bad = np.zeros(len(Q), dtype=bool)
         margin = t.evaluator.evaluate(Q, run.hold, threshold_m=0.0).margin
@@ -265,8 +289,7 @@ class PlanTimer:
             idx = np.flatnonzero((piece_of == k) & new)
             if not idx.size:
                 continue
-            grasping = piece.hand if piece.kind in ("approach", "retreat") and piece.hand in ("left", "right") else None
-            ok, _ = self.checker.validity(run.hold, run.free_object, grasping, active=None)(Q[idx])
+            ok, _ = self.checker.validity(run.hold, run.free_object, grasping_of(piece, run.hold), active=None)(Q[idx])
             bad[idx] |= ~ok
         bad_s = [s[bad]]
         if len(Q) >= 2:
@@ -274,6 +297,25 @@ class PlanTimer:
             low = t.evaluator.evaluate(mids, run.hold, threshold_m=0.0).margin < self.threshold - MARGIN_TOLERANCE_M
             bad_s.append(0.5 * (s[1:] + s[:-1])[low])
         return np.concatenate(bad_s)
+
+    def _fallback_failures(self, run: Run) -> str:
+        """The search's own rest-to-rest samples of a run, every one through the state checker with its piece's
+        grasping rule and grasp as the search validated it (``piece.hold``): empty when all pass, else what failed.
+        Recorded in ``stats.timing.dense_failures``; the object at rest is checked where the plan tracks it, which
+        can differ from the search's placement by an IK residual (a palm that touches the object at the grasp then
+        counts), so it is reported, not refused."""
+        if not self.s.trust_search_segments:
+            failed = []
+            for piece in run.pieces:
+                Q = np.asarray(piece.waypoints, dtype=float)
+                hold = piece.hold if run.hold is not None else None
+                ok, _ = self.checker.validity(hold, run.free_object if hold is None else None, grasping_of(piece, hold),
+                                              active=None)(Q)
+                self.stats["checked_samples"] += len(Q)
+                if not ok.all():
+                    failed.append(f"{int((~ok).sum())} samples of the {piece.kind} ({piece.hand})")
+            return "; ".join(failed)
+        return ""
 
     def _refuse(self, why: str) -> None:
         self.stats["refused"].append(why)
@@ -374,40 +416,85 @@ class PlanTimer:
             stretch *= max(k, 1.01)
         return self._refuse(f"the samples still exceed a limit after {self.s.check_rounds} stretches")
 
-    def shortcut(self, pieces: list[MotionPiece]) -> list[MotionPiece]:
-        """Each planned motion (more than one straight segment) shortened by more random shortcuts, every new
-        segment checked by the task's state checker at the search's resolution, as the search checks its own."""
+    def alternatives(self, pieces: list[MotionPiece]) -> list[list[MotionPiece]]:
+        """The plan's pieces with their planned motions (more than one straight segment) made quicker, best first:
+        level k holds each motion's k-th quickest path (its last one where it has fewer). Each motion's paths are its
+        own and ``replans`` more T-RRT runs between its ends, shortened by random shortcuts (the best by
+        ``shortcut_iterations`` more); every new segment is checked by the task's state checker at the search's
+        resolution, as the search checks its own."""
         t = self.task
-        out = []
+        per_piece: list[list[MotionPiece]] = []
         settings = t.settings.smoothing.model_copy(update={"iterations": self.s.shortcut_iterations})
+        weights = 1.0 / self.vlim
         for k, (piece, _, hold, current) in enumerate(object_states(pieces, t.evaluator, t.placements[t.start_id])):
-            if piece.path is None or len(piece.path) <= 2 or self.s.shortcut_iterations == 0:
-                out.append(piece)
+            if piece.path is None or len(piece.path) <= 2:
+                per_piece.append([piece])
                 continue
             validity = self.checker.validity(hold, None if hold is not None else current, None, active=None)
             rng = np.random.default_rng([t.scenario.seed, SHORTCUT_STREAM, k])
-            res = shortcut(np.asarray(piece.path, dtype=float), validity, rng, settings, weights=1.0 / self.vlim)
-            self.stats["shortened_s"] += res.length_before - res.length_after
-            out.append(replace(piece, path=res.path))
-        return out
+            P = np.asarray(piece.path, dtype=float)
+            paths = self._replans(P, validity, rng, weights)
+            if self.s.shortcut_iterations:
+                paths[0] = shortcut(paths[0], validity, rng, settings, weights=weights).path
+            if self.s.partial_shortcut_iterations:
+                paths[0] = partial_shortcut(paths[0], validity, rng, self.s.partial_shortcut_iterations,
+                                            settings.edge_resolution_rad, weights).path
+            self.stats["shortened_s"] += path_length(P, weights) - path_length(paths[0], weights)
+            per_piece.append([replace(piece, path=Q) for Q in paths])
+        levels = max(len(a) for a in per_piece) if per_piece else 0
+        return [[a[min(k, len(a) - 1)] for a in per_piece] for k in range(levels)]
+
+    def _replans(self, P: np.ndarray, validity, rng: np.random.Generator, weights: np.ndarray) -> list[np.ndarray]:
+        """P and ``replans`` more T-RRT runs between its ends (each shortened by ``replan_shortcut_iterations``
+        shortcuts), quickest at the velocity limits first, at most ``alternatives`` of them. Only the joints P moves
+        are planned; every run draws from ``rng`` and is capped by the T-RRT's rounds, so the order is the seed's."""
+        paths = [P]
+        t = self.task
+        active = np.flatnonzero(np.ptp(P, axis=0) > 0)
+        trrt = t.settings.trrt.model_copy(update={"margin_cost": t.constrained})
+        short = t.settings.smoothing.model_copy(update={"iterations": self.s.replan_shortcut_iterations})
+        for _ in range(self.s.replans):
+            res = plan_motion(P[0], P[-1], active, validity, t.robot.lower, t.robot.upper, rng, trrt,
+                              Termination(trrt.max_iterations))
+            self.stats["replans"] += 1
+            if res.ok:
+                paths.append(shortcut(res.path, validity, rng, short, weights=weights).path if len(res.path) > 2
+                             else res.path)
+        order = sorted(range(len(paths)), key=lambda i: (path_length(paths[i], weights), i))
+        return [paths[i] for i in order[:self.s.alternatives]]
 
     def time_plan(self, pieces: list[MotionPiece]) -> PlanTiming:
-        """The plan's pieces shortened, then timed run by run; and how much slower than full speed the result is."""
+        """The plan's pieces made quicker, then timed run by run (a run whose samples fail the checks takes its
+        next quicker alternative, at last the search's own path); and how much slower than full speed it is."""
         out: list[MotionPiece] = []
         slack = 0.0
         originals = runs_of(pieces, self.task)
-        shortened = runs_of(self.shortcut(pieces), self.task)
-        for run, original in zip(shortened, originals):
-            run.validated = original.validated = _waypoints(original)[0]
+        levels = [runs_of(level, self.task) for level in self.alternatives(pieces)]
+        for r, original in enumerate(originals):
+            original.validated = _waypoints(original)[0]
             self.stats["runs"] += 1
-            timed = self.time_run(run)
-            if timed is None and run is not original:  # the shortcuts' dense samples failed: the search's own path
-                self.stats["shortcuts_dropped"] += 1
-                run = original
+            tries, seen = [], []
+            for level in levels:
+                run = level[r]
+                key = [id(p.path) for p in run.pieces]
+                if key not in seen:
+                    seen.append(key)
+                    tries.append(run)
+            if [id(p.path) for p in original.pieces] not in seen:
+                tries.append(original)
+            timed = None
+            for k, run in enumerate(tries):
+                run.validated = original.validated
                 timed = self.time_run(run)
+                if timed is not None:
+                    self.stats["alternatives_dropped"] += k
+                    break
             if timed is None:
                 run = original
                 self.stats["fallback_runs"] += 1
+                bad = self._fallback_failures(run)
+                if bad:
+                    self.stats["dense_failures"].append(bad)
                 out.extend(run.pieces)
                 continue
             Qs, full, actual = timed

@@ -32,7 +32,10 @@ class PlannerSettings(BaseModel):
 
     pregrasp_m: float = Field(0.06, gt=0, description="pre-grasp: back along the approach axis")
     lift_m: float = Field(0.06, gt=0, description="lift: straight up from the placement")
-    approach_samples: int = Field(8, ge=2, description="states checked along approach and lift")
+    approach_samples: int = Field(8, ge=2, description="states checked along approach and lift (at least)")
+    line_check_rad: float = Field(0.005, gt=0, description="largest per-joint change between the states checked along "
+                                  "approach, lift and retreat: as dense as the timed samples (1 rad/s x 5 ms), so "
+                                  "a graze between two checked states does not reach the plan")
     max_grasps: int = Field(400, ge=1, description="grasps per hand kept for the graph (closest to the CoM first)")
     handover_pairs_per_pose: int = Field(12, ge=1, description="grasp pairs kept per handover pose (evenly spread)")
     intermediate_placements: int = Field(6, ge=0, description="table spots x yaws besides start and goal")

@@ -141,8 +141,12 @@ class Task:
         return self.evaluator.tcp_pose(q, side)
 
     def line(self, a: np.ndarray, b: np.ndarray, n: int | None = None) -> np.ndarray:
-        """``n`` states from a to b, both included (default: the approach samples)."""
-        return interpolate(a, b, n or self.settings.approach_samples)
+        """``n`` states from a to b, both included (default: the approach samples, more where a joint moves farther
+        than ``line_check_rad`` between two of them, so a check of the line is as dense as the timed samples)."""
+        if n is None:
+            step = float(np.abs(np.asarray(b) - np.asarray(a)).max()) / self.settings.line_check_rad
+            n = max(self.settings.approach_samples, int(np.ceil(step)) + 1)
+        return interpolate(a, b, n)
 
     def estimated_margins(self, T_obj: np.ndarray) -> np.ndarray:
         """Quick guesses of a held state's margin, the home posture plus the object at each pose

@@ -1,0 +1,80 @@
+"""The timed path is checked at every sample, its search-planned segments too: a straight segment whose ends are
+valid but which passes through the table between them cannot be timed into a plan unnoticed, and the quicker
+replanned motions the timing substitutes are collision-free at every sample."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.jobs.plan_job import build_task
+from planner.motion.timing import time_parameterize
+from planner.regrasp.hand_config_planner import HandConfigPlanner
+from planner.regrasp.plan_assembly import assemble, object_states
+from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
+from planner.scene.scenarios import load_scenario
+
+DATA = Path(__file__).resolve().parents[2] / "data"
+
+
+@pytest.fixture(scope="module")
+def solved():
+    scenario = load_scenario(DATA / "small-box.yaml")
+    task = build_task(scenario)
+    res = HandConfigPlanner(task, scenario.hands).plan()
+    assert res.status == "solved"
+    return task, res.pieces
+
+
+def _collides(task, Q, hold, free_object) -> np.ndarray:
+    checker = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005).checker
+    ok, _ = checker.validity(hold, free_object, None, active=None)(Q)
+    return ~ok
+
+
+def _grazing_plan(task, pieces):
+    """The plan with one planned transit replaced by the straight segment between its ends, which the search would
+    never have accepted (it hits something between the ends), laid out as if it were the search's own path."""
+    for k, (piece, _, hold, current) in enumerate(object_states(pieces, task.evaluator, task.placements[task.start_id])):
+        P = np.asarray(piece.path if piece.path is not None else [], dtype=float)
+        if piece.kind != "transit" or len(P) <= 2:
+            continue
+        f = np.linspace(0.0, 1.0, 400)[:, None]
+        line = P[0] * (1 - f) + P[-1] * f
+        if not _collides(task, line, hold, current).any():
+            continue
+        _, Q = time_parameterize(P[[0, -1]], task.robot, task.settings.timing)
+        assert not _collides(task, Q[:: max(1, len(Q) // 3)], hold, current)[[0, -1]].any()  # its ends are valid
+        out = list(pieces)
+        out[k] = replace(piece, path=P[[0, -1]], waypoints=Q)
+        return out, k
+    pytest.skip("no planned transit whose straight line collides in this task")
+
+
+def test_a_segment_through_an_obstacle_between_checked_states_is_refused(solved):
+    task, pieces = solved
+    grazing, k = _grazing_plan(task, pieces)
+    # trusting the search's own segments (as the timing once did) times the bad segment into the plan unnoticed
+    trusted = PlanTimer(task, PlanTimingSettings(trust_search_segments=True, replans=0), 1.0, task.threshold_m,
+                        0.005).time_plan(grazing)
+    assert trusted.stats["dense_failures"] == []
+    # checked at every sample, it is found: the run is not blended through it, and the plan's stats name it
+    dense = PlanTimer(task, PlanTimingSettings(replans=0), 1.0, task.threshold_m, 0.005).time_plan(grazing)
+    assert dense.stats["dense_failures"], "a segment through an obstacle passed the dense checks"
+    assert "transit" in " ".join(dense.stats["dense_failures"])
+
+
+def test_the_replanned_quicker_motions_are_collision_free_at_every_sample(solved):
+    task, pieces = solved
+    timing = PlanTimer(task, PlanTimingSettings(replans=3), 1.0, task.threshold_m, 0.005).time_plan(pieces)
+    assert timing.stats["replans"] > 0 and timing.stats["dense_failures"] == []
+    traj = assemble(timing.pieces, task.evaluator, 0.005, task.placements[task.start_id])
+    for seg in traj.segments:
+        if seg["kind"] != "transit":
+            continue
+        rows = np.arange(seg["first"], seg["last"] + 1)
+        res = task.world.check_batch(task.stance.base_pose, traj.Q[rows], free_object_pose=traj.object_pose[rows])
+        assert not res.collides.any(), f"transit collides at sample {rows[np.argmax(res.collides)]}"
