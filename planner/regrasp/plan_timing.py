@@ -39,6 +39,7 @@ from planner.motion.smoothing import partial_shortcut, path_length, shortcut
 from planner.motion.trrt import plan_motion
 from planner.motion.timing import MARGIN_TOLERANCE_M, zmp_cart_table
 from planner.motion.topp import (
+    GRAVITY,
     BlendedPath,
     LinearRows,
     gridpoints_for,
@@ -91,6 +92,12 @@ class PlanTimingSettings(BaseModel):
     trust_search_segments: bool = Field(False, description="skip the state checks of samples on the search's own "
                                         "straight segments (checked every 0.02 rad, so a graze between two checked "
                                         "states passes); off: every sample is checked")
+    zmp_angular_momentum: bool = Field(True, description="keep the multibody ZMP (the rate of the body's angular "
+                                       "momentum included) inside the margin too, not only the cart-table one")
+    end_acceleration_scale: float = Field(1.0, gt=0, le=1, description="share of the acceleration limits at a rest "
+                                          "(start, stop), rising to all of it end_zone_rad away: gentler starts and stops")
+    end_zone_rad: float = Field(0.0, ge=0, description="path length (rad) over which the acceleration share rises "
+                                "from end_acceleration_scale to 1 after a start and before a stop")
     check_rounds: int = Field(8, ge=1, description="time stretches of a run whose samples exceed a limit")
     rest_samples: int = Field(1, ge=0, description="extra copies of a run's first and last sample (exactly zero velocity)")
 
@@ -210,10 +217,12 @@ class PlanTimer:
         terms = com_path_terms(t.evaluator, P0, P1, P2, run.hold)
         polygon = t.evaluator.polygon
         static_margin = polygon.margin(terms.com[:, :2])
-        need = np.minimum(self.zmp_margin_m + self.s.zmp_inner_m, np.maximum(static_margin, 0.0))
+        need = self._zmp_need(static_margin, self.s.zmp_inner_m)
         z = zmp_rows(terms.com, terms.d1, terms.d2, polygon.normals, polygon.offsets, 0.0)
         room = z.room - need[:, None]
         rows = [LinearRows(grid, z.a, z.b, np.zeros_like(z.a), np.full_like(room, -np.inf), np.maximum(room, 0.0))]
+        if self.s.zmp_angular_momentum:
+            rows.append(self._multibody_zmp(run, P0, P1, P2, grid, polygon, need, room))
         if self.limits is not None:
             tau_s = self._static(run, P0)
             A, B = self._inertial(run).coefficients(P0, P1, P2)
@@ -223,6 +232,26 @@ class PlanTimer:
                 A, B, tau_s, lim = A[:, moved], B[:, moved], tau_s[:, moved], lim[moved]
                 rows.append(LinearRows(grid, A, B, tau_s, np.minimum(-lim, tau_s), np.maximum(lim, tau_s)))
         return rows, need
+
+    def _zmp_need(self, static_margin: np.ndarray, inner: float) -> np.ndarray:
+        """How far inside every edge the ZMP must stay at points whose CoM is ``static_margin`` inside: the ZMP
+        margin (plus ``inner``); where the CoM is closer than that, as far inside as the CoM."""
+        return np.minimum(self.zmp_margin_m + inner, np.maximum(static_margin, 0.0))
+
+    def _multibody_zmp(self, run: Run, P0, P1, P2, grid, polygon, need, room) -> LinearRows:
+        """The ZMP of the whole body, the rate of its angular momentum included, at least ``need`` inside every
+        edge: with ``P_dot, L_dot`` (world, about the origin) from :meth:`InertialTorques.momentum_rate`, the ZMP is
+        ``(M g c_xy + (-L_dot_y, L_dot_x)) / (M g + P_dot_z)``, so ``n.zmp >= offset + need`` is the row
+        ``n_x L_dot_y - n_y L_dot_x + (offset + need) P_dot_z <= M g (n.c - offset - need)``. At rest it is the
+        CoM's; a fast arm swing moves it where the cart-table model does not see it."""
+        inert = self._inertial(run)
+        A, B = inert.momentum_rate(P0, P1, P2)
+        nx, ny = polygon.normals[:, 0][None], polygon.normals[:, 1][None]
+        shift = polygon.offsets[None] + need[:, None]
+        a = nx * A[:, 4:5] - ny * A[:, 3:4] + shift * A[:, 2:3]
+        b = nx * B[:, 4:5] - ny * B[:, 3:4] + shift * B[:, 2:3]
+        weight = inert.total_mass * GRAVITY
+        return LinearRows(grid, a, b, np.zeros_like(a), np.full_like(a, -np.inf), weight * np.maximum(room, 0.0))
 
     def _static(self, run: Run, Q: np.ndarray) -> np.ndarray:
         T_tcp_obj = None if run.hold is None else run.hold.T_tcp_obj
@@ -385,6 +414,17 @@ class PlanTimer:
             out.append(Qk)
         return out, sum(part.full_speed_s for part in parts), (len(Q_cat) - 1) * self.dt
 
+    def _soft_ends(self, path: BlendedPath, grid: np.ndarray, cols: np.ndarray) -> LinearRows:
+        """Joint acceleration rows whose limit rises linearly from ``end_acceleration_scale`` of the limit at a
+        rest to all of it ``end_zone_rad`` (path length) away: gentler starts and stops, which set off the
+        whole-body sway, at little cost in time (the middle of a motion keeps the full limit)."""
+        to_rest = np.minimum(grid, path.length - grid)
+        e = self.s.end_acceleration_scale
+        share = e + (1.0 - e) * np.clip(to_rest / self.s.end_zone_rad, 0.0, 1.0)
+        lim = share[:, None] * (self.alim[cols] * self.s.acceleration_scale)[None, :]
+        a, b = path(grid, 1)[:, cols], path(grid, 2)[:, cols]
+        return LinearRows(grid, a, b, np.zeros_like(a), -lim, lim)
+
     def time_part(self, run: Run, W: np.ndarray, blends: np.ndarray) -> "Part | None":
         """One stretch between stops, timed and checked; None when TOPP-RA finds no profile or the checks
         cannot be met by stretching."""
@@ -393,6 +433,8 @@ class PlanTimer:
         rows, _ = self._rows(run, path, grid)
         # TOPP-RA over the joints that move (the same arc length; the others add no constraint)
         cols = np.flatnonzero(np.ptp(W, axis=0) > 0)
+        if self.s.end_acceleration_scale < 1.0 and self.s.end_zone_rad > 0.0:
+            rows.append(self._soft_ends(path, grid, cols))
         moving = BlendedPath(W[:, cols], blends)
         moving.breaks, moving.length = path.breaks, path.length  # the same parameter to the last bit
         sd = parameterize(moving, grid, self.vlim[cols] * self.s.velocity_scale,
@@ -406,7 +448,7 @@ class PlanTimer:
             Q = path(s)
             Q[0], Q[-1] = W[0], W[-1]  # exactly the rest states (the polynomials reach them to rounding)
             com = self.task.evaluator.evaluate(Q, run.hold, threshold_m=0.0).com
-            need_at = np.minimum(self.zmp_margin_m, np.maximum(self.task.evaluator.polygon.margin(com[:, :2]), 0.0))
+            need_at = self._zmp_need(self.task.evaluator.polygon.margin(com[:, :2]), 0.0)
             k = self._stretch_needed(run, Q, need_at)
             if k <= 1.0 + 1e-9:
                 self.stats["stretched_runs"] += int(stretch > 1.0)

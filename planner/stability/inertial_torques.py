@@ -74,6 +74,35 @@ class InertialTorques:
             B[i] = pin.rnea(self.model, self.data, qp, v1, a2)
         return self._per_checked(A), self._per_checked(B)
 
+    @property
+    def total_mass(self) -> float:
+        """The robot's mass plus the held object's (when one is held)."""
+        return float(pin.computeTotalMass(self.model))
+
+    def momentum_rate(self, Q: np.ndarray, dQ: np.ndarray, ddQ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(A, B), each (N, 6): the rate of change of the whole body's momentum along the path, world frame,
+        ``[P_dot; L_dot about the world origin] = A s_ddot + B s_dot^2``. With the base fixed and no gravity it
+        is the wrench the free-flyer joint carries (pinocchio's RNEA, base frame), moved to the world origin: what
+        the ground must add to the weight, so the multibody ZMP (the arms' angular momentum included, which the
+        cart-table model leaves out) follows from it."""
+        n = len(Q)
+        A = np.empty((n, 6))
+        B = np.empty((n, 6))
+        zero = np.zeros(self.model.nv)
+        for i in range(n):
+            qp = self.robot.to_pin_q(self.base_pose, Q[i])
+            v1, a2 = self._v(dQ[i]), self._v(ddQ[i])
+            A[i] = pin.rnea(self.model, self.data, qp, zero, v1)[:6]
+            B[i] = pin.rnea(self.model, self.data, qp, v1, a2)[:6]
+        x, y, z, w = self.base_pose[3:7]
+        R = pin.Quaternion(float(w), float(x), float(y), float(z)).toRotationMatrix()
+        p = self.base_pose[:3]
+        out = []
+        for W in (A, B):
+            f = W[:, :3] @ R.T
+            out.append(np.hstack([f, W[:, 3:] @ R.T + np.cross(p[None], f)]))
+        return out[0], out[1]
+
     def torques(self, Q: np.ndarray, dQ: np.ndarray, ddQ: np.ndarray) -> np.ndarray:
         """Inertial torques (N, K) of states Q moving with joint velocities dQ and accelerations ddQ."""
         out = np.empty((len(Q), self.model.nv))
