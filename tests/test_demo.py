@@ -28,13 +28,15 @@ def test_demo_runs_end_to_end(tmp_path):
     assert plan["status"] == "solved" and plan["hands"] == survey["recommended"]
     assert check_plan(plan, sample_every=5).errors == []
     assert {r["hands"] for r in survey["rows"]} == {"left-left", "right-right", "left-right", "right-left"}
-    # One answer per task: the demo surveys with the task's own estimator, so `regrasp survey` (its own cache
-    # folder: computed again here) gives the same rows and recommendation.
+    # One answer per task: the demo surveys with the task's own estimator, so `regrasp survey` finds the demo's
+    # answer under its own key for the task (the key hashes the resolved scenario and the estimator; a survey is
+    # decided by them, tests/survey/test_seed_map.py) and gives the same rows.
     alone = subprocess.run([sys.executable, "-m", "service.cli.main", "survey", "--scenario", "upright", "--json"],
                            capture_output=True, text=True, timeout=900,
-                           env={**os.environ, "REGRASP_SURVEY_CACHE_DIR": str(tmp_path / "survey-cache")})
+                           env={**os.environ, "REGRASP_SURVEY_CACHE_DIR": str(out / "service-data" / "survey-cache")})
     assert alone.returncode == 0, alone.stderr[-2000:]
     own = json.loads(alone.stdout)
+    assert own["stats"].get("cache") == "hit", "regrasp survey keys the task differently from the demo"
     assert own["estimator"] == survey["estimator"] and own["estimator"]["until"] == "solved"
     assert own["recommended"] == survey["recommended"] and own["indistinguishable"] == survey["indistinguishable"]
     assert [(r["hands"], r["stable"], r["unstable"], r["seeds"]) for r in own["rows"]] == [

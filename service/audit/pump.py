@@ -23,6 +23,7 @@ and ``GET /v1/jobs/{id}/audit`` serves it as the one download.
 from __future__ import annotations
 
 import logging
+import threading
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -154,13 +155,14 @@ class JobAuditor:
             self.store.update_fields(job_id, **fields)
             self._unsaved.pop(job_id, None)
 
-    def run(self, stop: Any, parent_pid: int) -> None:
-        """Pump until ``stop`` is set or the parent process dies (used by the audit process)."""
+    def run(self, stop: Any, parent_pid: int, terminated: threading.Event | None = None) -> None:
+        """Pump until ``stop`` (or ``terminated``, set by a signal) is set or the parent process dies (used by the
+        audit process)."""
         import os
 
         self.audit_dir.mkdir(parents=True, exist_ok=True)
         self._cursor = self._start_cursor()
-        while not stop.wait(PUMP_PERIOD_S):
+        while not stop.wait(PUMP_PERIOD_S) and not (terminated is not None and terminated.is_set()):
             if os.getppid() != parent_pid:
                 # The service died (e.g. SIGKILL): leave the files as the crash left them (unfinished).
                 os._exit(3)
@@ -302,11 +304,14 @@ def _audit_process_main(database_url: str, audit_dir: str, parent_pid: int, stop
 
     from ..store import make_engine
 
+    # A SIGTERM (the service's process group stopped) only marks the stop: setting the multiprocessing Event from
+    # the handler could deadlock on the Event's own lock, which the interrupted wait may be holding.
+    terminated = threading.Event()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: terminated.set())
     engine = make_engine(database_url, pool_size=2)
     auditor = JobAuditor(JobStore(engine), Path(audit_dir))
-    auditor.run(stop, parent_pid)
+    auditor.run(stop, parent_pid, terminated)
     engine.dispose()
     os._exit(0)
 

@@ -57,6 +57,35 @@ def test_sigterm_exits_0_with_no_traceback_local(tmp_path: Path) -> None:
         srv.stop()
 
 
+#: A clean stop of an idle service takes a second or two; the audit process's own join gives up after 10 s.
+GROUP_STOP_S = 8.0
+
+
+def test_sigterm_to_the_whole_process_group_stops_every_process_promptly(tmp_path: Path) -> None:
+    """systemd (and `regrasp demo`) signal the service's whole process group: the audit process gets the SIGTERM
+    too, ends its pump by itself and exits, instead of hanging until the service gives up on it and kills it."""
+    srv = Server(tmp_path, workers=1)
+    try:
+        srv.start()
+        with srv.client("alice") as c:
+            srv.wait_workers_ready(c)  # a job's audit file written and sealed
+        children = [psutil.Process(p.pid) for p in psutil.Process(srv.proc.pid).children(recursive=True)]
+        t0 = time.monotonic()
+        os.killpg(srv.proc.pid, signal.SIGTERM)
+        code = srv.proc.wait(60)
+        took = time.monotonic() - t0
+        log = srv.log_path.read_text()
+        assert code == 0, log[-3000:]
+        _clean(log)
+        assert took < GROUP_STOP_S, f"the service took {took:.1f} s to stop"
+        deadline = time.monotonic() + 5.0
+        while (left := [p for p in children if _running(p.pid)]) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not left, [p.cmdline() for p in left]
+    finally:
+        srv.stop()
+
+
 def test_kill_9_of_the_server_takes_its_workers_within_1s(tmp_path: Path) -> None:
     srv = Server(tmp_path, workers=2)
     try:
