@@ -28,11 +28,12 @@ def assert_the_gate_passes(plan: dict) -> None:
 
 
 def small_survey(scenario: str) -> tuple[dict, dict]:
-    """A survey of the built-in ``scenario``, two seeds of 100 states: (the document, its rows by hands)."""
+    """A survey of the built-in ``scenario``, two seeds of 100 states, each on its own key path (a pool of two):
+    (the document, its rows by hands)."""
     from planner.scene.scenarios import load_builtin
     from planner.survey.estimator import Estimator
     from planner.survey.runner import run_survey
 
-    est = Estimator(until="states", states_per_seed=100, seeds_min=2, seeds_max=2)
+    est = Estimator(until="states", states_per_seed=100, seeds_min=2, seeds_max=2, key_path_pool=2)
     doc, _ = run_survey(load_builtin(scenario), estimator=est, workers=1, keep_states=False)
     return doc, {r["hands"]: r for r in doc["rows"]}
