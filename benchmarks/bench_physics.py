@@ -74,9 +74,12 @@ def plan_file(plans: Path, scenario: str, robot: str | None = None) -> Path:
 
 
 def run(plan: dict, settings: TwinSettings, speed: float = 1.0) -> dict:
+    cpu = time.process_time()
     rep = simulate(plan, settings, speed=speed).report
+    cpu = time.process_time() - cpu
     duration = plan["trajectory"][-1]["t"] / speed + 2 * settings.settle_s
     rep["realtime_factor"] = duration / rep["wall_s"]
+    rep["cpu_realtime_factor"] = duration / cpu  # the same on a core of its own, whatever else the machine runs
     return rep
 
 
@@ -148,9 +151,9 @@ def load_average() -> str:
 
 def speed(plans: Path, names: tuple[str, ...] = SCENARIOS, runs: int = 3) -> None:
     print(f"\n## regrasp simulate speed (1 ms physics, control at 200 Hz, stabilizer on, 1x); {load_average()}\n")
-    print("| scenario | simulated s | wall s (fastest-slowest) | real time x (fastest-slowest) |")
-    print("|---|---|---|---|")
-    factors = []
+    print("| scenario | simulated s | wall s (fastest-slowest) | real time x (fastest-slowest) | on its own core: CPU time x |")
+    print("|---|---|---|---|---|")
+    factors, cpus = [], []
     for name in names:
         path = plan_file(plans, name)
         if not path.is_file():
@@ -162,11 +165,14 @@ def speed(plans: Path, names: tuple[str, ...] = SCENARIOS, runs: int = 3) -> Non
         walls = sorted(r["wall_s"] for r in reps)
         x = sorted(r["realtime_factor"] for r in reps)
         factors += x
+        cpu = sorted(r["cpu_realtime_factor"] for r in reps)
+        cpus += cpu
         dur = plan["trajectory"][-1]["t"] + 2 * TwinSettings().settle_s
-        print(f"| {name} | {dur:.1f} | {walls[0]:.2f}-{walls[-1]:.2f} | {x[-1]:.1f}-{x[0]:.1f} |", flush=True)
+        print(f"| {name} | {dur:.1f} | {walls[0]:.2f}-{walls[-1]:.2f} | {x[-1]:.1f}-{x[0]:.1f} | "
+              f"{cpu[-1]:.1f}-{cpu[0]:.1f} |", flush=True)
     if factors:
         print(f"\nslowest run {min(factors):.1f}x, fastest {max(factors):.1f}x real time ({len(factors)} runs); "
-              f"{load_average()}")
+              f"CPU time {min(cpus):.1f}-{max(cpus):.1f}x; {load_average()}")
 
 
 def payload(plans: Path, names: tuple[str, ...] = SCENARIOS) -> None:
