@@ -82,7 +82,7 @@ class PlanTimingSettings(BaseModel):
                               "a quicker one fails the dense checks of its samples")
     replan_shortcut_iterations: int = Field(60, ge=0, description="random shortcuts of each replanned motion before "
                                             "the quickest is chosen")
-    blend_rad: float = Field(0.15, ge=0, description="largest half-length of a corner blend (joint-space arc length, rad)")
+    blend_rad: float = Field(0.3, ge=0, description="largest half-length of a corner blend (joint-space arc length, rad)")
     blend_rounds: int = Field(3, ge=0, description="times a blend with an invalid sample is halved before it is removed")
     grid_step_rad: float = Field(0.02, gt=0, description="TOPP-RA gridpoint spacing along the path (rad)")
     max_gridpoints: int = Field(400, ge=10, description="TOPP-RA gridpoints per run at most")
