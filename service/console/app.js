@@ -604,7 +604,28 @@
     return ticks;
   }
 
+  /* hands: auto: the survey recommendation the plan followed (stats.survey_recommendation), with its 95 %
+     interval, its seeds and the rows it cannot be told from; hidden for a plan that named its hands. */
+  function renderPlanSurvey(plan) {
+    const p = $("plan-survey");
+    const rec = (plan.stats || {}).survey_recommendation;
+    p.hidden = !(rec && typeof rec === "object" && rec.recommended);
+    if (p.hidden) { p.textContent = ""; return; }
+    const rows = rec.rows && typeof rec.rows === "object" ? rec.rows : {};
+    const r3 = (v) => (typeof v === "number" ? v.toFixed(3) : "n/a");
+    const one = (h, row) => h + " R = " + r3(row.ratio) +
+      (Array.isArray(row.ratio_ci95) ? " [" + r3(row.ratio_ci95[0]) + ", " + r3(row.ratio_ci95[1]) + "]" : "") +
+      (typeof row.seeds === "number" ? " over " + row.seeds + " seeds" : "");
+    const ties = Array.isArray(rec.indistinguishable) ? rec.indistinguishable : [];
+    p.dataset.tie = ties.length ? "true" : "false";
+    p.textContent = "Hands chosen by the stability survey: " +
+      one(rec.recommended, { ratio: rec.ratio, ratio_ci95: rec.ratio_ci95, seeds: rec.seeds }) +
+      (ties.length ? "; a tie (overlapping 95 % intervals) with " + ties.map((h) => one(h, rows[h] || {})).join(", ") +
+        ", tried in the tie order" : "; no other configuration's interval overlaps it") + ".";
+  }
+
   function renderPlan(plan) {
+    renderPlanSurvey(plan);
     const traj = plan.trajectory || [];
     const polygon = plan.support_polygon || [];
     const threshold = Number(plan.threshold_m || 0);
@@ -636,7 +657,7 @@
       (failures.length ? "; rejected while planning: " + failures.map(([k, v]) => k + " " + v).join(", ") : "") +
       (plan.failure ? "; failure " + plan.failure.code + ": " + plan.failure.message : "") +
       // hands: auto: the quick survey that ranked the configurations, and how each one planned
-      (stats.survey && typeof stats.survey === "object" ? ". Hands chosen by the stability survey (R): " +
+      (stats.survey && typeof stats.survey === "object" && !stats.survey_recommendation ? ". Hands chosen by the stability survey (R): " +
         Object.entries(stats.survey).map(([h, r]) => h + " " + (typeof r === "number" ? r.toFixed(3) : "n/a")).join(", ") : "") +
       (stats.configurations && typeof stats.configurations === "object" && Object.keys(stats.configurations).length > 1
         ? "; configurations planned: " + Object.entries(stats.configurations).map(([h, c]) => h + " " + ((c && c.status) || "?")).join(", ") : "");

@@ -180,3 +180,26 @@ def test_a_failed_plan_shows_its_failure_and_no_empty_charts(page, fake_server):
     expect(page.locator("#plan-summary")).to_contain_text("no motion was planned")
     assert "headroom - mm" not in (page.locator("#detail-body").text_content() or "")
     assert page.js_errors == []
+
+
+def test_a_hands_auto_plan_shows_the_survey_recommendation_with_interval_seeds_and_ties(page, fake_server):
+    """stats.survey_recommendation (as planner.survey.auto writes it for hands: auto) is shown with the
+    recommended row's interval and seeds and each tied row's; a plan that named its hands shows none."""
+    from planner.survey.auto import survey_summary
+
+    from .fake_api import synthetic_survey
+
+    url, store = fake_server
+    auto = store.add("plan", "alice", state="planned")
+    auto["result"]["stats"]["survey_recommendation"] = survey_summary(synthetic_survey())
+    login(page, url, APPROVER)
+    open_job(page, store.plan_id)
+    expect(page.locator("#plan-summary")).to_contain_text("min margin")
+    expect(page.locator("#plan-survey")).to_be_hidden()
+    open_job(page, auto["id"])
+    said = page.locator("#plan-survey")
+    expect(said).to_be_visible()
+    expect(said).to_contain_text("left-left R = 0.999 [0.996, 1.000] over 12 seeds")
+    expect(said).to_contain_text("a tie (overlapping 95 % intervals) with right-right R = 0.992 [0.984, 0.998] over 12 seeds")
+    expect(said).to_have_attribute("data-tie", "true")
+    assert page.js_errors == []
