@@ -6,7 +6,9 @@ C stable and U unstable poses. R = C / (C + U) pooled over seeds. Seeds ``seed``
 lies within ``ci_half_width`` of its R on both sides is converged and takes no more seeds; at
 ``seeds_max`` it stops unconverged. The interval is the percentile bootstrap over seeds (2,000
 resamples from a generator seeded by the survey's seed and the row): resampling whole seeds keeps
-the strong correlation between the poses of one tree. A row with no unstable pose at all has
+the strong correlation between the poses of one tree. A row that explores several key paths in
+fixed shares is resampled within each key path's seeds (the stratified bootstrap,
+:func:`ratio_interval`), and needs :data:`MIN_SEEDS_PER_KEY_PATH` seeds of each before it converges. A row with no unstable pose at all has
 [1 - 3/(C + U), 1] (the "rule of three": a bootstrap cannot show an interval there).
 
 Seeds may run in parallel (on a seed map: forked workers or a Ray cluster, one seed per job) and still give the same answer as
