@@ -32,10 +32,15 @@ class LimitedEvaluator:
     def evaluate(self, Q: np.ndarray, hold: HoldSpec | None = None, active: Sequence[int] | None = None,
                  threshold_m: float | None = None) -> StateBatch:
         batch = self._evaluator.evaluate(Q, hold, active=active, threshold_m=threshold_m)
-        if len(batch) == 0:
+        if len(batch) == 0 or not batch.stable.any():
             return batch
-        res = self.limits.evaluate(Q, "none" if hold is None else hold.side, object_pose=batch.object_pose)
-        return dataclasses.replace(batch, stable=batch.stable & res.ok)
+        # Only the poses stable by the margin can be turned unstable by a limit: the others are not checked.
+        idx = np.flatnonzero(batch.stable)
+        poses = None if batch.object_pose is None else np.asarray(batch.object_pose)[idx]
+        res = self.limits.evaluate(np.atleast_2d(Q)[idx], "none" if hold is None else hold.side, object_pose=poses)
+        stable = batch.stable.copy()
+        stable[idx] = res.ok
+        return dataclasses.replace(batch, stable=stable)
 
 
 def limited(task: Any, evaluator: StateEvaluator) -> StateEvaluator | LimitedEvaluator:
