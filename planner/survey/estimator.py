@@ -8,7 +8,8 @@ lies within ``ci_half_width`` of its R on both sides is converged and takes no m
 resamples from a generator seeded by the survey's seed and the row): resampling whole seeds keeps
 the strong correlation between the poses of one tree. A row that explores several key paths in
 fixed shares is resampled within each key path's seeds (the stratified bootstrap,
-:func:`ratio_interval`), and needs :data:`MIN_SEEDS_PER_KEY_PATH` seeds of each before it converges. A row with no unstable pose at all has
+:func:`ratio_interval`), and needs :data:`MIN_SEEDS_PER_KEY_PATH` seeds of each distinct key path before it converges
+(unless it has no unstable pose at all: the rule of three needs no per-path noise). A row with no unstable pose at all has
 [1 - 3/(C + U), 1] (the "rule of three": a bootstrap cannot show an interval there).
 
 Seeds may run in parallel (on a seed map: forked workers or a Ray cluster, one seed per job) and still give the same answer as
@@ -42,7 +43,7 @@ from schemas.common import HAND_CONFIGS
 BOOTSTRAP_RESAMPLES = 2000
 #: Seeds handed to the workers ahead of the judgement, per worker.
 LOOKAHEAD_PER_WORKER = 2
-#: Seeds of each key path a row with several needs before its stratified interval may call it converged.
+#: Seeds of each distinct key path a row with several needs before its stratified interval may call it converged.
 MIN_SEEDS_PER_KEY_PATH = 3
 
 
@@ -198,6 +199,11 @@ def strata_of(counts: list[SeedCount]) -> list:
     return [None if s.key_path is None else s.key_path.get("seed") for s in counts]
 
 
+def paths_of(counts: list[SeedCount]) -> list:
+    """Each seed's key path by its nodes (pool members with the same key path share one; None when it names none)."""
+    return [None if s.key_path is None else repr(s.key_path.get("nodes")) for s in counts]
+
+
 def judge(counts: list[SeedCount], estimator: Estimator, seed: int, hands: str) -> Judgement:
     """R and its interval over ``counts`` (seeds in order), and whether the row may stop there."""
     c = np.array([s.stable for s in counts])
@@ -206,8 +212,10 @@ def judge(counts: list[SeedCount], estimator: Estimator, seed: int, hands: str) 
     ratio = C / (C + U) if C + U else None
     strata = strata_of(counts)
     interval = ratio_interval(c, u, bootstrap_rng(seed, hands, len(counts)), strata=strata) if counts else None
-    sizes = strata_sizes(strata)
-    enough = len(sizes) < 2 or min(sizes) >= MIN_SEEDS_PER_KEY_PATH
+    # The stratified interval needs each distinct key path's own noise (pool members the planner gave the same
+    # key path share it); the rule of three (no unstable pose) needs none.
+    sizes = strata_sizes(paths_of(counts))
+    enough = len(sizes) < 2 or min(sizes) >= MIN_SEEDS_PER_KEY_PATH or U == 0
     converged = (ratio is not None and interval is not None and len(counts) >= estimator.seeds_min and enough
                  and within(ratio, interval, estimator.ci_half_width))
     return Judgement(len(counts), C, U, ratio, interval, converged)

@@ -111,18 +111,26 @@ def test_two_very_different_key_paths_are_both_in_the_estimate_and_in_its_interv
 
 
 def test_a_row_of_several_key_paths_converges_only_with_three_seeds_of_each():
-    """Identical seeds give a tight interval at once; with four key paths the row still waits for three
-    seeds of each (the stratified interval needs each path's own noise), with one it stops at seeds_min."""
+    """Identical seeds give a tight interval at once; with four distinct key paths the row still waits for
+    three seeds of each (the stratified interval needs each path's own noise), with one it stops at seeds_min."""
     from planner.survey.estimator import MIN_SEEDS_PER_KEY_PATH, SeedCount, first_converged
 
     est = Estimator(ci_half_width=0.05, seeds_min=4, seeds_max=64)
 
-    def counts(pool: int) -> list:
+    def counts(pool: int, paths: int) -> list:
         return [SeedCount(seed=1 + k, stable=90, unstable=10, solved=True, status="done", time_s=0.0,
-                          key_path={"seed": 1 + k % pool, "nodes": []}) for k in range(64)]
+                          key_path={"seed": 1 + k % pool, "nodes": [{"grasp": k % pool % paths}]}) for k in range(64)]
 
-    assert first_converged(counts(1), est, 1, "left-left").seeds == 4
-    assert first_converged(counts(4), est, 1, "left-left").seeds == 4 * MIN_SEEDS_PER_KEY_PATH
+    assert first_converged(counts(1, 1), est, 1, "left-left").seeds == 4
+    assert first_converged(counts(4, 4), est, 1, "left-left").seeds == 4 * MIN_SEEDS_PER_KEY_PATH
+    # four pool members, two distinct key paths: three seeds of each path
+    assert first_converged(counts(4, 2), est, 1, "left-left").seeds == 2 * MIN_SEEDS_PER_KEY_PATH
+    # the planner chose one key path for the whole pool: nothing to stratify, seeds_min rules
+    assert first_converged(counts(4, 1), est, 1, "left-left").seeds == 4
+    # no unstable pose at all: the rule of three's interval needs no per-path noise
+    sure = [SeedCount(seed=1 + k, stable=100, unstable=0, solved=True, status="done", time_s=0.0,
+                      key_path={"seed": 1 + k % 4, "nodes": []}) for k in range(64)]
+    assert first_converged(sure, est, 1, "left-left").seeds == 4
 
 
 # -- the exploration: the planner's T-RRT --------------------------------------------------------
