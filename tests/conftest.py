@@ -34,9 +34,15 @@ def host_stalls():
 def pytest_sessionstart(session):
     """The planner's compiled kernels ready before any test starts a timed job or a subprocess: a fresh
     checkout compiles them once here (~10 s on two cores), and every process after loads them from
-    numba's cache (planner/warmup.py)."""
+    numba's cache (planner/warmup.py).
+
+    The session's surveys are cached in a folder of the run's own (subprocesses inherit it), never in the
+    user's ``~/.cache``: a test sees what it computes in this run, as on a clean CI machine."""
+    import tempfile
+
     from planner.warmup import warm_up
 
+    os.environ["REGRASP_SURVEY_CACHE_DIR"] = tempfile.mkdtemp(prefix="regrasp-test-surveys-")
     warm_up()
 
 
@@ -96,3 +102,13 @@ def host_stall_probe():
 def pytest_unconfigure(config):
     if _PROBE is not None:
         _PROBE.close()
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """The run's survey cache goes with the run."""
+    import shutil
+    import tempfile
+
+    folder = os.environ.get("REGRASP_SURVEY_CACHE_DIR", "")
+    if os.path.basename(folder).startswith("regrasp-test-surveys-") and folder.startswith(tempfile.gettempdir()):
+        shutil.rmtree(folder, ignore_errors=True)
