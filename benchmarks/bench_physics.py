@@ -27,6 +27,7 @@ load for the wall-clock columns only. Run: ``python benchmarks/bench_physics.py 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import subprocess
@@ -55,6 +56,17 @@ PLAN_HANDS = {"talos-upright": "left-left"}
 #: Typed from the published figures (anchors): the middle of each range, per joint group.
 LAB_GAINS_JVRC1 = {"legs": (5500.0, 35.0), "waist": (5000.0, 32.0), "neck": (1000.0, 21.0), "arms": (1150.0, 75.0),
                    "wrists": (500.0, 24.0)}
+
+
+def planner_digest() -> str:
+    """What decides a plan: the planner's and the schemas' code and the robots' files. Plans are cached under it, so
+    a changed planner plans again instead of measuring a stale plan."""
+    h = hashlib.sha256()
+    for folder, pattern in (("planner", "*.py"), ("schemas", "*.py"), ("robot_data", "*.yaml"),
+                            ("robot_data", "*.urdf")):
+        for f in sorted((REPO / folder).rglob(pattern)):
+            h.update(str(f.relative_to(REPO)).encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()[:12]
 
 
 def plan_file(plans: Path, scenario: str, robot: str | None = None) -> Path:
@@ -295,9 +307,11 @@ def main() -> None:
                     default="all")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated built-in scenarios")
     ap.add_argument("--plans", type=Path, default=Path("~/.cache/hrp-regrasp/bench-physics").expanduser(),
-                    help="folder of the seed-1 plans (made once)")
+                    help="folder of the seed-1 plans (made once per planner version, in a subfolder named by its digest)")
     args = ap.parse_args()
+    args.plans = args.plans / f"planner-{planner_digest()}"
     args.plans.mkdir(parents=True, exist_ok=True)
+    print(f"plans: {args.plans}")
     import mujoco
 
     print(f"MuJoCo {mujoco.__version__}, 1 ms physics, control at the plan's dt_s")
