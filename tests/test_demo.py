@@ -17,8 +17,10 @@ from service.audit.verify import verify
 @pytest.mark.host_pauses(limit_s=0.5, attempts=2)
 def test_demo_runs_end_to_end(tmp_path):
     out = tmp_path / "demo"
+    # The survey cache the demo's service fills (it takes REGRASP_SURVEY_CACHE_DIR when set, as here).
+    cache_env = {**os.environ, "REGRASP_SURVEY_CACHE_DIR": str(tmp_path / "survey-cache")}
     proc = subprocess.run([sys.executable, "-m", "service.cli.main", "demo", "--out", str(out)],
-                          capture_output=True, text=True, timeout=900)
+                          capture_output=True, text=True, timeout=900, env=cache_env)
     logs = "".join(f"\n--- {log.name}\n" + log.read_text()[-3000:] for log in sorted(out.glob("*.log")))
     assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:] + logs
     for name in ("upright", "staggered", "crouched", "one-legged"):
@@ -32,8 +34,7 @@ def test_demo_runs_end_to_end(tmp_path):
     # answer under its own key for the task (the key hashes the resolved scenario and the estimator; a survey is
     # decided by them, tests/survey/test_seed_map.py) and gives the same rows.
     alone = subprocess.run([sys.executable, "-m", "service.cli.main", "survey", "--scenario", "upright", "--json"],
-                           capture_output=True, text=True, timeout=900,
-                           env={**os.environ, "REGRASP_SURVEY_CACHE_DIR": str(out / "service-data" / "survey-cache")})
+                           capture_output=True, text=True, timeout=900, env=cache_env)
     assert alone.returncode == 0, alone.stderr[-2000:]
     own = json.loads(alone.stdout)
     assert own["stats"].get("cache") == "hit", "regrasp survey keys the task differently from the demo"

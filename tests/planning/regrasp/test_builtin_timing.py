@@ -1,5 +1,6 @@
-"""Every built-in HRP-5P task, planned and timed as the CLI does: the independent plan checker and the safety gate
-pass the plan, its ZMP keeps the plan's margin, and its timing record matches its trajectory."""
+"""Every built-in HRP-5P task, planned and timed as the CLI does (with the hands its default plan takes): the
+independent plan checker and the safety gate pass the plan, its ZMP keeps the plan's margin, and its timing record
+matches its trajectory."""
 
 from __future__ import annotations
 
@@ -12,13 +13,16 @@ from planner.scene.scenarios import load_builtin
 from planner.stability.support_polygon import SupportPolygon
 from robot_bridge.gate import SafetyGate
 
-SCENARIOS = ("upright", "staggered", "crouched", "one-legged", "drill-handover", "drill-upright")
+#: Each built-in task with the hand configuration its seed-1 plan takes (the survey's recommendation with
+#: `hands: auto`): the survey and the choice are tested in tests/survey and by the demo; here the plan's timing.
+HANDS = {"upright": "right-right", "staggered": "left-left", "crouched": "left-right", "one-legged": "right-left",
+         "drill-handover": "right-left", "drill-upright": "right-right"}
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", SCENARIOS)
+@pytest.mark.parametrize("name", list(HANDS))
 def test_a_built_in_plan_passes_the_checker_and_the_gate(name):
-    plan = plan_scenario(load_builtin(name), PlanOptions(time_limit_s=900))
+    plan = plan_scenario(load_builtin(name), PlanOptions(hands=HANDS[name], time_limit_s=900))
     assert plan["status"] == "solved", plan["failure"]
     report = check_plan(plan)
     assert report.errors == []
