@@ -13,4 +13,6 @@ if [ "$(id -u)" = "0" ] && [ ${#missing[@]} -gt 0 ]; then
   (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null) \
     || echo "note: could not install ${missing[*]}; the tests that need them will skip and say why" >&2
 fi
-exec python -m pytest "$@"
+# Two test processes (the machine's two cores; most tests wait on servers, browsers and robots): each file runs
+# whole in one process, and the files that start Ray run one after another (tests/conftest.py).
+exec python -m pytest -n 2 --dist loadgroup "$@"

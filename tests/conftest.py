@@ -112,3 +112,19 @@ def pytest_sessionfinish(session, exitstatus):
     folder = os.environ.get("REGRASP_SURVEY_CACHE_DIR", "")
     if os.path.basename(folder).startswith("regrasp-test-surveys-") and folder.startswith(tempfile.gettempdir()):
         shutil.rmtree(folder, ignore_errors=True)
+
+
+#: Test files that start a local Ray instance or cluster: under pytest-xdist they run one after another.
+RAY_FILES = ("tests/service/test_service_ray.py", "tests/service/test_service_ray_cluster.py",
+             "tests/service/test_service_shutdown.py")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """With ``--dist loadgroup`` (scripts/test.sh), every file is one group, so a file's module fixtures are set up
+    once, and the files that start Ray share one group."""
+    if config.getoption("dist", default="no") != "loadgroup":
+        return
+    for item in items:
+        path = item.nodeid.split("::", 1)[0]
+        item.add_marker(pytest.mark.xdist_group("ray" if path in RAY_FILES else path))
