@@ -16,6 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from planner.stability.stances import BUILTIN_STANCES
+from service.cli import common as cli_common
 from service.cli.main import cli
 from service.cli.survey import LABELS
 
@@ -44,6 +45,9 @@ def all_stances(tmp_path_factory):
         # The CLI calls it through the planner's public interface, which binds it when first imported.
         mp.setattr(survey_module, "run_survey", patched)
         mp.setattr(planner.api.jobs, "run_survey", patched)
+        # The CLI's console fixed its width when it was first built, maybe by another test of this process: the
+        # tables are read below, so they are drawn wide enough not to wrap.
+        mp.setattr(cli_common.console, "_width", 250)
         res = CliRunner(env={"COLUMNS": "250"}).invoke(
             cli, ["survey", str(DATA / "small-box.yaml"), "--all-stances", "--threshold-mm", "70", "--states", "40",
                   "--seeds-min", "2", "--seeds-max", "2", "--workers", "1", "--plot", str(out)])
