@@ -157,6 +157,14 @@ def scenarios(plans: Path, names: tuple[str, ...] = SCENARIOS) -> None:
     print(f"\n{load_average()}")
 
 
+def solved_plans(plans: Path, names: tuple[str, ...]):
+    """Each scenario's seed-1 plan (planned once), those that solved."""
+    for name in names:
+        path = plan_file(plans, name)
+        if path.is_file() and (plan := json.loads(path.read_text())).get("status") == "solved":
+            yield name, plan
+
+
 def load_average() -> str:
     return "load average " + ", ".join(f"{v:.2f}" for v in os.getloadavg())
 
@@ -166,13 +174,7 @@ def speed(plans: Path, names: tuple[str, ...] = SCENARIOS, runs: int = 3) -> Non
     print("| scenario | simulated s | wall s (fastest-slowest) | real time x (fastest-slowest) | on its own core: CPU time x |")
     print("|---|---|---|---|---|")
     factors, cpus = [], []
-    for name in names:
-        path = plan_file(plans, name)
-        if not path.is_file():
-            continue
-        plan = json.loads(path.read_text())
-        if plan.get("status") != "solved":
-            continue
+    for name, plan in solved_plans(plans, names):
         reps = [run(plan, TwinSettings()) for _ in range(runs)]
         walls = sorted(r["wall_s"] for r in reps)
         x = sorted(r["realtime_factor"] for r in reps)
@@ -191,13 +193,7 @@ def payload(plans: Path, names: tuple[str, ...] = SCENARIOS) -> None:
     print("\n## What the wrist sensors read of the planned object (held load / planned weight, smallest-largest)\n")
     print("| scenario | object | 1x | 2x |")
     print("|---|---|---|---|")
-    for name in names:
-        path = plan_file(plans, name)
-        if not path.is_file():
-            continue
-        plan = json.loads(path.read_text())
-        if plan.get("status") != "solved":
-            continue
+    for name, plan in solved_plans(plans, names):
         cells = []
         for sp in (1.0, 2.0):
             res = simulate(plan, TwinSettings(), speed=sp)
