@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import os
 from pathlib import Path
+from typing import Iterator
 
 import sqlalchemy as sa
 from alembic import command
@@ -50,8 +54,40 @@ def alembic_config(engine: sa.Engine) -> Config:
     return cfg
 
 
+@contextlib.contextmanager
+def sqlite_store_lock(path: Path) -> Iterator[None]:
+    """Held while one process checks, creates or migrates an SQLite store file: API replicas and workers started
+    together (as docker compose starts them) then never see a store half made, nor migrate it twice.
+
+    It is an ``flock`` on the store's folder, not on the file: SQLite's own POSIX locks on the file would be
+    dropped when any other descriptor of it closes, and the folder leaves no lock file behind. A process must
+    not take it twice (two descriptors' flocks exclude each other)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the flock
+
+
+def sqlite_file(engine: sa.Engine) -> Path | None:
+    """The file of an SQLite store, None for PostgreSQL or an in-memory store."""
+    if engine.dialect.name != "sqlite":
+        return None
+    path = engine.url.database
+    return Path(path) if path and path != ":memory:" else None
+
+
 def migrate(engine: sa.Engine) -> None:
-    """Bring the store's schema to the newest revision (idempotent)."""
+    """Bring the store's schema to the newest revision (idempotent, and safe when processes start together)."""
+    path = sqlite_file(engine)
+    with sqlite_store_lock(path) if path is not None else contextlib.nullcontext():
+        upgrade_schema(engine)
+
+
+def upgrade_schema(engine: sa.Engine) -> None:
+    """The migration itself; an SQLite store's caller holds :func:`sqlite_store_lock`."""
     with engine.begin() as conn:
         if engine.dialect.name == "postgresql":
             # API replicas and workers may start together: one migrates, the others wait for it.

@@ -26,6 +26,8 @@ import sqlalchemy as sa
 
 from service.errors import RegraspServiceError
 
+from .db import make_engine, sqlite_store_lock, upgrade_schema as _upgrade
+
 log = logging.getLogger("regrasp.store")
 
 SQLITE_MAGIC = b"SQLite format 3\x00"
@@ -48,9 +50,20 @@ def check_store(url: str, *, init: bool = False) -> str:
 
 
 def check_sqlite_file(path: Path, *, init: bool = False) -> str:
+    """Check (and, when missing, create) an SQLite store under the store lock: a process starting together with
+    another never reads the file while the other is still making it."""
+    with sqlite_store_lock(path):
+        return _check_sqlite_file(path, init=init)
+
+
+def _check_sqlite_file(path: Path, *, init: bool) -> str:
     if not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
         log.warning("job store %s does not exist: creating a new, empty store", path)
+        engine = make_engine(f"sqlite:///{path}", pool_size=1)
+        try:
+            _upgrade(engine)  # made whole while the lock is held
+        finally:
+            engine.dispose()
         return f"created a new job store at {path}"
     problem = sqlite_problem(path)
     if problem is None:
@@ -65,6 +78,11 @@ def check_sqlite_file(path: Path, *, init: bool = False) -> str:
         if part.exists():
             part.rename(Path(str(aside) + suffix))
     log.warning("job store %s %s: moved aside to %s (--init-store); creating a new, empty store", path, problem, aside)
+    engine = make_engine(f"sqlite:///{path}", pool_size=1)
+    try:
+        _upgrade(engine)
+    finally:
+        engine.dispose()
     return f"moved the damaged store aside to {aside} and created a new one"
 
 
@@ -106,8 +124,6 @@ def sqlite_problem(path: Path) -> str | None:
 
 
 def _check_server(url: str) -> str:
-    from .db import make_engine
-
     engine = make_engine(url, pool_size=1)
     try:
         with engine.connect() as conn:

@@ -11,6 +11,7 @@ import signal
 import stat
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Iterator
 
@@ -86,6 +87,18 @@ class Split:
             cwd=ROOT, env=service_env(preload_robot="true"), stdout=self.worker_log, stderr=subprocess.STDOUT,
             start_new_session=True)
 
+    def wait_until_claiming(self, timeout_s: float = 120.0) -> None:
+        """Until the worker says it runs (its start line); a worker that exited fails here with its log."""
+        log_path = Path(self.worker_log.name)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if re.search(r"^worker \S+: 2 local worker", log_path.read_text(errors="replace"), re.M):
+                return
+            if self.worker.poll() is not None:
+                break
+            time.sleep(0.1)
+        raise AssertionError(f"the worker did not start (exit {self.worker.poll()}): {log_path.read_text()[-3000:]}")
+
     def stop(self) -> None:
         stop_process(self.worker, timeout=20)
         try:
@@ -101,6 +114,7 @@ def split(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Split]:
     deployment = Split(tmp_path_factory.mktemp("split"))
     try:
         deployment.api.start()
+        deployment.wait_until_claiming()
         yield deployment
     finally:
         deployment.stop()

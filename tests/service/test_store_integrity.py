@@ -152,3 +152,40 @@ def test_store_errors_while_serving_answer_503_problems(tmp_path: Path) -> None:
         assert r.headers["content-type"].startswith("application/problem+json")
         assert "job store" in r.json()["detail"] and "Error" not in r.json()["detail"]
         assert int(r.headers["retry-after"]) >= 1
+
+
+def _open_new_store(path: str, barrier) -> str:  # type: ignore[no-untyped-def]
+    """What `regrasp serve` and `regrasp worker` do at start: check the store, then migrate it."""
+    from service.store.integrity import StoreIntegrityError, check_store
+
+    barrier.wait(timeout=60)
+    try:
+        check_store(f"sqlite:///{path}")
+    except StoreIntegrityError as exc:
+        return f"refused: {exc}"
+    engine = make_engine(f"sqlite:///{path}")
+    try:
+        migrate(engine)
+    finally:
+        engine.dispose()
+    return "ok"
+
+
+def test_processes_starting_together_on_a_new_store_all_open_it(tmp_path: Path) -> None:
+    """An API replica and its workers started at once (as docker compose does) on a store that does not exist
+    yet: none sees the store half made (an empty file, or tables of an unfinished migration) and refuses it."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    processes = 4
+    with ctx.Manager() as manager, ctx.Pool(processes) as pool:
+        for attempt in range(6):
+            path = tmp_path / f"store-{attempt}" / "jobs.sqlite"
+            barrier = manager.Barrier(processes)
+            outcomes = pool.starmap(_open_new_store, [(str(path), barrier)] * processes)
+            assert outcomes == ["ok"] * processes, (attempt, outcomes)
+            engine = make_engine(f"sqlite:///{path}")
+            JobStore(engine).create(job_id="j", kind="plan", submitter="alice", request={}, request_sha256="0" * 64,
+                                    idempotency_key=None, provenance={})
+            engine.dispose()
+            assert sorted(p.name for p in path.parent.iterdir() if not p.name.endswith(("-wal", "-shm"))) == ["jobs.sqlite"]
