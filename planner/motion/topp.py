@@ -39,9 +39,15 @@ GRAVITY = 9.81
 
 class BlendedPath(AbstractGeometricPath):
     """Straight segments through ``waypoints`` (K, n) with quadratic corner blends of half-length
-    ``blends[i]`` at interior waypoint ``i + 1`` (K - 2,), clipped to half of each neighbouring segment."""
+    ``blends[i]`` at interior waypoint ``i + 1`` (K - 2,).
 
-    def __init__(self, waypoints: np.ndarray, blends: np.ndarray):
+    ``fill=False``: each blend clipped to half of each neighbouring segment. ``fill=True``: the two blends of a
+    segment share it in proportion to what they ask for (a segment may be all blend), and a blend next to the
+    path's first or last segment may take all of it (nothing else blends there): a short segment between two
+    corners, as shortcuts leave them, then limits its corners far less, and the path keeps more speed through
+    them."""
+
+    def __init__(self, waypoints: np.ndarray, blends: np.ndarray, fill: bool = False):
         W = np.asarray(waypoints, dtype=float)
         if len(W) < 2:
             raise ValueError("a path needs two waypoints at least")
@@ -52,8 +58,15 @@ class BlendedPath(AbstractGeometricPath):
         unit = seg / length[:, None]
         d = np.zeros(len(W))
         if len(W) > 2:
-            b = np.asarray(blends, dtype=float)
-            d[1:-1] = np.minimum(np.maximum(b, 0.0), 0.5 * np.minimum(length[:-1], length[1:]))
+            b = np.maximum(np.asarray(blends, dtype=float), 0.0)
+            if fill:
+                d[1:-1] = np.minimum(b, np.minimum(length[:-1], length[1:]))
+                for j in range(len(length)):  # each segment: its two blends within it (lowering one never breaks another)
+                    total = d[j] + d[j + 1]
+                    if total > length[j]:
+                        d[j:j + 2] *= length[j] / total * (1.0 - 1e-9)
+            else:
+                d[1:-1] = np.minimum(b, 0.5 * np.minimum(length[:-1], length[1:]))
         self.blend = d[1:-1].copy()
         starts, c0, c1, c2 = [], [], [], []
         s = 0.0

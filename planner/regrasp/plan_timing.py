@@ -83,6 +83,9 @@ class PlanTimingSettings(BaseModel):
     replan_shortcut_iterations: int = Field(60, ge=0, description="random shortcuts of each replanned motion before "
                                             "the quickest is chosen")
     blend_rad: float = Field(0.3, ge=0, description="largest half-length of a corner blend (joint-space arc length, rad)")
+    blend_fill: bool = Field(False, description="a segment's two corner blends share it in proportion to what they "
+                             "ask for (up to all of it; the path's first and last segments go wholly to their one blend) "
+                             "instead of half each")
     blend_rounds: int = Field(3, ge=0, description="times a blend with an invalid sample is halved before it is removed")
     grid_step_rad: float = Field(0.02, gt=0, description="TOPP-RA gridpoint spacing along the path (rad)")
     max_gridpoints: int = Field(400, ge=10, description="TOPP-RA gridpoints per run at most")
@@ -98,6 +101,9 @@ class PlanTimingSettings(BaseModel):
                                           "(start, stop), rising to all of it end_zone_rad away: gentler starts and stops")
     end_zone_rad: float = Field(0.0, ge=0, description="path length (rad) over which the acceleration share rises "
                                 "from end_acceleration_scale to 1 after a start and before a stop")
+    path_check_rad: float = Field(0.005, ge=0, description="spacing (joint-space arc length, rad) of the states of a "
+                                  "run's blended path checked before it is timed, so that blends are shrunk and failing "
+                                  "alternatives refused without timing them first (0: only the timed samples are checked)")
     check_rounds: int = Field(8, ge=1, description="time stretches of a run whose samples exceed a limit")
     rest_samples: int = Field(1, ge=0, description="extra copies of a run's first and last sample (exactly zero velocity)")
 
@@ -199,6 +205,7 @@ class PlanTimer:
         self.alim = robot.acceleration_limit
         self.limits: EffortEvaluator | None = task.limits
         self.threshold = task.evaluator.threshold_m if task.constrained else -np.inf
+        self._inertials: dict = {}
         self.stats = {"shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "dense_failures": []}
 
     # -- constraints ------------------------------------------------------------------------------------------------
@@ -258,11 +265,17 @@ class PlanTimer:
         return self.limits.evaluate(Q, run.holding, T_tcp_obj=T_tcp_obj).torque
 
     def _inertial(self, run: Run) -> InertialTorques:
+        """The inertial torques of the robot holding what the run holds: one model per grasp, built once per plan."""
         t = self.task
-        if run.hold is None:
-            return InertialTorques(t.robot, t.stance.base_pose)
-        tcp = t.robot.spec.arms[run.hold.tcp_side].tcp
-        return InertialTorques(t.robot, t.stance.base_pose, t.obj.mass_kg, tcp, run.hold.T_tcp_obj, t.obj.com_local)
+        key = None if run.hold is None else (run.hold.tcp_side, run.hold.T_tcp_obj.tobytes())
+        if key not in self._inertials:
+            if run.hold is None:
+                self._inertials[key] = InertialTorques(t.robot, t.stance.base_pose)
+            else:
+                tcp = t.robot.spec.arms[run.hold.tcp_side].tcp
+                self._inertials[key] = InertialTorques(t.robot, t.stance.base_pose, t.obj.mass_kg, tcp,
+                                                       run.hold.T_tcp_obj, t.obj.com_local)
+        return self._inertials[key]
 
     # -- checks of the samples ------------------------------------------------------------------------------------
     def _stretch_needed(self, run: Run, Q: np.ndarray, need_at: np.ndarray) -> float:
@@ -358,11 +371,13 @@ class PlanTimer:
         if len(W) < 2:
             return None
         blends = np.full(len(W) - 2, self.s.blend_rad)
+        if self.s.path_check_rad > 0.0:
+            blends = self._checked_blends(run, W, starts, blends)
+            if blends is None:
+                return None
         for round_ in range(self.s.blend_rounds + 2):
-            stops = np.flatnonzero(blends <= 0.0) + 1  # interior waypoints where the robot stops
-            cuts = [0, *stops.tolist(), len(W) - 1]
             parts = []
-            for a, b in zip(cuts[:-1], cuts[1:]):
+            for a, b in _cuts(blends):
                 part = self.time_part(run, W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0))
                 if part is None:
                     return None
@@ -380,19 +395,8 @@ class PlanTimer:
             bad_s = self._invalid_s(run, whole, starts, s_cat, Q_cat)
             if not bad_s.size:
                 break
-            hit = False
-            for i in range(len(blends)):
-                d = whole.blend_of(i + 1)
-                if blends[i] <= 0.0 or d <= 0.0:
-                    continue
-                if np.any(np.abs(bad_s - whole.waypoint_s[i + 1]) <= d + 1e-9):
-                    hit = True
-                    blends[i] = 0.0 if round_ >= self.s.blend_rounds else 0.5 * d
-                    self.stats["blends_removed"] += int(blends[i] == 0.0)
-            if not hit:  # a failure away from the blends: keep the validated rest-to-rest timing
-                kinds = sorted({run.pieces[int(k)].kind for k in np.searchsorted(
-                    np.asarray([whole.waypoint_s[i] for i in starts[1:]]), bad_s, side="right")})
-                return self._refuse(f"{bad_s.size} samples of the {'/'.join(kinds)} off the blends fail the checks")
+            if not self._shrink_blends(run, whole, starts, blends, bad_s, round_):
+                return None
         else:
             return None
         self.stats["blends"] += int(np.count_nonzero(blends > 0.0))
@@ -414,6 +418,55 @@ class PlanTimer:
             out.append(Qk)
         return out, sum(part.full_speed_s for part in parts), (len(Q_cat) - 1) * self.dt
 
+    def _shrink_blends(self, run: Run, whole: "_Joined", starts: list[int], blends: np.ndarray, bad_s: np.ndarray,
+                       round_: int) -> bool:
+        """Halve (at the last round remove) in place every blend with a failing path position ``bad_s``; False (and
+        the run refused) when a failure lies away from the blends, where halving them would not help."""
+        hit = False
+        for i in range(len(blends)):
+            d = whole.blend_of(i + 1)
+            if blends[i] <= 0.0 or d <= 0.0:
+                continue
+            if np.any(np.abs(bad_s - whole.waypoint_s[i + 1]) <= d + 1e-9):
+                hit = True
+                blends[i] = 0.0 if round_ >= self.s.blend_rounds else 0.5 * d
+                self.stats["blends_removed"] += int(blends[i] == 0.0)
+        if not hit:  # a failure away from the blends: keep the validated rest-to-rest timing
+            kinds = sorted({run.pieces[int(k)].kind for k in np.searchsorted(
+                np.asarray([whole.waypoint_s[i] for i in starts[1:]]), bad_s, side="right")})
+            self._refuse(f"{bad_s.size} samples of the {'/'.join(kinds)} off the blends fail the checks")
+        return hit
+
+    def _checked_blends(self, run: Run, W: np.ndarray, starts: list[int], blends: np.ndarray) -> np.ndarray | None:
+        """The run's blends after the checks of its geometry, before any timing: states every ``path_check_rad`` of
+        arc length along the blended path go through the same checks as the timed samples, and the blends are
+        shrunk as the timed samples would have them shrunk. The timing (TOPP-RA, the sample checks) then runs once
+        on a path that passes, where a failure found only after timing costs it again per round; an alternative
+        that fails off its blends is refused before it is timed at all. None: refused."""
+        blends = blends.copy()
+        step = self.s.path_check_rad
+        for round_ in range(self.s.blend_rounds + 2):
+            cuts = _cuts(blends)
+            paths = [BlendedPath(W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0), self.s.blend_fill)
+                     for a, b in cuts]
+            whole = _Joined(paths)
+            s_all, Q_all, offset = [], [], 0.0
+            for k, (path, (a, b)) in enumerate(zip(paths, cuts)):
+                s_k = np.linspace(0.0, path.length, max(2, int(math.ceil(path.length / step)) + 1))[(1 if k else 0):]
+                Q_k = path(s_k)
+                if k == 0:
+                    Q_k[0] = W[a]
+                Q_k[-1] = W[b]  # exactly the rest states, as the timed samples have them
+                s_all.append(s_k + offset)
+                Q_all.append(Q_k)
+                offset += path.length
+            bad_s = self._invalid_s(run, whole, starts, np.concatenate(s_all), np.vstack(Q_all))
+            if not bad_s.size:
+                return blends
+            if not self._shrink_blends(run, whole, starts, blends, bad_s, round_):
+                return None
+        return None
+
     def _soft_ends(self, path: BlendedPath, grid: np.ndarray, cols: np.ndarray) -> LinearRows:
         """Joint acceleration rows whose limit rises linearly from ``end_acceleration_scale`` of the limit at a
         rest to all of it ``end_zone_rad`` (path length) away: gentler starts and stops, which set off the
@@ -428,14 +481,14 @@ class PlanTimer:
     def time_part(self, run: Run, W: np.ndarray, blends: np.ndarray) -> "Part | None":
         """One stretch between stops, timed and checked; None when TOPP-RA finds no profile or the checks
         cannot be met by stretching."""
-        path = BlendedPath(W, blends)
+        path = BlendedPath(W, blends, self.s.blend_fill)
         grid = gridpoints_for(path, self.s.grid_step_rad, self.s.max_gridpoints)
         rows, _ = self._rows(run, path, grid)
         # TOPP-RA over the joints that move (the same arc length; the others add no constraint)
         cols = np.flatnonzero(np.ptp(W, axis=0) > 0)
         if self.s.end_acceleration_scale < 1.0 and self.s.end_zone_rad > 0.0:
             rows.append(self._soft_ends(path, grid, cols))
-        moving = BlendedPath(W[:, cols], blends)
+        moving = BlendedPath(W[:, cols], blends, self.s.blend_fill)
         moving.breaks, moving.length = path.breaks, path.length  # the same parameter to the last bit
         sd = parameterize(moving, grid, self.vlim[cols] * self.s.velocity_scale,
                           self.alim[cols] * self.s.acceleration_scale, rows)
@@ -545,6 +598,14 @@ class PlanTimer:
         return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
                                               "zmp_margin_m": self.zmp_margin_m},
                           stats={**self.stats, "slack_s": slack})
+
+
+def _cuts(blends: np.ndarray) -> list[tuple[int, int]]:
+    """The (first, last) waypoint indices of the stretches between stops: the robot stops at the interior waypoints
+    whose blend is 0."""
+    stops = np.flatnonzero(blends <= 0.0) + 1
+    cuts = [0, *stops.tolist(), len(blends) + 1]
+    return list(zip(cuts[:-1], cuts[1:]))
 
 
 @dataclass
