@@ -41,11 +41,11 @@ class BlendedPath(AbstractGeometricPath):
     """Straight segments through ``waypoints`` (K, n) with quadratic corner blends of half-length
     ``blends[i]`` at interior waypoint ``i + 1`` (K - 2,).
 
-    ``fill=False``: each blend clipped to half of each neighbouring segment. ``fill=True``: the two blends of a
-    segment share it in proportion to what they ask for (a segment may be all blend), and a blend next to the
-    path's first or last segment may take all of it (nothing else blends there): a short segment between two
-    corners, as shortcuts leave them, then limits its corners far less, and the path keeps more speed through
-    them."""
+    ``fill=False``: each blend clipped to half of each neighbouring segment. ``fill=True``: a segment's two blends
+    get what they ask for when it fits, else each at least half of it and the one asking less all it asks (a
+    segment may be all blend), and a blend next to the path's first or last segment may take all of it (nothing
+    else blends there): a short segment between two corners, as shortcuts leave them, then limits its corners far
+    less, and the path keeps more speed through them."""
 
     def __init__(self, waypoints: np.ndarray, blends: np.ndarray, fill: bool = False):
         W = np.asarray(waypoints, dtype=float)
@@ -62,9 +62,15 @@ class BlendedPath(AbstractGeometricPath):
             if fill:
                 d[1:-1] = np.minimum(b, np.minimum(length[:-1], length[1:]))
                 for j in range(len(length)):  # each segment: its two blends within it (lowering one never breaks another)
-                    total = d[j] + d[j + 1]
-                    if total > length[j]:
-                        d[j:j + 2] *= length[j] / total * (1.0 - 1e-9)
+                    half = 0.5 * length[j]
+                    if d[j] + d[j + 1] <= length[j]:
+                        continue
+                    if d[j] < half:
+                        d[j + 1] = length[j] - d[j]
+                    elif d[j + 1] < half:
+                        d[j] = length[j] - d[j + 1]
+                    else:
+                        d[j] = d[j + 1] = half
             else:
                 d[1:-1] = np.minimum(b, 0.5 * np.minimum(length[:-1], length[1:]))
         self.blend = d[1:-1].copy()

@@ -82,10 +82,10 @@ class PlanTimingSettings(BaseModel):
                               "a quicker one fails the dense checks of its samples")
     replan_shortcut_iterations: int = Field(60, ge=0, description="random shortcuts of each replanned motion before "
                                             "the quickest is chosen")
-    blend_rad: float = Field(0.3, ge=0, description="largest half-length of a corner blend (joint-space arc length, rad)")
-    blend_fill: bool = Field(False, description="a segment's two corner blends share it in proportion to what they "
-                             "ask for (up to all of it; the path's first and last segments go wholly to their one blend) "
-                             "instead of half each")
+    blend_rad: float = Field(0.5, ge=0, description="largest half-length of a corner blend (joint-space arc length, rad)")
+    blend_fill: bool = Field(True, description="a segment's two corner blends share it as they need (each at least "
+                             "half, the rest to the one that asks more; the path's first and last segments wholly to "
+                             "their one blend) instead of half each")
     blend_rounds: int = Field(3, ge=0, description="times a blend with an invalid sample is halved before it is removed")
     grid_step_rad: float = Field(0.02, gt=0, description="TOPP-RA gridpoint spacing along the path (rad)")
     max_gridpoints: int = Field(400, ge=10, description="TOPP-RA gridpoints per run at most")

@@ -139,3 +139,45 @@ def test_torques_stay_within_the_effort_limits_along_the_timed_path(hrp5p, arm_m
         inertial = max(inertial, float(np.abs(tau - pin.rnea(model, data, q, 0 * v, 0 * a)).max()))
     assert worst <= share
     assert inertial > 1.0  # the motion's own torques were part of it (N m)
+
+
+@settings(max_examples=40, deadline=None)
+@given(lengths=st.lists(st.floats(0.02, 1.5), min_size=3, max_size=6), seed=st.integers(0, 10_000),
+       cap=st.floats(0.05, 1.0))
+def test_filled_blends_share_each_segment_and_keep_the_path_smooth_and_near_its_corners(lengths, seed, cap):
+    rng = np.random.default_rng(seed)
+    n = 3
+    steps = rng.normal(size=(len(lengths), n))
+    steps *= (np.asarray(lengths) / np.linalg.norm(steps, axis=1))[:, None]
+    W = np.vstack([np.zeros(n), np.cumsum(steps, axis=0)])
+    cap_all = np.full(len(W) - 2, cap)
+    half = BlendedPath(W, cap_all)
+    full = BlendedPath(W, cap_all, fill=True)
+    L = np.linalg.norm(np.diff(W, axis=0), axis=1)
+    d = np.r_[0.0, full.blend, 0.0]
+    assert np.all(d[:-1] + d[1:] <= L + 1e-12)  # a segment's two blends fit in it
+    assert np.all(full.blend <= cap + 1e-12)
+    # never less than half of each neighbouring segment (the old rule), and more where a short segment sits at an end
+    assert np.all(full.blend >= half.blend * (1 - 1e-6))
+    # C1 at unit speed: position and direction continuous across every break, the ends exactly the waypoints
+    b = full.breaks[1:-1]
+    for eps_side in (0, 1):
+        assert np.allclose(full(b - 1e-9, eps_side), full(b + 1e-9, eps_side), atol=1e-6)
+    s = np.linspace(0.0, full.length, 2001)
+    speed = np.linalg.norm(full(s, 1), axis=1)
+    assert speed.max() <= 1.0 + 1e-9 and speed.min() > 0.0  # unit on the lines, between the two directions on a blend
+    assert np.allclose(full(0.0), W[0]) and np.allclose(full(full.length), W[-1])
+    # every point within d/2 of its corner on a blend, on the polyline elsewhere
+    Q = full(s)
+    seg_dist = np.full(len(s), np.inf)
+    for i in range(len(W) - 1):
+        a_, u = W[i], W[i + 1] - W[i]
+        t = np.clip(((Q - a_) @ u) / (u @ u), 0.0, 1.0)
+        seg_dist = np.minimum(seg_dist, np.linalg.norm(Q - (a_ + t[:, None] * u), axis=1))
+    assert seg_dist.max() <= 0.5 * max(full.blend.max(), 0.0) + 1e-9
+
+
+def test_a_short_segment_next_to_the_end_no_longer_halves_its_corner():
+    W = np.array([[0.0, 0.0], [0.1, 0.0], [0.1, 1.0], [1.1, 1.0]])  # a 0.1 rad first segment
+    assert BlendedPath(W, np.full(2, 0.3)).blend[0] == pytest.approx(0.05)
+    assert BlendedPath(W, np.full(2, 0.3), fill=True).blend[0] == pytest.approx(0.1, rel=1e-6)

@@ -78,3 +78,26 @@ def test_the_replanned_quicker_motions_are_collision_free_at_every_sample(solved
         rows = np.arange(seg["first"], seg["last"] + 1)
         res = task.world.check_batch(task.stance.base_pose, traj.Q[rows], free_object_pose=traj.object_pose[rows])
         assert not res.collides.any(), f"transit collides at sample {rows[np.argmax(res.collides)]}"
+
+
+def test_a_run_that_fails_off_its_blends_is_refused_before_it_is_timed(solved, monkeypatch):
+    """The blended path of a run is checked before TOPP-RA times it: a run through an obstacle costs no timing at
+    all (it used to be timed, sampled and checked first, once per alternative)."""
+    task, pieces = solved
+    grazing, k = _grazing_plan(task, pieces)
+    timed_runs = []
+    original = PlanTimer.time_part
+
+    def time_part(self, run, W, blends):
+        timed_runs.append([id(p) for p in run.pieces])
+        return original(self, run, W, blends)
+
+    monkeypatch.setattr(PlanTimer, "time_part", time_part)
+    dense = PlanTimer(task, PlanTimingSettings(replans=0), 1.0, task.threshold_m, 0.005).time_plan(grazing)
+    assert any("off the blends" in why for why in dense.stats["refused"])
+    assert timed_runs, "no run was timed at all"
+    assert not any(id(grazing[k]) in run for run in timed_runs), "the run through the obstacle was timed before it was refused"
+    # without the check of the path before timing, the same run is timed first and refused after
+    timed_runs.clear()
+    PlanTimer(task, PlanTimingSettings(replans=0, path_check_rad=0.0), 1.0, task.threshold_m, 0.005).time_plan(grazing)
+    assert any(id(grazing[k]) in run for run in timed_runs)
