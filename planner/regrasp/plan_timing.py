@@ -7,7 +7,9 @@ rest to rest (:mod:`planner.motion.timing`). Here the plan is timed again as it 
    rest between them: where what the hands hold changes (grasp, release, the handover's
    exchange) and around every move of a jaw. A run starts and ends at rest.
 2. **Blends.** Each interior waypoint of a run is replaced by a quadratic blend
-   (:class:`planner.motion.topp.BlendedPath`) of half-length up to ``blend_rad``.
+   (:class:`planner.motion.topp.BlendedPath`) of half-length up to ``blend_rad``, a segment's two blends sharing
+   it as they need. The blended path is checked every ``path_check_rad`` before it is timed (the checks of
+   item 5): its blends are shrunk, or the run refused, before TOPP-RA runs.
 3. **Time-optimal timing** (TOPP-RA, :func:`planner.motion.topp.parameterize`) within the joint
    velocity and acceleration limits, the static plus inertial joint torques within the effort
    limits, and the cart-table ZMP at least ``zmp_margin_m`` inside the support polygon (where the
