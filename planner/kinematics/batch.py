@@ -107,6 +107,10 @@ class BatchKinematics:
         Rs, ps = self.forward(base_pose, Q)
         return self._com_from(Rs, ps)
 
+    def com_from(self, Rs: list, ps: list) -> np.ndarray:
+        """Robot CoM in the world (N, 3) from a :meth:`forward` result (its frames serve other checks too)."""
+        return self._com_from(Rs, ps)
+
     def _com_from(self, Rs: list, ps: list) -> np.ndarray:
         R, p = frames_block(Rs), frames_block(ps)
         return robot_com_batch(R, p, self.masses)

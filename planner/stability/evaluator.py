@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal, Sequence
 
 import numpy as np
@@ -69,10 +70,13 @@ class HoldSpec:
         """The hand whose TCP carries the object frame."""
         return "left" if self.side == "both" else self.side
 
-    @property
+    @cached_property
     def T_tcp_obj(self) -> np.ndarray:
-        """The object frame expressed in the holding TCP frame."""
-        return inverse(self.T_obj_tcp)
+        """The object frame expressed in the holding TCP frame (computed once: the survey's checks ask for it
+        every batch; read-only, as it is shared)."""
+        T = inverse(self.T_obj_tcp)
+        T.setflags(write=False)
+        return T
 
     @property
     def label(self) -> str:

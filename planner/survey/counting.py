@@ -46,6 +46,7 @@ from planner.motion.edge_checks import CollisionFree, all_valid_coarse_to_fine
 from planner.motion.interpolation import edge_states
 from planner.motion.trrt import TreeSearch, TrrtSettings
 from planner.stability.evaluator import HoldSpec, StateEvaluator
+from planner.survey.shared_checks import leg_checks
 from planner.transforms import matrices_to_pose7
 
 ShouldStop = Callable[[], bool]
@@ -196,6 +197,9 @@ class _Leg:
         self.count = LegCount()
         self.sampled: set[bytes] = set()  # every pose this leg steered to, by its exact values
         self.label = leg.hold.label if leg.hold is not None else "none"
+        # One forward-kinematics pass per batch for the margin, the limits and the collision check, when the
+        # leg's collision check can take it (planner.survey.shared_checks); else the checks one after the other.
+        self.checks = leg_checks(evaluator, leg.collision_free, leg.hold)
 
     def free(self, Q: np.ndarray) -> np.ndarray:
         if self.leg.collision_free is None:
@@ -204,6 +208,8 @@ class _Leg:
 
     def valid(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Edge checks: stable, then collision-free (collision only for the stable ones)."""
+        if self.checks is not None:
+            return self.checks.valid(Q)
         batch = self.evaluator.evaluate(Q, self.leg.hold, active=self.active)
         ok = batch.stable.copy()
         if ok.any():
@@ -266,8 +272,11 @@ class _Leg:
             return False
         X = np.array([c[2] for c in cands])
         Q = self.search.full(X)
-        batch = self.evaluator.evaluate(Q, self.leg.hold, active=self.active)
-        free = self.free(Q)
+        if self.checks is not None:
+            batch, free = self.checks.judge(Q)
+        else:
+            batch = self.evaluator.evaluate(Q, self.leg.hold, active=self.active)
+            free = self.free(Q)
         # Judged in order: which are counted, which try to join the tree.
         counted: list[int] = []
         tries: list[int] = []

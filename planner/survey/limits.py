@@ -29,6 +29,11 @@ class LimitedEvaluator:
     def __getattr__(self, name: str) -> Any:
         return getattr(self._evaluator, name)
 
+    @property
+    def margin_evaluator(self) -> StateEvaluator:
+        """The wrapped evaluator (the margin alone)."""
+        return self._evaluator
+
     def evaluate(self, Q: np.ndarray, hold: HoldSpec | None = None, active: Sequence[int] | None = None,
                  threshold_m: float | None = None) -> StateBatch:
         batch = self._evaluator.evaluate(Q, hold, active=active, threshold_m=threshold_m)

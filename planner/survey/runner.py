@@ -36,6 +36,7 @@ from planner.survey.counting import CountingSettings, ExploreLeg
 from planner.survey.estimator import Estimator, RowWork, SeedCount, run_rows
 from planner.survey.key_paths import KeyPathDraw, node_id, pool_seeds, task_for_seed
 from planner.survey.seed_map import ForkedSeeds, SeedMap
+from planner.survey.shared_checks import HeldCollisions
 from planner.termination import Termination
 from schemas.common import HAND_CONFIGS
 from schemas.scenario import Scenario
@@ -139,12 +140,8 @@ def estimator_of(scenario: Scenario, states: int | None = None) -> Estimator:
 
 def _leg_collisions(task: Task, leg: ExploreLeg) -> ExploreLeg:
     """The leg with this task's collision check for what it holds (the held object differs per leg)."""
-    held = [(leg.hold.tcp_side, leg.hold.T_obj_tcp)]
-
-    def free(Q: np.ndarray) -> np.ndarray:
-        return ~task.world.check_batch(task.stance.base_pose, Q, held=held).collides
-
-    return ExploreLeg(leg.start, leg.goal, leg.hold, leg.active, free)
+    return ExploreLeg(leg.start, leg.goal, leg.hold, leg.active,
+                      HeldCollisions(task.world, np.asarray(task.stance.base_pose, dtype=float), leg.hold))
 
 
 class RemoteSeeds:
