@@ -378,6 +378,9 @@ def create_app(check: ContractCheck | None = None) -> FastAPI:
 
     @app.post("/v1/jobs/{job_id}/approve")
     async def approve(job_id: str, request: Request) -> Any:
+        # The body is read before the lock: awaiting it while holding a threading lock would let the event loop
+        # run the event stream, whose `with store.lock` would then block the loop's one thread for good.
+        body = await request.json() if await request.body() else {}
         with store.lock:
             found = action(job_id, request, "approver", {"planned"})
             if isinstance(found, JSONResponse):
@@ -385,7 +388,6 @@ def create_app(check: ContractCheck | None = None) -> FastAPI:
             job, p = found
             if job["submitter"] == p[0]:
                 return problem(403, f"two-person rule: {p[0]} submitted job {job_id} and cannot approve it")
-            body = await request.json() if await request.body() else {}
             if body.get("plan_sha256") not in (None, job["plan_sha256"]):
                 return problem(409, "the plan changed since you reviewed it")
             job["approval"] = {"approved_by": p[0], "approved_at": _now(),

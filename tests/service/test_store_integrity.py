@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -154,38 +155,51 @@ def test_store_errors_while_serving_answer_503_problems(tmp_path: Path) -> None:
         assert int(r.headers["retry-after"]) >= 1
 
 
-def _open_new_store(path: str, barrier) -> str:  # type: ignore[no-untyped-def]
-    """What `regrasp serve` and `regrasp worker` do at start: check the store, then migrate it."""
-    from service.store.integrity import StoreIntegrityError, check_store
 
-    barrier.wait(timeout=60)
-    try:
-        check_store(f"sqlite:///{path}")
-    except StoreIntegrityError as exc:
-        return f"refused: {exc}"
-    engine = make_engine(f"sqlite:///{path}")
-    try:
-        migrate(engine)
-    finally:
-        engine.dispose()
-    return "ok"
+#: What `regrasp serve` and `regrasp worker` do at start: check the store, then migrate it. Every process imports
+#: first, then says it is ready and waits for the others (a barrier of files), so their checks and migrations overlap.
+_OPEN_NEW_STORE = """
+import pathlib, sys, time
+from service.store import make_engine, migrate
+from service.store.integrity import StoreIntegrityError, check_store
+path, barrier, me, count = sys.argv[1], pathlib.Path(sys.argv[2]), sys.argv[3], int(sys.argv[4])
+(barrier / me).touch()
+deadline = time.monotonic() + 90
+while len(list(barrier.iterdir())) < count and time.monotonic() < deadline:
+    time.sleep(0.001)
+try:
+    check_store(f"sqlite:///{path}")
+except StoreIntegrityError as exc:
+    print(f"refused: {exc}")
+    sys.exit(0)
+engine = make_engine(f"sqlite:///{path}")
+migrate(engine)
+engine.dispose()
+print("ok")
+"""
 
 
 def test_processes_starting_together_on_a_new_store_all_open_it(tmp_path: Path) -> None:
     """An API replica and its workers started at once (as docker compose does) on a store that does not exist
-    yet: none sees the store half made (an empty file, or tables of an unfinished migration) and refuses it."""
-    import multiprocessing
-
-    ctx = multiprocessing.get_context("spawn")
+    yet: none sees the store half made (an empty file, or tables of an unfinished migration) and refuses it,
+    and none fails migrating it."""
     processes = 4
-    with ctx.Manager() as manager, ctx.Pool(processes) as pool:
-        for attempt in range(6):
-            path = tmp_path / f"store-{attempt}" / "jobs.sqlite"
-            barrier = manager.Barrier(processes)
-            outcomes = pool.starmap(_open_new_store, [(str(path), barrier)] * processes)
-            assert outcomes == ["ok"] * processes, (attempt, outcomes)
-            engine = make_engine(f"sqlite:///{path}")
-            JobStore(engine).create(job_id="j", kind="plan", submitter="alice", request={}, request_sha256="0" * 64,
-                                    idempotency_key=None, provenance={})
-            engine.dispose()
-            assert sorted(p.name for p in path.parent.iterdir() if not p.name.endswith(("-wal", "-shm"))) == ["jobs.sqlite"]
+    env = service_env()
+    for attempt in range(4):
+        path = tmp_path / f"store-{attempt}" / "jobs.sqlite"
+        barrier = tmp_path / f"ready-{attempt}"
+        barrier.mkdir()
+        procs = [subprocess.Popen([sys.executable, "-c", _OPEN_NEW_STORE, str(path), str(barrier), str(i),
+                                   str(processes)], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                  text=True)
+                 for i in range(processes)]
+        outcomes = []
+        for proc in procs:
+            out, err = proc.communicate(timeout=120)
+            outcomes.append(out.strip() if proc.returncode == 0 else f"exit {proc.returncode}: {err[-600:]}")
+        assert outcomes == ["ok"] * processes, (attempt, outcomes)
+        engine = make_engine(f"sqlite:///{path}")
+        JobStore(engine).create(job_id="j", kind="plan", submitter="alice", request={}, request_sha256="0" * 64,
+                                idempotency_key=None, provenance={})
+        engine.dispose()
+        assert sorted(p.name for p in path.parent.iterdir() if not p.name.endswith(("-wal", "-shm"))) == ["jobs.sqlite"]
