@@ -57,6 +57,32 @@ def _stopped_after(peer: Peer, after: float, job_id: str, timeout_s: float = REP
     return peer.reply(after, "stopped", job_id, timeout_s)
 
 
+def _reported_stopped_after_resume(peer: Peer, resumed: float, job_id: str) -> tuple[float, str]:
+    """(arrival, reason) of the controller's first report after ``resumed`` that it stopped ``job_id``: its
+    state/exec status, or the same end repeated in its heartbeat while it holds (the repetition is how a listener
+    whose session was re-established after the freeze learns an end it missed). On a timeout the message says what
+    was heard since the resume, so a silent controller and a lost status can be told apart."""
+    def find() -> tuple[float, str, str] | None:
+        with peer._lock:
+            found = [(at, st.reason, "state/exec") for at, st in peer.exec if at >= resumed
+                     and st.status == "stopped" and st.job_id == job_id]
+            found += [(at, hb.reason, "heartbeat") for at, hb in peer.beats if at >= resumed
+                      and hb.status == "stopped" and hb.job_id == job_id]
+        return min(found, default=None)
+    deadline = time.monotonic() + REPORT_AFTER_RESUME_S
+    while time.monotonic() < deadline:
+        if (report := find()) is not None:
+            print(f"'stopped' heard {report[0] - resumed:.2f} s after the resume, first on {report[2]}")
+            return report[:2]
+        time.sleep(0.01)
+    with peer._lock:
+        heard = {name: sum(1 for at, _ in got if at >= resumed)
+                 for name, got in (("exec", peer.exec), ("heartbeats", peer.beats), ("joint states", peer.joints))}
+        last_beat = peer.beats[-1][1] if peer.beats else None
+    raise AssertionError(f"no 'stopped' report for {job_id} within {REPORT_AFTER_RESUME_S} s of the resume; heard "
+                         f"since: {heard}; last heartbeat: {last_beat}")
+
+
 # --------------------------------------------------------------------------- freeze and resume
 
 
@@ -91,8 +117,8 @@ def test_a_frozen_controller_plays_nothing_more_of_the_aborted_job_when_it_resum
         time.sleep(max(0.0, frozen["at"] + FROZEN_S - time.monotonic()))
         resumed = time.monotonic()
         os.kill(ctl.proc.pid, signal.SIGCONT)
-        _, st = _stopped_after(watcher, resumed, "frozen-job")
-        assert "dead-man" in st.reason or "stop" in st.reason, st.reason
+        _, reason = _reported_stopped_after_resume(watcher, resumed, "frozen-job")
+        assert "dead-man" in reason or "stop" in reason, reason
         # A second of the controller's own states after it resumed (its stamps are this host's monotonic clock).
         watcher.wait_for(lambda: any(js.stamp > resumed + 1.0 for _, js in watcher.joints_since(resumed)),
                          "a second of joint states after the resume")
