@@ -92,3 +92,34 @@ def test_the_plan_records_its_timing_and_passes_the_checker():
     assert timing["zmp_margin_m"] == plan["threshold_m"]
     report = check_plan(plan)
     assert report.errors == []
+
+
+def test_a_motions_paths_are_ranked_by_their_timing_not_by_the_time_at_the_velocity_limits(solved, monkeypatch):
+    """Two paths with the same time at the velocity limits: one turns once, the other nineteen times. The corners
+    cost the second far more time, and the ranking that picks the path to time sees it."""
+    from planner.motion.smoothing import path_length
+
+    task, pieces = solved
+    k = next(i for i, p in enumerate(pieces) if p.path is not None and len(p.path) > 2)
+    q0 = np.asarray(pieces[k].path[0], dtype=float)
+    j1, j2 = task.robot.joint_index("RSP"), task.robot.joint_index("REP")
+    one_turn = np.array([q0, q0, q0])
+    one_turn[1, j1] += 0.6
+    one_turn[2, j1] += 0.6
+    one_turn[2, j2] -= 0.6
+    stairs = np.repeat(q0[None], 21, axis=0)
+    for i in range(1, 21):
+        stairs[i] = stairs[i - 1]
+        stairs[i, j1 if i % 2 else j2] += 0.06 if i % 2 else -0.06
+    timer = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
+    weights = 1.0 / timer.vlim
+    assert path_length(stairs, weights) == pytest.approx(path_length(one_turn, weights))
+    assert timer._kinematic_time(stairs) > timer._kinematic_time(one_turn) + 0.5
+
+    monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [stairs, one_turn])
+    plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0)
+    ranked = PlanTimer(task, PlanTimingSettings(**plain), 1.0, task.threshold_m, 0.005).alternatives(pieces)
+    assert ranked[0][k].path is one_turn and ranked[1][k].path is stairs
+    unranked = PlanTimer(task, PlanTimingSettings(rank_by_timing=False, **plain), 1.0, task.threshold_m,
+                         0.005).alternatives(pieces)
+    assert unranked[0][k].path is stairs
