@@ -85,9 +85,9 @@ class PlanTimingSettings(BaseModel):
                               "a quicker one fails the dense checks of its samples")
     replan_shortcut_iterations: int = Field(60, ge=0, description="random shortcuts of each replanned motion before "
                                             "the quickest is chosen")
-    rank_by_timing: bool = Field(True, description="rank each planned motion's paths by their time under the joint "
-                                 "velocity and acceleration limits (blended, TOPP-RA on a coarse grid) rather than by "
-                                 "the time at the velocity limits alone, which leaves out the corners")
+    rank_by_timing: bool = Field(True, description="rank each planned motion's paths by their TOPP-RA time (blended, "
+                                 "the same constraints, a coarse grid) rather than by the time at the velocity limits "
+                                 "alone, which leaves out the corners and the balance")
     rank_grid_step_rad: float = Field(0.05, gt=0, description="TOPP-RA gridpoint spacing (rad) of that ranking")
     blend_rad: float = Field(0.5, ge=0, description="largest half-length of a corner blend (joint-space arc length, rad)")
     blend_fill: bool = Field(True, description="a segment's two corner blends share it as they need (each at least "
@@ -524,12 +524,12 @@ class PlanTimer:
         own and ``replans`` more T-RRT runs between its ends, shortened by random shortcuts (the best by
         ``shortcut_iterations`` more); every new segment is checked by the task's state checker at the search's
         resolution, as the search checks its own. With ``rank_by_timing`` the paths are then ranked by their
-        kinematic TOPP-RA time (:meth:`_kinematic_time`), the corners included."""
+        TOPP-RA time on a coarse grid (:meth:`_estimated_time`), the corners and the balance included."""
         t = self.task
         per_piece: list[list[MotionPiece]] = []
         settings = t.settings.smoothing.model_copy(update={"iterations": self.s.shortcut_iterations})
         weights = 1.0 / self.vlim
-        for k, (piece, _, hold, current) in enumerate(object_states(pieces, t.evaluator, t.placements[t.start_id])):
+        for k, (piece, holding, hold, current) in enumerate(object_states(pieces, t.evaluator, t.placements[t.start_id])):
             if piece.path is None or len(piece.path) <= 2:
                 per_piece.append([piece])
                 continue
@@ -544,26 +544,32 @@ class PlanTimer:
                                             settings.edge_resolution_rad, weights).path
             self.stats["shortened_s"] += path_length(P, weights) - path_length(paths[0], weights)
             if self.s.rank_by_timing and len(paths) > 1:  # the shortened quickest among the others, by their timing
-                took = [self._kinematic_time(Q) for Q in paths]
+                alone = Run([piece], holding, hold, None if hold is not None else current)
+                took = [self._estimated_time(Q, alone) for Q in paths]
                 paths = [paths[i] for i in sorted(range(len(paths)), key=lambda i: (took[i], i))]
             per_piece.append([replace(piece, path=Q) for Q in paths])
         levels = max(len(a) for a in per_piece) if per_piece else 0
         return [[a[min(k, len(a) - 1)] for a in per_piece] for k in range(levels)]
 
-    def _kinematic_time(self, P: np.ndarray) -> float:
-        """The time of path P blended as a run is and timed by TOPP-RA within the joint velocity and acceleration
-        limits alone, from rest to rest on a coarse grid: what ranks a motion's alternatives. The time at the
-        velocity limits leaves out the corners, where a path of many short turns loses much more than one of a few
-        long segments."""
+    def _estimated_time(self, P: np.ndarray, run: Run) -> float:
+        """The time of path P, held as ``run`` holds, blended as a run is and timed by TOPP-RA with the same
+        constraints (joint limits, torques, the ZMP), from rest to rest on a coarse grid and without the checks of
+        the samples: what ranks a motion's alternatives. The time at the velocity limits leaves out the corners (a
+        path of many short turns loses much more than one of a few long segments) and the balance (a held object
+        swung where the ZMP binds)."""
         keep = np.r_[True, np.abs(np.diff(P, axis=0)).max(axis=1) > SAME_WAYPOINT_RAD]
         W = P[keep]
         if len(W) < 2:
             return 0.0
-        cols = np.flatnonzero(np.ptp(W, axis=0) > 0)
-        path = BlendedPath(W[:, cols], np.full(len(W) - 2, self.s.blend_rad), self.s.blend_fill)
+        blends = np.full(len(W) - 2, self.s.blend_rad)
+        path = BlendedPath(W, blends, self.s.blend_fill)
         grid = gridpoints_for(path, self.s.rank_grid_step_rad, self.s.max_gridpoints)
-        sd = parameterize(path, grid, self.vlim[cols] * self.s.velocity_scale,
-                          self.alim[cols] * self.s.acceleration_scale, [])
+        rows, _ = self._rows(run, path, grid)
+        cols = np.flatnonzero(np.ptp(W, axis=0) > 0)
+        moving = BlendedPath(W[:, cols], blends, self.s.blend_fill)
+        moving.breaks, moving.length = path.breaks, path.length
+        sd = parameterize(moving, grid, self.vlim[cols] * self.s.velocity_scale,
+                          self.alim[cols] * self.s.acceleration_scale, rows)
         return float(profile_times(grid, sd)[-1]) if sd is not None else math.inf
 
     def _replans(self, P: np.ndarray, validity, rng: np.random.Generator, weights: np.ndarray) -> list[np.ndarray]:

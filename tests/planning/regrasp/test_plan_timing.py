@@ -12,7 +12,7 @@ from plan_checker import check_plan
 from planner.jobs.plan_job import PlanOptions, build_task, plan_scenario
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import assemble
-from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
+from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings, Run
 from planner.scene.scenarios import load_scenario
 
 DATA = Path(__file__).resolve().parents[2] / "data"
@@ -114,7 +114,8 @@ def test_a_motions_paths_are_ranked_by_their_timing_not_by_the_time_at_the_veloc
     timer = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
     weights = 1.0 / timer.vlim
     assert path_length(stairs, weights) == pytest.approx(path_length(one_turn, weights))
-    assert timer._kinematic_time(stairs) > timer._kinematic_time(one_turn) + 0.5
+    alone = Run([pieces[k]], "none", None, task.placements[task.start_id])
+    assert timer._estimated_time(stairs, alone) > timer._estimated_time(one_turn, alone) + 0.5
 
     monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [stairs, one_turn])
     plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0)
