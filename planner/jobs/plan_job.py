@@ -236,7 +236,9 @@ def plan_scenario(
         code = "START_INVALID" if exc.end == "start" else "GOAL_INVALID"
         return _infeasible(None, scenario, code, str(exc), stats={"time_s": time.perf_counter() - t_start})
     zmp_margin_m = timing_zmp_margin(scenario, task.threshold_m)
-    data = SearchData(task)  # what the search learns: shared by the survey of `auto` and every configuration
+    # What the search learns, shared by the configurations it tries in turn. The survey of `auto` keeps its own:
+    # what it learned would steer the search elsewhere, so a plan would differ by whether its survey was cached.
+    data = SearchData(task)
     inradius = task.stance.polygon.inradius
     if task.threshold_m > inradius:
         return _infeasible(task, scenario, "THRESHOLD_TOO_LARGE",
@@ -262,7 +264,7 @@ def plan_scenario(
         progress(0.05, "surveying hand configurations (auto)")
         t_survey = time.perf_counter()
         try:
-            order, survey_doc = auto_order(task, termination.should_stop, data)
+            order, survey_doc = auto_order(task, termination.should_stop)
             data.timings["auto_survey_s"] = time.perf_counter() - t_survey
         except Canceled:
             if should_stop():

@@ -17,12 +17,13 @@ from schemas.common import HAND_CONFIGS
 from schemas.survey import TIE_ORDER, recommendation_text
 
 
-def auto_order(task, should_stop: Callable[[], bool], data=None) -> tuple[list[str], dict[str, Any]]:
-    """Hand configurations in the order a ``hands: auto`` plan tries them, and the survey behind it
-    (``data``: the plan's search scratch, so the plan reuses what the survey validated)."""
+def auto_order(task, should_stop: Callable[[], bool]) -> tuple[list[str], dict[str, Any]]:
+    """Hand configurations in the order a ``hands: auto`` plan tries them, and the survey behind it. The survey
+    runs on a search scratch of its own: the plan's search must not depend on whether the survey ran or was read
+    from the cache."""
     scenario = task.scenario.model_copy(update={"threshold_m": task.threshold_m, "seed": task.seed})
     doc = SurveyCache.default().get_or_run(
-        scenario, lambda: run_survey(scenario, task=task, data=data, should_stop=should_stop, keep_states=False)[0],
+        scenario, lambda: run_survey(scenario, task=task, should_stop=should_stop, keep_states=False)[0],
         robot=task.robot, limits=task.limits is not None)
     return order_from(doc), doc
 

@@ -107,3 +107,26 @@ def test_the_key_covers_the_limits_the_robot_spec_and_the_planner_code(task_file
     assert code_digest(copy) == code_version()
     (copy / "survey" / "counting.py").write_text((copy / "survey" / "counting.py").read_text() + "\n# changed\n")
     assert code_digest(copy) != code_version()
+
+
+
+def test_a_hands_auto_plan_is_the_same_whether_its_survey_ran_or_was_cached(tmp_path, monkeypatch):
+    """The seed decides the plan: a `hands: auto` plan whose survey runs in the same process (an empty cache) and
+    the same plan once the survey is cached give the same trajectory. The staggered task with a small survey (two
+    key-path seeds, two seeds of 60 states) is one where a search that inherited the survey's scratch took another
+    path."""
+    from planner.jobs.plan_job import plan_scenario
+    from planner.scene.scenarios import load_scenario
+
+    monkeypatch.setenv("REGRASP_SURVEY_CACHE_DIR", str(tmp_path / "surveys"))
+    scenario = load_scenario("staggered")
+    small = scenario.survey.model_copy(update={"until": "states", "states_per_seed": 60, "seeds_min": 2,
+                                               "seeds_max": 2, "key_path_pool": 2})
+    scenario = scenario.model_copy(update={"hands": "auto", "survey": small})
+    first = plan_scenario(scenario)
+    second = plan_scenario(scenario)
+    assert first["stats"]["survey_recommendation"]["cache"] == "miss"
+    assert second["stats"]["survey_recommendation"]["cache"] == "hit"
+    assert first["status"] == second["status"] == "solved"
+    assert first["hands"] == second["hands"]
+    assert first["trajectory"] == second["trajectory"]
