@@ -3,14 +3,19 @@ meet (1, 10001, 20001), with the survey's default estimator, and how long each c
 
 Targets: at least 95 % of same-row pairs of 95 % intervals overlap; whenever one run separates its best
 row (no tie), the others recommend the same row; a converged survey of one stance in <= 60 s on 2 cores.
-Run: python benchmarks/bench_survey_seeds.py [--stances upright,staggered,crouched,one-legged] [--workers 2]
+Run: python benchmarks/bench_survey_seeds.py [--stances upright,staggered,crouched,one-legged] [--workers 2] [--out DIR]
+Each survey's line ends with the machine's load average (1 min) when it ended; ``--out`` keeps each survey
+document (``survey-STANCE-SEED.json``).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import time
 from itertools import combinations
+from pathlib import Path
 
 from planner.scene.scenarios import resolve_scenario
 from planner.survey.runner import run_survey
@@ -28,7 +33,10 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--stances", default="upright,staggered,crouched,one-legged")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=None, help="write each survey document here")
     args = ap.parse_args()
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
     pairs = overlapping = 0
     disagreements = []
     for stance in args.stances.split(","):
@@ -37,11 +45,13 @@ def main() -> None:
             t0 = time.perf_counter()
             doc, _ = run_survey(resolve_scenario(stance), seed=seed, workers=args.workers, keep_states=False)
             docs[seed] = doc
+            if args.out is not None:
+                (args.out / f"survey-{stance}-{seed}.json").write_text(json.dumps(doc))
             rows = "  ".join(f"{r['hands']} " + ("n/a" if r["ratio"] is None else
                                                  f"{r['ratio']:.3f} [{r['ratio_ci95'][0]:.3f}, {r['ratio_ci95'][1]:.3f}] "
                                                  f"{r['seeds']}s") for r in doc["rows"])
             tie = f" (tie: {', '.join(doc['indistinguishable'])})" if doc["indistinguishable"] else ""
-            print(f"{stance:10s} seed {seed:5d}: {time.perf_counter() - t0:6.1f} s  best {doc['recommended']}{tie}  {rows}",
+            print(f"{stance:10s} seed {seed:5d}: {time.perf_counter() - t0:6.1f} s  best {doc['recommended']}{tie}  {rows}  (load {os.getloadavg()[0]:.1f})",
                   flush=True)
         for a, b in combinations(BASE_SEEDS, 2):
             for ra, rb in zip(docs[a]["rows"], docs[b]["rows"]):
