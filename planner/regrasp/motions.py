@@ -110,16 +110,9 @@ class MotionValidator:
 
     def _lifted(self, q: np.ndarray, side: Side, rng: np.random.Generator) -> np.ndarray | None:
         """``q`` with ``side``'s hand raised by ``via_lift_m`` (arm-only IK from q), or None."""
-        t = self.task
-        T = t.tcp(q, side)
-        T[2, 3] += t.settings.via_lift_m
-        res = t.ik_arm_only.solve_arm(side, T, q, rng, rest_q=q)
-        self.data.counters["ik_solves"] += 1
-        if res.q is None:
-            return None
-        out = res.q
-        out[t.jaw[side]] = q[t.jaw[side]]
-        return out
+        T = self.task.tcp(q, side)
+        T[2, 3] += self.task.settings.via_lift_m
+        return self._arm_at(T, q, side, q, rng)
 
     def _over_middle(self, qa: np.ndarray, qb: np.ndarray, side: Side, rng: np.random.Generator) -> np.ndarray | None:
         """The joint-space middle of qa and qb with ``side``'s hand raised ``via_lift_m`` above the higher of the
@@ -129,12 +122,19 @@ class MotionValidator:
         mid = 0.5 * (qa + qb)
         T = t.tcp(mid, side)
         T[2, 3] = max(T[2, 3], t.tcp(qa, side)[2, 3], t.tcp(qb, side)[2, 3]) + t.settings.via_lift_m
-        res = t.ik_arm_only.solve_arm(side, T, mid, rng, rest_q=mid)
+        return self._arm_at(T, mid, side, qa, rng)
+
+    def _arm_at(self, T: np.ndarray, q_from: np.ndarray, side: Side, jaw_from: np.ndarray,
+                rng: np.random.Generator) -> np.ndarray | None:
+        """``side``'s hand at T by arm-only IK from (and resting at) ``q_from``, its jaw as in ``jaw_from``; None when
+        the IK finds no solution."""
+        t = self.task
+        res = t.ik_arm_only.solve_arm(side, T, q_from, rng, rest_q=q_from)
         self.data.counters["ik_solves"] += 1
         if res.q is None:
             return None
         out = res.q
-        out[t.jaw[side]] = qa[t.jaw[side]]
+        out[t.jaw[side]] = jaw_from[t.jaw[side]]
         return out
 
     def _path_valid(self, waypoints: list[np.ndarray], validity) -> bool:
