@@ -5,28 +5,13 @@ replanned motions the timing substitutes are collision-free at every sample."""
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from planner.jobs.plan_job import build_task
 from planner.motion.timing import time_parameterize
-from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import assemble, object_states
 from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
-from planner.scene.scenarios import load_scenario
-
-DATA = Path(__file__).resolve().parents[2] / "data"
-
-
-@pytest.fixture(scope="module")
-def solved():
-    scenario = load_scenario(DATA / "small-box.yaml")
-    task = build_task(scenario)
-    res = HandConfigPlanner(task, scenario.hands).plan()
-    assert res.status == "solved"
-    return task, res.pieces
 
 
 def _collides(task, Q, hold, free_object) -> np.ndarray:

@@ -9,23 +9,12 @@ import numpy as np
 import pytest
 from plan_checker import check_plan
 
-from planner.jobs.plan_job import PlanOptions, build_task, plan_scenario
-from planner.regrasp.hand_config_planner import HandConfigPlanner
+from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.regrasp.plan_assembly import assemble
 from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings, Run
 from planner.scene.scenarios import load_scenario
 
 DATA = Path(__file__).resolve().parents[2] / "data"
-
-
-@pytest.fixture(scope="module")
-def solved():
-    """The small task's task and the search's own pieces (each timed rest to rest)."""
-    scenario = load_scenario(DATA / "small-box.yaml")
-    task = build_task(scenario)
-    res = HandConfigPlanner(task, scenario.hands).plan()
-    assert res.status == "solved"
-    return task, res.pieces
 
 
 def _timed(task, pieces, speed_scale=1.0, **settings):
