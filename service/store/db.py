@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import time
 from pathlib import Path
 from typing import Iterator
 
@@ -12,11 +13,19 @@ import sqlalchemy as sa
 from alembic import command
 from alembic.config import Config
 
+from service.errors import RegraspServiceError
+
 #: How long an SQLite writer waits for the lock before failing, ms.
 SQLITE_BUSY_TIMEOUT_MS = 10_000
 MIGRATIONS_DIR = Path(__file__).parent / "migrations"
 #: PostgreSQL advisory lock held while migrating (any constant unique to this application).
 MIGRATION_LOCK_KEY = 0x5E6A5501
+#: How long a process waits for another to finish creating or migrating an SQLite store, s.
+STORE_LOCK_TIMEOUT_S = 60.0
+
+
+class StoreLockTimeout(RegraspServiceError):
+    """Another process held the store's lock (creating or migrating it) for longer than the wait allowed."""
 
 
 def make_engine(url: str, *, pool_size: int = 10) -> sa.Engine:
@@ -55,17 +64,29 @@ def alembic_config(engine: sa.Engine) -> Config:
 
 
 @contextlib.contextmanager
-def sqlite_store_lock(path: Path) -> Iterator[None]:
+def sqlite_store_lock(path: Path, timeout_s: float = STORE_LOCK_TIMEOUT_S) -> Iterator[None]:
     """Held while one process checks, creates or migrates an SQLite store file: API replicas and workers started
     together (as docker compose starts them) then never see a store half made, nor migrate it twice.
 
     It is an ``flock`` on the store's folder, not on the file: SQLite's own POSIX locks on the file would be
     dropped when any other descriptor of it closes, and the folder leaves no lock file behind. A process must
-    not take it twice (two descriptors' flocks exclude each other)."""
+    not take it twice (two descriptors' flocks exclude each other). The wait is bounded: a process that holds the
+    lock longer than ``timeout_s`` (hung or stopped while migrating) gets a :class:`StoreLockTimeout` that says so."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd = os.open(path.parent, os.O_RDONLY)
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() >= deadline:
+                    raise StoreLockTimeout(
+                        f"another process has held the lock of the job store {path} (on its folder) for over "
+                        f"{timeout_s:g} s while creating or migrating it; is a server or worker stuck starting on "
+                        f"the same store?") from None
+                time.sleep(0.05)
         yield
     finally:
         os.close(fd)  # releases the flock

@@ -26,7 +26,7 @@ import sqlalchemy as sa
 
 from service.errors import RegraspServiceError
 
-from .db import make_engine, sqlite_store_lock, upgrade_schema as _upgrade
+from .db import STORE_LOCK_TIMEOUT_S, StoreLockTimeout, make_engine, sqlite_store_lock, upgrade_schema as _upgrade
 
 log = logging.getLogger("regrasp.store")
 
@@ -39,21 +39,24 @@ class StoreIntegrityError(RegraspServiceError):
     """The job store cannot be used as it is; the message says why and what to do."""
 
 
-def check_store(url: str, *, init: bool = False) -> str:
+def check_store(url: str, *, init: bool = False, lock_timeout_s: float = STORE_LOCK_TIMEOUT_S) -> str:
     """Check the store at ``url`` before use; returns what was found (for the log), raises if unusable."""
     if url.startswith("sqlite"):
         path = sa.engine.make_url(url).database
         if not path or path == ":memory:":
             return "in-memory SQLite store"
-        return check_sqlite_file(Path(path), init=init)
+        return check_sqlite_file(Path(path), init=init, lock_timeout_s=lock_timeout_s)
     return _check_server(url)
 
 
-def check_sqlite_file(path: Path, *, init: bool = False) -> str:
+def check_sqlite_file(path: Path, *, init: bool = False, lock_timeout_s: float = STORE_LOCK_TIMEOUT_S) -> str:
     """Check (and, when missing, create) an SQLite store under the store lock: a process starting together with
     another never reads the file while the other is still making it."""
-    with sqlite_store_lock(path):
-        return _check_sqlite_file(path, init=init)
+    try:
+        with sqlite_store_lock(path, lock_timeout_s):
+            return _check_sqlite_file(path, init=init)
+    except StoreLockTimeout as exc:
+        raise StoreIntegrityError(str(exc)) from None
 
 
 def _check_sqlite_file(path: Path, *, init: bool) -> str:

@@ -203,3 +203,25 @@ def test_processes_starting_together_on_a_new_store_all_open_it(tmp_path: Path) 
                                 idempotency_key=None, provenance={})
         engine.dispose()
         assert sorted(p.name for p in path.parent.iterdir() if not p.name.endswith(("-wal", "-shm"))) == ["jobs.sqlite"]
+
+
+def test_a_process_that_holds_the_store_lock_too_long_is_named_not_waited_for_forever(tmp_path: Path) -> None:
+    """A server or worker stuck while creating or migrating the store (here: the lock taken and kept) makes the
+    next one's start fail after the bounded wait, saying what it waited for; once the lock is free the store opens."""
+    import fcntl
+
+    from service.store.integrity import StoreIntegrityError, check_store
+
+    path = tmp_path / "store" / "jobs.sqlite"
+    path.parent.mkdir()
+    holder = os.open(path.parent, os.O_RDONLY)
+    try:
+        fcntl.flock(holder, fcntl.LOCK_EX)
+        started = time.monotonic()
+        with pytest.raises(StoreIntegrityError, match="held the lock of the job store .* for over 0.5 s"):
+            check_store(f"sqlite:///{path}", lock_timeout_s=0.5)
+        assert 0.5 <= time.monotonic() - started < 30.0
+        assert not path.exists()  # nothing was made while another process held the lock
+    finally:
+        os.close(holder)
+    assert "created a new job store" in check_store(f"sqlite:///{path}", lock_timeout_s=0.5)
