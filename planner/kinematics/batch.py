@@ -131,8 +131,11 @@ class BatchKinematics:
 
 
 def select_states(Rs: list, ps: list, rows: np.ndarray) -> tuple[list, list]:
-    """The states ``rows`` of a :meth:`BatchKinematics.forward` result, as such a result (one block each)."""
+    """The states ``rows`` of a :meth:`BatchKinematics.forward` result, as such a result (one block each); the
+    result itself (not a copy) when ``rows`` are all of its states in order."""
     rows = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows)
+    if len(rows) == ps[1].shape[-1] and np.array_equal(rows, np.arange(len(rows))):
+        return Rs, ps
     # np.take allocates the selection in its own shape: indexing with [..., rows] may hand back a transposed
     # view of a buffer laid out differently, whose rows frames_block would not recognise as a block
     R, p = np.take(frames_block(Rs), rows, axis=-1), np.take(frames_block(ps), rows, axis=-1)

@@ -488,17 +488,7 @@ class PlanTimer:
     def time_part(self, run: Run, W: np.ndarray, blends: np.ndarray) -> "Part | None":
         """One stretch between stops, timed and checked; None when TOPP-RA finds no profile or the checks
         cannot be met by stretching."""
-        path = BlendedPath(W, blends, self.s.blend_fill)
-        grid = gridpoints_for(path, self.s.grid_step_rad, self.s.max_gridpoints)
-        rows, _ = self._rows(run, path, grid)
-        # TOPP-RA over the joints that move (the same arc length; the others add no constraint)
-        cols = np.flatnonzero(np.ptp(W, axis=0) > 0)
-        if self.s.end_acceleration_scale < 1.0 and self.s.end_zone_rad > 0.0:
-            rows.append(self._soft_ends(path, grid, cols))
-        moving = BlendedPath(W[:, cols], blends, self.s.blend_fill)
-        moving.breaks, moving.length = path.breaks, path.length  # the same parameter to the last bit
-        sd = parameterize(moving, grid, self.vlim[cols] * self.s.velocity_scale,
-                          self.alim[cols] * self.s.acceleration_scale, rows)
+        path, grid, sd = self._profile(run, W, blends, self.s.grid_step_rad, soft_ends=True)
         if sd is None:
             return self._refuse("TOPP-RA found no profile")
         stretch = 1.0
@@ -561,16 +551,27 @@ class PlanTimer:
         W = P[keep]
         if len(W) < 2:
             return 0.0
-        blends = np.full(len(W) - 2, self.s.blend_rad)
+        _, grid, sd = self._profile(run, W, np.full(len(W) - 2, self.s.blend_rad), self.s.rank_grid_step_rad,
+                                    soft_ends=False)
+        return float(profile_times(grid, sd)[-1]) if sd is not None else math.inf
+
+    def _profile(self, run: Run, W: np.ndarray, blends: np.ndarray, grid_step_rad: float,
+                 soft_ends: bool) -> tuple[BlendedPath, np.ndarray, np.ndarray | None]:
+        """The blended path through W, its TOPP-RA gridpoints ``grid_step_rad`` apart, and the time-optimal path
+        velocity at them under the joint, torque and ZMP limits (with the gentler starts and stops when
+        ``soft_ends`` and the settings ask for them); None for the velocity when TOPP-RA finds no profile."""
         path = BlendedPath(W, blends, self.s.blend_fill)
-        grid = gridpoints_for(path, self.s.rank_grid_step_rad, self.s.max_gridpoints)
+        grid = gridpoints_for(path, grid_step_rad, self.s.max_gridpoints)
         rows, _ = self._rows(run, path, grid)
+        # TOPP-RA over the joints that move (the same arc length; the others add no constraint)
         cols = np.flatnonzero(np.ptp(W, axis=0) > 0)
+        if soft_ends and self.s.end_acceleration_scale < 1.0 and self.s.end_zone_rad > 0.0:
+            rows.append(self._soft_ends(path, grid, cols))
         moving = BlendedPath(W[:, cols], blends, self.s.blend_fill)
-        moving.breaks, moving.length = path.breaks, path.length
+        moving.breaks, moving.length = path.breaks, path.length  # the same parameter to the last bit
         sd = parameterize(moving, grid, self.vlim[cols] * self.s.velocity_scale,
                           self.alim[cols] * self.s.acceleration_scale, rows)
-        return float(profile_times(grid, sd)[-1]) if sd is not None else math.inf
+        return path, grid, sd
 
     def _replans(self, P: np.ndarray, validity, rng: np.random.Generator, weights: np.ndarray) -> list[np.ndarray]:
         """P and ``replans`` more T-RRT runs between its ends (each shortened by ``replan_shortcut_iterations``

@@ -14,6 +14,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from planner.kinematics.batch import select_states
 from planner.stability.effort import EffortEvaluator
 from planner.stability.evaluator import HoldSpec, StateBatch, StateEvaluator
 from planner.transforms import quat_to_matrix
@@ -39,13 +40,23 @@ class LimitedEvaluator:
         batch = self._evaluator.evaluate(Q, hold, active=active, threshold_m=threshold_m)
         if len(batch) == 0 or not batch.stable.any():
             return batch
-        # Only the poses stable by the margin can be turned unstable by a limit: the others are not checked.
-        idx = np.flatnonzero(batch.stable)
-        poses = None if batch.object_pose is None else np.asarray(batch.object_pose)[idx]
-        res = self.limits.evaluate(np.atleast_2d(Q)[idx], "none" if hold is None else hold.side, object_pose=poses)
-        stable = batch.stable.copy()
-        stable[idx] = res.ok
+        stable = stable_within_limits(self.limits, np.atleast_2d(Q), batch, "none" if hold is None else hold.side)
         return dataclasses.replace(batch, stable=stable)
+
+
+def stable_within_limits(limits: EffortEvaluator, Q: np.ndarray, batch: StateBatch, side: str,
+                         frames: tuple[list, list] | None = None) -> np.ndarray:
+    """``batch.stable`` with the effort and grip limits: only the poses stable by the margin can be turned unstable
+    by a limit, so only they are checked. ``frames``: the batch's forward kinematics (all of Q's states), when the
+    caller has them."""
+    stable = batch.stable.copy()
+    if not stable.any():
+        return stable
+    idx = np.flatnonzero(stable)
+    poses = None if batch.object_pose is None else np.asarray(batch.object_pose)[idx]
+    kw = {} if frames is None else {"frames": select_states(*frames, idx)}
+    stable[idx] = limits.evaluate(Q[idx], side, object_pose=poses, **kw).ok
+    return stable
 
 
 def limited(task: Any, evaluator: StateEvaluator) -> StateEvaluator | LimitedEvaluator:

@@ -28,6 +28,7 @@ from planner.kinematics.batch import BatchKinematics, select_states
 from planner.scene.collision import CollisionWorld
 from planner.stability.effort import EffortEvaluator
 from planner.stability.evaluator import HoldSpec, StateBatch, StateEvaluator
+from planner.survey.limits import stable_within_limits
 
 
 @dataclass(frozen=True)
@@ -41,15 +42,18 @@ class HeldCollisions:
     base_pose: np.ndarray
     hold: HoldSpec
 
+    @property
+    def held(self) -> list[tuple[str, np.ndarray]]:
+        """What the collision world carries: the object in the holding hand."""
+        return [(self.hold.tcp_side, self.hold.T_obj_tcp)]
+
     def __call__(self, Q: np.ndarray) -> np.ndarray:
-        held = [(self.hold.tcp_side, self.hold.T_obj_tcp)]
-        return ~self.world.check_batch(self.base_pose, Q, held=held).collides
+        return ~self.world.check_batch(self.base_pose, Q, held=self.held).collides
 
     def on_frames(self, frames: tuple[list, list], object_pose: np.ndarray) -> np.ndarray:
         """Which states of a :meth:`BatchKinematics.forward` result (with their held object's world poses
         (N, 4, 4)) are collision-free."""
-        return ~self.world.check_forward(*frames, held=[(self.hold.tcp_side, self.hold.T_obj_tcp)],
-                                         held_object_poses=object_pose).collides
+        return ~self.world.check_forward(*frames, held=self.held, held_object_poses=object_pose).collides
 
 
 class LegChecks:
@@ -72,15 +76,10 @@ class LegChecks:
         return self.evaluator.with_object(robot_com, self.evaluator.object_poses(R, p, self.hold)), frames
 
     def _within_limits(self, Q: np.ndarray, batch: StateBatch, frames: tuple[list, list]) -> np.ndarray:
-        """``stable`` with the effort and grip limits: checked on the states stable by the margin only."""
-        stable = batch.stable.copy()
-        if self.limits is None or not stable.any():
-            return stable
-        idx = np.flatnonzero(stable)
-        res = self.limits.evaluate(Q[idx], self.hold.side, object_pose=batch.object_pose[idx],
-                                   frames=_rows(frames, idx, len(Q)))
-        stable[idx] = res.ok
-        return stable
+        """``stable`` with the effort and grip limits (checked on the states stable by the margin only)."""
+        if self.limits is None:
+            return batch.stable.copy()
+        return stable_within_limits(self.limits, Q, batch, self.hold.side, frames)
 
     def judge(self, Q: np.ndarray) -> tuple[StateBatch, np.ndarray]:
         """Steered poses Q (N, n): their states (``stable`` with the limits) and which are collision-free (all of them
@@ -96,13 +95,8 @@ class LegChecks:
         ok = self._within_limits(Q, batch, frames)
         if ok.any():
             idx = np.flatnonzero(ok)
-            ok[idx] = self.collisions.on_frames(_rows(frames, idx, len(Q)), batch.object_pose[idx])
+            ok[idx] = self.collisions.on_frames(select_states(*frames, idx), batch.object_pose[idx])
         return ok, batch.margin
-
-
-def _rows(frames: tuple[list, list], idx: np.ndarray, n: int) -> tuple[list, list]:
-    """The states ``idx`` of a forward result of ``n`` states (the result itself when they are all of them)."""
-    return frames if len(idx) == n else select_states(*frames, idx)
 
 
 def leg_checks(evaluator: Any, collision_free: Any, hold: HoldSpec | None) -> LegChecks | None:

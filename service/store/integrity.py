@@ -62,11 +62,7 @@ def check_sqlite_file(path: Path, *, init: bool = False, lock_timeout_s: float =
 def _check_sqlite_file(path: Path, *, init: bool) -> str:
     if not path.exists():
         log.warning("job store %s does not exist: creating a new, empty store", path)
-        engine = make_engine(f"sqlite:///{path}", pool_size=1)
-        try:
-            _upgrade(engine)  # made whole while the lock is held
-        finally:
-            engine.dispose()
+        _create(path)
         return f"created a new job store at {path}"
     problem = sqlite_problem(path)
     if problem is None:
@@ -81,12 +77,18 @@ def _check_sqlite_file(path: Path, *, init: bool) -> str:
         if part.exists():
             part.rename(Path(str(aside) + suffix))
     log.warning("job store %s %s: moved aside to %s (--init-store); creating a new, empty store", path, problem, aside)
+    _create(path)
+    return f"moved the damaged store aside to {aside} and created a new one"
+
+
+def _create(path: Path) -> None:
+    """A new store at ``path``, migrated whole (the caller holds the store lock, so no other process sees it half
+    made)."""
     engine = make_engine(f"sqlite:///{path}", pool_size=1)
     try:
         _upgrade(engine)
     finally:
         engine.dispose()
-    return f"moved the damaged store aside to {aside} and created a new one"
 
 
 def sqlite_problem(path: Path) -> str | None:
