@@ -8,8 +8,9 @@ For each row, the population is the row's seeds from every document of its stanc
 each under its key-path seed (the stratum). The truth is the pool's equal-share mix over that population,
 sum over key paths of the mean C over sum of the mean N. A repeat draws 256 seeds with replacement, seed j
 from pool member j mod 8 (as the survey hands them out), and judges them with the survey's own stopping rule
-(``planner.survey.estimator.first_converged``: from seeds_min on, at least 3 seeds of each distinct key
-path, until the interval is within +-0.02, else at 256 seeds); it covers when the truth lies in the
+(``planner.survey.estimator.first_converged``: from seeds_min on, after whole rounds of the pool, at least
+``MIN_SEEDS_PER_KEY_PATH`` seeds of each distinct key path, until the interval is within +-0.02, else at 256
+seeds); it covers when the truth lies in the
 interval it stops with. ``--fixed`` also gives the coverage of the interval of a fixed number of seeds (no
 stopping rule). Prints, per row: the population's seeds and their sizes (median and largest), the
 stopping rule's coverage and median seeds, and each fixed count's coverage.
@@ -50,7 +51,7 @@ def coverage(seeds: list[dict], hands: str, reps: int, fixed: list[int], seeds_m
         draw = [by[pool[j % len(pool)]][int(rng.integers(len(by[pool[j % len(pool)]])))] for j in range(seeds_max)]
         counts = [SeedCount(seed=1 + j, stable=s["stable"], unstable=s["unstable"], solved=True, status="done",
                             time_s=0.0, key_path=s["key_path"]) for j, s in enumerate(draw)]
-        v = first_converged(counts, est, 1, hands) or judge(counts, est, 1, hands)
+        v = first_converged(counts, est, 1, hands, round_size=len(pool)) or judge(counts, est, 1, hands)
         stops.append(v.seeds)
         covered += v.interval[0] <= truth <= v.interval[1]
         for k in fixed:

@@ -2,9 +2,9 @@
 
 One seed is one counted exploration of the task (:func:`planner.survey.counting.explore_counted`):
 C stable and U unstable poses. R = C / (C + U) pooled over seeds. Seeds ``seed``, ``seed`` + 1,
-... are judged in that order: after each one (from ``seeds_min`` on), a row whose 95 % interval
-lies within ``ci_half_width`` of its R on both sides is converged and takes no more seeds; at
-``seeds_max`` it stops unconverged. The interval is the percentile bootstrap over seeds (2,000
+... are judged in that order, at each look (:func:`is_look`: from ``seeds_min`` on, after every whole
+round of the row's key-path pool): a row whose 95 % interval lies within ``ci_half_width`` of its R on
+both sides is converged and takes no more seeds; at ``seeds_max`` it stops unconverged. The interval is the percentile bootstrap over seeds (2,000
 resamples from a generator seeded by the survey's seed and the row): resampling whole seeds keeps
 the strong correlation between the poses of one tree. A row that explores several key paths in
 fixed shares is resampled within each key path's seeds (the stratified bootstrap,
@@ -44,7 +44,7 @@ BOOTSTRAP_RESAMPLES = 2000
 #: Seeds handed to the workers ahead of the judgement, per worker.
 LOOKAHEAD_PER_WORKER = 2
 #: Seeds of each distinct key path a row with several needs before its stratified interval may call it converged.
-MIN_SEEDS_PER_KEY_PATH = 3
+MIN_SEEDS_PER_KEY_PATH = 6
 
 
 class Estimator(BaseModel):
@@ -221,10 +221,25 @@ def judge(counts: list[SeedCount], estimator: Estimator, seed: int, hands: str) 
     return Judgement(len(counts), C, U, ratio, interval, converged)
 
 
+def is_look(k: int, estimator: Estimator, round_size: int = 1) -> bool:
+    """Whether a row may stop after ``k`` seeds: from ``seeds_min`` on, after whole rounds of its key-path pool
+    (``round_size`` members, seed ``base + j`` exploring member ``j mod round_size``), and at ``seeds_max``.
+
+    Whole rounds keep every key path's share of the seeds equal, the weights the stratification states (after
+    a partial round the first members would weigh more). Judging once a round rather than after every seed
+    also keeps the stopping rule's own error small: a row that may stop at the first narrow interval among many
+    looks stops early on intervals that happen to be narrow (docs/survey.md, *The estimator*)."""
+    if k < estimator.seeds_min:
+        return False
+    return k >= estimator.seeds_max or k % max(1, round_size) == 0
+
+
 def first_converged(counts: list[SeedCount], estimator: Estimator, seed: int, hands: str,
-                    start: int = 1) -> Judgement | None:
-    """The judgement at the first number of seeds (from ``start``) at which the row converged, else None."""
+                    start: int = 1, round_size: int = 1) -> Judgement | None:
+    """The judgement at the first look (:func:`is_look`, from ``start`` seeds) at which the row converged, else None."""
     for k in range(max(start, estimator.seeds_min), len(counts) + 1):
+        if not is_look(k, estimator, round_size):
+            continue
         j = judge(counts[:k], estimator, seed, hands)
         if j.converged:
             return j
@@ -297,7 +312,7 @@ def run_rows(rows: list[RowWork], evaluator, estimator: Estimator, seed: int, *,
 
     def settle(r: RowWork) -> bool:
         """Judge the row on its seeds so far; True when it needs no more."""
-        j = first_converged(r.counts, estimator, seed, r.hands, start=len(r.counts))
+        j = first_converged(r.counts, estimator, seed, r.hands, start=len(r.counts), round_size=len(r.legs))
         if j is not None:
             r.verdict = j
             return True

@@ -240,3 +240,20 @@ def test_staggered_at_30_mm_with_the_paper_s_object_has_unstable_states():
                         hands=["right-right"], workers=1, keep_states=False)
     row = doc["rows"][0]
     assert row["reason"] is None and row["unstable"] > 0, row
+
+
+def test_a_row_is_judged_only_after_whole_rounds_of_its_key_path_pool():
+    """With a pool of 8 key paths, a row whose interval is tight from the first seed may stop at 16 seeds (the first
+    whole round from seeds_min = 10), not at 10, and never between rounds; seeds_max ends it wherever it falls."""
+    from planner.survey.estimator import is_look
+
+    est = Estimator(ci_half_width=0.05, seeds_min=10, seeds_max=36)
+    steady = [SeedCount(seed=1 + k, stable=90, unstable=10, solved=True, status="done", time_s=0.0,
+                        key_path={"seed": 1 + k % 8, "nodes": []}) for k in range(36)]
+    assert first_converged(steady, est, 1, "left-left").seeds == 10  # seeds one by one: the first narrow interval
+    assert first_converged(steady, est, 1, "left-left", round_size=8).seeds == 16
+    assert first_converged(steady[:15], est, 1, "left-left", round_size=8) is None
+    assert [k for k in range(1, 40) if is_look(k, est, 8)] == [16, 24, 32] + list(range(36, 40))
+    # a row judged seed by seed in the survey's loop (start = the seeds so far) is judged only at a look
+    assert first_converged(steady[:17], est, 1, "left-left", start=17, round_size=8) is None
+    assert first_converged(steady[:24], est, 1, "left-left", start=24, round_size=8).seeds == 24

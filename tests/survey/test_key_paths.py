@@ -107,9 +107,10 @@ def test_two_very_different_key_paths_are_both_covered_by_the_row_s_interval(sce
         assert both["lo"] <= mix <= both["hi"], (base, mix, both)
 
 
-def test_a_row_of_several_key_paths_converges_only_with_three_seeds_of_each():
+def test_a_row_of_several_key_paths_converges_only_with_enough_seeds_of_each():
     """Identical seeds give a tight interval at once; with four distinct key paths the row still waits for
-    three seeds of each (the stratified interval needs each path's own noise), with one it stops at seeds_min."""
+    MIN_SEEDS_PER_KEY_PATH seeds of each (the stratified interval needs each path's own noise), with one it
+    stops at seeds_min."""
     from planner.survey.estimator import MIN_SEEDS_PER_KEY_PATH, SeedCount, first_converged
 
     est = Estimator(ci_half_width=0.05, seeds_min=4, seeds_max=64)
@@ -120,7 +121,7 @@ def test_a_row_of_several_key_paths_converges_only_with_three_seeds_of_each():
 
     assert first_converged(counts(1, 1), est, 1, "left-left").seeds == 4
     assert first_converged(counts(4, 4), est, 1, "left-left").seeds == 4 * MIN_SEEDS_PER_KEY_PATH
-    # four pool members, two distinct key paths: three seeds of each path
+    # four pool members, two distinct key paths: MIN_SEEDS_PER_KEY_PATH seeds of each path
     assert first_converged(counts(4, 2), est, 1, "left-left").seeds == 2 * MIN_SEEDS_PER_KEY_PATH
     # the planner chose one key path for the whole pool: nothing to stratify, seeds_min rules
     assert first_converged(counts(4, 1), est, 1, "left-left").seeds == 4
