@@ -45,6 +45,10 @@ BOOTSTRAP_RESAMPLES = 2000
 LOOKAHEAD_PER_WORKER = 2
 #: Seeds of each distinct key path a row with several needs before its stratified interval may call it converged.
 MIN_SEEDS_PER_KEY_PATH = 6
+#: Unstable poses a row needs before its bootstrap interval may call it converged (a row with none at all has the
+#: rule of three's interval instead): a resample of seeds sees a handful of rare unstable poses as far less
+#: variable than they are, so a row near R = 1 stopped on a narrow interval too early.
+MIN_UNSTABLE_POSES = 20
 
 
 class Estimator(BaseModel):
@@ -213,9 +217,10 @@ def judge(counts: list[SeedCount], estimator: Estimator, seed: int, hands: str) 
     strata = strata_of(counts)
     interval = ratio_interval(c, u, bootstrap_rng(seed, hands, len(counts)), strata=strata) if counts else None
     # The stratified interval needs each distinct key path's own noise (pool members the planner gave the same
-    # key path share it); the rule of three (no unstable pose) needs none.
+    # key path share it) and enough unstable poses to see their spread; the rule of three (no unstable pose) needs
+    # neither.
     sizes = strata_sizes(paths_of(counts))
-    enough = len(sizes) < 2 or min(sizes) >= MIN_SEEDS_PER_KEY_PATH or U == 0
+    enough = U == 0 or ((len(sizes) < 2 or min(sizes) >= MIN_SEEDS_PER_KEY_PATH) and U >= MIN_UNSTABLE_POSES)
     converged = (ratio is not None and interval is not None and len(counts) >= estimator.seeds_min and enough
                  and within(ratio, interval, estimator.ci_half_width))
     return Judgement(len(counts), C, U, ratio, interval, converged)

@@ -20,6 +20,7 @@ from planner.survey.estimator import (
     first_converged,
     judge,
     ratio_interval,
+    within,
 )
 
 
@@ -257,3 +258,18 @@ def test_a_row_is_judged_only_after_whole_rounds_of_its_key_path_pool():
     # a row judged seed by seed in the survey's loop (start = the seeds so far) is judged only at a look
     assert first_converged(steady[:17], est, 1, "left-left", start=17, round_size=8) is None
     assert first_converged(steady[:24], est, 1, "left-left", start=24, round_size=8).seeds == 24
+
+
+def test_a_row_with_rare_unstable_poses_waits_for_enough_of_them():
+    """A bootstrap over seeds sees a handful of rare unstable poses as nearly constant: identical seeds with one
+    unstable pose each give a tight interval at once, but the row converges only once it has counted
+    MIN_UNSTABLE_POSES of them; a row with none converges on the rule of three's interval as before."""
+    from planner.survey.estimator import MIN_UNSTABLE_POSES
+
+    est = Estimator(ci_half_width=0.05, seeds_min=4, seeds_max=64)
+    rare = [SeedCount(seed=1 + k, stable=99, unstable=1, solved=True, status="done", time_s=0.0) for k in range(64)]
+    early = judge(rare[:4], est, 1, "left-left")
+    assert within(early.ratio, early.interval, 0.05) and not early.converged  # tight, yet not converged
+    assert first_converged(rare, est, 1, "left-left").seeds == MIN_UNSTABLE_POSES
+    none = [SeedCount(seed=1 + k, stable=100, unstable=0, solved=True, status="done", time_s=0.0) for k in range(64)]
+    assert first_converged(none, est, 1, "left-left").seeds == 4
