@@ -9,7 +9,8 @@ resamples from a generator seeded by the survey's seed and the row): resampling 
 the strong correlation between the poses of one tree. A row that explores several key paths in
 fixed shares is resampled within each key path's seeds (the stratified bootstrap,
 :func:`ratio_interval`), and needs :data:`MIN_SEEDS_PER_KEY_PATH` seeds of each distinct key path before it converges
-(unless it has no unstable pose at all: the rule of three needs no per-path noise). A row with no unstable pose at all has
+(unless it has no unstable pose at all: the rule of three needs no per-path noise), and needs
+:data:`MIN_UNSTABLE_POSES` unstable poses before its bootstrap interval may call it converged. A row with no unstable pose at all has
 [1 - 3/(C + U), 1] (the "rule of three": a bootstrap cannot show an interval there).
 
 Seeds may run in parallel (on a seed map: forked workers or a Ray cluster, one seed per job) and still give the same answer as
