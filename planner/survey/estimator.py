@@ -4,14 +4,14 @@ One seed is one counted exploration of the task (:func:`planner.survey.counting.
 C stable and U unstable poses. R = C / (C + U) pooled over seeds. Seeds ``seed``, ``seed`` + 1,
 ... are judged in that order, at each look (:func:`is_look`: from ``seeds_min`` on, after every whole
 round of the row's key-path pool): a row whose 95 % interval lies within ``ci_half_width`` of its R on
-both sides is converged and takes no more seeds; at ``seeds_max`` it stops unconverged. The interval is the percentile bootstrap over seeds (2,000
-resamples from a generator seeded by the survey's seed and the row): resampling whole seeds keeps
-the strong correlation between the poses of one tree. A row that explores several key paths in
-fixed shares is resampled within each key path's seeds (the stratified bootstrap,
-:func:`ratio_interval`), and needs :data:`MIN_SEEDS_PER_KEY_PATH` seeds of each distinct key path before it converges
-(unless it has no unstable pose at all: the rule of three needs no per-path noise), and needs
-:data:`MIN_UNSTABLE_POSES` unstable poses before its bootstrap interval may call it converged. A row with no unstable pose at all has
-[1 - 3/(C + U), 1] (the "rule of three": a bootstrap cannot show an interval there).
+both sides is converged and takes no more seeds; at ``seeds_max`` it stops unconverged. The interval
+is the percentile bootstrap over seeds (2,000 resamples from a generator seeded by the survey's seed
+and the row): resampling whole seeds keeps the strong correlation between the poses of one tree. A
+row that explores several key paths in fixed shares is resampled within each key path's seeds (the
+stratified bootstrap, :func:`ratio_interval`), and needs :data:`MIN_SEEDS_PER_KEY_PATH` seeds of each
+distinct key path and :data:`MIN_UNSTABLE_POSES` unstable poses before it converges. A row with no
+unstable pose at all has [1 - 3/(C + U), 1] (the "rule of three": a bootstrap cannot show an interval
+there) and needs neither.
 
 Seeds may run in parallel (on a seed map: forked workers or a Ray cluster, one seed per job) and still give the same answer as
 in one process: every seed draws from its own generator, and a row is judged on its seeds in
