@@ -162,3 +162,15 @@ def test_an_address_where_no_cluster_answers_is_refused_in_one_line() -> None:
         assert out.returncode == 2, out.stderr[-2000:]
         assert f"cannot join the Ray cluster at {address}: nothing answers" in out.stderr
         assert "Traceback" not in out.stderr + out.stdout
+
+
+def test_a_cancelled_session_frees_the_cluster_even_from_seeds_stuck_in_c_code(cluster: TwoNodes) -> None:
+    """Seeds inside a long C call (a cold worker loading the robot model or compiling its kernels) do not see a soft
+    cancel; a cancelled job's session force-cancels them, so the cluster has its CPUs back within seconds, not
+    when the call returns (20 s here)."""
+    out = subprocess.run([sys.executable, str(HERE / "ray_cancel_driver.py"), cluster.address], cwd=ROOT,
+                         env=cluster.env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["busy"] <= got["before"] - 2, got  # both stuck seeds held a CPU
+    assert got["after"] == got["before"] and got["freed_s"] < 10, got
