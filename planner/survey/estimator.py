@@ -317,13 +317,12 @@ def run_rows(rows: list[RowWork], evaluator, estimator: Estimator, seed: int, *,
             r.verdict = Judgement(0, 0, 0, None, None, False)
 
     def settle(r: RowWork) -> bool:
-        """Judge the row on its seeds so far; True when it needs no more."""
-        j = first_converged(r.counts, estimator, seed, r.hands, start=len(r.counts), round_size=len(r.legs))
-        if j is not None:
+        """Judge the row on its seeds so far, when they make a look; True when it needs no more."""
+        if not is_look(len(r.counts), estimator, len(r.legs)):
+            return False
+        j = judge(r.counts, estimator, seed, r.hands)
+        if j.converged or len(r.counts) >= estimator.seeds_max:
             r.verdict = j
-            return True
-        if len(r.counts) >= estimator.seeds_max:
-            r.verdict = judge(r.counts, estimator, seed, r.hands)
             return True
         return False
 

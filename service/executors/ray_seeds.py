@@ -3,13 +3,14 @@
 Each seed is one task (one CPU, ``SPREAD`` scheduling, never retried: a seed is cheap to run again
 by asking again, and a retried one would only hide a lost node). The per-seed function travels with
 the task's definition, so a worker process unpickles it, and builds the task's robot model, once;
-later seeds on that worker reuse it. Cancelling a seed (one a converged row no longer needs) cancels its task
-(``ray.cancel``: a task still queued never runs, a running one is interrupted and its worker, with the task it
-built, is kept for the next seed); closing a cancelled session (the job was cancelled or failed) force-cancels
-every task still running, ending its worker process. A soft cancel reaches a task only between Python bytecodes:
-a worker busy in a long C call (loading the robot model, compiling the kernels on a cold worker) can hold its CPU
-for many seconds after the job ended, and a cancelled job must give the cluster its CPUs back at once. ``placements`` records where each seed ran
-(hands, seed, node id): the proof that the seeds used the cluster's nodes.
+later seeds on that worker reuse it. Cancelling a seed (one a converged row no longer needs) cancels its
+task (``ray.cancel``: a task still queued never runs, a running one is interrupted and its worker, with the
+task it built, is kept for the next seed); closing a cancelled session (the job was cancelled or failed)
+force-cancels every task still running, ending its worker process. A soft cancel reaches a task only between
+Python bytecodes: a worker busy in a long C call (loading the robot model, compiling the kernels on a cold
+worker) can hold its CPU for many seconds after the job ended, and a cancelled job must give the cluster its
+CPUs back at once. ``placements`` records where each seed ran (hands, seed, node id): the proof that the
+seeds used the cluster's nodes.
 """
 
 from __future__ import annotations

@@ -15,9 +15,11 @@ import pytest
 
 from planner.survey.counting import CountingSettings, ExploreLeg, explore_counted
 from planner.survey.estimator import (
+    MIN_UNSTABLE_POSES,
     Estimator,
     SeedCount,
     first_converged,
+    is_look,
     judge,
     ratio_interval,
     within,
@@ -246,8 +248,6 @@ def test_staggered_at_30_mm_with_the_paper_s_object_has_unstable_states():
 def test_a_row_is_judged_only_after_whole_rounds_of_its_key_path_pool():
     """With a pool of 8 key paths, a row whose interval is tight from the first seed may stop at 16 seeds (the first
     whole round from seeds_min = 10), not at 10, and never between rounds; seeds_max ends it wherever it falls."""
-    from planner.survey.estimator import is_look
-
     est = Estimator(ci_half_width=0.05, seeds_min=10, seeds_max=36)
     steady = [SeedCount(seed=1 + k, stable=90, unstable=10, solved=True, status="done", time_s=0.0,
                         key_path={"seed": 1 + k % 8, "nodes": []}) for k in range(36)]
@@ -264,8 +264,6 @@ def test_a_row_with_rare_unstable_poses_waits_for_enough_of_them():
     """A bootstrap over seeds sees a handful of rare unstable poses as nearly constant: identical seeds with one
     unstable pose each give a tight interval at once, but the row converges only once it has counted
     MIN_UNSTABLE_POSES of them; a row with none converges on the rule of three's interval as before."""
-    from planner.survey.estimator import MIN_UNSTABLE_POSES
-
     est = Estimator(ci_half_width=0.05, seeds_min=4, seeds_max=64)
     rare = [SeedCount(seed=1 + k, stable=99, unstable=1, solved=True, status="done", time_s=0.0) for k in range(64)]
     early = judge(rare[:4], est, 1, "left-left")
