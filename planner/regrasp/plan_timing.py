@@ -87,6 +87,11 @@ class PlanTimingSettings(BaseModel):
                               "a quicker one fails the dense checks of its samples")
     replan_shortcut_iterations: int = Field(60, ge=0, description="random shortcuts of each replanned motion before "
                                             "the quickest is chosen")
+    shortcut_check_rad: float = Field(0.005, gt=0, description="largest per-joint change between the checked states "
+                                      "of the new segments the timing's shortcuts and partial shortcuts make (at most "
+                                      "the search's resolution): a segment checked as coarsely as the search's can "
+                                      "graze between its checked states, and the dense checks of the timed samples "
+                                      "then refuse the path it belongs to")
     rank_by_timing: bool = Field(True, description="rank each planned motion's paths by their TOPP-RA time (blended, "
                                  "the same constraints, a coarse grid) rather than by the time at the velocity limits "
                                  "alone, which leaves out the corners and the balance")
@@ -521,7 +526,7 @@ class PlanTimer:
         the corners and the balance included."""
         t = self.task
         per_piece: list[list[MotionPiece]] = []
-        settings = t.settings.smoothing.model_copy(update={"iterations": self.s.shortcut_iterations})
+        settings = self._smoothing(self.s.shortcut_iterations)
         weights = 1.0 / self.vlim
         for k, (piece, holding, hold, current) in enumerate(object_states(pieces, t.evaluator, t.placements[t.start_id])):
             if piece.path is None or len(piece.path) <= 2:
@@ -554,6 +559,13 @@ class PlanTimer:
             Q = partial_shortcut(Q, validity, rng, self.s.partial_shortcut_iterations, settings.edge_resolution_rad,
                                  weights).path
         return Q
+
+    def _smoothing(self, iterations: int) -> SmoothingSettings:
+        """The search's shortcut settings with ``iterations`` draws, their new segments checked every
+        ``shortcut_check_rad`` (never more coarsely than the search checks its own)."""
+        base = self.task.settings.smoothing
+        return base.model_copy(update={"iterations": iterations,
+                                       "edge_resolution_rad": min(base.edge_resolution_rad, self.s.shortcut_check_rad)})
 
     def _quickest(self, paths: list[np.ndarray], weights: np.ndarray) -> list[np.ndarray]:
         """The ``alternatives`` paths quickest at the velocity limits, quickest first (ties in the given order)."""
@@ -600,7 +612,7 @@ class PlanTimer:
         t = self.task
         active = np.flatnonzero(np.ptp(P, axis=0) > 0)
         trrt = t.settings.trrt.model_copy(update={"margin_cost": t.constrained})
-        short = t.settings.smoothing.model_copy(update={"iterations": self.s.replan_shortcut_iterations})
+        short = self._smoothing(self.s.replan_shortcut_iterations)
         for _ in range(self.s.replans):
             res = plan_motion(P[0], P[-1], active, validity, t.robot.lower, t.robot.upper, rng, trrt,
                               Termination(trrt.max_iterations))
