@@ -520,10 +520,10 @@ class PlanTimer:
         level k holds each motion's k-th quickest path (its last one where it has fewer). Each motion's paths are its
         own and ``replans`` more T-RRT runs between its ends (:meth:`_replans`), every one of them shortened alike
         (:meth:`_shortened`) before any is chosen, so that the path the ranking picks has had the same shortening as
-        the one it beats; every new segment is checked by the task's state checker at the search's resolution, as
-        the search checks its own. The ``alternatives`` quickest at the velocity limits are kept; with
-        ``rank_by_timing`` they are then ranked by their TOPP-RA time on a coarse grid (:meth:`_estimated_time`),
-        the corners and the balance included."""
+        the one it beats; every new segment is checked by the task's state checker, a replan's T-RRT edges at the
+        search's resolution and the shortcuts' every ``shortcut_check_rad``. The ``alternatives`` quickest at the
+        velocity limits are kept; with ``rank_by_timing`` they are then ranked by their TOPP-RA time on a coarse
+        grid (:meth:`_estimated_time`), the corners and the balance included."""
         t = self.task
         per_piece: list[list[MotionPiece]] = []
         settings = self._smoothing(self.s.shortcut_iterations)
@@ -606,8 +606,9 @@ class PlanTimer:
 
     def _replans(self, P: np.ndarray, validity, rng: np.random.Generator, weights: np.ndarray) -> list[np.ndarray]:
         """P and ``replans`` more T-RRT runs between its ends (each shortened by ``replan_shortcut_iterations``
-        shortcuts), in the order they were planned. Only the joints P moves are planned; every run draws from ``rng``
-        and is capped by the T-RRT's rounds, so the paths are the seed's."""
+        shortcuts), in the order they were planned; :meth:`alternatives` shortens them all alike and chooses. Only
+        the joints P moves are planned; every run draws from ``rng`` and is capped by the T-RRT's rounds, so the
+        paths are the seed's."""
         paths = [P]
         t = self.task
         active = np.flatnonzero(np.ptp(P, axis=0) > 0)
