@@ -74,24 +74,27 @@ class PlanTimingSettings(BaseModel):
     velocity_scale: float = Field(0.98, gt=0, le=1, description="share of the URDF velocity limits TOPP-RA may use")
     acceleration_scale: float = Field(0.98, gt=0, le=1, description="share of the spec's acceleration limits TOPP-RA may use")
     effort_scale: float = Field(0.98, gt=0, le=1, description="share of the effort limits the static plus inertial torques may use")
-    shortcut_iterations: int = Field(60, ge=0, description="random shortcuts tried on every path of each planned "
-                                     "motion (its own and each replan) before they are ranked (checked like the "
-                                     "search's)")
+    shortcut_iterations: int = Field(60, ge=0, description="random shortcuts tried on each of the shortened_paths "
+                                     "quickest paths of each planned motion before they are ranked")
     replans: int = Field(4, ge=0, description="more T-RRT runs of each planned motion of the solved plan (own seeded "
-                         "streams); each is shortened like the motion's own path and the quickest replaces it (one "
-                         "run's detour around the table often costs seconds)")
+                         "streams), each shortened by its own shortcuts; the quickest replaces the motion's own "
+                         "path (one run's detour around the table often costs seconds)")
     partial_shortcut_iterations: int = Field(200, ge=0, description="partial shortcuts (one joint made linear "
-                                             "between two points) of every path of each planned motion, after its "
-                                             "random shortcuts and before the paths are ranked")
+                                             "between two points) of each of the shortened_paths quickest paths of "
+                                             "each planned motion, after its random shortcuts and before the ranking")
     alternatives: int = Field(4, ge=1, description="quickest paths of each planned motion kept, tried in order when "
                               "a quicker one fails the dense checks of its samples")
     replan_shortcut_iterations: int = Field(60, ge=0, description="random shortcuts of each replanned motion before "
-                                            "the quickest is chosen")
+                                            "the quickest are chosen (checked at the search's resolution, as the "
+                                            "search checks its own)")
+    shortened_paths: int = Field(3, ge=1, description="the quickest paths of each planned motion at the velocity "
+                                 "limits (after each replan's own shortcuts) that get the full shortening "
+                                 "(shortcut_iterations, then partial_shortcut_iterations) before the ranking")
     shortcut_check_rad: float = Field(0.005, gt=0, description="largest per-joint change between the checked states "
-                                      "of the new segments the timing's shortcuts and partial shortcuts make (at most "
-                                      "the search's resolution): a segment checked as coarsely as the search's can "
-                                      "graze between its checked states, and the dense checks of the timed samples "
-                                      "then refuse the path it belongs to")
+                                      "of the new segments the full shortening's shortcuts and partial shortcuts "
+                                      "make (at most the search's resolution): a segment checked as coarsely as "
+                                      "the search's can graze between its checked states, and the dense checks of "
+                                      "the timed samples then refuse the path it belongs to")
     rank_by_timing: bool = Field(True, description="rank each planned motion's paths by their TOPP-RA time (blended, "
                                  "the same constraints, a coarse grid) rather than by the time at the velocity limits "
                                  "alone, which leaves out the corners and the balance")
@@ -518,12 +521,14 @@ class PlanTimer:
     def alternatives(self, pieces: list[MotionPiece]) -> list[list[MotionPiece]]:
         """The plan's pieces with their planned motions (more than one straight segment) made quicker, best first:
         level k holds each motion's k-th quickest path (its last one where it has fewer). Each motion's paths are its
-        own and ``replans`` more T-RRT runs between its ends (:meth:`_replans`), every one of them shortened alike
-        (:meth:`_shortened`) before any is chosen, so that the path the ranking picks has had the same shortening as
-        the one it beats; every new segment is checked by the task's state checker, a replan's T-RRT edges at the
-        search's resolution and the shortcuts' every ``shortcut_check_rad``. The ``alternatives`` quickest at the
-        velocity limits are kept; with ``rank_by_timing`` they are then ranked by their TOPP-RA time on a coarse
-        grid (:meth:`_estimated_time`), the corners and the balance included."""
+        own and ``replans`` more T-RRT runs between its ends (:meth:`_replans`); the ``shortened_paths`` quickest
+        of them at the velocity limits are all shortened alike (:meth:`_shortened`) before any is chosen, so that
+        the path the ranking picks has had the same shortening as the ones it beats (the slower rest, which seldom
+        win, are left as their replans made them: the shortening is a large share of the timing's cost). Every new
+        segment is checked by the task's state checker, a replan's at the search's resolution and the full
+        shortening's every ``shortcut_check_rad``. The ``alternatives`` quickest at the velocity limits are kept; with
+        ``rank_by_timing`` they are then ranked by their TOPP-RA time on a coarse grid (:meth:`_estimated_time`),
+        the corners and the balance included."""
         t = self.task
         per_piece: list[list[MotionPiece]] = []
         settings = self._smoothing(self.s.shortcut_iterations)
@@ -535,9 +540,10 @@ class PlanTimer:
             validity = self.checker.validity(hold, None if hold is not None else current, None, active=None)
             rng = np.random.default_rng([t.scenario.seed, SHORTCUT_STREAM, k])
             P = np.asarray(piece.path, dtype=float)
-            paths = [self._shortened(Q, validity, rng, settings, weights)
-                     for Q in self._replans(P, validity, rng, weights)]
-            paths = self._quickest(paths, weights)
+            paths = self._quickest(self._replans(P, validity, rng, weights), weights)
+            full = min(len(paths), self.s.shortened_paths)
+            paths = self._quickest([self._shortened(Q, validity, rng, settings, weights) for Q in paths[:full]]
+                                   + paths[full:], weights)
             self.stats["shortened_s"] += path_length(P, weights) - path_length(paths[0], weights)
             if self.s.rank_by_timing and len(paths) > 1:  # the shortened quickest among the others, by their timing
                 alone = Run([piece], holding, hold, None if hold is not None else current)
@@ -606,14 +612,15 @@ class PlanTimer:
 
     def _replans(self, P: np.ndarray, validity, rng: np.random.Generator, weights: np.ndarray) -> list[np.ndarray]:
         """P and ``replans`` more T-RRT runs between its ends (each shortened by ``replan_shortcut_iterations``
-        shortcuts), in the order they were planned; :meth:`alternatives` shortens them all alike and chooses. Only
+        shortcuts at the search's resolution), in the order they were planned; :meth:`alternatives` shortens the
+        quickest of them alike and chooses. Only
         the joints P moves are planned; every run draws from ``rng`` and is capped by the T-RRT's rounds, so the
         paths are the seed's."""
         paths = [P]
         t = self.task
         active = np.flatnonzero(np.ptp(P, axis=0) > 0)
         trrt = t.settings.trrt.model_copy(update={"margin_cost": t.constrained})
-        short = self._smoothing(self.s.replan_shortcut_iterations)
+        short = t.settings.smoothing.model_copy(update={"iterations": self.s.replan_shortcut_iterations})
         for _ in range(self.s.replans):
             res = plan_motion(P[0], P[-1], active, validity, t.robot.lower, t.robot.upper, rng, trrt,
                               Termination(trrt.max_iterations))

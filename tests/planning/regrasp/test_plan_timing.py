@@ -127,7 +127,7 @@ def _detour(P: np.ndarray, joint: int, rad: float) -> np.ndarray:
 
 def test_every_path_of_a_motion_is_partially_shortcut_before_the_ranking(solved, monkeypatch):
     """A replanned path that is not the quickest, with one joint's detour (the idle left elbow swung out and back):
-    it gets the same partial shortcuts as the quickest one and comes out without the detour, so the ranking
+    among the ``shortened_paths`` quickest, it gets the same partial shortcuts as the quickest one and comes out without the detour, so the ranking
     compares paths shortened alike. Without the partial shortcuts the detour stays (the test's control)."""
     from planner.motion.smoothing import path_length
 
@@ -152,6 +152,9 @@ def test_every_path_of_a_motion_is_partially_shortcut_before_the_ranking(solved,
     plain = PlanTimer(task, PlanTimingSettings(partial_shortcut_iterations=0, **only_partial), 1.0, task.threshold_m,
                       0.005).alternatives(pieces)
     assert plain[1][k].path is detour
+    first_only = PlanTimer(task, PlanTimingSettings(shortened_paths=1, **only_partial), 1.0, task.threshold_m,
+                           0.005).alternatives(pieces)
+    assert first_only[1][k].path is detour  # only the quickest path is shortened when one is asked for
 
 
 def test_the_alternatives_are_the_seeds(solved):
