@@ -37,7 +37,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from planner.motion.smoothing import partial_shortcut, path_length, shortcut
+from planner.motion.smoothing import SmoothingSettings, partial_shortcut, path_length, shortcut
 from planner.motion.trrt import plan_motion
 from planner.motion.timing import MARGIN_TOLERANCE_M, zmp_cart_table
 from planner.motion.topp import (
@@ -74,17 +74,27 @@ class PlanTimingSettings(BaseModel):
     velocity_scale: float = Field(0.98, gt=0, le=1, description="share of the URDF velocity limits TOPP-RA may use")
     acceleration_scale: float = Field(0.98, gt=0, le=1, description="share of the spec's acceleration limits TOPP-RA may use")
     effort_scale: float = Field(0.98, gt=0, le=1, description="share of the effort limits the static plus inertial torques may use")
-    shortcut_iterations: int = Field(60, ge=0, description="random shortcuts tried on each planned motion before "
-                                     "it is blended (checked like the search's)")
+    shortcut_iterations: int = Field(60, ge=0, description="random shortcuts tried on each of the shortened_paths "
+                                     "quickest paths of each planned motion before they are ranked")
     replans: int = Field(4, ge=0, description="more T-RRT runs of each planned motion of the solved plan (own seeded "
-                         "streams); the quickest at the velocity limits after shortcuts replaces it (one run's detour "
-                         "around the table often costs seconds)")
+                         "streams), each shortened by its own shortcuts; the quickest replaces the motion's own "
+                         "path (one run's detour around the table often costs seconds)")
     partial_shortcut_iterations: int = Field(200, ge=0, description="partial shortcuts (one joint made linear "
-                                             "between two points) of each planned motion's quickest path")
+                                             "between two points) of each of the shortened_paths quickest paths of "
+                                             "each planned motion, after its random shortcuts and before the ranking")
     alternatives: int = Field(4, ge=1, description="quickest paths of each planned motion kept, tried in order when "
                               "a quicker one fails the dense checks of its samples")
     replan_shortcut_iterations: int = Field(60, ge=0, description="random shortcuts of each replanned motion before "
-                                            "the quickest is chosen")
+                                            "the quickest are chosen (checked at the search's resolution, as the "
+                                            "search checks its own)")
+    shortened_paths: int = Field(3, ge=1, description="the quickest paths of each planned motion at the velocity "
+                                 "limits (after each replan's own shortcuts) that get the full shortening "
+                                 "(shortcut_iterations, then partial_shortcut_iterations) before the ranking")
+    shortcut_check_rad: float = Field(0.005, gt=0, description="largest per-joint change between the checked states "
+                                      "of the new segments the full shortening's shortcuts and partial shortcuts "
+                                      "make (at most the search's resolution): a segment checked as coarsely as "
+                                      "the search's can graze between its checked states, and the dense checks of "
+                                      "the timed samples then refuse the path it belongs to")
     rank_by_timing: bool = Field(True, description="rank each planned motion's paths by their TOPP-RA time (blended, "
                                  "the same constraints, a coarse grid) rather than by the time at the velocity limits "
                                  "alone, which leaves out the corners and the balance")
@@ -511,13 +521,17 @@ class PlanTimer:
     def alternatives(self, pieces: list[MotionPiece]) -> list[list[MotionPiece]]:
         """The plan's pieces with their planned motions (more than one straight segment) made quicker, best first:
         level k holds each motion's k-th quickest path (its last one where it has fewer). Each motion's paths are its
-        own and ``replans`` more T-RRT runs between its ends, shortened by random shortcuts (the best by
-        ``shortcut_iterations`` more); every new segment is checked by the task's state checker at the search's
-        resolution, as the search checks its own. With ``rank_by_timing`` the paths are then ranked by their
-        TOPP-RA time on a coarse grid (:meth:`_estimated_time`), the corners and the balance included."""
+        own and ``replans`` more T-RRT runs between its ends (:meth:`_replans`); the ``shortened_paths`` quickest
+        of them at the velocity limits are all shortened alike (:meth:`_shortened`) before any is chosen, so that
+        the path the ranking picks has had the same shortening as the ones it beats (the slower rest, which seldom
+        win, are left as their replans made them: the shortening is a large share of the timing's cost). Every new
+        segment is checked by the task's state checker, a replan's at the search's resolution and the full
+        shortening's every ``shortcut_check_rad``. The ``alternatives`` quickest at the velocity limits are kept; with
+        ``rank_by_timing`` they are then ranked by their TOPP-RA time on a coarse grid (:meth:`_estimated_time`),
+        the corners and the balance included."""
         t = self.task
         per_piece: list[list[MotionPiece]] = []
-        settings = t.settings.smoothing.model_copy(update={"iterations": self.s.shortcut_iterations})
+        settings = self._smoothing(self.s.shortcut_iterations)
         weights = 1.0 / self.vlim
         for k, (piece, holding, hold, current) in enumerate(object_states(pieces, t.evaluator, t.placements[t.start_id])):
             if piece.path is None or len(piece.path) <= 2:
@@ -526,12 +540,10 @@ class PlanTimer:
             validity = self.checker.validity(hold, None if hold is not None else current, None, active=None)
             rng = np.random.default_rng([t.scenario.seed, SHORTCUT_STREAM, k])
             P = np.asarray(piece.path, dtype=float)
-            paths = self._replans(P, validity, rng, weights)
-            if self.s.shortcut_iterations:
-                paths[0] = shortcut(paths[0], validity, rng, settings, weights=weights).path
-            if self.s.partial_shortcut_iterations:
-                paths[0] = partial_shortcut(paths[0], validity, rng, self.s.partial_shortcut_iterations,
-                                            settings.edge_resolution_rad, weights).path
+            paths = self._quickest(self._replans(P, validity, rng, weights), weights)
+            full = min(len(paths), self.s.shortened_paths)
+            paths = self._quickest([self._shortened(Q, validity, rng, settings, weights) for Q in paths[:full]]
+                                   + paths[full:], weights)
             self.stats["shortened_s"] += path_length(P, weights) - path_length(paths[0], weights)
             if self.s.rank_by_timing and len(paths) > 1:  # the shortened quickest among the others, by their timing
                 alone = Run([piece], holding, hold, None if hold is not None else current)
@@ -540,6 +552,31 @@ class PlanTimer:
             per_piece.append([replace(piece, path=Q) for Q in paths])
         levels = max(len(a) for a in per_piece) if per_piece else 0
         return [[a[min(k, len(a) - 1)] for a in per_piece] for k in range(levels)]
+
+    def _shortened(self, Q: np.ndarray, validity, rng: np.random.Generator, settings: SmoothingSettings,
+                   weights: np.ndarray) -> np.ndarray:
+        """Path Q shortened in the time metric: ``shortcut_iterations`` random shortcuts, then
+        ``partial_shortcut_iterations`` partial shortcuts (a whole-path shortcut cannot remove one joint's detour
+        that the others need around an obstacle), both drawn from ``rng`` in this order, so a seed gives the same
+        path. Q itself when both counts are 0."""
+        if self.s.shortcut_iterations and len(Q) > 2:
+            Q = shortcut(Q, validity, rng, settings, weights=weights).path
+        if self.s.partial_shortcut_iterations and len(Q) > 2:
+            Q = partial_shortcut(Q, validity, rng, self.s.partial_shortcut_iterations, settings.edge_resolution_rad,
+                                 weights).path
+        return Q
+
+    def _smoothing(self, iterations: int) -> SmoothingSettings:
+        """The search's shortcut settings with ``iterations`` draws, their new segments checked every
+        ``shortcut_check_rad`` (never more coarsely than the search checks its own)."""
+        base = self.task.settings.smoothing
+        return base.model_copy(update={"iterations": iterations,
+                                       "edge_resolution_rad": min(base.edge_resolution_rad, self.s.shortcut_check_rad)})
+
+    def _quickest(self, paths: list[np.ndarray], weights: np.ndarray) -> list[np.ndarray]:
+        """The ``alternatives`` paths quickest at the velocity limits, quickest first (ties in the given order)."""
+        order = sorted(range(len(paths)), key=lambda i: (path_length(paths[i], weights), i))
+        return [paths[i] for i in order[:self.s.alternatives]]
 
     def _estimated_time(self, P: np.ndarray, run: Run) -> float:
         """The time of path P, held as ``run`` holds, blended as a run is and timed by TOPP-RA with the same
@@ -575,8 +612,10 @@ class PlanTimer:
 
     def _replans(self, P: np.ndarray, validity, rng: np.random.Generator, weights: np.ndarray) -> list[np.ndarray]:
         """P and ``replans`` more T-RRT runs between its ends (each shortened by ``replan_shortcut_iterations``
-        shortcuts), quickest at the velocity limits first, at most ``alternatives`` of them. Only the joints P moves
-        are planned; every run draws from ``rng`` and is capped by the T-RRT's rounds, so the order is the seed's."""
+        shortcuts at the search's resolution), in the order they were planned; :meth:`alternatives` shortens the
+        quickest of them alike and chooses. Only
+        the joints P moves are planned; every run draws from ``rng`` and is capped by the T-RRT's rounds, so the
+        paths are the seed's."""
         paths = [P]
         t = self.task
         active = np.flatnonzero(np.ptp(P, axis=0) > 0)
@@ -589,8 +628,7 @@ class PlanTimer:
             if res.ok:
                 paths.append(shortcut(res.path, validity, rng, short, weights=weights).path if len(res.path) > 2
                              else res.path)
-        order = sorted(range(len(paths)), key=lambda i: (path_length(paths[i], weights), i))
-        return [paths[i] for i in order[:self.s.alternatives]]
+        return paths
 
     def time_plan(self, pieces: list[MotionPiece]) -> PlanTiming:
         """The plan's pieces made quicker, then timed run by run (a run whose samples fail the checks takes its

@@ -112,4 +112,59 @@ def test_a_motions_paths_are_ranked_by_their_timing_not_by_the_time_at_the_veloc
     assert ranked[0][k].path is one_turn and ranked[1][k].path is stairs
     unranked = PlanTimer(task, PlanTimingSettings(rank_by_timing=False, **plain), 1.0, task.threshold_m,
                          0.005).alternatives(pieces)
-    assert unranked[0][k].path is stairs
+    # unranked: the order of the time at the velocity limits, equal here to rounding (ties in the given order)
+    assert unranked[0][k].path is min((stairs, one_turn), key=lambda Q: path_length(Q, weights))
+
+
+def _detour(P: np.ndarray, joint: int, rad: float) -> np.ndarray:
+    """P with one joint swung out and back in the middle of its second segment (three waypoints on that segment, the
+    middle one ``rad`` out): a detour of that joint alone, which costs time at the velocity limits."""
+    a, b = P[1], P[2]
+    bump = np.array([a + 0.25 * (b - a), a + 0.5 * (b - a), a + 0.75 * (b - a)])
+    bump[1, joint] += rad
+    return np.vstack([P[:2], bump, P[2:]])
+
+
+def test_every_path_of_a_motion_is_partially_shortcut_before_the_ranking(solved, monkeypatch):
+    """A replanned path that is not the quickest, with one joint's detour (the idle left elbow swung out and back):
+    among the ``shortened_paths`` quickest, it gets the same partial shortcuts as the quickest one and comes out without the detour, so the ranking
+    compares paths shortened alike. Without the partial shortcuts the detour stays (the test's control)."""
+    from planner.motion.smoothing import path_length
+
+    task, pieces = solved
+    k = next(i for i, p in enumerate(pieces) if p.path is not None and len(p.path) > 2)
+    own = np.asarray(pieces[k].path, dtype=float)
+    j = task.robot.joint_index("LEP")
+    assert np.ptp(own[:, j]) == 0.0  # the right hand's motion: the left elbow stays
+    detour = _detour(own, j, 0.4)
+    timer = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
+    weights = 1.0 / timer.vlim
+    assert path_length(detour, weights) > path_length(own, weights) + 0.05
+
+    monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [own, detour])
+    only_partial = dict(shortcut_iterations=0, rank_by_timing=False)
+    levels = PlanTimer(task, PlanTimingSettings(**only_partial), 1.0, task.threshold_m, 0.005).alternatives(pieces)
+    assert len(levels) == 2
+    for level in levels:
+        Q = level[k].path
+        assert np.array_equal(Q[0], own[0]) and np.array_equal(Q[-1], own[-1])
+        assert np.ptp(Q[:, j]) == 0.0, "a path kept its detour"
+    plain = PlanTimer(task, PlanTimingSettings(partial_shortcut_iterations=0, **only_partial), 1.0, task.threshold_m,
+                      0.005).alternatives(pieces)
+    assert plain[1][k].path is detour
+    first_only = PlanTimer(task, PlanTimingSettings(shortened_paths=1, **only_partial), 1.0, task.threshold_m,
+                           0.005).alternatives(pieces)
+    assert first_only[1][k].path is detour  # only the quickest path is shortened when one is asked for
+
+
+def test_the_alternatives_are_the_seeds(solved):
+    """The replans and every path's shortening draw from the seed's stream in a fixed order: the same seed gives the
+    same paths, to the bit."""
+    task, pieces = solved
+    settings = PlanTimingSettings(replans=2, rank_by_timing=False)
+    first, second = (PlanTimer(task, settings, 1.0, task.threshold_m, 0.005).alternatives(pieces) for _ in range(2))
+    assert len(first) == len(second)
+    for a, b in zip(first, second):
+        for p, q in zip(a, b):
+            assert (p.path is None) == (q.path is None)
+            assert p.path is None or np.array_equal(p.path, q.path)
