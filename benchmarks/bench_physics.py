@@ -14,6 +14,12 @@ Sections (``--section``, default all):
 - ``payload``: what the wrist sensors read of the planned object at 1x and 2x (the held load over the planned
   weight, smallest and largest, while the payload check judged it): how much of the check's 50 % + 5 N tolerance the
   motion itself takes.
+- ``hold``: each scenario's plan at 1x with the stabilizer, then the twin standing still in the posture where that
+  run's smallest CoP margin came, the hands' holding changing as the plan's did over the second before (a grasp's
+  load coming on, a release's going), then 3 s more: the smallest and the settled CoP margin at rest, over the
+  plan's smallest CoM margin, against the run's; and the run with a stiffer stabilizer (``STIFF_COP``: CoP gain
+  16 /s, the moments at the ankles only), to show how much the figure owes to the stand-in controller. What the feet feel with no
+  motion at all is the part of the run's figure that no timing can take away.
 - ``sweep``: the upright plan with one setting changed at a time (contact softness, servo stiffness and damping,
   rotor inertia, load ramp, gravity feed-forward, stabilizer gains): how far each moves the smallest CoP margin.
 - ``jvrc1``: JVRC-1 swinging its right arm out holding 2 kg (3 s), with our derived gains and with gains of the size the HRP-5P
@@ -43,7 +49,7 @@ from robot_bridge.physics.settings import (  # noqa: E402
     StabilizerSettings,
     TwinSettings,
 )
-from robot_bridge.physics.simulate import simulate  # noqa: E402
+from robot_bridge.physics.simulate import hold, simulate  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 SCENARIOS = ("upright", "staggered", "crouched", "one-legged", "drill-upright", "drill-handover", "talos-upright",
@@ -155,6 +161,35 @@ def scenarios(plans: Path, names: tuple[str, ...] = SCENARIOS) -> None:
         print(f"| {name} | {plan['min_margin_m'] * 1000:.1f} mm | {cell(on)} | {cell(off)} | {cell(fast)} | "
               f"{cell(heavy)} | {on['realtime_factor']:.1f} |", flush=True)
     print(f"\n{load_average()}")
+
+
+#: A stiffer stand-in balance controller than the default: the CoP loop's integral gain 16 /s (default 4), all of the
+#: corrective moment at the ankles (default 30 % at the hips).
+STIFF_COP = StabilizerSettings(cop_gain=16.0, hip_share=0.0)
+
+
+def at_rest(plans: Path, names: tuple[str, ...] = SCENARIOS) -> None:
+    print("\n## The run's smallest CoP margin against the twin at rest in that posture (stabilizer on; over the plan's "
+          "smallest CoM margin)\n")
+    print("| scenario | plan min CoM margin | run at 1x: min CoP margin, at | at rest there (holding at the end): smallest | "
+          "at rest: settled after 3 s | run at 1x, CoP gain 16 /s at the ankles |")
+    print("|---|---|---|---|---|---|")
+    for name, plan in solved_plans(plans, names):
+        rep = run(plan, TwinSettings())
+        plan_min = float(plan["min_margin_m"])
+        if rep["min_cop_margin_at_s"] is None:
+            print(f"| {name} | {plan_min * 1000:.1f} mm | {cell(rep)} | | | |")
+            continue
+        index = min(int(round(rep["min_cop_margin_at_s"] / float(plan["dt_s"]))), len(plan["trajectory"]) - 1)
+        still = hold(plan, index)
+        stiff = run(plan, TwinSettings(stabilizer=STIFF_COP))
+        fault = "" if still.fault is None else f", **{still.fault.kind}**"
+        print(f"| {name} | {plan_min * 1000:.1f} mm | {rep['min_cop_margin_m'] * 1000:.1f} mm "
+              f"({rep['cop_margin_ratio']:.2f}) at {rep['min_cop_margin_at_s']:.2f} s | "
+              f"{still.min_cop_margin_m * 1000:.1f} mm ({still.min_cop_margin_m / plan_min:.2f}), {still.holding}"
+              f"{fault} | {still.settled_cop_margin_m * 1000:.1f} mm ({still.settled_cop_margin_m / plan_min:.2f}) | "
+              f"{cell(stiff)} |",
+              flush=True)
 
 
 def solved_plans(plans: Path, names: tuple[str, ...]):
@@ -299,7 +334,7 @@ def jvrc1(plans: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--section", choices=("all", "rest", "scenarios", "speed", "payload", "sweep", "jvrc1"),
+    ap.add_argument("--section", choices=("all", "rest", "scenarios", "hold", "speed", "payload", "sweep", "jvrc1"),
                     default="all")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated built-in scenarios")
     ap.add_argument("--plans", type=Path, default=Path("~/.cache/hrp-regrasp/bench-physics").expanduser(),
@@ -315,6 +350,8 @@ def main() -> None:
         rest()
     if args.section in ("all", "scenarios"):
         scenarios(args.plans, tuple(n for n in args.scenarios.split(",") if n))
+    if args.section in ("all", "hold"):
+        at_rest(args.plans, tuple(n for n in args.scenarios.split(",") if n))
     if args.section in ("all", "speed"):
         speed(args.plans, tuple(n for n in args.scenarios.split(",") if n))
     if args.section in ("all", "payload"):

@@ -21,6 +21,7 @@ import numpy as np
 from schemas.plan import plan_sha256
 
 from ..errors import BridgeError
+from ..plant import PlantFault
 from ..robot_files import RobotFilesError, robot_files
 from .model import SIDES, TwinModelError, build_twin_model
 from .settings import TwinSettings
@@ -103,20 +104,10 @@ def simulate(plan: dict[str, Any], settings: TwinSettings | None = None, speed: 
         raise SimulateInputError(f"speed {speed} must be in (0, 20]")
     _check_plan(plan)
     started = time.perf_counter()
-    robot = plan["robot"]
-    try:
-        files = robot_files(robot["name"], robot.get("urdf_sha256"))
-        tm = build_twin_model(files.urdf, files.spec, list(robot["joint_names"]), settings)
-    except (RobotFilesError, TwinModelError) as exc:
-        raise SimulateInputError(str(exc)) from None
-    frame_side = {files.spec["feet"][s]["frame"]: s for s in SIDES}
-    in_contact = {frame_side[f["frame"]]: bool(f.get("in_contact", True)) for f in plan["stance"]["feet"]
-                  if f.get("frame") in frame_side}
     traj = plan["trajectory"]
     q = np.array([p["q"] for p in traj], dtype=float)
     dt = float(plan["dt_s"])
-    twin = Twin(tm, np.array(plan["stance"]["base_pose"]), q[0], in_contact, settings,
-                object_mass_kg=float(plan["object"]["mass_kg"]))
+    twin = _twin(plan, settings, q[0])
     twin.t = -settings.settle_s
     holding = traj[0]["holding"]
     _grasp(twin, plan, 0, "none", holding, q[0])
@@ -152,6 +143,68 @@ def simulate(plan: dict[str, Any], settings: TwinSettings | None = None, speed: 
     report = _report(plan, twin, settings, speed, time.perf_counter() - started)
     return SimResult(report=report, samples=rows, polygon=twin.polygon.vertices.copy(),
                      held_load_ratio=twin.extremes.held_load_ratio)
+
+
+@dataclass
+class HoldResult:
+    """The twin standing still in one posture of a plan (:func:`hold`); margins in m, inside positive."""
+
+    at_s: float
+    holding: str
+    plan_margin_m: float  # the plan's static CoM margin at that sample
+    min_cop_margin_m: float  # the smallest CoP margin once what the hands hold there came on
+    settled_cop_margin_m: float  # the CoP margin at the end
+    fault: PlantFault | None
+
+
+def hold(plan: dict[str, Any], index: int, settings: TwinSettings | None = None, seconds: float = 3.0,
+         window_s: float = 1.0) -> HoldResult:
+    """The twin standing still in the plan's posture at sample ``index`` while what the hands hold changes as it did
+    in the plan over the ``window_s`` before that sample: it settles (``settle_s``) holding what the hands held at the
+    window's start, the holding changes come at their times (each load ramped as in a run), and it stands
+    ``seconds`` more. What the feet feel with no motion at all: the part of a run's smallest CoP margin that no
+    timing of the motion can take away. Raises SimulateInputError on a plan it cannot play or a bad argument."""
+    settings = settings or TwinSettings()
+    _check_plan(plan)
+    traj = plan["trajectory"]
+    if not 0 <= index < len(traj):
+        raise SimulateInputError(f"sample {index} is not in the plan's {len(traj)} samples")
+    if not (math.isfinite(seconds) and 0 < seconds <= 60 and math.isfinite(window_s) and 0 <= window_s <= 10):
+        raise SimulateInputError(f"seconds {seconds} must be in (0, 60] and window_s {window_s} in [0, 10]")
+    q = np.array(traj[index]["q"], dtype=float)
+    dt = float(plan["dt_s"])
+    first = max(0, index - int(round(window_s / dt)))
+    twin = _twin(plan, settings, q)
+    holding = traj[first]["holding"]
+    _grasp(twin, plan, index, "none", holding, q)  # the object where the plan has it at the held sample
+    for _ in range(int(round(settings.settle_s / dt))):
+        twin.control(q, holding, dt)
+    twin.extremes = type(twin.extremes)()
+    for i in [*range(first + 1, index + 1), *[index] * int(round(seconds / dt))]:
+        new = traj[i]["holding"]
+        if new != holding:
+            _grasp(twin, plan, index, holding, new, q)
+            holding = new
+        if twin.control(q, holding, dt) is not None:
+            break
+    return HoldResult(at_s=float(traj[index]["t"]), holding=holding, plan_margin_m=float(traj[index]["margin_m"]),
+                      min_cop_margin_m=float(twin.extremes.min_cop_margin_m),
+                      settled_cop_margin_m=float(twin.last.cop_margin_m), fault=twin.fault)
+
+
+def _twin(plan: dict[str, Any], settings: TwinSettings, q0: np.ndarray) -> Twin:
+    """A twin of the plan's robot in its stance, standing in posture ``q0``, told the plan's object mass."""
+    robot = plan["robot"]
+    try:
+        files = robot_files(robot["name"], robot.get("urdf_sha256"))
+        tm = build_twin_model(files.urdf, files.spec, list(robot["joint_names"]), settings)
+    except (RobotFilesError, TwinModelError) as exc:
+        raise SimulateInputError(str(exc)) from None
+    frame_side = {files.spec["feet"][s]["frame"]: s for s in SIDES}
+    in_contact = {frame_side[f["frame"]]: bool(f.get("in_contact", True)) for f in plan["stance"]["feet"]
+                  if f.get("frame") in frame_side}
+    return Twin(tm, np.array(plan["stance"]["base_pose"]), q0, in_contact, settings,
+                object_mass_kg=float(plan["object"]["mass_kg"]))
 
 
 def _grasp(twin: Twin, plan: dict[str, Any], i: int, old: str, new: str, q_cmd: np.ndarray) -> None:

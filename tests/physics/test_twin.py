@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from robot_bridge.physics.model import build_twin_model
 from robot_bridge.physics.settings import StabilizerSettings, TwinSettings
-from robot_bridge.physics.simulate import SAMPLE_COLUMNS, SimulateInputError, simulate
+from robot_bridge.physics.simulate import SAMPLE_COLUMNS, SimulateInputError, hold, simulate
 from robot_bridge.physics.twin import G, Twin
 from robot_bridge.robot_files import robot_files
 from tests.bridge.plans import build_plan, stance_state
@@ -55,6 +55,27 @@ def test_the_twin_at_rest_carries_its_weight_under_its_com(robot, stance, load_k
     assert twin.load_mass["right"] == pytest.approx(load_kg)
     if load_kg:  # the wrist sensors read the held object's weight
         assert ms.held_load_n == pytest.approx(load_kg * G, rel=0.01)
+
+
+def test_at_rest_a_load_coming_on_dips_the_cop_and_the_twin_settles_where_it_would_have_anyway():
+    """``hold``: the twin standing still in the plan's last posture. When the hand takes the 8 kg object within the
+    second before (the first half of the plan holds nothing), its weight coming on moves the CoP past where it
+    settles, by more than 5 mm; held all along, no such dip. Either way it settles to the same CoP margin (1 mm),
+    near the plan's static margin there (the twin's own model, 6 mm). A sample outside the plan is refused."""
+    plan = _plan()
+    last = len(plan["trajectory"]) - 1
+    held = hold(plan, last)
+    changed = _plan()
+    for point in changed["trajectory"][: last // 2]:
+        point["holding"] = "none"
+    taken = hold(changed, last)
+    assert held.holding == taken.holding == "right" and held.fault is None and taken.fault is None
+    assert taken.min_cop_margin_m < taken.settled_cop_margin_m - 0.005
+    assert held.min_cop_margin_m > held.settled_cop_margin_m - 0.003
+    assert taken.settled_cop_margin_m == pytest.approx(held.settled_cop_margin_m, abs=0.001)
+    assert held.settled_cop_margin_m == pytest.approx(held.plan_margin_m, abs=0.006)
+    with pytest.raises(SimulateInputError, match="sample"):
+        hold(plan, last + 1)
 
 
 def test_the_planned_object_stands_and_a_six_times_heavier_one_does_not():
