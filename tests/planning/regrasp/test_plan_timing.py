@@ -79,6 +79,8 @@ def test_the_plan_records_its_timing_and_passes_the_checker():
     assert timing["duration_s"] == plan["trajectory"][-1]["t"]
     assert timing["time_optimal_duration_s"] < timing["duration_s"]
     assert timing["zmp_margin_m"] == plan["threshold_m"]
+    stage = plan["stats"]["timing"]  # the stage's time, the quicker paths' share of it included
+    assert 0.0 < stage["quicker_paths_time_s"] <= stage["time_s"] <= plan["stats"]["time_s"]
     report = check_plan(plan)
     assert report.errors == []
 
