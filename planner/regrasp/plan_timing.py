@@ -614,9 +614,8 @@ class PlanTimer:
     def _replans(self, P: np.ndarray, validity, rng: np.random.Generator, weights: np.ndarray) -> list[np.ndarray]:
         """P and ``replans`` more T-RRT runs between its ends (each shortened by ``replan_shortcut_iterations``
         shortcuts at the search's resolution), in the order they were planned; :meth:`alternatives` shortens the
-        quickest of them alike and chooses. Only
-        the joints P moves are planned; every run draws from ``rng`` and is capped by the T-RRT's rounds, so the
-        paths are the seed's."""
+        quickest of them alike and chooses. Only the joints P moves are planned; every run draws from ``rng`` and is
+        capped by the T-RRT's rounds, so the paths are the seed's."""
         paths = [P]
         t = self.task
         active = np.flatnonzero(np.ptp(P, axis=0) > 0)

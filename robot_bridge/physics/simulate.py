@@ -6,6 +6,8 @@ time advances ``speed`` x ``dt_s`` per control period, postures interpolated), t
 ``settle_s`` more. The first fault ends the run, as it ends a job on the controller. The held object's weight is brought onto the hand over ``load_ramp_s`` where the plan grasps,
 at the CoM the plan's object pose gives. Deterministic: the same plan and settings give the same report but
 ``wall_s``.
+
+:func:`hold` stands the twin still in one of the plan's postures instead: what the feet feel there with no motion.
 """
 
 from __future__ import annotations
@@ -152,7 +154,7 @@ class HoldResult:
     at_s: float
     holding: str
     plan_margin_m: float  # the plan's static CoM margin at that sample
-    min_cop_margin_m: float  # the smallest CoP margin once what the hands hold there came on
+    min_cop_margin_m: float  # the smallest CoP margin from the window's start (settled) to the end
     settled_cop_margin_m: float  # the CoP margin at the end
     fault: PlantFault | None
 
