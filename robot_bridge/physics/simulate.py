@@ -34,6 +34,9 @@ SIMREPORT_SCHEMA = "regrasp.simreport/1"
 SAMPLE_COLUMNS = ("t", "plan_margin_m", "plan_zmp_x", "plan_zmp_y", "cop_x", "cop_y", "cop_margin_m", "com_x",
                   "com_y", "com_z", "force_left_n", "force_right_n", "base_tilt_rad")
 HOLDINGS = ("none", "left", "right", "both")
+#: How long :func:`hold` stands the twin still before its window (s): long enough for the CoP's dip from a load held
+#: at the window's start, which comes onto the hand during it, to die out (docs/physics.md).
+HOLD_SETTLE_S = 5.0
 
 
 class SimulateInputError(BridgeError, ValueError):
@@ -160,26 +163,33 @@ class HoldResult:
 
 
 def hold(plan: dict[str, Any], index: int, settings: TwinSettings | None = None, seconds: float = 3.0,
-         window_s: float = 1.0) -> HoldResult:
+         window_s: float = 1.0, settle_s: float = HOLD_SETTLE_S) -> HoldResult:
     """The twin standing still in the plan's posture at sample ``index`` while what the hands hold changes as it did
-    in the plan over the ``window_s`` before that sample: it settles (``settle_s``) holding what the hands held at the
-    window's start, the holding changes come at their times (each load ramped as in a run), and it stands
+    in the plan over the ``window_s`` before that sample: it settles for ``settle_s`` holding what the hands held at
+    the window's start, the holding changes come at their times (each load ramped as in a run), and it stands
     ``seconds`` more. What the feet feel with no motion at all: the part of a run's smallest CoP margin that no
-    timing of the motion can take away. Raises SimulateInputError on a plan it cannot play or a bad argument."""
+    timing of the motion can take away.
+
+    The settle is longer than a run's (``settings.settle_s``): a load held at the window's start comes onto the hand
+    during the settle, and the CoP's dip from it lasts seconds (the stabilizer's integral leaks over
+    ``cop_leak_s``); cut short, that dip would be counted as the window's. Raises SimulateInputError on a plan it
+    cannot play or a bad argument."""
     settings = settings or TwinSettings()
     _check_plan(plan)
     traj = plan["trajectory"]
     if not 0 <= index < len(traj):
         raise SimulateInputError(f"sample {index} is not in the plan's {len(traj)} samples")
-    if not (math.isfinite(seconds) and 0 < seconds <= 60 and math.isfinite(window_s) and 0 <= window_s <= 10):
-        raise SimulateInputError(f"seconds {seconds} must be in (0, 60] and window_s {window_s} in [0, 10]")
+    if not (math.isfinite(seconds) and 0 < seconds <= 60 and math.isfinite(window_s) and 0 <= window_s <= 10
+            and math.isfinite(settle_s) and 0 <= settle_s <= 60):
+        raise SimulateInputError(f"seconds {seconds} must be in (0, 60], window_s {window_s} in [0, 10] and "
+                                 f"settle_s {settle_s} in [0, 60]")
     q = np.array(traj[index]["q"], dtype=float)
     dt = float(plan["dt_s"])
     first = max(0, index - int(round(window_s / dt)))
     twin = _twin(plan, settings, q)
     holding = traj[first]["holding"]
     _grasp(twin, plan, index, "none", holding, q)  # the object where the plan has it at the held sample
-    for _ in range(int(round(settings.settle_s / dt))):
+    for _ in range(int(round(settle_s / dt))):
         twin.control(q, holding, dt)
     twin.extremes = type(twin.extremes)()
     for i in [*range(first + 1, index + 1), *[index] * int(round(seconds / dt))]:
