@@ -152,6 +152,9 @@ def _compiled(urdf: str, urdf_mtime: float, spec_key: str, settings_key: str,
             g.solimp = [c["impedance"][0], c["impedance"][1], 0.001, 0.5, 2.0]
             g.friction = [c["friction"], 0.005, 0.0001]
             g.condim = 3
+            # The higher priority makes the contact the sole's alone: at equal priorities MuJoCo mixes the two geoms'
+            # solref and solimp and takes the larger friction, so the floor's defaults would soften the contact.
+            g.priority = 1
         tcp = spec.body(spec_doc["hands"][side]["frame"])
         if tcp is None:
             raise TwinModelError(f"{urdf}: no hand frame {spec_doc['hands'][side]['frame']!r}")
@@ -168,6 +171,11 @@ def _compiled(urdf: str, urdf_mtime: float, spec_key: str, settings_key: str,
         model = spec.compile()
     except Exception as exc:
         raise TwinModelError(f"MuJoCo cannot compile {urdf}: {exc}") from exc
+    for side in SIDES:
+        # A load body compiles with its inertial frame on its body frame, which MuJoCo then takes as fixed and never
+        # reads body_ipos again: the held object's CoM, written there at each grasp, would sit at the TCP.
+        model.body_sameframe[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"load_{side}")] = \
+            mujoco.mjtSameFrame.mjSAMEFRAME_NONE
     return model, (spec_doc, sim, _urdf_efforts(root))
 
 

@@ -59,6 +59,13 @@ class _Extremes:
     held_load_ratio: tuple[float, float] | None = None
 
 
+def _held_at(tcp: tuple[list[float], list[float]], com_in_tcp: list[float]) -> list[float]:
+    """World position of a load whose CoM is ``com_in_tcp`` in a TCP frame (position, row-major rotation)."""
+    pos, rot = tcp
+    return [pos[k] + rot[3 * k] * com_in_tcp[0] + rot[3 * k + 1] * com_in_tcp[1] + rot[3 * k + 2] * com_in_tcp[2]
+            for k in range(3)]
+
+
 def _wxyz(xyzw: np.ndarray) -> np.ndarray:
     return np.array([xyzw[3], xyzw[0], xyzw[1], xyzw[2]])
 
@@ -96,8 +103,11 @@ class Twin:
                                    for (a, b), w in ((tm.ankle_dofs[s], 1.0 - hip), (tm.hip_dofs[s], hip))
                                    if a in ctrl and b in ctrl and w > 0] for s in SIDES}
         self._u = [0.0, 0.0]  # integrated CoP correction (m)
-        self._ref_hist: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (robot CoM, left, right load) x 3
+        # (robot CoM, left TCP, right TCP) x 3, each TCP as (position, rotation row-major): what each hand holds is
+        # placed in it with today's load_com, as it is weighed with today's masses
+        self._ref_hist: list[tuple[list[float], tuple[list[float], list[float]], tuple[list[float], list[float]]]] = []
         self._load_body = (tm.load_body["left"], tm.load_body["right"])
+        self._tcp_body = tuple(int(m.body_parentid[b]) for b in self._load_body)
         self._dt_prev = None
         self.q_cmd = np.asarray(q0, dtype=float).copy()
         self._pose(self.d, q0)
@@ -232,8 +242,9 @@ class Twin:
 
     def _stabilizer(self, dt: float) -> np.ndarray:
         tau = np.zeros(len(self.tm.joint_names))
-        # The reference CoM's motion by finite differences of the posture alone: the robot's CoM and each load's
-        # position are kept, and recombined with today's masses (a load's mass changing is no CoM acceleration).
+        # The reference CoM's motion by finite differences of the posture alone: the robot's CoM and each hand's TCP
+        # are kept, and recombined with today's masses and today's load CoMs in the hands (a load's mass changing, or
+        # a grasp placing it, is no CoM acceleration).
         # Plain floats, component by component: a handful of 3-vectors, where numpy's per-call cost dominates.
         r, root = self.ref, self.tm.root_body
         ml, mr = self.load_mass["left"], self.load_mass["right"]
@@ -242,14 +253,18 @@ class Twin:
         sc = r.subtree_com[root].tolist()
         xl, xr = r.xipos[self._load_body[0]].tolist(), r.xipos[self._load_body[1]].tolist()
         hist = self._ref_hist
-        hist.append(([(total * sc[k] - (ml * xl[k] + mr * xr[k])) / robot for k in range(3)], xl, xr))
+        tcps = tuple((r.xpos[b].tolist(), r.xmat[b].tolist()) for b in self._tcp_body)
+        hist.append(([(total * sc[k] - (ml * xl[k] + mr * xr[k])) / robot for k in range(3)], tcps[0], tcps[1]))
         if len(hist) > 3:
             del hist[0]
         st = self.s.stabilizer
         last = self.last
         if not st.enabled or len(hist) < 3 or last is None or not math.isfinite(last.cop[0]):
             return tau
-        c0, c1, c2 = ([(robot * cr[k] + (ml * a[k] + mr * b[k])) / total for k in range(3)] for cr, a, b in hist)
+        in_left, in_right = self.load_com["left"].tolist(), self.load_com["right"].tolist()
+        c0, c1, c2 = ([(robot * body[k] + (ml * a[k] + mr * b[k])) / total for k in range(3)]
+                      for body, a, b in ((body, _held_at(tl, in_left), _held_at(tr, in_right))
+                                         for body, tl, tr in hist))
         dt2 = dt ** 2
         height = max(c2[2], 0.1)  # the floor is z = 0
         omega = math.sqrt(G / height)
