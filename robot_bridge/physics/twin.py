@@ -107,7 +107,7 @@ class Twin:
         # placed in it with today's load_com, as it is weighed with today's masses
         self._ref_hist: list[tuple[list[float], tuple[list[float], list[float]], tuple[list[float], list[float]]]] = []
         self._load_body = (tm.load_body["left"], tm.load_body["right"])
-        self._tcp_body = tuple(int(m.body_parentid[b]) for b in self._load_body)
+        self._tcp_body = {s: int(m.body_parentid[tm.load_body[s]]) for s in SIDES}  # each hand's TCP body
         self._dt_prev = None
         self.q_cmd = np.asarray(q0, dtype=float).copy()
         self._pose(self.d, q0)
@@ -163,7 +163,7 @@ class Twin:
     def tcp_pose(self, side: str, commanded: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """(position, rotation) of a hand's TCP frame in the commanded (reference) or measured posture."""
         data = self.ref if commanded else self.d
-        b = int(self.m.body_parentid[self.tm.load_body[side]])
+        b = self._tcp_body[side]
         return data.xpos[b].copy(), data.xmat[b].reshape(3, 3).copy()
 
     def set_reference(self, q_cmd: np.ndarray) -> None:
@@ -253,8 +253,9 @@ class Twin:
         sc = r.subtree_com[root].tolist()
         xl, xr = r.xipos[self._load_body[0]].tolist(), r.xipos[self._load_body[1]].tolist()
         hist = self._ref_hist
-        tcps = tuple((r.xpos[b].tolist(), r.xmat[b].tolist()) for b in self._tcp_body)
-        hist.append(([(total * sc[k] - (ml * xl[k] + mr * xr[k])) / robot for k in range(3)], tcps[0], tcps[1]))
+        tcp = {s: (r.xpos[b].tolist(), r.xmat[b].tolist()) for s, b in self._tcp_body.items()}
+        body = [(total * sc[k] - (ml * xl[k] + mr * xr[k])) / robot for k in range(3)]
+        hist.append((body, tcp["left"], tcp["right"]))
         if len(hist) > 3:
             del hist[0]
         st = self.s.stabilizer
@@ -262,9 +263,11 @@ class Twin:
         if not st.enabled or len(hist) < 3 or last is None or not math.isfinite(last.cop[0]):
             return tau
         in_left, in_right = self.load_com["left"].tolist(), self.load_com["right"].tolist()
-        c0, c1, c2 = ([(robot * body[k] + (ml * a[k] + mr * b[k])) / total for k in range(3)]
-                      for body, a, b in ((body, _held_at(tl, in_left), _held_at(tr, in_right))
-                                         for body, tl, tr in hist))
+        refs = []
+        for body, tcp_left, tcp_right in hist:
+            a, b = _held_at(tcp_left, in_left), _held_at(tcp_right, in_right)
+            refs.append([(robot * body[k] + (ml * a[k] + mr * b[k])) / total for k in range(3)])
+        c0, c1, c2 = refs
         dt2 = dt ** 2
         height = max(c2[2], 0.1)  # the floor is z = 0
         omega = math.sqrt(G / height)
