@@ -340,6 +340,7 @@ def main() -> None:
     ap.add_argument("--plans", type=Path, default=Path("~/.cache/hrp-regrasp/bench-physics").expanduser(),
                     help="folder of the seed-1 plans (made once per planner version, in a subfolder named by its digest)")
     args = ap.parse_args()
+    names = tuple(n for n in args.scenarios.split(",") if n)
     args.plans = args.plans / f"planner-{planner_digest()}"
     args.plans.mkdir(parents=True, exist_ok=True)
     print(f"plans: {args.plans}")
@@ -349,13 +350,13 @@ def main() -> None:
     if args.section in ("all", "rest"):
         rest()
     if args.section in ("all", "scenarios"):
-        scenarios(args.plans, tuple(n for n in args.scenarios.split(",") if n))
+        scenarios(args.plans, names)
     if args.section in ("all", "hold"):
-        at_rest(args.plans, tuple(n for n in args.scenarios.split(",") if n))
+        at_rest(args.plans, names)
     if args.section in ("all", "speed"):
-        speed(args.plans, tuple(n for n in args.scenarios.split(",") if n))
+        speed(args.plans, names)
     if args.section in ("all", "payload"):
-        payload(args.plans, tuple(n for n in args.scenarios.split(",") if n))
+        payload(args.plans, names)
     if args.section in ("all", "sweep"):
         sweep(args.plans)
     if args.section in ("all", "jvrc1"):

@@ -30,6 +30,20 @@ def _plan() -> dict:
     return json.loads(arm_plan())
 
 
+def _standing(robot: str, stance: str, settings: TwinSettings, load_kg: float, seconds: float) -> Twin:
+    """A twin of ``robot`` standing still in ``stance`` for ``seconds``, with ``load_kg`` taken into the right hand
+    8 cm along its approach axis (no load when 0); no fault on the way."""
+    names, q, base = stance_state(robot, stance)  # loads the robot: a spec robot's derived URDF is written
+    files = robot_files(robot)
+    tm = build_twin_model(files.urdf, files.spec, names, settings)
+    twin = Twin(tm, np.array(base), np.array(q), {"left": True, "right": True}, settings, object_mass_kg=load_kg)
+    p, R = twin.tcp_pose("right")
+    twin.grasp("right", p + R @ np.array([0.0, 0.0, 0.08]))
+    for _ in range(int(round(seconds / 0.005))):
+        assert twin.control(np.array(q), "right" if load_kg else "none", 0.005) is None
+    return twin
+
+
 @pytest.mark.parametrize("robot,stance,load_kg", [("hrp5p", "upright", 0.0), ("hrp5p", "upright", 6.0),
                                                   ("hrp5p", "crouched", 0.0), ("jvrc1", "upright", 0.0),
                                                   ("talos", "upright", 0.0), ("g1", "upright", 0.0)])
@@ -39,17 +53,9 @@ def test_the_twin_at_rest_carries_its_weight_under_its_com(robot, stance, load_k
     spec robots (TALOS, G1) are built from the URDF the planner derives from their spec."""
     if robot == "talos":
         pytest.importorskip("cmeel", reason="TALOS needs the example-robot-data package (the `talos` extra)")
-    names, q, base = stance_state(robot, stance)  # loads the robot: a spec robot's derived URDF is written
-    files = robot_files(robot)
-    settings = TwinSettings()
-    tm = build_twin_model(files.urdf, files.spec, names, settings)
-    twin = Twin(tm, np.array(base), np.array(q), {"left": True, "right": True}, settings, object_mass_kg=load_kg)
-    p, R = twin.tcp_pose("right")
-    twin.grasp("right", p + R @ np.array([0.0, 0.0, 0.08]))
-    for _ in range(400):  # 2 s: the load ramp, then rest
-        assert twin.control(np.array(q), "right" if load_kg else "none", 0.005) is None
+    twin = _standing(robot, stance, TwinSettings(), load_kg, seconds=2.0)  # the load ramp, then rest
     ms = twin.last
-    weight = (tm.total_mass_kg + load_kg) * G
+    weight = (twin.tm.total_mass_kg + load_kg) * G
     assert sum(ms.foot_forces_n.values()) == pytest.approx(weight, rel=0.01)
     assert np.linalg.norm(ms.cop - ms.com[:2]) < 0.002, (ms.cop, ms.com)
     assert twin.load_mass["right"] == pytest.approx(load_kg)
@@ -62,15 +68,8 @@ def test_the_sole_contacts_are_simulated_with_the_soles_settings_alone():
     floor's MuJoCo defaults (equal priorities would average the two geoms' solref and solimp and take the larger
     friction): standing with 6 kg in the hand, every sole contact carries exactly the settings, and the soles sink
     less than 0.5 mm (the floor's defaults mixed in let them sink 2-4 mm)."""
-    names, q, base = stance_state("hrp5p", "upright")
-    files = robot_files("hrp5p")
     settings = TwinSettings(contact=ContactSettings(timeconst_s=0.004, friction=0.6))
-    tm = build_twin_model(files.urdf, files.spec, names, settings)
-    twin = Twin(tm, np.array(base), np.array(q), {"left": True, "right": True}, settings, object_mass_kg=6.0)
-    p, R = twin.tcp_pose("right")
-    twin.grasp("right", p + R @ np.array([0.0, 0.0, 0.08]))
-    for _ in range(200):
-        assert twin.control(np.array(q), "right", 0.005) is None
+    twin = _standing("hrp5p", "upright", settings, 6.0, seconds=1.0)
     contacts = [twin.d.contact[i] for i in range(twin.d.ncon)]
     assert len(contacts) >= 4
     for c in contacts:

@@ -144,18 +144,20 @@ def test_every_path_of_a_motion_is_partially_shortcut_before_the_ranking(solved,
     assert path_length(detour, weights) > path_length(own, weights) + 0.05
 
     monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [own, detour])
-    only_partial = dict(shortcut_iterations=0, rank_by_timing=False)
-    levels = PlanTimer(task, PlanTimingSettings(**only_partial), 1.0, task.threshold_m, 0.005).alternatives(pieces)
+
+    def alternatives(**settings):
+        timing = PlanTimingSettings(shortcut_iterations=0, rank_by_timing=False, **settings)
+        return PlanTimer(task, timing, 1.0, task.threshold_m, 0.005).alternatives(pieces)
+
+    levels = alternatives()
     assert len(levels) == 2
     for level in levels:
         Q = level[k].path
         assert np.array_equal(Q[0], own[0]) and np.array_equal(Q[-1], own[-1])
         assert np.ptp(Q[:, j]) == 0.0, "a path kept its detour"
-    plain = PlanTimer(task, PlanTimingSettings(partial_shortcut_iterations=0, **only_partial), 1.0, task.threshold_m,
-                      0.005).alternatives(pieces)
+    plain = alternatives(partial_shortcut_iterations=0)
     assert plain[1][k].path is detour
-    first_only = PlanTimer(task, PlanTimingSettings(shortened_paths=1, **only_partial), 1.0, task.threshold_m,
-                           0.005).alternatives(pieces)
+    first_only = alternatives(shortened_paths=1)
     assert first_only[1][k].path is detour  # only the quickest path is shortened when one is asked for
 
 
