@@ -30,6 +30,7 @@ from .test_controller_sim import (
     Peer,
     _assert_still,
     _idle,
+    _posture_after,
     cosine_move,
     new_job,
     segments,
@@ -310,8 +311,9 @@ def test_another_jobs_segment_is_refused_while_one_runs(guarded):
     intruder = _send_raw(rogue, _wire(peer.signer, other[0]))  # validly signed, but not the running job
     _, st = peer.reply(intruder, "refused", other[0].job_id)
     assert f"another job is running: {segs[0].job_id}" in st.reason
-    peer.reply(sent, "succeeded", segs[0].job_id, timeout_s=10.0)
-    assert np.array_equal(peer.latest().q, Q[-1])  # the running job went on, and only it moved the robot
+    done, _ = peer.reply(sent, "succeeded", segs[0].job_id, timeout_s=10.0)
+    # the first state after the job ended (the latest one on arrival of the reply can still be a sample of the job)
+    assert np.array_equal(_posture_after(peer, done), Q[-1])  # the running job went on, and only it moved the robot
 
 
 def test_an_unsigned_stop_is_obeyed_and_logged(guarded):
