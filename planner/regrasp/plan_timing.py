@@ -39,6 +39,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from planner.motion.smoothing import SmoothingSettings, partial_shortcut, path_length, shortcut
+from planner.motion.task_space_vias import ViaSettings, moving_side, via_paths
 from planner.motion.trrt import plan_motion
 from planner.motion.timing import MARGIN_TOLERANCE_M, zmp_cart_table
 from planner.motion.topp import (
@@ -83,6 +84,9 @@ class PlanTimingSettings(BaseModel):
     partial_shortcut_iterations: int = Field(200, ge=0, description="partial shortcuts (one joint made linear "
                                              "between two points) of each of the shortened_paths quickest paths of "
                                              "each planned motion, after its random shortcuts and before the ranking")
+    vias: ViaSettings = Field(default_factory=ViaSettings, description="paths through one or two task-space via "
+                              "postures of the moving hand, added to each one-hand motion's replans (the quick way "
+                              "around the table's edge that T-RRT seldom finds; keep 0: none)")
     alternatives: int = Field(4, ge=1, description="quickest paths of each planned motion kept, tried in order when "
                               "a quicker one fails the dense checks of its samples")
     replan_shortcut_iterations: int = Field(60, ge=0, description="random shortcuts of each replanned motion before "
@@ -224,7 +228,7 @@ class PlanTimer:
         self.limits: EffortEvaluator | None = task.limits
         self.threshold = task.evaluator.threshold_m if task.constrained else -np.inf
         self._inertials: dict = {}
-        self.stats = {"shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "dense_failures": []}
+        self.stats = {"shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "dense_failures": []}
 
     # -- constraints ------------------------------------------------------------------------------------------------
     @property
@@ -522,7 +526,8 @@ class PlanTimer:
     def alternatives(self, pieces: list[MotionPiece]) -> list[list[MotionPiece]]:
         """The plan's pieces with their planned motions (more than one straight segment) made quicker, best first:
         level k holds each motion's k-th quickest path (its last one where it has fewer). Each motion's paths are its
-        own and ``replans`` more T-RRT runs between its ends (:meth:`_replans`); the ``shortened_paths`` quickest
+        own, ``replans`` more T-RRT runs between its ends (:meth:`_replans`) and paths through task-space vias
+        (:meth:`_via_paths`); the ``shortened_paths`` quickest
         of them at the velocity limits are all shortened alike (:meth:`_shortened`) before any is chosen, so that
         the path the ranking picks has had the same shortening as the ones it beats (the slower rest, which seldom
         win, are left as their replans made them: the shortening is a large share of the timing's cost). Every new
@@ -541,7 +546,8 @@ class PlanTimer:
             validity = self.checker.validity(hold, None if hold is not None else current, None, active=None)
             rng = np.random.default_rng([t.scenario.seed, SHORTCUT_STREAM, k])
             P = np.asarray(piece.path, dtype=float)
-            paths = self._quickest(self._replans(P, validity, rng, weights), weights)
+            paths = self._quickest(self._replans(P, validity, rng, weights) + self._via_paths(P, validity, rng, weights),
+                                   weights)
             full = min(len(paths), self.s.shortened_paths)
             paths = self._quickest([self._shortened(Q, validity, rng, settings, weights) for Q in paths[:full]]
                                    + paths[full:], weights)
@@ -629,6 +635,19 @@ class PlanTimer:
                 paths.append(shortcut(res.path, validity, rng, short, weights=weights).path if len(res.path) > 2
                              else res.path)
         return paths
+
+    def _via_paths(self, P: np.ndarray, validity, rng: np.random.Generator, weights: np.ndarray) -> list[np.ndarray]:
+        """Paths between P's ends through task-space via postures of the one hand that moves (none when both or
+        neither arm moves), checked every ``shortcut_check_rad`` as the full shortening checks its segments:
+        the quick way around the table's edge that the replans' random samples seldom find
+        (:mod:`planner.motion.task_space_vias`)."""
+        side = moving_side(P[0], P[-1], self.task.ik)
+        if side is None or self.s.vias.keep == 0:
+            return []
+        found = via_paths(P[0], P[-1], side, self.task.ik, validity, rng, weights, self.s.shortcut_check_rad,
+                          self.s.vias)
+        self.stats["via_paths"] += len(found)
+        return found
 
     def time_plan(self, pieces: list[MotionPiece]) -> PlanTiming:
         """The plan's pieces made quicker, then timed run by run (a run whose samples fail the checks takes its

@@ -109,6 +109,7 @@ def test_a_motions_paths_are_ranked_by_their_timing_not_by_the_time_at_the_veloc
     assert timer._estimated_time(stairs, alone) > timer._estimated_time(one_turn, alone) + 0.5
 
     monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [stairs, one_turn])
+    monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
     plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0)
     ranked = PlanTimer(task, PlanTimingSettings(**plain), 1.0, task.threshold_m, 0.005).alternatives(pieces)
     assert ranked[0][k].path is one_turn and ranked[1][k].path is stairs
@@ -144,6 +145,7 @@ def test_every_path_of_a_motion_is_partially_shortcut_before_the_ranking(solved,
     assert path_length(detour, weights) > path_length(own, weights) + 0.05
 
     monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [own, detour])
+    monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
 
     def alternatives(**settings):
         timing = PlanTimingSettings(shortcut_iterations=0, rank_by_timing=False, **settings)
