@@ -27,7 +27,7 @@ import numpy as np
 import zenoh
 from pydantic import ValidationError
 
-from schemas.bridge import CommandHeartbeat, ExecStatus, Heartbeat, JointState, Stop, TrajectorySegment
+from schemas.bridge import ENDED_BY_CONTROLLER, CommandHeartbeat, ExecStatus, Heartbeat, JointState, Stop, TrajectorySegment
 
 from .controller_auth import CommandAuth
 from .controller_job import Job, segment_columns
@@ -262,7 +262,7 @@ class ControllerSim:
         with self._lock:
             job = self._job
             if seg.job_id in self._ended:  # every job that stops running is remembered here (_end)
-                reply = ("refused", f"job {seg.job_id} was ended by this controller ({self._ended[seg.job_id]}); "
+                reply = ("refused", f"job {seg.job_id} {ENDED_BY_CONTROLLER} ({self._ended[seg.job_id]}); "
                                     "its segments are refused")
             elif job is not None and job.job_id == seg.job_id:
                 if seg.seq <= job.last_seq:

@@ -16,7 +16,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-from schemas.bridge import GateVerdict, TrajectorySegment
+from schemas.bridge import ENDED_BY_CONTROLLER, ExecStatus, GateVerdict, TrajectorySegment
 
 from .dispatch_io import DispatcherIO
 from .dispatch_types import DispatchSettings, EventCallback, ExecutionResult, SignedSegment
@@ -24,7 +24,6 @@ from .dispatch_watch import ControllerWatch, HeartbeatSender, LossWatch
 from .process_tuning import bridge_priority
 from .settings import BridgeSettings
 from .signing import Signer
-
 
 @dataclass
 class _Run:
@@ -91,6 +90,24 @@ class Execution:
                 run.pending[seq] = (now, spent)
                 emit("segment", {"job_id": run.job_id, "seq": seq, "resent": spent, "behind_gap": seq != head,
                                  "cause": cause})
+
+    def controllers_own_end(self, job_id: str, st: ExecStatus, since: float) -> tuple[str, str] | None:
+        """``(status, reason)`` of the controller's own end of ``job_id`` (its heartbeat while it holds, received
+        after ``since``), judged for its fatal refusal ``st`` of one of the job's segments; None when there is none.
+
+        A refusal because the controller had already ended the job can be judged before the controller's own
+        report: after a freeze of this process its ``state/exec`` report of the end was missed, and its heartbeat
+        saying so can come just behind the refusal of a segment re-sent on the thaw. For such a refusal only, that
+        heartbeat is awaited for ``resync_s`` at most (the time the controller is given to be heard from after a
+        freeze); other refusals are judged on what is known now."""
+        ended = self.watch.controller_ended(job_id, since=since)
+        if ended is not None or st.status != "refused" or ENDED_BY_CONTROLLER not in st.reason:
+            return ended
+        deadline = time.monotonic() + self.pacing.resync_s
+        while ended is None and time.monotonic() < deadline:
+            time.sleep(self.pacing.poll_period_s)
+            ended = self.watch.controller_ended(job_id, since=since)
+        return ended
 
     def put_segment(self, seg: TrajectorySegment) -> None:
         """Put one segment of the running execution on ``cmd/trajectory`` (the only place that does), as serialised
@@ -242,7 +259,7 @@ class Execution:
                 elif st.status in ("rejected", "refused", "starved", "fault", "stopped"):
                     emit("controller", {"job_id": run.job_id, "status": st.status, "seq": st.seq, "reason": st.reason})
                     # A refusal because the controller had already ended the job: its own end is the reason.
-                    ended = self.watch.controller_ended(run.job_id, since=run_started) \
+                    ended = self.controllers_own_end(run.job_id, st, since=run_started) \
                         if st.status in ("rejected", "refused") else None
                     status, reason = ended if ended is not None else (st.status, st.reason)
                     return self._abort(run, emit, f"controller {status}: {reason}", verdict, started)

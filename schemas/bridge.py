@@ -130,6 +130,12 @@ class JointState(OpenModel):
         return q
 
 
+#: The words of a controller's refusal of a segment of a job it has itself ended (stopped, faulted, finished):
+#: ``job <id> was ended by this controller (<how>); ...``. The bridge, told so, waits briefly for the controller's own
+#: report of that end (its heartbeat while it holds) and records that as the job's end.
+ENDED_BY_CONTROLLER = "was ended by this controller"
+
+
 class ExecStatus(OpenModel):
     """Execution progress and every accept/reject decision of the controller."""
 
