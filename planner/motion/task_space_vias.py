@@ -5,14 +5,18 @@ A T-RRT path between two postures wanders (its samples are uniform in joint spac
 cannot move it out of the way it went around an obstacle. Where the straight joint-space line
 between a motion's ends sweeps the hand through the table's edge, the quickest way around is
 usually simple in the hand's own space: rise to the higher end's height behind the edge, then go
-on. :func:`via_paths` builds such paths: via postures whose moving hand is placed, by IK, at the
-higher end's height (and a little above) and between the two ends' distances in front of the
-robot, each started from the straight line's posture at that point, so the arm keeps the line's
-course elsewhere. The paths are ranked by their time at the velocity limits and checked, quickest
-first, by the caller's validity at the caller's resolution; the few quickest valid ones are
-returned for the timing's shortening and ranking like any other candidate path.
+on. :func:`via_paths` builds such paths through via postures whose moving hand is placed by IK
+- on a grid: at the higher end's height (and a little above), between the two ends' distances in
+  front of the robot;
+- at random positions in a box around the two ends' hand positions (more room behind, to the sides
+  and above than in front), for the ways the grid does not cover (round the object, over it);
+each via started from the straight line's posture at its place along the line and keeping the hand's
+orientation there, so the arm keeps the line's course elsewhere. The paths through one via or two
+are ranked by their time at the velocity limits and checked, quickest first, by the caller's
+validity at the caller's resolution; the few quickest valid ones are returned for the timing's
+shortening and ranking like any other candidate path.
 
-Deterministic for a generator: the IK's restarts draw from it, in a fixed order.
+Deterministic for a generator: the samples and the IK's restarts draw from it, in a fixed order.
 """
 
 from __future__ import annotations
@@ -41,8 +45,17 @@ class ViaSettings(BaseModel):
     reach: tuple[Annotated[float, Field(allow_inf_nan=False)], ...] = Field((-0.3, 0.0, 0.3, 0.6), description="the via's distance in front of the "
                                      "robot (world x): share of the way from the lower end's to the higher end's")
     rise_m: tuple[Annotated[float, Field(ge=0, allow_inf_nan=False)], ...] = Field((0.0, 0.05, 0.1), description="the via's height above the higher end (m)")
+    samples: int = Field(40, ge=0, description="more vias at random hand positions in the box around the two ends' "
+                         "TCP positions (below: sample_below_m, above: sample_above_m), each seeded from the line's "
+                         "posture at a random place between the first and last fractions")
+    sample_below_m: tuple[Annotated[float, Field(ge=0, allow_inf_nan=False)], ...] = Field(
+        (0.25, 0.2, 0.0), min_length=3, max_length=3, description="how far the sampled box reaches below the lower of "
+        "the two ends' TCP coordinates (world x, y, z; m): back towards the robot, to the sides")
+    sample_above_m: tuple[Annotated[float, Field(ge=0, allow_inf_nan=False)], ...] = Field(
+        (0.05, 0.2, 0.35), min_length=3, max_length=3, description="how far it reaches above the higher of the two "
+        "ends' TCP coordinates (world x, y, z; m): over the table")
     pairs: bool = Field(True, description="also paths through two of the vias (in their order along the line)")
-    checked: int = Field(600, ge=0, description="candidate paths considered at most, quickest first (one whose "
+    checked: int = Field(1200, ge=0, description="candidate paths considered at most, quickest first (one whose "
                          "segment was already refused costs nothing)")
     keep: int = Field(3, ge=0, description="valid paths returned at most")
 
@@ -89,20 +102,28 @@ def via_paths(start: np.ndarray, goal: np.ndarray, side: Side, ik: IkSolver, val
 
 def _vias(start: np.ndarray, goal: np.ndarray, side: Side, ik: IkSolver, rng: np.random.Generator,
           s: ViaSettings) -> list[tuple[float, np.ndarray]]:
-    """(fraction, posture) of every via whose IK converged, in the settings' order."""
+    """(fraction, posture) of every via whose IK converged: the grid in the settings' order, then the samples in the
+    order drawn. A via keeps the orientation the hand has on the straight line at its fraction."""
     p_start, p_goal = ik.tcp_pose(start, side)[:3, 3], ik.tcp_pose(goal, side)[:3, 3]
     low, high = (p_start, p_goal) if p_start[2] <= p_goal[2] else (p_goal, p_start)
-    out: list[tuple[float, np.ndarray]] = []
+    places: list[tuple[float, np.ndarray]] = []
     for f in s.fractions:
-        on_line = start + f * (goal - start)
-        T = ik.tcp_pose(on_line, side)
         for reach, rise in itertools.product(s.reach, s.rise_m):
-            target = T.copy()
-            target[0, 3] = low[0] + reach * (high[0] - low[0])
-            target[2, 3] = high[2] + rise
-            res = ik.solve({side: target}, on_line, rng, rest_q=on_line)
-            if res.q is not None:
-                out.append((f, res.q))
+            places.append((f, np.array([low[0] + reach * (high[0] - low[0]), np.nan, high[2] + rise])))
+    if s.samples and s.fractions:
+        box_low = np.minimum(p_start, p_goal) - np.asarray(s.sample_below_m)
+        box_high = np.maximum(p_start, p_goal) + np.asarray(s.sample_above_m)
+        first, last = min(s.fractions), max(s.fractions)
+        for _ in range(s.samples):
+            places.append((float(rng.uniform(first, last)), rng.uniform(box_low, box_high)))
+    out: list[tuple[float, np.ndarray]] = []
+    for f, position in places:
+        on_line = start + f * (goal - start)
+        target = ik.tcp_pose(on_line, side)
+        target[:3, 3] = np.where(np.isnan(position), target[:3, 3], position)  # nan: the line's own coordinate
+        res = ik.solve({side: target}, on_line, rng, rest_q=on_line)
+        if res.q is not None:
+            out.append((f, res.q))
     return out
 
 

@@ -76,6 +76,25 @@ def test_a_candidate_budget_of_none_or_nothing_kept_gives_no_path(first_transit)
     assert all(len(W) == 3 for W in singles)
 
 
+def test_the_grid_and_the_samples_each_find_a_way_round(first_transit):
+    """The grid alone and the random samples alone both find a valid path here; a hand position outside the box
+    the samples are drawn from is never a via's."""
+    task, own, validity, weights = first_transit
+    a, b = own[0], own[-1]
+    grid = via_paths(a, b, "right", task.ik, validity, np.random.default_rng(2), weights, 0.005,
+                     ViaSettings(samples=0))
+    sampled = ViaSettings(fractions=(0.2, 0.8), reach=(), rise_m=(), samples=40)
+    drawn = via_paths(a, b, "right", task.ik, validity, np.random.default_rng(2), weights, 0.005, sampled)
+    assert grid and drawn
+    ends = np.array([task.ik.tcp_pose(a, "right")[:3, 3], task.ik.tcp_pose(b, "right")[:3, 3]])
+    low = ends.min(axis=0) - np.asarray(sampled.sample_below_m) - 1e-3  # the IK's 1 mm tolerance
+    high = ends.max(axis=0) + np.asarray(sampled.sample_above_m) + 1e-3
+    for W in drawn:
+        for q in W[1:-1]:
+            p = task.ik.tcp_pose(q, "right")[:3, 3]
+            assert np.all(p >= low) and np.all(p <= high), p
+
+
 def test_the_moving_side_is_the_one_arm_that_moves(first_transit):
     task, own, _, _ = first_transit
     a = own[0]
@@ -88,7 +107,8 @@ def test_the_moving_side_is_the_one_arm_that_moves(first_transit):
 
 
 @pytest.mark.parametrize("bad", [dict(fractions=(0.0,)), dict(fractions=(1.0,)), dict(reach=(float("nan"),)),
-                                 dict(rise_m=(-0.01,)), dict(checked=-1), dict(keep=-1)])
+                                 dict(rise_m=(-0.01,)), dict(checked=-1), dict(keep=-1), dict(samples=-1),
+                                 dict(sample_below_m=(0.1, 0.1)), dict(sample_above_m=(0.1, -0.1, 0.1))])
 def test_bad_via_settings_are_refused(bad):
     with pytest.raises(ValueError):
         ViaSettings(**bad)
