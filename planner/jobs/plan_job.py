@@ -21,7 +21,7 @@ from planner.jobs.survey_job import survey_overrides
 from planner.regrasp.failure_cause import FailureCause, failures_in_words
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import assemble, effort_ratios, trajectory_points
-from planner.regrasp.plan_timing import PlanTimer
+from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
 from planner.stability.effort import EffortEvaluator
 from planner.regrasp.results import PlannerResult
 from planner.regrasp.settings import PlannerSettings
@@ -119,6 +119,12 @@ def timing_zmp_margin(scenario: Scenario, threshold_m: float) -> float:
         raise InputError(f"zmp_margin_m {asked * 1000:g} mm is above the plan's threshold of {threshold_m * 1000:g} mm "
                          "(the CoM itself is only held that far inside)")
     return float(asked)
+
+
+def timing_settings(scenario: Scenario, settings: PlanTimingSettings) -> PlanTimingSettings:
+    """The plan timing's settings for this scenario: a user's own ``zmp_margin_m`` is the ZMP's whole margin (no
+    reserve share on top of it), so lowering it buys the speed it asks for."""
+    return settings if scenario.zmp_margin_m is None else settings.model_copy(update={"zmp_reserve_share": 0.0})
 
 
 def build_task(scenario: Scenario, settings: PlannerSettings | None = None) -> Task:
@@ -327,8 +333,8 @@ def plan_scenario(
     best, planner = min(solved, key=lambda rp: rp[0].cost)
     t_timing = time.perf_counter()
     dt = task.settings.timing.dt_s
-    timing = PlanTimer(task, task.settings.plan_timing, scenario.speed_scale, zmp_margin_m, dt,
-                       checker=data.checker).time_plan(best.pieces)
+    timing = PlanTimer(task, timing_settings(scenario, task.settings.plan_timing), scenario.speed_scale, zmp_margin_m,
+                       dt, checker=data.checker).time_plan(best.pieces)
     stats["timing"] = {**timing.stats, "time_s": time.perf_counter() - t_timing}
     t_asm = time.perf_counter()
     traj = assemble(timing.pieces, task.evaluator, dt, task.placements[task.start_id])

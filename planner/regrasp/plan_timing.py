@@ -111,6 +111,11 @@ class PlanTimingSettings(BaseModel):
     blend_rounds: int = Field(3, ge=0, description="times a blend with an invalid sample is halved before it is removed")
     grid_step_rad: float = Field(0.02, gt=0, description="TOPP-RA gridpoint spacing along the path (rad)")
     max_gridpoints: int = Field(400, ge=10, description="TOPP-RA gridpoints per run at most")
+    zmp_reserve_share: float = Field(0.9, ge=0, le=1, description="the ZMP is kept at least this share of the "
+                                     "run's smallest static CoM margin inside the polygon too (never less than "
+                                     "zmp_margin_m; where the CoM itself is closer, as far as the CoM): the motion's "
+                                     "own dynamics may take at most the rest of the margin the run has at its "
+                                     "tightest. A user's own zmp_margin_m replaces it (0: the margin alone)")
     zmp_inner_m: float = Field(0.0005, ge=0, description="extra ZMP margin inside TOPP-RA, for the finite differences between gridpoints")
     shaping_window_s: float = Field(0.0, ge=0, le=2.0, description="moving average of the path position over this "
                                     "time: jerk limited, starts and stops spread out (0: TOPP-RA's bang-bang profile)")
@@ -240,13 +245,16 @@ class PlanTimer:
                                          limits=t.limits)
         return self._checker
 
-    def _rows(self, run: Run, path: BlendedPath, grid: np.ndarray) -> tuple[list[LinearRows], np.ndarray]:
+    def _rows(self, run: Run, path: BlendedPath, grid: np.ndarray) -> tuple[list[LinearRows], float]:
+        """TOPP-RA's rows at the gridpoints (the ZMP, cart-table and multibody, and the torques) and the run's ZMP
+        floor (:meth:`_zmp_floor`) they keep."""
         P0, P1, P2 = path(grid, 0), path(grid, 1), path(grid, 2)
         t = self.task
         terms = com_path_terms(t.evaluator, P0, P1, P2, run.hold)
         polygon = t.evaluator.polygon
         static_margin = polygon.margin(terms.com[:, :2])
-        need = self._zmp_need(static_margin, self.s.zmp_inner_m)
+        floor_m = self._zmp_floor(static_margin)
+        need = self._zmp_need(static_margin, floor_m + self.s.zmp_inner_m)
         z = zmp_rows(terms.com, terms.d1, terms.d2, polygon.normals, polygon.offsets, 0.0)
         room = z.room - need[:, None]
         rows = [LinearRows(grid, z.a, z.b, np.zeros_like(z.a), np.full_like(room, -np.inf), np.maximum(room, 0.0))]
@@ -260,12 +268,21 @@ class PlanTimer:
             if moved.any():
                 A, B, tau_s, lim = A[:, moved], B[:, moved], tau_s[:, moved], lim[moved]
                 rows.append(LinearRows(grid, A, B, tau_s, np.minimum(-lim, tau_s), np.maximum(lim, tau_s)))
-        return rows, need
+        return rows, floor_m
 
-    def _zmp_need(self, static_margin: np.ndarray, inner: float) -> np.ndarray:
-        """How far inside every edge the ZMP must stay at points whose CoM is ``static_margin`` inside: the ZMP
-        margin (plus ``inner``); where the CoM is closer than that, as far inside as the CoM."""
-        return np.minimum(self.zmp_margin_m + inner, np.maximum(static_margin, 0.0))
+    def _zmp_floor(self, static_margin: np.ndarray) -> float:
+        """How far inside the polygon a run keeps its ZMP, given the static CoM margins along its path: the ZMP
+        margin, or ``zmp_reserve_share`` of the smallest of those margins where that is more. A fast swing's ZMP
+        steps set the body swaying, and the feet then feel more than the planned ZMP; keeping the ZMP close to
+        where the CoM is at its tightest leaves that sway the rest of the margin."""
+        tightest = float(np.maximum(static_margin, 0.0).min()) if static_margin.size else 0.0
+        return max(self.zmp_margin_m, self.s.zmp_reserve_share * tightest)
+
+    @staticmethod
+    def _zmp_need(static_margin: np.ndarray, floor_m: float) -> np.ndarray:
+        """How far inside every edge the ZMP must stay at points whose CoM is ``static_margin`` inside: the run's
+        floor; where the CoM is closer than that, as far inside as the CoM."""
+        return np.minimum(floor_m, np.maximum(static_margin, 0.0))
 
     def _multibody_zmp(self, run: Run, P0, P1, P2, grid, polygon, need, room) -> LinearRows:
         """The ZMP of the whole body, the rate of its angular momentum included, at least ``need`` inside every
@@ -503,7 +520,7 @@ class PlanTimer:
     def time_part(self, run: Run, W: np.ndarray, blends: np.ndarray) -> "Part | None":
         """One stretch between stops, timed and checked; None when TOPP-RA finds no profile or the checks
         cannot be met by stretching."""
-        path, grid, sd = self._profile(run, W, blends, self.s.grid_step_rad, soft_ends=True)
+        path, grid, sd, floor_m = self._profile(run, W, blends, self.s.grid_step_rad, soft_ends=True)
         if sd is None:
             return self._refuse("TOPP-RA found no profile")
         stretch = 1.0
@@ -513,7 +530,7 @@ class PlanTimer:
             Q = path(s)
             Q[0], Q[-1] = W[0], W[-1]  # exactly the rest states (the polynomials reach them to rounding)
             com = self.task.evaluator.evaluate(Q, run.hold, threshold_m=0.0).com
-            need_at = self._zmp_need(self.task.evaluator.polygon.margin(com[:, :2]), 0.0)
+            need_at = self._zmp_need(self.task.evaluator.polygon.margin(com[:, :2]), floor_m)
             k = self._stretch_needed(run, Q, need_at)
             if k <= 1.0 + 1e-9:
                 self.stats["stretched_runs"] += int(stretch > 1.0)
@@ -595,18 +612,18 @@ class PlanTimer:
         W = P[keep]
         if len(W) < 2:
             return 0.0
-        _, grid, sd = self._profile(run, W, np.full(len(W) - 2, self.s.blend_rad), self.s.rank_grid_step_rad,
-                                    soft_ends=False)
+        _, grid, sd, _ = self._profile(run, W, np.full(len(W) - 2, self.s.blend_rad), self.s.rank_grid_step_rad,
+                                       soft_ends=False)
         return float(profile_times(grid, sd)[-1]) if sd is not None else math.inf
 
     def _profile(self, run: Run, W: np.ndarray, blends: np.ndarray, grid_step_rad: float,
-                 soft_ends: bool) -> tuple[BlendedPath, np.ndarray, np.ndarray | None]:
-        """The blended path through W, its TOPP-RA gridpoints ``grid_step_rad`` apart, and the time-optimal path
+                 soft_ends: bool) -> tuple[BlendedPath, np.ndarray, np.ndarray | None, float]:
+        """The blended path through W, its TOPP-RA gridpoints ``grid_step_rad`` apart, the time-optimal path
         velocity at them under the joint, torque and ZMP limits (with the gentler starts and stops when
-        ``soft_ends`` and the settings ask for them); None for the velocity when TOPP-RA finds no profile."""
+        ``soft_ends`` and the settings ask for them; None when TOPP-RA finds no profile), and the run's ZMP floor."""
         path = BlendedPath(W, blends, self.s.blend_fill)
         grid = gridpoints_for(path, grid_step_rad, self.s.max_gridpoints)
-        rows, _ = self._rows(run, path, grid)
+        rows, floor_m = self._rows(run, path, grid)
         # TOPP-RA over the joints that move (the same arc length; the others add no constraint)
         cols = np.flatnonzero(np.ptp(W, axis=0) > 0)
         if soft_ends and self.s.end_acceleration_scale < 1.0 and self.s.end_zone_rad > 0.0:
@@ -615,7 +632,7 @@ class PlanTimer:
         moving.breaks, moving.length = path.breaks, path.length  # the same parameter to the last bit
         sd = parameterize(moving, grid, self.vlim[cols] * self.s.velocity_scale,
                           self.alim[cols] * self.s.acceleration_scale, rows)
-        return path, grid, sd
+        return path, grid, sd, floor_m
 
     def _replans(self, P: np.ndarray, validity, rng: np.random.Generator, weights: np.ndarray) -> list[np.ndarray]:
         """P and ``replans`` more T-RRT runs between its ends (each shortened by ``replan_shortcut_iterations``
@@ -691,7 +708,8 @@ class PlanTimer:
             slack += actual - full
             out.extend(replace(p, waypoints=Q) for p, Q in zip(run.pieces, Qs))
         return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
-                                              "zmp_margin_m": self.zmp_margin_m},
+                                              "zmp_margin_m": self.zmp_margin_m,
+                                              "zmp_reserve_share": self.s.zmp_reserve_share},
                           stats={**self.stats, "slack_s": slack})
 
 

@@ -80,7 +80,7 @@ def test_where_the_zmp_binds_it_is_held_at_its_margin_and_never_beyond(hrp5p, ar
     run = Run([MotionPiece("transfer", "right", W, "right", hold, path=W)], "right", hold, None)
 
     def zmp_margins(zmp_margin):
-        timer, ev = _timer(hrp5p, stance, mass, com_local, zmp_margin)
+        timer, ev = _timer(hrp5p, stance, mass, com_local, zmp_margin, zmp_reserve_share=0.0)
         part = timer.time_part(run, W, np.zeros(0))
         assert part is not None
         com = ev.evaluate(part.Q, hold).com  # the samples' CoM and the ZMP as the plan checker computes it
@@ -92,6 +92,47 @@ def test_where_the_zmp_binds_it_is_held_at_its_margin_and_never_beyond(hrp5p, ar
     assert held.min() >= need  # never violated
     assert held.min() <= need + 0.001  # and active: within 1 mm somewhere along the path
     assert n_held > n_free  # it costs time
+
+
+def test_the_reserve_keeps_the_zmp_a_share_of_the_runs_tightest_static_margin_inside(hrp5p, arm_move):
+    """With a ZMP margin of 0, the reserve share alone holds the ZMP: at least that share of the smallest static
+    CoM margin along the run inside the polygon, active within 1 mm where it binds; a larger share takes longer."""
+    stance, W = arm_move
+    mass, com_local = 10.0, np.array([0.05, 0.0, 0.0])
+    hold = HoldSpec("right", np.eye(4))
+    line = W[0] + np.linspace(0.0, 1.0, 400)[:, None] * (W[1] - W[0])
+    _, ev = _timer(hrp5p, stance, mass, com_local, 0.0)
+    tightest = float(ev.evaluate(line, hold).margin.min())
+    run = Run([MotionPiece("transfer", "right", W, "right", hold, path=W)], "right", hold, None)
+    out = {}
+    for share in (0.0, 0.5, 0.9):
+        timer, ev = _timer(hrp5p, stance, mass, com_local, 0.0, zmp_reserve_share=share)
+        part = timer.time_part(run, W, np.zeros(0))
+        assert part is not None
+        zmp = ev.polygon.margin(zmp_cart_table(ev.evaluate(part.Q, hold).com, DT))
+        out[share] = (zmp.min(), len(part.Q))
+    assert out[0.0][0] < 0.9 * tightest - 0.0001  # without a reserve the ZMP goes past it (braking at the end)
+    for share in (0.5, 0.9):
+        assert out[share][0] >= share * tightest - 1e-4  # never violated (to the plan check's tolerance)
+    assert out[0.9][0] <= 0.9 * tightest + 0.001  # and active
+    assert out[0.0][1] <= out[0.5][1] <= out[0.9][1] and out[0.0][1] < out[0.9][1]
+
+
+def test_a_users_own_zmp_margin_replaces_the_reserve():
+    from planner.jobs.plan_job import timing_settings
+    from planner.scene.scenarios import load_builtin
+
+    scenario = load_builtin("upright")
+    settings = PlanTimingSettings()
+    assert timing_settings(scenario, settings).zmp_reserve_share == 0.9
+    own = scenario.model_copy(update={"zmp_margin_m": 0.04})
+    assert timing_settings(own, settings).zmp_reserve_share == 0.0
+
+
+@pytest.mark.parametrize("share", [-0.1, 1.1, float("nan")])
+def test_a_reserve_share_outside_0_1_is_refused(share):
+    with pytest.raises(ValueError):
+        PlanTimingSettings(zmp_reserve_share=share)
 
 
 def test_torques_stay_within_the_effort_limits_along_the_timed_path(hrp5p, arm_move):
