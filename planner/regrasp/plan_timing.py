@@ -12,7 +12,8 @@ rest to rest (:mod:`planner.motion.timing`). Here the plan is timed again as it 
    item 5): its blends are shrunk, or the run refused, before TOPP-RA runs.
 3. **Time-optimal timing** (TOPP-RA, :func:`planner.motion.topp.parameterize`) within the joint
    velocity and acceleration limits, the static plus inertial joint torques within the effort
-   limits, and the cart-table ZMP at least ``zmp_margin_m`` inside the support polygon (where the
+   limits, and the cart-table ZMP at least ``zmp_margin_m`` inside the support polygon, or
+   ``zmp_reserve_share`` of the run's smallest static CoM margin where that is more (where the
    CoM itself is closer to an edge than that, as far inside as the CoM). The CoM terms come from
    :mod:`planner.stability.com_path`, the torques from :mod:`planner.stability.effort` and
    :mod:`planner.stability.inertial_torques`. Then ``1 / speed_scale`` stretches it in time.
