@@ -30,7 +30,6 @@ from pydantic import BaseModel, ConfigDict, Field
 from planner.motion.edge_checks import Validity, all_valid_coarse_to_fine
 from planner.motion.ik import IkSolver
 from planner.motion.interpolation import edge_states
-from planner.motion.smoothing import path_length
 
 Side = Literal["left", "right"]
 
@@ -40,11 +39,14 @@ class ViaSettings(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    fractions: tuple[Annotated[float, Field(gt=0, lt=1)], ...] = Field((0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8), description="places along the "
-                                         "straight line (share of the way) whose posture seeds a via's IK")
-    reach: tuple[Annotated[float, Field(allow_inf_nan=False)], ...] = Field((-0.3, 0.0, 0.3, 0.6), description="the via's distance in front of the "
-                                     "robot (world x): share of the way from the lower end's to the higher end's")
-    rise_m: tuple[Annotated[float, Field(ge=0, allow_inf_nan=False)], ...] = Field((0.0, 0.05, 0.1), description="the via's height above the higher end (m)")
+    fractions: tuple[Annotated[float, Field(gt=0, lt=1)], ...] = Field(
+        (0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8),
+        description="places along the straight line (share of the way) whose posture seeds a via's IK")
+    reach: tuple[Annotated[float, Field(allow_inf_nan=False)], ...] = Field(
+        (-0.3, 0.0, 0.3, 0.6), description="the via's distance in front of the robot (world x): share of the way from "
+        "the lower end's to the higher end's")
+    rise_m: tuple[Annotated[float, Field(ge=0, allow_inf_nan=False)], ...] = Field(
+        (0.0, 0.05, 0.1), description="the via's height above the higher end (m)")
     samples: int = Field(40, ge=0, description="more vias at random hand positions in the box around the two ends' "
                          "TCP positions (below: sample_below_m, above: sample_above_m), each seeded from the line's "
                          "posture at a random place between the first and last fractions")
@@ -76,15 +78,23 @@ def via_paths(start: np.ndarray, goal: np.ndarray, side: Side, ik: IkSolver, val
         return []
     start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
     vias = _vias(start, goal, side, ik, rng, s)
-    nodes = [start, *(q for _, q in vias), goal]
-    last = len(nodes) - 1
-    routes = [(0, k, last) for k in range(1, last)]
-    if s.pairs:
-        routes += [(0, a, b, last) for a, b in itertools.combinations(range(1, last), 2) if vias[a - 1][0] < vias[b - 1][0]]
-    if not routes:
+    if not vias:
         return []
-    cost = np.array([path_length(np.vstack([nodes[i] for i in r]), weights) for r in routes])
-    order = [routes[i] for i in np.argsort(cost, kind="stable")[: s.checked]]
+    nodes = np.vstack([start, *(q for _, q in vias), goal])
+    last = len(nodes) - 1
+    # time at the velocity limits of the straight segment between any two nodes
+    segment = (np.abs(nodes[:, None, :] - nodes[None, :, :]) * np.asarray(weights)[None, None, :]).max(axis=2)
+    inner = np.arange(1, last)
+    routes: list[tuple[int, ...]] = [(0, int(k), last) for k in inner]
+    cost = [segment[0, inner] + segment[inner, last]]
+    if s.pairs:
+        fraction = np.array([f for f, _ in vias])
+        a, b = np.triu_indices(len(vias), k=1)
+        in_order = fraction[a] < fraction[b]
+        a, b = a[in_order] + 1, b[in_order] + 1
+        routes += [(0, int(i), int(j), last) for i, j in zip(a, b)]
+        cost.append(segment[0, a] + segment[a, b] + segment[b, last])
+    order = [routes[i] for i in np.argsort(np.concatenate(cost), kind="stable")[: s.checked]]
     known: dict[tuple[int, int], bool] = {}
     found: list[np.ndarray] = []
     batch = 8
