@@ -135,10 +135,3 @@ def _vias(start: np.ndarray, goal: np.ndarray, side: Side, ik: IkSolver, rng: np
         if res.q is not None:
             out.append((f, res.q))
     return out
-
-
-def moving_side(start: np.ndarray, goal: np.ndarray, ik: IkSolver) -> Side | None:
-    """The one hand whose arm moves between the two postures, or None when both or neither do."""
-    moving = [side for side in ("left", "right")
-              if np.abs(np.asarray(goal) - np.asarray(start))[ik.robot.arm_indices(side)].max(initial=0.0) > 0.0]
-    return moving[0] if len(moving) == 1 else None

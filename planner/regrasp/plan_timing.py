@@ -40,7 +40,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from planner.motion.smoothing import SmoothingSettings, partial_shortcut, path_length, shortcut
-from planner.motion.task_space_vias import ViaSettings, moving_side, via_paths
+from planner.motion.task_space_vias import ViaSettings, via_paths
 from planner.motion.trrt import plan_motion
 from planner.motion.timing import MARGIN_TOLERANCE_M, zmp_cart_table
 from planner.motion.topp import (
@@ -564,7 +564,7 @@ class PlanTimer:
             validity = self.checker.validity(hold, None if hold is not None else current, None, active=None)
             rng = np.random.default_rng([t.scenario.seed, SHORTCUT_STREAM, k])
             P = np.asarray(piece.path, dtype=float)
-            paths = self._quickest(self._replans(P, validity, rng, weights) + self._via_paths(P, validity, rng, weights),
+            paths = self._quickest(self._replans(P, validity, rng, weights) + self._via_paths(piece, validity, rng, weights),
                                    weights)
             full = min(len(paths), self.s.shortened_paths)
             paths = self._quickest([self._shortened(Q, validity, rng, settings, weights) for Q in paths[:full]]
@@ -654,15 +654,16 @@ class PlanTimer:
                              else res.path)
         return paths
 
-    def _via_paths(self, P: np.ndarray, validity, rng: np.random.Generator, weights: np.ndarray) -> list[np.ndarray]:
-        """Paths between P's ends through task-space via postures of the one hand that moves (none when both or
-        neither arm moves), checked every ``shortcut_check_rad`` as the full shortening checks its segments:
-        the quick way around the table's edge that the replans' random samples seldom find
+    def _via_paths(self, piece: MotionPiece, validity, rng: np.random.Generator,
+                   weights: np.ndarray) -> list[np.ndarray]:
+        """Paths between the ends of the piece's path through task-space via postures of its hand (none for a piece
+        of both hands), checked every ``shortcut_check_rad`` as the full shortening checks its segments: the quick
+        way around the table's edge that the replans' random samples seldom find
         (:mod:`planner.motion.task_space_vias`)."""
-        side = moving_side(P[0], P[-1], self.task.ik)
-        if side is None or self.s.vias.keep == 0:
+        if piece.hand not in ("left", "right"):
             return []
-        found = via_paths(P[0], P[-1], side, self.task.ik, validity, rng, weights, self.s.shortcut_check_rad,
+        P = np.asarray(piece.path, dtype=float)
+        found = via_paths(P[0], P[-1], piece.hand, self.task.ik, validity, rng, weights, self.s.shortcut_check_rad,
                           self.s.vias)
         self.stats["via_paths"] += len(found)
         return found

@@ -10,7 +10,7 @@ import pytest
 
 from planner.motion.interpolation import edge_states
 from planner.motion.smoothing import path_length
-from planner.motion.task_space_vias import ViaSettings, moving_side, via_paths
+from planner.motion.task_space_vias import ViaSettings, via_paths
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +29,7 @@ def first_transit():
     timer = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
     piece, _, hold, resting = next(s for s in object_states(res.pieces, task.evaluator, task.placements[task.start_id])
                                    if s[0].path is not None and len(s[0].path) > 2)
-    assert hold is None and piece.kind == "transit"
+    assert hold is None and piece.kind == "transit" and piece.hand == "right"
     validity = timer.checker.validity(None, resting, None, active=None)
     return task, np.asarray(piece.path, dtype=float), validity, 1.0 / timer.vlim
 
@@ -39,9 +39,7 @@ def test_the_via_paths_go_round_the_table_and_are_quicker_than_the_searchs_path(
     a, b = own[0], own[-1]
     line = edge_states(a, b, 0.005)
     assert not validity(line)[0].all(), "the straight line must be blocked for this test to mean anything"
-    side = moving_side(a, b, task.ik)
-    assert side == "right"
-    found = via_paths(a, b, side, task.ik, validity, np.random.default_rng(3), weights, 0.005)
+    found = via_paths(a, b, "right", task.ik, validity, np.random.default_rng(3), weights, 0.005)
     assert 1 <= len(found) <= ViaSettings().keep
     times = [path_length(W, weights) for W in found]
     assert times == sorted(times)
@@ -93,17 +91,6 @@ def test_the_grid_and_the_samples_each_find_a_way_round(first_transit):
         for q in W[1:-1]:
             p = task.ik.tcp_pose(q, "right")[:3, 3]
             assert np.all(p >= low) and np.all(p <= high), p
-
-
-def test_the_moving_side_is_the_one_arm_that_moves(first_transit):
-    task, own, _, _ = first_transit
-    a = own[0]
-    b = a.copy()
-    assert moving_side(a, b, task.ik) is None
-    b[task.robot.arm_indices("left")[0]] += 0.1
-    assert moving_side(a, b, task.ik) == "left"
-    b[task.robot.arm_indices("right")[0]] += 0.1
-    assert moving_side(a, b, task.ik) is None
 
 
 @pytest.mark.parametrize("bad", [dict(fractions=(0.0,)), dict(fractions=(1.0,)), dict(reach=(float("nan"),)),
