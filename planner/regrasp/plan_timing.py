@@ -459,9 +459,10 @@ class PlanTimer:
         return out, sum(part.full_speed_s for part in parts), (len(Q_cat) - 1) * self.dt
 
     def _shrink_blends(self, run: Run, whole: "_Joined", starts: list[int], blends: np.ndarray, bad_s: np.ndarray,
-                       round_: int) -> bool:
+                       round_: int, count: bool = True) -> bool:
         """Halve (at the last round remove) in place every blend with a failing path position ``bad_s``; False (and
-        the run refused) when a failure lies away from the blends, where halving them would not help."""
+        the run refused) when a failure lies away from the blends, where halving them would not help. ``count``:
+        the removals and the refusal go to the stats (not for a ranking's trial)."""
         hit = False
         for i in range(len(blends)):
             d = whole.blend_of(i + 1)
@@ -470,14 +471,15 @@ class PlanTimer:
             if np.any(np.abs(bad_s - whole.waypoint_s[i + 1]) <= d + 1e-9):
                 hit = True
                 blends[i] = 0.0 if round_ >= self.s.blend_rounds else 0.5 * d
-                self.stats["blends_removed"] += int(blends[i] == 0.0)
-        if not hit:  # a failure away from the blends: keep the validated rest-to-rest timing
+                self.stats["blends_removed"] += int(blends[i] == 0.0 and count)
+        if not hit and count:  # a failure away from the blends: keep the validated rest-to-rest timing
             kinds = sorted({run.pieces[int(k)].kind for k in np.searchsorted(
                 np.asarray([whole.waypoint_s[i] for i in starts[1:]]), bad_s, side="right")})
             self._refuse(f"{bad_s.size} samples of the {'/'.join(kinds)} off the blends fail the checks")
         return hit
 
-    def _checked_blends(self, run: Run, W: np.ndarray, starts: list[int], blends: np.ndarray) -> np.ndarray | None:
+    def _checked_blends(self, run: Run, W: np.ndarray, starts: list[int], blends: np.ndarray,
+                        count: bool = True) -> np.ndarray | None:
         """The run's blends after the checks of its geometry, before any timing: states every ``path_check_rad`` of
         arc length along the blended path go through the same checks as the timed samples, and the blends are
         shrunk as the timed samples would have them shrunk. The timing (TOPP-RA, the sample checks) then runs once
@@ -503,7 +505,7 @@ class PlanTimer:
             bad_s = self._invalid_s(run, whole, starts, np.concatenate(s_all), np.vstack(Q_all))
             if not bad_s.size:
                 return blends
-            if not self._shrink_blends(run, whole, starts, blends, bad_s, round_):
+            if not self._shrink_blends(run, whole, starts, blends, bad_s, round_, count):
                 return None
         return None
 
@@ -608,14 +610,28 @@ class PlanTimer:
         constraints (joint limits, torques, the ZMP), from rest to rest on a coarse grid and without the checks of
         the samples: what ranks a motion's alternatives. The time at the velocity limits leaves out the corners (a
         path of many short turns loses much more than one of a few long segments) and the balance (a held object
-        swung where the ZMP binds)."""
+        swung where the ZMP binds). The blends are first checked as the run's timing checks them
+        (:meth:`_checked_blends`, ``path_check_rad``): a path that hugs an obstacle keeps only small blends there,
+        and its tight corners cost the time they will cost; a path whose geometry fails off its blends is never
+        timed (infinite)."""
         keep = np.r_[True, np.abs(np.diff(P, axis=0)).max(axis=1) > SAME_WAYPOINT_RAD]
         W = P[keep]
         if len(W) < 2:
             return 0.0
-        _, grid, sd, _ = self._profile(run, W, np.full(len(W) - 2, self.s.blend_rad), self.s.rank_grid_step_rad,
-                                       soft_ends=False)
-        return float(profile_times(grid, sd)[-1]) if sd is not None else math.inf
+        blends = np.full(len(W) - 2, self.s.blend_rad)
+        if self.s.path_check_rad > 0.0 and len(W) > 2:
+            blends = self._checked_blends(replace(run, pieces=[replace(run.pieces[0], path=W)]), W, [0], blends,
+                                          count=False)
+            if blends is None:
+                return math.inf
+        total = 0.0
+        for a, b in _cuts(blends):  # the robot stops where a blend had to go
+            _, grid, sd, _ = self._profile(run, W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0),
+                                           self.s.rank_grid_step_rad, soft_ends=False)
+            if sd is None:
+                return math.inf
+            total += float(profile_times(grid, sd)[-1])
+        return total
 
     def _profile(self, run: Run, W: np.ndarray, blends: np.ndarray, grid_step_rad: float,
                  soft_ends: bool) -> tuple[BlendedPath, np.ndarray, np.ndarray | None, float]:

@@ -119,6 +119,60 @@ def test_a_motions_paths_are_ranked_by_their_timing_not_by_the_time_at_the_veloc
     assert unranked[0][k].path is min((stairs, one_turn), key=lambda Q: path_length(Q, weights))
 
 
+def test_the_ranking_times_a_path_with_the_blends_its_checks_leave_it(solved, monkeypatch):
+    """Two paths that are the same turn, in two pairs of joints: unchecked, they time alike. An obstacle inside the
+    first one's corner (a box of states the checker refuses) leaves that corner only a small blend, and the ranking
+    sees the time it costs: the second path is ranked first. A path through the obstacle is never ranked (its
+    time is infinite)."""
+    task, pieces = solved
+    k = next(i for i, p in enumerate(pieces) if p.path is not None and len(p.path) > 2)
+    q0 = np.asarray(pieces[k].path[0], dtype=float)
+    j = {n: task.robot.joint_index(n) for n in ("RSP", "REP", "RSY", "RWRY")}
+
+    def turn(first: str, second: str) -> np.ndarray:
+        P = np.array([q0, q0, q0])
+        P[1:, j[first]] += 0.6
+        P[2, j[second]] -= 0.6
+        return P
+
+    hugging, clear = turn("RSP", "REP"), turn("RSY", "RWRY")
+    timer = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
+    real = timer.checker.validity
+
+    def with_obstacle(hold, free_object, grasping=None, active=None):
+        check = real(hold, free_object, grasping, active=active)
+
+        def validity(Q):
+            ok, margin = check(Q)
+            Q = np.atleast_2d(Q)
+            inside = ((Q[:, j["RSP"]] - q0[j["RSP"]] > 0.45) & (Q[:, j["RSP"]] - q0[j["RSP"]] < 0.59)
+                      & (q0[j["REP"]] - Q[:, j["REP"]] > 0.01) & (q0[j["REP"]] - Q[:, j["REP"]] < 0.15))
+            return ok & ~inside, margin
+        return validity
+
+    alone = Run([pieces[k]], "none", None, task.placements[task.start_id])
+    unchecked = PlanTimer(task, PlanTimingSettings(path_check_rad=0.0), 1.0, task.threshold_m, 0.005)
+    assert unchecked._estimated_time(hugging, alone) == pytest.approx(unchecked._estimated_time(clear, alone), rel=0.05)
+    clear_time = timer._estimated_time(clear, alone)
+    monkeypatch.setattr(timer.checker, "validity", with_obstacle)
+    assert timer._estimated_time(hugging, alone) > timer._estimated_time(clear, alone) + 0.05
+    assert timer._estimated_time(clear, alone) == clear_time  # the obstacle is not in its way
+    through = np.array([q0, q0, q0])  # a segment straight through the obstacle: no blend can help
+    through[1:, j["RSP"]] += 1.04
+    through[1:, j["REP"]] -= 0.16
+    through[2, j["RSY"]] += 0.3
+    assert timer._estimated_time(through, alone) == float("inf")
+    assert timer.stats["refused"] == [] and timer.stats["blends_removed"] == 0  # a ranking's trials are not counted
+
+    monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [hugging, clear])
+    monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
+    checker = timer.checker  # the one with the obstacle, for the timer below too
+    monkeypatch.setattr(PlanTimer, "checker", property(lambda self: checker))
+    plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0)
+    ranked = PlanTimer(task, PlanTimingSettings(**plain), 1.0, task.threshold_m, 0.005).alternatives(pieces)
+    assert ranked[0][k].path is clear and ranked[1][k].path is hugging
+
+
 def _detour(P: np.ndarray, joint: int, rad: float) -> np.ndarray:
     """P with one joint swung out and back in the middle of its second segment (three waypoints on that segment, the
     middle one ``rad`` out): a detour of that joint alone, which costs time at the velocity limits."""
