@@ -54,6 +54,8 @@ from planner.motion.topp import (
     shaped,
     zmp_rows,
 )
+from planner.forking import fork_is_safe, spare_cores
+from planner.regrasp.fork_share import share_with_child
 from planner.regrasp.plan_assembly import MotionPiece, object_states
 from planner.regrasp.state_checker import StateChecker
 from planner.stability.com_path import com_path_terms
@@ -554,31 +556,70 @@ class PlanTimer:
         segment is checked by the task's state checker, a replan's at the search's resolution and the full
         shortening's every ``shortcut_check_rad``. The ``alternatives`` quickest at the velocity limits are kept; with
         ``rank_by_timing`` they are then ranked by their TOPP-RA time on a coarse grid (:meth:`_estimated_time`),
-        the corners and the balance included."""
+        the corners and the balance included. The motions are worked on in this process and a forked helper at
+        once (:meth:`_each_planned`)."""
         t = self.task
-        per_piece: list[list[MotionPiece]] = []
-        settings = self._smoothing(self.s.shortcut_iterations)
-        weights = 1.0 / self.vlim
-        for k, (piece, holding, hold, current) in enumerate(object_states(pieces, t.evaluator, t.placements[t.start_id])):
-            if piece.path is None or len(piece.path) <= 2:
-                per_piece.append([piece])
-                continue
-            validity = self.checker.validity(hold, None if hold is not None else current, None, active=None)
-            rng = np.random.default_rng([t.scenario.seed, SHORTCUT_STREAM, k])
-            P = np.asarray(piece.path, dtype=float)
-            paths = self._quickest(self._replans(P, validity, rng, weights) + self._via_paths(piece, validity, rng, weights),
-                                   weights)
-            full = min(len(paths), self.s.shortened_paths)
-            paths = self._quickest([self._shortened(Q, validity, rng, settings, weights) for Q in paths[:full]]
-                                   + paths[full:], weights)
-            self.stats["shortened_s"] += path_length(P, weights) - path_length(paths[0], weights)
-            if self.s.rank_by_timing and len(paths) > 1:  # the shortened quickest among the others, by their timing
-                alone = Run([piece], holding, hold, None if hold is not None else current)
-                took = [self._estimated_time(Q, alone) for Q in paths]
-                paths = [paths[i] for i in sorted(range(len(paths)), key=lambda i: (took[i], i))]
-            per_piece.append([replace(piece, path=Q) for Q in paths])
+        states = list(object_states(pieces, t.evaluator, t.placements[t.start_id]))
+        planned = [k for k, (piece, *_) in enumerate(states) if piece.path is not None and len(piece.path) > 2]
+        found = self._each_planned(planned, lambda k: self._piece_paths(k, *states[k]))
+        per_piece = [[replace(piece, path=Q) for Q in found[k]] if k in found else [piece]
+                     for k, (piece, *_) in enumerate(states)]
         levels = max(len(a) for a in per_piece) if per_piece else 0
         return [[a[min(k, len(a) - 1)] for a in per_piece] for k in range(levels)]
+
+    def _piece_paths(self, k: int, piece: MotionPiece, holding: str, hold: HoldSpec | None,
+                     current: np.ndarray) -> list[np.ndarray]:
+        """The paths of the plan's k-th piece (a planned motion), quickest first: see :meth:`alternatives`. Draws
+        from the piece's own stream of the scenario's seed, so the result does not depend on which process runs it
+        nor on the other pieces."""
+        t = self.task
+        weights = 1.0 / self.vlim
+        validity = self.checker.validity(hold, None if hold is not None else current, None, active=None)
+        rng = np.random.default_rng([t.scenario.seed, SHORTCUT_STREAM, k])
+        P = np.asarray(piece.path, dtype=float)
+        paths = self._quickest(self._replans(P, validity, rng, weights) + self._via_paths(piece, validity, rng, weights),
+                               weights)
+        full = min(len(paths), self.s.shortened_paths)
+        settings = self._smoothing(self.s.shortcut_iterations)
+        paths = self._quickest([self._shortened(Q, validity, rng, settings, weights) for Q in paths[:full]]
+                               + paths[full:], weights)
+        self.stats["shortened_s"] += path_length(P, weights) - path_length(paths[0], weights)
+        if self.s.rank_by_timing and len(paths) > 1:  # the shortened quickest among the others, by their timing
+            alone = Run([piece], holding, hold, None if hold is not None else current)
+            took = [self._estimated_time(Q, alone) for Q in paths]
+            paths = [paths[i] for i in sorted(range(len(paths)), key=lambda i: (took[i], i))]
+        return paths
+
+    def _each_planned(self, planned: list[int], paths_of) -> dict[int, list[np.ndarray]]:
+        """``paths_of(k)`` for each planned piece k, in this process and one forked helper at once where the task's
+        ``parallel_motions`` allows it, forking is safe and a second core exists (the same paths either way: each
+        piece draws from its own stream). The helper's stats and check counts are added to this process's."""
+        checker = self.checker  # made here, before any fork, so both processes count into the same
+        if not (self.task.settings.parallel_motions and len(planned) > 1 and spare_cores() > 0 and fork_is_safe()):
+            return {k: paths_of(k) for k in planned}
+
+        def work(k: int, in_child: bool) -> tuple[list[np.ndarray], dict, Counter]:
+            if not in_child:
+                return paths_of(k), {}, Counter()
+            stats, counts = {key: (list(v) if isinstance(v, list) else v) for key, v in self.stats.items()}, Counter(checker.counters)
+            paths = paths_of(k)
+            grown = {key: (v[len(stats[key]):] if isinstance(v, list) else v - stats[key]) for key, v in self.stats.items()}
+            return paths, grown, Counter(checker.counters) - counts
+
+        results, error = share_with_child(planned, work, lambda: False)
+        found: dict[int, list[np.ndarray]] = {}
+        for i, k in enumerate(planned):
+            if i not in results:  # the helper failed before this one: it is planned here
+                found[k] = paths_of(k)
+                continue
+            paths, grown, counts = results[i]
+            found[k] = paths
+            checker.counters.update(counts)
+            for key, v in grown.items():
+                self.stats[key] = self.stats[key] + v
+        if error is not None:
+            self.stats.setdefault("helper_errors", []).append(error.strip().splitlines()[-1])
+        return found
 
     def _shortened(self, Q: np.ndarray, validity, rng: np.random.Generator, settings: SmoothingSettings,
                    weights: np.ndarray) -> np.ndarray:

@@ -112,11 +112,11 @@ def test_a_motions_paths_are_ranked_by_their_timing_not_by_the_time_at_the_veloc
     monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
     plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0)
     ranked = PlanTimer(task, PlanTimingSettings(**plain), 1.0, task.threshold_m, 0.005).alternatives(pieces)
-    assert ranked[0][k].path is one_turn and ranked[1][k].path is stairs
+    assert np.array_equal(ranked[0][k].path, one_turn) and np.array_equal(ranked[1][k].path, stairs)
     unranked = PlanTimer(task, PlanTimingSettings(rank_by_timing=False, **plain), 1.0, task.threshold_m,
                          0.005).alternatives(pieces)
     # unranked: the order of the time at the velocity limits, equal here to rounding (ties in the given order)
-    assert unranked[0][k].path is min((stairs, one_turn), key=lambda Q: path_length(Q, weights))
+    assert np.array_equal(unranked[0][k].path, min((stairs, one_turn), key=lambda Q: path_length(Q, weights)))
 
 
 def test_the_ranking_times_a_path_with_the_blends_its_checks_leave_it(solved, monkeypatch):
@@ -170,7 +170,45 @@ def test_the_ranking_times_a_path_with_the_blends_its_checks_leave_it(solved, mo
     monkeypatch.setattr(PlanTimer, "checker", property(lambda self: checker))
     plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0)
     ranked = PlanTimer(task, PlanTimingSettings(**plain), 1.0, task.threshold_m, 0.005).alternatives(pieces)
-    assert ranked[0][k].path is clear and ranked[1][k].path is hugging
+    assert np.array_equal(ranked[0][k].path, clear) and np.array_equal(ranked[1][k].path, hugging)
+
+
+def test_the_quicker_paths_are_the_same_from_one_process_or_two(solved, monkeypatch):
+    """The planned motions' quicker paths, worked on in this process and a forked helper at once, are the paths one
+    process finds, bit for bit, and the helper's checks are counted."""
+    from collections import Counter
+
+    from planner.forking import fork_is_safe, spare_cores
+    from planner.regrasp import plan_timing
+
+    task, pieces = solved
+    if not (spare_cores() > 0 and fork_is_safe()):
+        pytest.skip("one core, or a thread that makes forking unsafe: the helper is not used here")
+    shared = []
+    real = plan_timing.share_with_child
+    monkeypatch.setattr(plan_timing, "share_with_child", lambda jobs, work, stop: shared.append(len(jobs)) or real(jobs, work, stop))
+
+    def found(parallel: bool):
+        monkeypatch.setattr(plan_timing, "spare_cores", spare_cores if parallel else (lambda: 0))
+        counts: Counter = Counter()
+        timer = PlanTimer(task, PlanTimingSettings(replans=2), 1.0, task.threshold_m, 0.005)
+        monkeypatch.setattr(timer, "_checker", plan_timing.StateChecker(task.evaluator, task.world, task.stance.base_pose,
+                                                                         task.constrained, counts, limits=task.limits))
+        return timer.alternatives(pieces), timer.stats, counts
+
+    one, one_stats, one_counts = found(False)
+    assert shared == []
+    two, two_stats, two_counts = found(True)
+    assert shared and shared[0] >= 2  # the planned motions went to the two processes
+    assert len(one) == len(two)
+    for a, b in zip(one, two):
+        for p, q in zip(a, b):
+            assert (p.path is None) == (q.path is None)
+            if p.path is not None:
+                assert np.array_equal(np.asarray(p.path), np.asarray(q.path))
+    assert {k: one_stats[k] for k in ("replans", "via_paths", "shortened_s")} == \
+        {k: two_stats[k] for k in ("replans", "via_paths", "shortened_s")}
+    assert one_counts == two_counts and one_counts["collision_states"] > 0
 
 
 def _detour(P: np.ndarray, joint: int, rad: float) -> np.ndarray:
@@ -212,9 +250,9 @@ def test_every_path_of_a_motion_is_partially_shortcut_before_the_ranking(solved,
         assert np.array_equal(Q[0], own[0]) and np.array_equal(Q[-1], own[-1])
         assert np.ptp(Q[:, j]) == 0.0, "a path kept its detour"
     plain = alternatives(partial_shortcut_iterations=0)
-    assert plain[1][k].path is detour
+    assert np.array_equal(plain[1][k].path, detour)
     first_only = alternatives(shortened_paths=1)
-    assert first_only[1][k].path is detour  # only the quickest path is shortened when one is asked for
+    assert np.array_equal(first_only[1][k].path, detour)  # only the quickest path is shortened when one is asked for
 
 
 def test_the_alternatives_are_the_seeds(solved):
