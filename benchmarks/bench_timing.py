@@ -7,6 +7,12 @@ at the plan's 5 ms period), the largest distance of the ZMP from the CoM, the sm
 of stops (samples where every joint is at rest after moving). Figures are from this machine; the duration and the
 balance figures depend on the seed only.
 
+Then the plan timing's runs (rest to rest), each with its duration and its corner-free floor: the time of the run's
+chosen path at the velocity limits (``velocity_scale`` of them), plus one start from rest and one stop at rest
+(the largest v / a of its moving joints; a run too short to reach full speed, 2 sqrt(d / a) of its slowest joint).
+The floor leaves out every corner and the balance: what is left above it is what corners, blends and the ZMP cost,
+and what a shorter path (other key postures) could still win.
+
     python benchmarks/bench_timing.py --scenario upright --hands left-left
 """
 
@@ -21,7 +27,7 @@ from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
 from planner.jobs.plan_job import build_task
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import MotionPiece, assemble
-from planner.regrasp.plan_timing import PlanTimer
+from planner.regrasp.plan_timing import PlanTimer, Run, runs_of, waypoints_of
 from planner.scene.scenarios import load_builtin
 
 DT = 0.005
@@ -68,6 +74,23 @@ def figures(task, traj) -> dict:
             "min_margin_mm": 1000 * float(traj.margin.min()), "stops": stops}
 
 
+def run_floor(run: Run, vmax: np.ndarray, amax: np.ndarray) -> float:
+    """The corner-free floor of one run (see the module's docstring), s."""
+    W = waypoints_of(run)[0]
+    if len(W) < 2:
+        return 0.0
+    moving = np.ptp(W, axis=0) > 0
+    if not moving.any():
+        return 0.0
+    at_speed = float((np.abs(np.diff(W, axis=0))[:, moving] / vmax[moving]).max(axis=1).sum())
+    ramp = float((vmax[moving] / amax[moving]).max())
+    travel = np.abs(np.diff(W, axis=0))[:, moving].sum(axis=0)
+    short = travel < vmax[moving] ** 2 / amax[moving]  # never reaches full speed (a jaw's closing)
+    if short.all():
+        return float((2.0 * np.sqrt(travel / amax[moving])).max())
+    return at_speed + ramp
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="upright")
@@ -93,13 +116,20 @@ def main() -> None:
     took = time.perf_counter() - t0
     rows[f"ruckig (jerk {args.jerk_per_accel:g} x accel, rest to rest)"] = (
         figures(task, assemble(pieces, task.evaluator, DT, start)), took)
+    runs = []
     for window in args.shaping:
         settings = task.settings.plan_timing.model_copy(update={"shaping_window_s": window})
         t0 = time.perf_counter()
         timing = PlanTimer(task, settings, 1.0, task.threshold_m, DT).time_plan(res.pieces)
         took = time.perf_counter() - t0
-        rows[f"TOPP-RA, blended, shaping {window:g} s"] = (
-            figures(task, assemble(timing.pieces, task.evaluator, DT, start)), took)
+        traj = assemble(timing.pieces, task.evaluator, DT, start)
+        rows[f"TOPP-RA, blended, shaping {window:g} s"] = (figures(task, traj), took)
+        if not runs:  # the first window's runs (0: TOPP-RA's own profile)
+            scale = settings.velocity_scale, settings.acceleration_scale
+            vmax, amax = robot.velocity_limit * scale[0], robot.acceleration_limit * scale[1]
+            for run in runs_of(timing.pieces, task):
+                n = sum(len(p.waypoints) for p in run.pieces) - (len(run.pieces) - 1)
+                runs.append(("+".join(p.kind for p in run.pieces), (n - 1) * DT, run_floor(run, vmax, amax)))
     print(f"{args.scenario} {args.hands}, seed {scenario.seed}, threshold {task.threshold_m * 1000:g} mm")
     print(f"{'method':45s} {'duration s':>10s} {'timing s':>9s} {'jerk rad/s3':>12s} {'zmp-com mm':>11s} "
           f"{'zmp margin mm':>14s} {'margin mm':>10s} {'stops':>6s}")
@@ -107,6 +137,10 @@ def main() -> None:
         print(f"{name:45s} {f['duration_s']:10.2f} {'-' if took is None else f'{took:9.2f}':>9s} "
               f"{f['max_jerk_rad_s3']:12.1f} {f['max_zmp_offset_mm']:11.1f} {f['min_zmp_margin_mm']:14.1f} "
               f"{f['min_margin_mm']:10.1f} {f['stops']:6d}")
+    print(f"\nruns of the TOPP-RA plan (shaping {args.shaping[0]:g} s): duration and corner-free floor")
+    for kinds, took, floor in runs:
+        print(f"  {kinds:55s} {took:6.2f} s  floor {floor:6.2f} s")
+    print(f"  {'all runs':55s} {sum(r[1] for r in runs):6.2f} s  floor {sum(r[2] for r in runs):6.2f} s")
 
 
 if __name__ == "__main__":

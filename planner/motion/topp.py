@@ -42,10 +42,12 @@ class BlendedPath(AbstractGeometricPath):
     ``blends[i]`` at interior waypoint ``i + 1`` (K - 2,).
 
     ``fill=False``: each blend clipped to half of each neighbouring segment. ``fill=True``: a segment's two blends
-    get what they ask for when it fits, else each at least half of it and the one asking less all it asks (a
-    segment may be all blend), and a blend next to the path's first or last segment may take all of it (nothing
-    else blends there): a short segment between two corners, as shortcuts leave them, then limits its corners far
-    less, and the path keeps more speed through them."""
+    get what they ask for when it fits, else each at least its share of it and the one asking less all it asks (a
+    segment may be all blend). The shares are in proportion to how sharply the two corners turn (``|u_out - u_in|``):
+    a corner's top speed goes as the square root of its blend over its turn, so a sharp corner beside a gentle one
+    takes most of the short segment between them, and the slower of the two gets faster. A blend next to the path's
+    first or last segment may take all of it (nothing else blends there): a short segment between two corners, as
+    shortcuts leave them, then limits its corners far less, and the path keeps more speed through them."""
 
     def __init__(self, waypoints: np.ndarray, blends: np.ndarray, fill: bool = False):
         W = np.asarray(waypoints, dtype=float)
@@ -61,16 +63,19 @@ class BlendedPath(AbstractGeometricPath):
             b = np.maximum(np.asarray(blends, dtype=float), 0.0)
             if fill:
                 d[1:-1] = np.minimum(b, np.minimum(length[:-1], length[1:]))
+                turn = np.zeros(len(W))  # how sharp each corner is: |u_out - u_in| (0 at the path's ends)
+                turn[1:-1] = np.linalg.norm(unit[1:] - unit[:-1], axis=1)
                 for j in range(len(length)):  # each segment: its two blends within it (lowering one never breaks another)
-                    half = 0.5 * length[j]
                     if d[j] + d[j + 1] <= length[j]:
                         continue
-                    if d[j] < half:
+                    both = turn[j] + turn[j + 1]
+                    share = length[j] * (turn[j] / both if both > 0.0 else 0.5)  # the first corner's share
+                    if d[j] < share:
                         d[j + 1] = length[j] - d[j]
-                    elif d[j + 1] < half:
+                    elif d[j + 1] < length[j] - share:
                         d[j] = length[j] - d[j + 1]
                     else:
-                        d[j] = d[j + 1] = half
+                        d[j], d[j + 1] = share, length[j] - share
             else:
                 d[1:-1] = np.minimum(b, 0.5 * np.minimum(length[:-1], length[1:]))
         self.blend = d[1:-1].copy()

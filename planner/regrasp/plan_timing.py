@@ -204,7 +204,7 @@ def off_path(Q: np.ndarray, W: np.ndarray | None, tol: float = 1e-7) -> np.ndarr
     return off
 
 
-def _waypoints(run: Run) -> tuple[np.ndarray, list[int]]:
+def waypoints_of(run: Run) -> tuple[np.ndarray, list[int]]:
     """The run's waypoints (duplicates merged) and the index of the waypoint each piece starts at."""
     W: list[np.ndarray] = []
     starts = []
@@ -409,7 +409,7 @@ class PlanTimer:
     def time_run(self, run: Run) -> tuple[list[np.ndarray], float, float] | None:
         """Per piece its samples (consecutive pieces share the boundary sample), the run's duration at full speed
         and its duration as timed (whole periods, rest copies left out); None when it cannot be timed here."""
-        W, starts = _waypoints(run)
+        W, starts = waypoints_of(run)
         if len(W) < 2:
             return None
         blends = np.full(len(W) - 2, self.s.blend_rad)
@@ -737,7 +737,7 @@ class PlanTimer:
         levels = [runs_of(level, self.task) for level in self.alternatives(pieces)]
         self.stats["quicker_paths_time_s"] = time.perf_counter() - started
         for r, original in enumerate(originals):
-            original.validated = _waypoints(original)[0]
+            original.validated = waypoints_of(original)[0]
             self.stats["runs"] += 1
             tries, seen = [], []
             for level in levels:

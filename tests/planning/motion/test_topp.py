@@ -198,8 +198,15 @@ def test_filled_blends_share_each_segment_and_keep_the_path_smooth_and_near_its_
     d = np.r_[0.0, full.blend, 0.0]
     assert np.all(d[:-1] + d[1:] <= L + 1e-12)  # a segment's two blends fit in it
     assert np.all(full.blend <= cap + 1e-12)
-    # never less than half of each neighbouring segment (the old rule), and more where a short segment sits at an end
-    assert np.all(full.blend >= half.blend * (1 - 1e-6))
+    # never less than its share of each neighbouring segment, the segment's length split between its two corners in
+    # proportion to how sharply they turn (|u_out - u_in|; a corner at the path's end takes none)
+    unit = np.diff(W, axis=0) / L[:, None]
+    turn = np.r_[0.0, np.linalg.norm(unit[1:] - unit[:-1], axis=1), 0.0]
+    both = turn[:-1] + turn[1:]
+    first_share = np.where(both > 0, L * turn[:-1] / np.where(both > 0, both, 1.0), 0.5 * L)  # segment j, corner j
+    second_share = L - first_share  # segment j, corner j + 1
+    lower = np.minimum(cap, np.minimum(second_share[:-1], first_share[1:]))
+    assert np.all(full.blend >= lower * (1 - 1e-6) - 1e-12)
     # C1 at unit speed: position and direction continuous across every break, the ends exactly the waypoints
     b = full.breaks[1:-1]
     for eps_side in (0, 1):
@@ -216,6 +223,18 @@ def test_filled_blends_share_each_segment_and_keep_the_path_smooth_and_near_its_
         t = np.clip(((Q - a_) @ u) / (u @ u), 0.0, 1.0)
         seg_dist = np.minimum(seg_dist, np.linalg.norm(Q - (a_ + t[:, None] * u), axis=1))
     assert seg_dist.max() <= 0.5 * max(full.blend.max(), 0.0) + 1e-9
+
+
+def test_a_sharp_corner_takes_more_of_a_short_segment_than_the_gentle_one_beside_it():
+    """A 90 degree corner and a 20 degree one share a 0.2 rad segment: split in proportion to how sharply each
+    turns, the sharp one's blend is 1.4 / (1.4 + 0.35) of it, where halving gave it 0.1 rad."""
+    turn = np.radians(20.0)
+    W = np.array([[0.0, -1.0], [0.0, 0.0], [0.2, 0.0], [0.2 + np.cos(turn), np.sin(turn)]])
+    blends = BlendedPath(W, np.full(2, 0.5), fill=True).blend
+    sharp, gentle = np.sqrt(2.0), 2.0 * np.sin(turn / 2)
+    assert blends[0] == pytest.approx(0.2 * sharp / (sharp + gentle), rel=1e-9)
+    assert blends[0] + blends[1] == pytest.approx(0.2, rel=1e-12)
+    assert BlendedPath(W, np.full(2, 0.5)).blend[0] == pytest.approx(0.1)  # half each, without filling
 
 
 def test_a_short_segment_next_to_the_end_no_longer_halves_its_corner():
