@@ -20,6 +20,8 @@ import sys
 import threading
 import time
 
+from planner.forking import declare_fork_benign
+
 #: A wake-up this much later than asked counts as a stall (the probe runs at real-time priority
 #: where it may, so the guest's own busy processes do not delay it; where it may not, a 2-core
 #: guest running three busy processes delays a wake-up by a few ms without any stall of the host).
@@ -58,6 +60,8 @@ class HostStallProbe:
         self._ends: list[float] = []
         self._ready = threading.Event()
         self._reader = threading.Thread(target=self._read, name="host-stall-probe", daemon=True)
+        # it only reads the sampler's pipe into its own lists: a forked planner helper never touches either
+        declare_fork_benign(self._reader)
         self._reader.start()
         if not self._ready.wait(30.0):
             self.close()

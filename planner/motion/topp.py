@@ -32,6 +32,7 @@ import toppra.algorithm
 import toppra.constraint
 from toppra.constraint import DiscretizationType
 from toppra.constraint.linear_constraint import canlinear_colloc_to_interpolate
+from scipy.interpolate import BSpline
 from toppra.interpolator import AbstractGeometricPath
 
 GRAVITY = 9.81
@@ -114,6 +115,61 @@ class BlendedPath(AbstractGeometricPath):
             out = 2.0 * self.c2[k]
         else:
             out = np.zeros((len(ss), self._dof))
+        return out[0] if np.ndim(path_positions) == 0 else out
+
+    @property
+    def dof(self) -> int:
+        return self._dof
+
+    @property
+    def path_interval(self) -> np.ndarray:
+        return np.array([0.0, self.length])
+
+
+class SplinePath(AbstractGeometricPath):
+    """A clamped cubic B-spline with the waypoints (K, n) as its control points: it starts at the first and ends at
+    the last waypoint, tangent to the first and last legs, and passes near (not through) the interior ones, inside
+    the convex hull of each four consecutive waypoints. C2 everywhere, so its curvature is spread along the whole
+    path instead of packed into a blend at each corner: a run of short segments and corners, as shortcuts leave them,
+    can be followed much faster. It strays farther from the waypoints than blends do, so it is only used where the
+    checks of its own states pass.
+
+    The knots are placed by chord length (averaged, de Boor); the path parameter is ``s = u L`` with ``u`` in [0, 1]
+    and ``L`` the spline's arc length, so its speed averages one. ``waypoint_s``: each waypoint's Greville abscissa
+    (where its basis function peaks, the path position it pulls towards); ``blend``: zeros (no blend to shrink)."""
+
+    def __init__(self, waypoints: np.ndarray, *, _knots: np.ndarray | None = None, _length: float | None = None):
+        W = np.asarray(waypoints, dtype=float)
+        if len(W) < 2:
+            raise ValueError("a path needs two waypoints at least")
+        k = min(3, len(W) - 1)
+        if _knots is None:
+            chord = np.linalg.norm(np.diff(W, axis=0), axis=1)
+            if np.any(chord <= 0.0):
+                raise ValueError("consecutive waypoints must differ")
+            u = np.r_[0.0, np.cumsum(chord)] / chord.sum()
+            inner = [float(np.mean(u[i:i + k])) for i in range(1, len(W) - k)]
+            _knots = np.r_[np.zeros(k + 1), inner, np.ones(k + 1)]
+        self.knots = _knots
+        self._spline = BSpline(_knots, W, k)
+        if _length is None:
+            uu = np.linspace(0.0, 1.0, 64 * len(W) + 1)
+            speed = np.linalg.norm(self._spline(uu, 1), axis=1)
+            _length = float(np.sum(0.5 * (speed[1:] + speed[:-1]) * np.diff(uu)))
+        self.length = _length
+        self.breaks = np.array([0.0, _length])
+        self.waypoint_s = np.array([float(np.mean(_knots[i + 1:i + k + 1])) for i in range(len(W))]) * _length
+        self.blend = np.zeros(max(len(W) - 2, 0))
+        self._dof = W.shape[1]
+
+    def columns(self, cols: np.ndarray) -> "SplinePath":
+        """The same path over joints ``cols`` only: the same knots and parameter."""
+        return SplinePath(self._spline.c[:, cols], _knots=self.knots, _length=self.length)
+
+    def __call__(self, path_positions, order: int = 0) -> np.ndarray:
+        ss = np.atleast_1d(np.asarray(path_positions, dtype=float))
+        u = np.clip(ss / self.length, 0.0, 1.0)
+        out = self._spline(u, order) / self.length ** order
         return out[0] if np.ndim(path_positions) == 0 else out
 
     @property

@@ -47,6 +47,7 @@ from planner.motion.topp import (
     GRAVITY,
     BlendedPath,
     LinearRows,
+    SplinePath,
     gridpoints_for,
     parameterize,
     profile_times,
@@ -111,6 +112,11 @@ class PlanTimingSettings(BaseModel):
     blend_fill: bool = Field(True, description="a segment's two corner blends share it as they need (each at least "
                              "half, the rest to the one that asks more; the path's first and last segments wholly to "
                              "their one blend) instead of half each")
+    spline_runs: bool = Field(True, description="also time each run with a corner along the cubic B-spline of its "
+                              "waypoints (curvature spread along the path, not packed into a blend at each corner), "
+                              "checked as a blended run is; the quicker of the two that pass is kept")
+    spline_rounds: int = Field(4, ge=0, description="times a spline whose states fail the checks is pulled towards "
+                               "the corners nearest the failures (a midpoint on both their legs) and checked again")
     blend_rounds: int = Field(3, ge=0, description="times a blend with an invalid sample is halved before it is removed")
     grid_step_rad: float = Field(0.02, gt=0, description="TOPP-RA gridpoint spacing along the path (rad)")
     max_gridpoints: int = Field(400, ge=10, description="TOPP-RA gridpoints per run at most")
@@ -236,7 +242,7 @@ class PlanTimer:
         self.limits: EffortEvaluator | None = task.limits
         self.threshold = task.evaluator.threshold_m if task.constrained else -np.inf
         self._inertials: dict = {}
-        self.stats = {"shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "dense_failures": []}
+        self.stats = {"shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "spline_runs": 0, "dense_failures": []}
 
     # -- constraints ------------------------------------------------------------------------------------------------
     @property
@@ -408,10 +414,25 @@ class PlanTimer:
     # -- one run ------------------------------------------------------------------------------------------------------
     def time_run(self, run: Run) -> tuple[list[np.ndarray], float, float] | None:
         """Per piece its samples (consecutive pieces share the boundary sample), the run's duration at full speed
-        and its duration as timed (whole periods, rest copies left out); None when it cannot be timed here."""
+        and its duration as timed (whole periods, rest copies left out); None when it cannot be timed here. The
+        run is timed blended through its waypoints and, where ``spline_runs`` and it has a corner, along the
+        spline of its waypoints (:class:`planner.motion.topp.SplinePath`) too; the quicker of the two that pass
+        every check is kept."""
         W, starts = waypoints_of(run)
         if len(W) < 2:
             return None
+        blended = self._blended_run(run, W, starts)
+        spline = self._spline_run(run, W, starts) if self.s.spline_runs and len(W) > 2 else None
+        if spline is not None and (blended is None or spline[2] < blended[2]):
+            self.stats["spline_runs"] += 1
+            return spline
+        if blended is not None:
+            self.stats["blends"] += blended[3]
+        return blended[:3] if blended is not None else None
+
+    def _blended_run(self, run: Run, W: np.ndarray, starts: list[int]) -> tuple[list[np.ndarray], float, float, int] | None:
+        """The run blended through its waypoints, blends shrunk until every sample passes: :meth:`time_run`'s
+        result and the number of blends kept."""
         blends = np.full(len(W) - 2, self.s.blend_rad)
         if self.s.path_check_rad > 0.0:
             blends = self._checked_blends(run, W, starts, blends)
@@ -441,10 +462,50 @@ class PlanTimer:
                 return None
         else:
             return None
-        self.stats["blends"] += int(np.count_nonzero(blends > 0.0))
+        out = self._per_piece(run, starts, whole.waypoint_s, s_cat, Q_cat)
+        if out is None:
+            return None
+        return out, sum(part.full_speed_s for part in parts), (len(Q_cat) - 1) * self.dt, int(np.count_nonzero(blends > 0.0))
+
+    def _spline_run(self, run: Run, W: np.ndarray, starts: list[int]) -> tuple[list[np.ndarray], float, float] | None:
+        """The run along a spline of its waypoints, without a stop: its states every ``path_check_rad`` checked
+        first, then timed, then every sample checked, as a blended run's are; None (nothing refused: the blended
+        run stands) where the checks still fail. Where the spline's states fail (it strays from the waypoints
+        into an obstacle), both legs at the nearest waypoint get a midpoint as another control point, which pulls
+        the spline towards that corner, and it is checked again, ``spline_rounds`` times at most."""
+        P, at = W.copy(), np.arange(len(W))  # control points; where each waypoint is among them
+        for _ in range(self.s.spline_rounds + 1):
+            spline = SplinePath(P)
+            if self.s.path_check_rad <= 0.0:
+                break
+            s = np.linspace(0.0, spline.length, max(2, int(math.ceil(spline.length / self.s.path_check_rad)) + 1))
+            Q = spline(s)
+            Q[0], Q[-1] = W[0], W[-1]
+            bad_s = self._invalid_s(run, spline, [int(at[i]) for i in starts], s, Q)
+            if not bad_s.size:
+                break
+            corners = {int(np.argmin(np.abs(spline.waypoint_s - b))) for b in bad_s}
+            legs = sorted({j for c in corners for j in (c - 1, c) if 0 <= j < len(P) - 1})
+            P = np.insert(P, [j + 1 for j in legs], 0.5 * (P[legs] + P[[j + 1 for j in legs]]), axis=0)
+            at = at + np.searchsorted(np.asarray(legs), at, side="left")
+        else:
+            return None
+        piece_starts = [int(at[i]) for i in starts]
+        refused = len(self.stats["refused"])
+        part = self.time_part(run, P, np.zeros(0), spline=spline)
+        del self.stats["refused"][refused:]  # the blended run's verdicts are the ones that count
+        if part is None or self._invalid_s(run, spline, piece_starts, part.s, part.Q).size:
+            return None
+        out = self._per_piece(run, piece_starts, spline.waypoint_s, part.s, part.Q)
+        return None if out is None else (out, part.full_speed_s, (len(part.Q) - 1) * self.dt)
+
+    def _per_piece(self, run: Run, starts: list[int], waypoint_s: np.ndarray, s_cat: np.ndarray,
+                   Q_cat: np.ndarray) -> list[np.ndarray] | None:
+        """The run's samples split into its pieces, each from the sample nearest the path position of its first
+        waypoint, with the rest copies at the run's ends; None when two pieces would share all their samples."""
         idx = [0]
-        for i in starts[1:]:  # each piece from the sample nearest its first waypoint
-            j = int(np.argmin(np.abs(s_cat - whole.waypoint_s[i])))
+        for i in starts[1:]:
+            j = int(np.argmin(np.abs(s_cat - waypoint_s[i])))
             idx.append(min(max(j, idx[-1] + 1), len(Q_cat) - 2))
         idx.append(len(Q_cat) - 1)
         if any(b <= a for a, b in zip(idx[:-1], idx[1:])):
@@ -458,7 +519,7 @@ class PlanTimer:
             if k == len(run.pieces) - 1 and rest:
                 Qk = np.vstack([Qk, np.repeat(Qk[-1:], rest, axis=0)])
             out.append(Qk)
-        return out, sum(part.full_speed_s for part in parts), (len(Q_cat) - 1) * self.dt
+        return out
 
     def _shrink_blends(self, run: Run, whole: "_Joined", starts: list[int], blends: np.ndarray, bad_s: np.ndarray,
                        round_: int, count: bool = True) -> bool:
@@ -522,10 +583,10 @@ class PlanTimer:
         a, b = path(grid, 1)[:, cols], path(grid, 2)[:, cols]
         return LinearRows(grid, a, b, np.zeros_like(a), -lim, lim)
 
-    def time_part(self, run: Run, W: np.ndarray, blends: np.ndarray) -> "Part | None":
-        """One stretch between stops, timed and checked; None when TOPP-RA finds no profile or the checks
-        cannot be met by stretching."""
-        path, grid, sd, floor_m = self._profile(run, W, blends, self.s.grid_step_rad, soft_ends=True)
+    def time_part(self, run: Run, W: np.ndarray, blends: np.ndarray, spline: SplinePath | None = None) -> "Part | None":
+        """One stretch between stops (blended through W, or along ``spline``), timed and checked; None when TOPP-RA
+        finds no profile or the checks cannot be met by stretching."""
+        path, grid, sd, floor_m = self._profile(run, W, blends, self.s.grid_step_rad, soft_ends=True, spline=spline)
         if sd is None:
             return self._refuse("TOPP-RA found no profile")
         stretch = 1.0
@@ -675,19 +736,24 @@ class PlanTimer:
         return total
 
     def _profile(self, run: Run, W: np.ndarray, blends: np.ndarray, grid_step_rad: float,
-                 soft_ends: bool) -> tuple[BlendedPath, np.ndarray, np.ndarray | None, float]:
-        """The blended path through W, its TOPP-RA gridpoints ``grid_step_rad`` apart, the time-optimal path
-        velocity at them under the joint, torque and ZMP limits (with the gentler starts and stops when
-        ``soft_ends`` and the settings ask for them; None when TOPP-RA finds no profile), and the run's ZMP floor."""
-        path = BlendedPath(W, blends, self.s.blend_fill)
+                 soft_ends: bool, spline: SplinePath | None = None
+                 ) -> tuple[BlendedPath | SplinePath, np.ndarray, np.ndarray | None, float]:
+        """The blended path through W (or ``spline``, when given), its TOPP-RA gridpoints ``grid_step_rad`` apart,
+        the time-optimal path velocity at them under the joint, torque and ZMP limits (with the gentler starts and
+        stops when ``soft_ends`` and the settings ask for them; None when TOPP-RA finds no profile), and the run's
+        ZMP floor."""
+        path = spline if spline is not None else BlendedPath(W, blends, self.s.blend_fill)
         grid = gridpoints_for(path, grid_step_rad, self.s.max_gridpoints)
         rows, floor_m = self._rows(run, path, grid)
         # TOPP-RA over the joints that move (the same arc length; the others add no constraint)
         cols = np.flatnonzero(np.ptp(W, axis=0) > 0)
         if soft_ends and self.s.end_acceleration_scale < 1.0 and self.s.end_zone_rad > 0.0:
             rows.append(self._soft_ends(path, grid, cols))
-        moving = BlendedPath(W[:, cols], blends, self.s.blend_fill)
-        moving.breaks, moving.length = path.breaks, path.length  # the same parameter to the last bit
+        if spline is not None:
+            moving = spline.columns(cols)
+        else:
+            moving = BlendedPath(W[:, cols], blends, self.s.blend_fill)
+            moving.breaks, moving.length = path.breaks, path.length  # the same parameter to the last bit
         sd = parameterize(moving, grid, self.vlim[cols] * self.s.velocity_scale,
                           self.alim[cols] * self.s.acceleration_scale, rows)
         return path, grid, sd, floor_m

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from planner.motion.timing import zmp_cart_table
-from planner.motion.topp import BlendedPath, gridpoints_for, parameterize, profile_times
+from planner.motion.topp import BlendedPath, SplinePath, gridpoints_for, parameterize, profile_times
 from planner.regrasp.plan_assembly import MotionPiece
 from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings, Run
 from planner.stability.effort import EffortEvaluator, effort_limits
@@ -223,6 +223,32 @@ def test_filled_blends_share_each_segment_and_keep_the_path_smooth_and_near_its_
         t = np.clip(((Q - a_) @ u) / (u @ u), 0.0, 1.0)
         seg_dist = np.minimum(seg_dist, np.linalg.norm(Q - (a_ + t[:, None] * u), axis=1))
     assert seg_dist.max() <= 0.5 * max(full.blend.max(), 0.0) + 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(lengths=st.lists(st.floats(0.02, 1.5), min_size=2, max_size=7), seed=st.integers(0, 10_000))
+def test_the_spline_starts_and_ends_at_rest_points_tangent_to_its_end_legs_and_is_c2(lengths, seed):
+    rng = np.random.default_rng(seed)
+    steps = rng.normal(size=(len(lengths), 4))
+    steps *= (np.asarray(lengths) / np.linalg.norm(steps, axis=1))[:, None]
+    W = np.vstack([np.zeros(4), np.cumsum(steps, axis=0)])
+    path = SplinePath(W)
+    assert np.allclose(path(0.0), W[0]) and np.allclose(path(path.length), W[-1])
+    for end, leg in ((0.0, W[1] - W[0]), (path.length, W[-1] - W[-2])):  # tangent to the first and last legs
+        d = path(end, 1)
+        assert np.allclose(d / np.linalg.norm(d), leg / np.linalg.norm(leg), atol=1e-9)
+    s = np.linspace(0.0, path.length, 4001)
+    Q, d1, d2 = path(s), path(s, 1), path(s, 2)
+    ds = s[1] - s[0]
+    assert np.allclose(np.diff(Q, axis=0) / ds, 0.5 * (d1[1:] + d1[:-1]), atol=1e-3 * (1 + np.abs(d2).max()))
+    assert np.abs(np.diff(d2, axis=0)).max() <= 1e-2 * (1 + np.abs(d2).max())  # no jump in the second derivative
+    # the parameter is the arc length on average, and each waypoint's path position grows along the path
+    assert np.sum(np.linalg.norm(np.diff(Q, axis=0), axis=1)) == pytest.approx(path.length, rel=1e-3)
+    assert np.all(np.diff(path.waypoint_s) > 0) and path.waypoint_s[0] == 0 and path.waypoint_s[-1] == pytest.approx(path.length)
+    # inside the box of its waypoints (a B-spline lies in the convex hull of its control points)
+    assert np.all(Q >= W.min(axis=0) - 1e-9) and np.all(Q <= W.max(axis=0) + 1e-9)
+    cols = np.array([0, 2])
+    assert np.allclose(path.columns(cols)(s, 2), d2[:, cols])
 
 
 def test_a_sharp_corner_takes_more_of_a_short_segment_than_the_gentle_one_beside_it():

@@ -73,9 +73,9 @@ def test_a_run_that_fails_off_its_blends_is_refused_before_it_is_timed(solved, m
     timed_runs = []
     original = PlanTimer.time_part
 
-    def time_part(self, run, W, blends):
+    def time_part(self, run, W, blends, spline=None):
         timed_runs.append([id(p) for p in run.pieces])
-        return original(self, run, W, blends)
+        return original(self, run, W, blends, spline)
 
     monkeypatch.setattr(PlanTimer, "time_part", time_part)
     dense = PlanTimer(task, PlanTimingSettings(replans=0), 1.0, task.threshold_m, 0.005).time_plan(grazing)

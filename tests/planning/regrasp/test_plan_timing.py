@@ -211,6 +211,54 @@ def test_the_quicker_paths_are_the_same_from_one_process_or_two(solved, monkeypa
     assert one_counts == two_counts and one_counts["collision_states"] > 0
 
 
+def test_a_run_goes_along_the_spline_where_it_is_quicker_and_every_state_of_it_passes_the_checks(solved, monkeypatch):
+    """The runs of the search's own pieces with a corner, timed with and without the spline: the quicker is kept,
+    and the spline is quicker on one at least. With an obstacle that refuses every state more than
+    ``tol`` from the waypoints' polyline, the spline is pulled towards the corners until its states pass or the
+    blended run stands: either way every sample of the run is within ``tol``; with a tolerance nothing but the
+    polyline itself meets, no spline run is kept."""
+    from planner.regrasp.plan_timing import off_path, runs_of, waypoints_of
+
+    task, pieces = solved
+    quicker = []
+    for run in (r for r in runs_of(pieces, task) if len(waypoints_of(r)[0]) > 2):
+        blended = PlanTimer(task, PlanTimingSettings(spline_runs=False), 1.0, task.threshold_m, 0.005)
+        splined = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
+        plain, timed = blended.time_run(run), splined.time_run(run)
+        assert timed[2] <= plain[2]  # the quicker of the two
+        if splined.stats["spline_runs"]:
+            assert timed[2] < plain[2]
+            quicker.append((plain[2] - timed[2], run))
+    assert quicker and max(quicker, key=lambda q: q[0])[0] > 0.05
+    run = max(quicker, key=lambda q: q[0])[1]
+    W = waypoints_of(run)[0]
+
+    def hugging(tol: float) -> PlanTimer:
+        timer = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
+        real = timer.checker.validity
+
+        def validity(hold, free_object, grasping=None, active=None):
+            check = real(hold, free_object, grasping, active=active)
+
+            def ok(Q):
+                good, margin = check(Q)
+                Q = np.atleast_2d(Q)
+                near = np.array([not off_path(q[None], W, tol)[0] for q in Q])
+                return good & near, margin
+            return ok
+        monkeypatch.setattr(timer.checker, "validity", validity)
+        return timer
+
+    for tol, spline_kept in ((0.03, None), (1e-6, False)):
+        timer = hugging(tol)
+        timed = timer.time_run(run)
+        assert timed is not None
+        Q = np.vstack(timed[0])
+        assert not off_path(Q, W, tol + 1e-9).any()
+        if spline_kept is not None:
+            assert bool(timer.stats["spline_runs"]) is spline_kept
+
+
 def _detour(P: np.ndarray, joint: int, rad: float) -> np.ndarray:
     """P with one joint swung out and back in the middle of its second segment (three waypoints on that segment, the
     middle one ``rad`` out): a detour of that joint alone, which costs time at the velocity limits."""
