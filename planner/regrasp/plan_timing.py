@@ -415,29 +415,51 @@ class PlanTimer:
     def time_run(self, run: Run) -> tuple[list[np.ndarray], float, float] | None:
         """Per piece its samples (consecutive pieces share the boundary sample), the run's duration at full speed
         and its duration as timed (whole periods, rest copies left out); None when it cannot be timed here. The
-        run is timed blended through its waypoints and, where ``spline_runs`` and it has a corner, along the
-        spline of its waypoints (:class:`planner.motion.topp.SplinePath`) too; the quicker of the two that pass
-        every check is kept."""
+        run is blended through its waypoints or, where ``spline_runs`` and it has a corner, goes along a spline of
+        its waypoints (:class:`planner.motion.topp.SplinePath`): both paths are checked first, the one quicker on
+        TOPP-RA's coarse ranking grid is timed and its samples checked, and the other only where that fails."""
         W, starts = waypoints_of(run)
         if len(W) < 2:
             return None
-        blended = self._blended_run(run, W, starts)
-        spline = self._spline_run(run, W, starts) if self.s.spline_runs and len(W) > 2 else None
-        if spline is not None and (blended is None or spline[2] < blended[2]):
-            self.stats["spline_runs"] += 1
-            return spline
-        if blended is not None:
-            self.stats["blends"] += blended[3]
-        return blended[:3] if blended is not None else None
-
-    def _blended_run(self, run: Run, W: np.ndarray, starts: list[int]) -> tuple[list[np.ndarray], float, float, int] | None:
-        """The run blended through its waypoints, blends shrunk until every sample passes: :meth:`time_run`'s
-        result and the number of blends kept."""
         blends = np.full(len(W) - 2, self.s.blend_rad)
         if self.s.path_check_rad > 0.0:
             blends = self._checked_blends(run, W, starts, blends)
-            if blends is None:
-                return None
+        spline = self._checked_spline(run, W, starts) if self.s.spline_runs and len(W) > 2 else None
+        tries = []
+        if blends is not None:
+            tries.append((lambda: self._coarse_time(run, W, blends), 0, lambda: self._blended_run(run, W, starts, blends)))
+        if spline is not None:
+            P, at, path = spline
+            tries.append((lambda: self._coarse_time(run, P, None, path), 1,
+                          lambda: self._spline_run(run, P, at, starts, path)))
+        if len(tries) == 2:  # the quicker on the coarse grid first
+            tries.sort(key=lambda t: (t[0](), t[1]))
+        for _, kind, timed_by in tries:
+            timed = timed_by()
+            if timed is not None:
+                self.stats["spline_runs"] += kind
+                return timed
+        return None
+
+    def _coarse_time(self, run: Run, W: np.ndarray, blends: np.ndarray | None, spline: SplinePath | None = None) -> float:
+        """The run's TOPP-RA time on the ranking's coarse grid (``rank_grid_step_rad``), blended through W with
+        ``blends`` (stopping where a blend is 0) or along ``spline``, without the checks of samples: what orders a
+        run's two paths before either is timed in full."""
+        stretches = [(W, None, spline)] if spline is not None else [
+            (W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0), None) for a, b in _cuts(blends)]
+        total = 0.0
+        for Wk, bk, sk in stretches:
+            _, grid, sd, _ = self._profile(run, Wk, bk, self.s.rank_grid_step_rad, soft_ends=False, spline=sk)
+            if sd is None:
+                return math.inf
+            total += float(profile_times(grid, sd)[-1])
+        return total
+
+    def _blended_run(self, run: Run, W: np.ndarray, starts: list[int],
+                     blends: np.ndarray) -> tuple[list[np.ndarray], float, float] | None:
+        """The run blended through its waypoints (``blends``, as its path's checks left them), blends shrunk
+        further until every sample passes."""
+        blends = blends.copy()
         for round_ in range(self.s.blend_rounds + 2):
             parts = []
             for a, b in _cuts(blends):
@@ -465,31 +487,37 @@ class PlanTimer:
         out = self._per_piece(run, starts, whole.waypoint_s, s_cat, Q_cat)
         if out is None:
             return None
-        return out, sum(part.full_speed_s for part in parts), (len(Q_cat) - 1) * self.dt, int(np.count_nonzero(blends > 0.0))
+        self.stats["blends"] += int(np.count_nonzero(blends > 0.0))
+        return out, sum(part.full_speed_s for part in parts), (len(Q_cat) - 1) * self.dt
 
-    def _spline_run(self, run: Run, W: np.ndarray, starts: list[int]) -> tuple[list[np.ndarray], float, float] | None:
-        """The run along a spline of its waypoints, without a stop: its states every ``path_check_rad`` checked
-        first, then timed, then every sample checked, as a blended run's are; None (nothing refused: the blended
-        run stands) where the checks still fail. Where the spline's states fail (it strays from the waypoints
-        into an obstacle), both legs at the nearest waypoint get a midpoint as another control point, which pulls
-        the spline towards that corner, and it is checked again, ``spline_rounds`` times at most."""
+    def _checked_spline(self, run: Run, W: np.ndarray, starts: list[int]
+                        ) -> tuple[np.ndarray, np.ndarray, SplinePath] | None:
+        """A spline of the run's waypoints whose states every ``path_check_rad`` pass the checks of the timed
+        samples: its control points, where each waypoint is among them, and the spline; None where none passes.
+        Where the spline's states fail (it strays from the waypoints into an obstacle), both legs at the nearest
+        waypoint get their midpoint as another control point, which pulls the spline towards that corner, and it is
+        checked again, ``spline_rounds`` times at most."""
         P, at = W.copy(), np.arange(len(W))  # control points; where each waypoint is among them
         for _ in range(self.s.spline_rounds + 1):
             spline = SplinePath(P)
             if self.s.path_check_rad <= 0.0:
-                break
+                return P, at, spline
             s = np.linspace(0.0, spline.length, max(2, int(math.ceil(spline.length / self.s.path_check_rad)) + 1))
             Q = spline(s)
             Q[0], Q[-1] = W[0], W[-1]
             bad_s = self._invalid_s(run, spline, [int(at[i]) for i in starts], s, Q)
             if not bad_s.size:
-                break
+                return P, at, spline
             corners = {int(np.argmin(np.abs(spline.waypoint_s - b))) for b in bad_s}
             legs = sorted({j for c in corners for j in (c - 1, c) if 0 <= j < len(P) - 1})
             P = np.insert(P, [j + 1 for j in legs], 0.5 * (P[legs] + P[[j + 1 for j in legs]]), axis=0)
             at = at + np.searchsorted(np.asarray(legs), at, side="left")
-        else:
-            return None
+        return None
+
+    def _spline_run(self, run: Run, P: np.ndarray, at: np.ndarray, starts: list[int],
+                    spline: SplinePath) -> tuple[list[np.ndarray], float, float] | None:
+        """The run along a checked spline (:meth:`_checked_spline`), without a stop: timed, then every sample
+        checked, as a blended run's are; None (nothing refused: the blended run stands) where that fails."""
         piece_starts = [int(at[i]) for i in starts]
         refused = len(self.stats["refused"])
         part = self.time_part(run, P, np.zeros(0), spline=spline)
