@@ -38,7 +38,23 @@ from toppra.interpolator import AbstractGeometricPath
 GRAVITY = 9.81
 
 
-class BlendedPath(AbstractGeometricPath):
+class _JointPath(AbstractGeometricPath):
+    """What TOPP-RA asks of a joint path besides its values: its dimension and the path parameter's interval
+    ``[0, length]``."""
+
+    _dof: int
+    length: float
+
+    @property
+    def dof(self) -> int:
+        return self._dof
+
+    @property
+    def path_interval(self) -> np.ndarray:
+        return np.array([0.0, self.length])
+
+
+class BlendedPath(_JointPath):
     """Straight segments through ``waypoints`` (K, n) with quadratic corner blends of half-length
     ``blends[i]`` at interior waypoint ``i + 1`` (K - 2,).
 
@@ -117,16 +133,8 @@ class BlendedPath(AbstractGeometricPath):
             out = np.zeros((len(ss), self._dof))
         return out[0] if np.ndim(path_positions) == 0 else out
 
-    @property
-    def dof(self) -> int:
-        return self._dof
 
-    @property
-    def path_interval(self) -> np.ndarray:
-        return np.array([0.0, self.length])
-
-
-class SplinePath(AbstractGeometricPath):
+class SplinePath(_JointPath):
     """A clamped cubic B-spline with the waypoints (K, n) as its control points: it starts at the first and ends at
     the last waypoint, tangent to the first and last legs, and passes near (not through) the interior ones, inside
     the convex hull of each four consecutive waypoints. C2 everywhere, so its curvature is spread along the whole
@@ -171,14 +179,6 @@ class SplinePath(AbstractGeometricPath):
         u = np.clip(ss / self.length, 0.0, 1.0)
         out = self._spline(u, order) / self.length ** order
         return out[0] if np.ndim(path_positions) == 0 else out
-
-    @property
-    def dof(self) -> int:
-        return self._dof
-
-    @property
-    def path_interval(self) -> np.ndarray:
-        return np.array([0.0, self.length])
 
 
 class LinearRows(toppra.constraint.LinearConstraint):

@@ -119,6 +119,20 @@ def test_a_motions_paths_are_ranked_by_their_timing_not_by_the_time_at_the_veloc
     assert np.array_equal(unranked[0][k].path, min((stairs, one_turn), key=lambda Q: path_length(Q, weights)))
 
 
+def _refuse_also(timer: PlanTimer, refused, monkeypatch) -> None:
+    """The timer's state checker refuses the states ``refused(Q)`` marks (N,) too: an obstacle in joint space."""
+    real = timer.checker.validity
+
+    def validity(hold, free_object, grasping=None, active=None):
+        check = real(hold, free_object, grasping, active=active)
+
+        def ok(Q):
+            good, margin = check(Q)
+            return good & ~refused(np.atleast_2d(Q)), margin
+        return ok
+    monkeypatch.setattr(timer.checker, "validity", validity)
+
+
 def test_the_ranking_times_a_path_with_the_blends_its_checks_leave_it(solved, monkeypatch):
     """Two paths that are the same turn, in two pairs of joints: unchecked, they time alike. An obstacle inside the
     first one's corner (a box of states the checker refuses) leaves that corner only a small blend, and the ranking
@@ -137,24 +151,16 @@ def test_the_ranking_times_a_path_with_the_blends_its_checks_leave_it(solved, mo
 
     hugging, clear = turn("RSP", "REP"), turn("RSY", "RWRY")
     timer = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
-    real = timer.checker.validity
 
-    def with_obstacle(hold, free_object, grasping=None, active=None):
-        check = real(hold, free_object, grasping, active=active)
-
-        def validity(Q):
-            ok, margin = check(Q)
-            Q = np.atleast_2d(Q)
-            inside = ((Q[:, j["RSP"]] - q0[j["RSP"]] > 0.45) & (Q[:, j["RSP"]] - q0[j["RSP"]] < 0.59)
-                      & (q0[j["REP"]] - Q[:, j["REP"]] > 0.01) & (q0[j["REP"]] - Q[:, j["REP"]] < 0.15))
-            return ok & ~inside, margin
-        return validity
+    def inside(Q: np.ndarray) -> np.ndarray:
+        return ((Q[:, j["RSP"]] - q0[j["RSP"]] > 0.45) & (Q[:, j["RSP"]] - q0[j["RSP"]] < 0.59)
+                & (q0[j["REP"]] - Q[:, j["REP"]] > 0.01) & (q0[j["REP"]] - Q[:, j["REP"]] < 0.15))
 
     alone = Run([pieces[k]], "none", None, task.placements[task.start_id])
     unchecked = PlanTimer(task, PlanTimingSettings(path_check_rad=0.0), 1.0, task.threshold_m, 0.005)
     assert unchecked._estimated_time(hugging, alone) == pytest.approx(unchecked._estimated_time(clear, alone), rel=0.05)
     clear_time = timer._estimated_time(clear, alone)
-    monkeypatch.setattr(timer.checker, "validity", with_obstacle)
+    _refuse_also(timer, inside, monkeypatch)
     assert timer._estimated_time(hugging, alone) > timer._estimated_time(clear, alone) + 0.05
     assert timer._estimated_time(clear, alone) == clear_time  # the obstacle is not in its way
     through = np.array([q0, q0, q0])  # a segment straight through the obstacle: no blend can help
@@ -235,18 +241,7 @@ def test_a_run_goes_along_the_spline_where_it_is_quicker_and_every_state_of_it_p
 
     def hugging(tol: float) -> PlanTimer:
         timer = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
-        real = timer.checker.validity
-
-        def validity(hold, free_object, grasping=None, active=None):
-            check = real(hold, free_object, grasping, active=active)
-
-            def ok(Q):
-                good, margin = check(Q)
-                Q = np.atleast_2d(Q)
-                near = np.array([not off_path(q[None], W, tol)[0] for q in Q])
-                return good & near, margin
-            return ok
-        monkeypatch.setattr(timer.checker, "validity", validity)
+        _refuse_also(timer, lambda Q: off_path(Q, W, tol), monkeypatch)
         return timer
 
     for tol, spline_kept in ((0.03, None), (1e-6, False)):
