@@ -421,6 +421,7 @@ class PlanTimer:
         W, starts = waypoints_of(run)
         if len(W) < 2:
             return None
+        refused = len(self.stats["refused"])
         blends = np.full(len(W) - 2, self.s.blend_rad)
         if self.s.path_check_rad > 0.0:
             blends = self._checked_blends(run, W, starts, blends)
@@ -438,6 +439,7 @@ class PlanTimer:
             timed = timed_by()
             if timed is not None:
                 self.stats["spline_runs"] += kind
+                del self.stats["refused"][refused:]  # what failed on the way to a run that is timed refused nothing
                 return timed
         return None
 
