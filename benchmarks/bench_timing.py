@@ -11,7 +11,8 @@ Then the plan timing's runs (rest to rest), each with its duration and its corne
 chosen path at the velocity limits (``velocity_scale`` of them), plus one start from rest and one stop at rest
 (the largest v / a of its moving joints; a run too short to reach full speed, 2 sqrt(d / a) of its slowest joint).
 The floor leaves out every corner and the balance: what is left above it is what corners, blends and the ZMP cost,
-and what a shorter path (other key postures) could still win.
+and what a shorter path (other key postures) could still win. It is the floor of the waypoints' polyline: a run laid
+along the spline of its waypoints cuts their corners and can come in under it.
 
     python benchmarks/bench_timing.py --scenario upright --hands left-left
 """
