@@ -125,6 +125,14 @@ class PlanTimingSettings(BaseModel):
                                      "zmp_margin_m; where the CoM itself is closer, as far as the CoM): the motion's "
                                      "own dynamics may take at most the rest of the margin the run has at its "
                                      "tightest. A user's own zmp_margin_m replaces it (0: the margin alone)")
+    zmp_reserve_cap_share: float | None = Field(0.75, ge=0, le=1, description="the reserve asks at most this share "
+                                                "of the plan's smallest static CoM margin (0.75: the physics twin's "
+                                                "target for the CoP) plus zmp_overshoot_m, so a run with far more margin "
+                                                "than the plan's tightest point keeps only that; the runs are timed "
+                                                "twice (the first timing gives the plan's margin). None: no cap")
+    zmp_overshoot_m: float = Field(0.019, ge=0, description="with zmp_reserve_cap_share: how far the centre of "
+                                   "pressure may go past the planned ZMP where a bang-bang profile switches (13-19 mm "
+                                   "in the physics twin with its stand-in stabilizer; a site fits it to its own)")
     zmp_inner_m: float = Field(0.0005, ge=0, description="extra ZMP margin inside TOPP-RA, for the finite differences between gridpoints")
     shaping_window_s: float = Field(0.0, ge=0, le=2.0, description="moving average of the path position over this "
                                     "time: jerk limited, starts and stops spread out (0: TOPP-RA's bang-bang profile)")
@@ -242,6 +250,8 @@ class PlanTimer:
         self.limits: EffortEvaluator | None = task.limits
         self.threshold = task.evaluator.threshold_m if task.constrained else -np.inf
         self._inertials: dict = {}
+        #: the timed plan's smallest static CoM margin, for the reserve's cap (set by :meth:`time_plan`)
+        self.plan_static_min_m: float | None = None
         self.stats = {"shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "spline_runs": 0, "dense_failures": []}
 
     # -- constraints ------------------------------------------------------------------------------------------------
@@ -283,9 +293,14 @@ class PlanTimer:
         """How far inside the polygon a run keeps its ZMP, given the static CoM margins along its path: the ZMP
         margin, or ``zmp_reserve_share`` of the smallest of those margins where that is more. A fast swing's ZMP
         steps set the body swaying, and the feet then feel more than the planned ZMP; keeping the ZMP close to
-        where the CoM is at its tightest leaves that sway the rest of the margin."""
+        where the CoM is at its tightest leaves that sway the rest of the margin. With ``zmp_reserve_cap_share`` and
+        the plan's smallest static margin known (:meth:`time_plan`), the reserve asks at most that share of it plus
+        ``zmp_overshoot_m``."""
         tightest = float(np.maximum(static_margin, 0.0).min()) if static_margin.size else 0.0
-        return max(self.zmp_margin_m, self.s.zmp_reserve_share * tightest)
+        reserve = self.s.zmp_reserve_share * tightest
+        if self.plan_static_min_m is not None and self.s.zmp_reserve_cap_share is not None:
+            reserve = min(reserve, self.s.zmp_reserve_cap_share * self.plan_static_min_m + self.s.zmp_overshoot_m)
+        return max(self.zmp_margin_m, reserve)
 
     @staticmethod
     def _zmp_need(static_margin: np.ndarray, floor_m: float) -> np.ndarray:
@@ -825,13 +840,33 @@ class PlanTimer:
         """The plan's pieces made quicker, then timed run by run (a run whose samples fail the checks takes its
         next quicker alternative, at last the search's own path); and how much slower than full speed it is. The
         stats' ``quicker_paths_time_s`` is the wall time of making the paths quicker (:meth:`alternatives`: replans,
-        shortcuts, ranking); the rest of the stage is the time parameterization and the checks of its samples."""
-        out: list[MotionPiece] = []
-        slack = 0.0
+        shortcuts, ranking); the rest of the stage is the time parameterization and the checks of its samples.
+        With ``zmp_reserve_cap_share`` set, the runs are timed twice: the first timing gives the plan's smallest
+        static margin, which caps the ZMP reserve of the second (:meth:`_zmp_floor`)."""
         originals = runs_of(pieces, self.task)
         started = time.perf_counter()  # for stats only: nothing below depends on it
         levels = [runs_of(level, self.task) for level in self.alternatives(pieces)]
         self.stats["quicker_paths_time_s"] = time.perf_counter() - started
+        if self.s.zmp_reserve_cap_share is not None:
+            before = {key: (list(v) if isinstance(v, list) else v) for key, v in self.stats.items()}
+            first, _ = self._time_runs(originals, levels)
+            self.stats = before  # the first timing only measures the plan
+            t = self.task
+            self.plan_static_min_m = min(
+                float(t.evaluator.evaluate(np.asarray(p.waypoints, dtype=float), hold, threshold_m=0.0).margin.min())
+                for p, _, hold, _ in object_states(first, t.evaluator, t.placements[t.start_id]))
+            self.stats["reserve_cap_m"] = self.s.zmp_reserve_cap_share * self.plan_static_min_m + self.s.zmp_overshoot_m
+        out, slack = self._time_runs(originals, levels)
+        return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
+                                              "zmp_margin_m": self.zmp_margin_m,
+                                              "zmp_reserve_share": self.s.zmp_reserve_share},
+                          stats={**self.stats, "slack_s": slack})
+
+    def _time_runs(self, originals: list[Run], levels: list[list[Run]]) -> tuple[list[MotionPiece], float]:
+        """Each run timed: its quickest alternative whose samples pass, else the search's own path at last; the
+        timed pieces and the time the whole-period rounding and the speed scale add."""
+        out: list[MotionPiece] = []
+        slack = 0.0
         for r, original in enumerate(originals):
             original.validated = waypoints_of(original)[0]
             self.stats["runs"] += 1
@@ -862,10 +897,7 @@ class PlanTimer:
             Qs, full, actual = timed
             slack += actual - full
             out.extend(replace(p, waypoints=Q) for p, Q in zip(run.pieces, Qs))
-        return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
-                                              "zmp_margin_m": self.zmp_margin_m,
-                                              "zmp_reserve_share": self.s.zmp_reserve_share},
-                          stats={**self.stats, "slack_s": slack})
+        return out, slack
 
 
 def _cuts(blends: np.ndarray) -> list[tuple[int, int]]:

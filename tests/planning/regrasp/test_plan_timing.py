@@ -279,6 +279,24 @@ def test_a_run_goes_along_the_spline_where_it_is_quicker_and_every_state_of_it_p
             assert bool(timer.stats["spline_runs"]) is spline_kept
 
 
+def test_the_reserves_cap_comes_from_a_first_timing_of_the_plan(solved):
+    """With the cap on, the runs are timed twice: the first timing is the uncapped one, and its smallest static
+    margin caps the second's reserve; the stats count the runs once."""
+    from planner.regrasp.plan_assembly import object_states
+
+    task, pieces = solved
+    plain = PlanTimer(task, PlanTimingSettings(zmp_reserve_cap_share=None), 1.0, task.threshold_m, 0.005)
+    first = plain.time_plan(pieces)
+    least = min(float(task.evaluator.evaluate(np.asarray(p.waypoints), hold, threshold_m=0.0).margin.min())
+                for p, _, hold, _ in object_states(first.pieces, task.evaluator, task.placements[task.start_id]))
+    capped = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
+    timing = capped.time_plan(pieces)
+    assert capped.plan_static_min_m == pytest.approx(least, abs=1e-12)
+    assert timing.stats["reserve_cap_m"] == pytest.approx(0.75 * least + 0.019)
+    assert timing.stats["runs"] == first.stats["runs"] and "reserve_cap_m" not in first.stats
+    assert sum(len(p.waypoints) for p in timing.pieces) <= sum(len(p.waypoints) for p in first.pieces)
+
+
 def _detour(P: np.ndarray, joint: int, rad: float) -> np.ndarray:
     """P with one joint swung out and back in the middle of its second segment (three waypoints on that segment, the
     middle one ``rad`` out): a detour of that joint alone, which costs time at the velocity limits."""
