@@ -519,7 +519,7 @@ class PlanTimer:
             spline = SplinePath(P)
             if self.s.path_check_rad <= 0.0:
                 return P, at, spline
-            s = np.linspace(0.0, spline.length, max(2, int(math.ceil(spline.length / self.s.path_check_rad)) + 1))
+            s = _spaced(spline.length, self.s.path_check_rad)
             Q = spline(s)
             Q[0], Q[-1] = W[0], W[-1]
             bad_s = self._invalid_s(run, spline, [int(at[i]) for i in starts], s, Q)
@@ -602,7 +602,7 @@ class PlanTimer:
             whole = _Joined(paths)
             s_all, Q_all, offset = [], [], 0.0
             for k, (path, (a, b)) in enumerate(zip(paths, cuts)):
-                s_k = np.linspace(0.0, path.length, max(2, int(math.ceil(path.length / step)) + 1))[(1 if k else 0):]
+                s_k = _spaced(path.length, step)[(1 if k else 0):]
                 Q_k = path(s_k)
                 if k == 0:
                     Q_k[0] = W[a]
@@ -707,7 +707,7 @@ class PlanTimer:
         def work(k: int, in_child: bool) -> tuple[list[np.ndarray], dict, Counter]:
             if not in_child:
                 return paths_of(k), {}, Counter()
-            stats, counts = {key: (list(v) if isinstance(v, list) else v) for key, v in self.stats.items()}, Counter(checker.counters)
+            stats, counts = _copied(self.stats), Counter(checker.counters)
             paths = paths_of(k)
             grown = {key: (v[len(stats[key]):] if isinstance(v, list) else v - stats[key]) for key, v in self.stats.items()}
             return paths, grown, Counter(checker.counters) - counts
@@ -771,14 +771,7 @@ class PlanTimer:
                                           count=False)
             if blends is None:
                 return math.inf
-        total = 0.0
-        for a, b in _cuts(blends):  # the robot stops where a blend had to go
-            _, grid, sd, _ = self._profile(run, W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0),
-                                           self.s.rank_grid_step_rad, soft_ends=False)
-            if sd is None:
-                return math.inf
-            total += float(profile_times(grid, sd)[-1])
-        return total
+        return self._coarse_time(run, W, blends)  # the robot stops where a blend had to go
 
     def _profile(self, run: Run, W: np.ndarray, blends: np.ndarray, grid_step_rad: float,
                  soft_ends: bool, spline: SplinePath | None = None
@@ -841,14 +834,14 @@ class PlanTimer:
         next quicker alternative, at last the search's own path); and how much slower than full speed it is. The
         stats' ``quicker_paths_time_s`` is the wall time of making the paths quicker (:meth:`alternatives`: replans,
         shortcuts, ranking); the rest of the stage is the time parameterization and the checks of its samples.
-        With ``zmp_reserve_cap_share`` set, the runs are timed twice: the first timing gives the plan's smallest
-        static margin, which caps the ZMP reserve of the second (:meth:`_zmp_floor`)."""
+        With ``zmp_reserve_cap_share`` set and a reserve to cap, the runs are timed twice: the first timing gives the
+        plan's smallest static margin, which caps the ZMP reserve of the second (:meth:`_zmp_floor`)."""
         originals = runs_of(pieces, self.task)
         started = time.perf_counter()  # for stats only: nothing below depends on it
         levels = [runs_of(level, self.task) for level in self.alternatives(pieces)]
         self.stats["quicker_paths_time_s"] = time.perf_counter() - started
-        if self.s.zmp_reserve_cap_share is not None:
-            before = {key: (list(v) if isinstance(v, list) else v) for key, v in self.stats.items()}
+        if self.s.zmp_reserve_cap_share is not None and self.s.zmp_reserve_share > 0.0:  # no reserve: nothing to cap
+            before = _copied(self.stats)
             first, _ = self._time_runs(originals, levels)
             self.stats = before  # the first timing only measures the plan
             t = self.task
@@ -898,6 +891,17 @@ class PlanTimer:
             slack += actual - full
             out.extend(replace(p, waypoints=Q) for p, Q in zip(run.pieces, Qs))
         return out, slack
+
+
+def _spaced(length: float, step: float) -> np.ndarray:
+    """Path positions from 0 to ``length`` at most ``step`` apart, both ends included (the states a path's checks
+    go through before it is timed)."""
+    return np.linspace(0.0, length, max(2, int(math.ceil(length / step)) + 1))
+
+
+def _copied(stats: dict) -> dict:
+    """A copy of the timing's stats whose lists are copies too (the numbers are immutable)."""
+    return {key: (list(v) if isinstance(v, list) else v) for key, v in stats.items()}
 
 
 def _cuts(blends: np.ndarray) -> list[tuple[int, int]]:
