@@ -128,8 +128,9 @@ class PlanTimingSettings(BaseModel):
     zmp_reserve_cap_share: float | None = Field(0.75, ge=0, le=1, description="the reserve asks at most this share "
                                                 "of the plan's smallest static CoM margin (0.75: the physics twin's "
                                                 "target for the CoP) plus zmp_overshoot_m, so a run with far more margin "
-                                                "than the plan's tightest point keeps only that; the runs are timed "
-                                                "twice (the first timing gives the plan's margin). None: no cap")
+                                                "than the plan's tightest point keeps only that; where there is a "
+                                                "reserve, the runs are timed twice (the first timing gives the plan's "
+                                                "margin). None: no cap")
     zmp_overshoot_m: float = Field(0.019, ge=0, description="with zmp_reserve_cap_share: how far the centre of "
                                    "pressure may go past the planned ZMP where a bang-bang profile switches (13-19 mm "
                                    "in the physics twin with its stand-in stabilizer; a site fits it to its own)")
