@@ -253,6 +253,11 @@ class PlanTimer:
         self._inertials: dict = {}
         #: the timed plan's smallest static CoM margin, for the reserve's cap (set by :meth:`time_plan`)
         self.plan_static_min_m: float | None = None
+        #: results kept within one :meth:`time_plan`, by key: the result, what it added to the stats, the uncapped ZMP
+        #: reserves it asked with the cap of the day (:meth:`_once`)
+        self._kept: dict = {}
+        #: the uncapped ZMP reserves asked since the innermost :meth:`_once` began (None: nobody is listening)
+        self._asked: list[float] | None = None
         self.stats = {"shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "spline_runs": 0, "dense_failures": []}
 
     # -- constraints ------------------------------------------------------------------------------------------------
@@ -299,9 +304,39 @@ class PlanTimer:
         ``zmp_overshoot_m``."""
         tightest = float(np.maximum(static_margin, 0.0).min()) if static_margin.size else 0.0
         reserve = self.s.zmp_reserve_share * tightest
-        if self.plan_static_min_m is not None and self.s.zmp_reserve_cap_share is not None:
-            reserve = min(reserve, self.s.zmp_reserve_cap_share * self.plan_static_min_m + self.s.zmp_overshoot_m)
-        return max(self.zmp_margin_m, reserve)
+        if self._asked is not None:
+            self._asked.append(reserve)
+        return max(self.zmp_margin_m, min(reserve, self._reserve_cap()))
+
+    def _reserve_cap(self) -> float:
+        """The most the ZMP reserve may ask (:meth:`_zmp_floor`): infinite until the plan's smallest static margin
+        is known, or without ``zmp_reserve_cap_share``."""
+        if self.plan_static_min_m is None or self.s.zmp_reserve_cap_share is None:
+            return math.inf
+        return self.s.zmp_reserve_cap_share * self.plan_static_min_m + self.s.zmp_overshoot_m
+
+    def _once(self, key: tuple, compute):
+        """``compute()`` the first time ``key`` is asked for within one :meth:`time_plan`; after that its result
+        again, with what it added to the stats added again (the stats are those of computing it each time), as long
+        as every ZMP reserve it asked (:meth:`_zmp_floor`) comes out the same under today's cap: the reserve cap's
+        second timing recomputes only the runs the cap changes. A key names a run by id: the runs live as long as
+        the :meth:`time_plan` that clears these."""
+        cap = self._reserve_cap()
+        kept = self._kept.get(key)
+        if kept is not None and all(min(a, cap) == min(a, kept_cap) for a, kept_cap in kept[2]):
+            result, grown, asked = kept
+            _add_stats(self.stats, grown)
+        else:
+            outer, self._asked = self._asked, []
+            before = _copied(self.stats)
+            try:
+                result = compute()
+            finally:
+                asked, self._asked = [(a, cap) for a in self._asked], outer
+            self._kept[key] = (result, _grown(self.stats, before), asked)
+        if self._asked is not None:
+            self._asked.extend(a for a, _ in asked)
+        return result
 
     @staticmethod
     def _zmp_need(static_margin: np.ndarray, floor_m: float) -> np.ndarray:
@@ -440,8 +475,9 @@ class PlanTimer:
         refused = len(self.stats["refused"])
         blends = np.full(len(W) - 2, self.s.blend_rad)
         if self.s.path_check_rad > 0.0:
-            blends = self._checked_blends(run, W, starts, blends)
-        spline = self._checked_spline(run, W, starts) if self.s.spline_runs and len(W) > 2 else None
+            blends = self._once(("blends", id(run)), lambda: self._checked_blends(run, W, starts, blends))
+        spline = (self._once(("spline", id(run)), lambda: self._checked_spline(run, W, starts))
+                  if self.s.spline_runs and len(W) > 2 else None)
         tries = []
         if blends is not None:
             tries.append((lambda: self._coarse_time(run, W, blends), 0, lambda: self._blended_run(run, W, starts, blends)))
@@ -664,11 +700,11 @@ class PlanTimer:
         shortening's every ``shortcut_check_rad``. The ``alternatives`` quickest at the velocity limits are kept; with
         ``rank_by_timing`` they are then ranked by their TOPP-RA time on a coarse grid (:meth:`_estimated_time`),
         the corners and the balance included. The motions are worked on in this process and a forked helper at
-        once (:meth:`_each_planned`)."""
+        once (:meth:`_each_shared`)."""
         t = self.task
         states = list(object_states(pieces, t.evaluator, t.placements[t.start_id]))
         planned = [k for k, (piece, *_) in enumerate(states) if piece.path is not None and len(piece.path) > 2]
-        found = self._each_planned(planned, lambda k: self._piece_paths(k, *states[k]))
+        found = self._each_shared(planned, lambda k: self._piece_paths(k, *states[k]))
         per_piece = [[replace(piece, path=Q) for Q in found[k]] if k in found else [piece]
                      for k, (piece, *_) in enumerate(states)]
         levels = max(len(a) for a in per_piece) if per_piece else 0
@@ -697,33 +733,34 @@ class PlanTimer:
             paths = [paths[i] for i in sorted(range(len(paths)), key=lambda i: (took[i], i))]
         return paths
 
-    def _each_planned(self, planned: list[int], paths_of) -> dict[int, list[np.ndarray]]:
-        """``paths_of(k)`` for each planned piece k, in this process and one forked helper at once where the task's
-        ``parallel_motions`` allows it, forking is safe and a second core exists (the same paths either way: each
-        piece draws from its own stream). The helper's stats and check counts are added to this process's."""
+    def _each_shared(self, jobs: list[int], work) -> dict[int, object]:
+        """``work(j)`` for each job j, in this process and one forked helper at once where the task's
+        ``parallel_motions`` allows it, forking is safe and a second core exists; the same results either way, for
+        jobs that do not depend on one another (each piece's paths draw from its own stream). What the helper adds to the check counts and the kept results (:meth:`_once`) is added to this
+        process's, and what each job adds to the stats in the jobs' order (not in the order they ended)."""
         checker = self.checker  # made here, before any fork, so both processes count into the same
-        if not (self.task.settings.parallel_motions and len(planned) > 1 and spare_cores() > 0 and fork_is_safe()):
-            return {k: paths_of(k) for k in planned}
+        if not (self.task.settings.parallel_motions and len(jobs) > 1 and spare_cores() > 0 and fork_is_safe()):
+            return {j: work(j) for j in jobs}
 
-        def work(k: int, in_child: bool) -> tuple[list[np.ndarray], dict, Counter]:
+        def shared(j: int, in_child: bool) -> tuple[object, dict, Counter, dict]:
+            stats, counts, kept = _copied(self.stats), Counter(checker.counters), set(self._kept)
+            result = work(j)
+            grown, self.stats = _grown(self.stats, stats), stats  # added below in the jobs' order
             if not in_child:
-                return paths_of(k), {}, Counter()
-            stats, counts = _copied(self.stats), Counter(checker.counters)
-            paths = paths_of(k)
-            grown = {key: (v[len(stats[key]):] if isinstance(v, list) else v - stats[key]) for key, v in self.stats.items()}
-            return paths, grown, Counter(checker.counters) - counts
+                return result, grown, Counter(), {}
+            return result, grown, Counter(checker.counters) - counts, {key: v for key, v in self._kept.items()
+                                                                        if key not in kept}
 
-        results, error = share_with_child(planned, work, lambda: False)
-        found: dict[int, list[np.ndarray]] = {}
-        for i, k in enumerate(planned):
-            if i not in results:  # the helper failed before this one: it is planned here
-                found[k] = paths_of(k)
+        results, error = share_with_child(jobs, shared, lambda: False)
+        found: dict[int, object] = {}
+        for i, j in enumerate(jobs):
+            if i not in results:  # the helper failed before this one: it is done here
+                found[j] = work(j)
                 continue
-            paths, grown, counts = results[i]
-            found[k] = paths
+            found[j], grown, counts, kept = results[i]
             checker.counters.update(counts)
-            for key, v in grown.items():
-                self.stats[key] = self.stats[key] + v
+            _add_stats(self.stats, grown)
+            self._kept.update(kept)
         if error is not None:
             self.stats.setdefault("helper_errors", []).append(error.strip().splitlines()[-1])
         return found
@@ -838,6 +875,7 @@ class PlanTimer:
         With ``zmp_reserve_cap_share`` set and a reserve to cap, the runs are timed twice: the first timing gives the
         plan's smallest static margin, which caps the ZMP reserve of the second (:meth:`_zmp_floor`)."""
         originals = runs_of(pieces, self.task)
+        self._kept = {}
         started = time.perf_counter()  # for stats only: nothing below depends on it
         levels = [runs_of(level, self.task) for level in self.alternatives(pieces)]
         self.stats["quicker_paths_time_s"] = time.perf_counter() - started
@@ -849,8 +887,9 @@ class PlanTimer:
             self.plan_static_min_m = min(
                 float(t.evaluator.evaluate(np.asarray(p.waypoints, dtype=float), hold, threshold_m=0.0).margin.min())
                 for p, _, hold, _ in object_states(first, t.evaluator, t.placements[t.start_id]))
-            self.stats["reserve_cap_m"] = self.s.zmp_reserve_cap_share * self.plan_static_min_m + self.s.zmp_overshoot_m
+            self.stats["reserve_cap_m"] = self._reserve_cap()
         out, slack = self._time_runs(originals, levels)
+        self._kept = {}
         return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
                                               "zmp_margin_m": self.zmp_margin_m,
                                               "zmp_reserve_share": self.s.zmp_reserve_share},
@@ -873,13 +912,9 @@ class PlanTimer:
                     tries.append(run)
             if [id(p.path) for p in original.pieces] not in seen:
                 tries.append(original)
-            timed = None
-            for k, run in enumerate(tries):
+            for run in tries:
                 run.validated = original.validated
-                timed = self.time_run(run)
-                if timed is not None:
-                    self.stats["alternatives_dropped"] += k
-                    break
+            k, timed = self._first_timed(tries)
             if timed is None:
                 run = original
                 self.stats["fallback_runs"] += 1
@@ -888,11 +923,20 @@ class PlanTimer:
                     self.stats["dense_failures"].append(bad)
                 out.extend(run.pieces)
                 continue
+            self.stats["alternatives_dropped"] += k
             Qs, full, actual = timed
             slack += actual - full
-            out.extend(replace(p, waypoints=Q) for p, Q in zip(run.pieces, Qs))
+            out.extend(replace(p, waypoints=Q) for p, Q in zip(tries[k].pieces, Qs))
         return out, slack
 
+    def _first_timed(self, tries: list[Run]) -> tuple[int, tuple[list[np.ndarray], float, float] | None]:
+        """The first of a run's alternatives that can be timed (:meth:`time_run`, once per plan where the reserve
+        cap leaves its floors alone: :meth:`_once`): its index and timing; (the count, None) when none can."""
+        for k, run in enumerate(tries):
+            timed = self._once(("run", id(run)), lambda: self.time_run(run))
+            if timed is not None:
+                return k, timed
+        return len(tries), None
 
 def _spaced(length: float, step: float) -> np.ndarray:
     """Path positions from 0 to ``length`` at most ``step`` apart, both ends included (the states a path's checks
@@ -903,6 +947,18 @@ def _spaced(length: float, step: float) -> np.ndarray:
 def _copied(stats: dict) -> dict:
     """A copy of the timing's stats whose lists are copies too (the numbers are immutable)."""
     return {key: (list(v) if isinstance(v, list) else v) for key, v in stats.items()}
+
+
+def _grown(after: dict, before: dict) -> dict:
+    """What the timing's stats ``after`` added to ``before``: the numbers' differences, the lists' new entries."""
+    return {key: (v[len(before.get(key, [])):] if isinstance(v, list) else v - before.get(key, 0))
+            for key, v in after.items()}
+
+
+def _add_stats(stats: dict, grown: dict) -> None:
+    """Add what :func:`_grown` found to ``stats`` in place."""
+    for key, v in grown.items():
+        stats[key] = stats[key] + v if key in stats else v
 
 
 def _cuts(blends: np.ndarray) -> list[tuple[int, int]]:

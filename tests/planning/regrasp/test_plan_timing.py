@@ -297,6 +297,61 @@ def test_the_reserves_cap_comes_from_a_first_timing_of_the_plan(solved):
     assert sum(len(p.waypoints) for p in timing.pieces) <= sum(len(p.waypoints) for p in first.pieces)
 
 
+
+def test_the_caps_second_timing_recomputes_only_the_runs_whose_reserve_the_cap_changes(solved, monkeypatch):
+    """The second timing takes a run's first timing again where every ZMP reserve it asked is under the cap, and
+    times again the others: the same pieces and stats, bit for bit, as timing every run twice; a cap under every
+    reserve (share 0, no overshoot) times every run again, a cap over all of them (the overshoot alone 1 m) none."""
+    task, pieces = solved
+
+    def timed(recompute: bool, **settings) -> tuple[PlanTimer, object, list[tuple[float, int]], list[list[float]]]:
+        timer = PlanTimer(task, PlanTimingSettings(**settings), 1.0, task.threshold_m, 0.005)
+        calls, asked, inside = [], [], []
+        run_once, time_run, floor = PlanTimer._once, PlanTimer.time_run, PlanTimer._zmp_floor
+
+        def counted(self, run):
+            calls.append((self._reserve_cap(), id(run)))
+            asked.append([])
+            inside.append(run)
+            try:
+                return time_run(self, run)
+            finally:
+                inside.pop()
+
+        def floor_asked(self, static_margin):
+            if inside:  # not the ranking's, before any run is timed
+                asked[-1].append(self.s.zmp_reserve_share * float(np.maximum(static_margin, 0.0).min()))
+            return floor(self, static_margin)
+
+        with monkeypatch.context() as m:
+            m.setattr(PlanTimer, "time_run", counted)
+            m.setattr(PlanTimer, "_zmp_floor", floor_asked)
+            if recompute:
+                m.setattr(PlanTimer, "_once", lambda self, key, compute: compute())
+            else:
+                m.setattr(PlanTimer, "_once", run_once)
+            timing = timer.time_plan(pieces)
+        return timer, timing, calls, asked
+
+    _, every, every_calls, _ = timed(True)
+    timer, kept, calls, asked = timed(False)
+    assert [np.asarray(p.waypoints).tobytes() for p in kept.pieces] == [np.asarray(p.waypoints).tobytes()
+                                                                        for p in every.pieces]
+    assert {k: v for k, v in kept.stats.items() if k != "quicker_paths_time_s"} == {
+        k: v for k, v in every.stats.items() if k != "quicker_paths_time_s"}
+    cap = kept.stats["reserve_cap_m"]
+    first = [(run, a) for (c, run), a in zip(calls, asked) if c == np.inf]
+    again = [run for c, run in calls if c != np.inf]
+    assert first and len(calls) < len(every_calls)
+    assert again == [run for run, a in first if max(a, default=0.0) > cap]  # exactly those the cap lowers
+    assert timer._kept == {}  # nothing kept past the plan
+
+    for settings, times_again in (({"zmp_reserve_cap_share": 0.0, "zmp_overshoot_m": 0.0}, True),
+                                  ({"zmp_overshoot_m": 1.0}, False)):
+        _, _, calls, _ = timed(False, **settings)
+        first = [run for c, run in calls if c == np.inf]
+        assert [run for c, run in calls if c != np.inf] == (first if times_again else [])
+
 def _detour(P: np.ndarray, joint: int, rad: float) -> np.ndarray:
     """P with one joint swung out and back in the middle of its second segment (three waypoints on that segment, the
     middle one ``rad`` out): a detour of that joint alone, which costs time at the velocity limits."""
