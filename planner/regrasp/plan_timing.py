@@ -146,7 +146,7 @@ class PlanTimingSettings(BaseModel):
                                           "(start, stop), rising to all of it end_zone_rad away: gentler starts and stops")
     end_zone_rad: float = Field(0.0, ge=0, description="path length (rad) over which the acceleration share rises "
                                 "from end_acceleration_scale to 1 after a start and before a stop")
-    path_check_rad: float = Field(0.005, ge=0, description="spacing (joint-space arc length, rad) of the states of a "
+    path_check_rad: float = Field(0.01, ge=0, description="spacing (joint-space arc length, rad) of the states of a "
                                   "run's blended path checked before it is timed, so that blends are shrunk and failing "
                                   "alternatives refused without timing them first (0: only the timed samples are checked)")
     check_rounds: int = Field(8, ge=1, description="time stretches of a run whose samples exceed a limit")

@@ -1,0 +1,60 @@
+"""What the plan timing adds to a plan's planning time, per scenario, as `regrasp plan` runs it.
+
+Plans each scenario twice with the same seed and reports the second plan (its survey, for ``hands: auto``, read
+from the cache the first one filled, so its planning time is the shortest a user sees). Per scenario: the motion
+duration, the planning time (``stats.time_s``), the timing stage (``stats.timing.time_s``) and its share of the
+planning time, and of it the quicker paths (``quicker_paths_time_s``: replans, vias, shortcuts, the ranking) and
+the rest, the time parameterization and its checks, with its share. ``--set KEY=VALUE`` (repeatable) changes one
+plan-timing setting (:class:`planner.regrasp.plan_timing.PlanTimingSettings`) for a before/after comparison run
+back to back; the trajectory's hash then tells whether the plan changed. Times are this machine's; the durations
+and hashes depend on the seed only.
+
+    python benchmarks/bench_timing_stage.py
+    python benchmarks/bench_timing_stage.py --set path_check_rad=0.005
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+
+from planner.jobs.plan_job import plan_scenario
+from planner.regrasp.settings import PlannerSettings
+from planner.scene.scenarios import load_builtin
+
+SCENARIOS = ("upright", "staggered", "crouched", "one-legged", "drill-handover")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", nargs="+", default=list(SCENARIOS))
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a plan-timing setting, its value as JSON (e.g. path_check_rad=0.005)")
+    args = ap.parse_args()
+    update = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        update[key] = json.loads(value)
+    base = PlannerSettings()
+    settings = base.model_copy(update={"plan_timing": base.plan_timing.model_copy(update=update)})
+    print(f"settings changed: {update or 'none'}; load average {os.getloadavg()[0]:.1f}")
+    print(f"{'scenario':15s} {'duration s':>10s} {'planning s':>10s} {'timing s':>9s} {'share':>6s} "
+          f"{'quicker s':>9s} {'param. s':>8s} {'share':>6s}  trajectory")
+    for name in args.scenario:
+        scenario = load_builtin(name)
+        for _ in range(2):  # the second reads the survey the first cached
+            plan = plan_scenario(scenario, settings=settings)
+        if plan["status"] != "solved":
+            print(f"{name:15s} {plan['status']}")
+            continue
+        stats, timing = plan["stats"], plan["stats"]["timing"]
+        total, stage, quicker = stats["time_s"], timing["time_s"], timing["quicker_paths_time_s"]
+        digest = hashlib.sha256(json.dumps(plan["trajectory"], sort_keys=True).encode()).hexdigest()[:12]
+        print(f"{name:15s} {plan['timing']['duration_s']:10.2f} {total:10.2f} {stage:9.2f} {100 * stage / total:5.0f}% "
+              f"{quicker:9.2f} {stage - quicker:8.2f} {100 * (stage - quicker) / total:5.0f}%  {digest}")
+
+
+if __name__ == "__main__":
+    main()
