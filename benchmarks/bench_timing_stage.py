@@ -2,9 +2,10 @@
 
 Plans each scenario twice with the same seed and reports the second plan (its survey, for ``hands: auto``, read
 from the cache the first one filled, so its planning time is the shortest a user sees). Per scenario: the motion
-duration, the planning time (``stats.time_s``), the timing stage (``stats.timing.time_s``) and its share of the
-planning time, and of it the quicker paths (``quicker_paths_time_s``: replans, vias, shortcuts, the ranking) and
-the rest, the time parameterization and its checks, with its share. ``--set KEY=VALUE`` (repeatable) changes one
+duration, the planning time (``stats.time_s``), the timing stage (``stats.timing.time_s``) and what it adds to the
+rest of the planning time (stage / (planning - stage)), and of it the quicker paths (``quicker_paths_time_s``:
+replans, vias, shortcuts, the ranking) and the rest, the time parameterization and its checks, with what it adds to
+everything else. ``--set KEY=VALUE`` (repeatable) changes one
 plan-timing setting (:class:`planner.regrasp.plan_timing.PlanTimingSettings`) for a before/after comparison run
 back to back; the trajectory's hash then tells whether the plan changed. Times are this machine's; the durations
 and hashes depend on the seed only.
@@ -40,8 +41,8 @@ def main() -> None:
     base = PlannerSettings()
     settings = base.model_copy(update={"plan_timing": base.plan_timing.model_copy(update=update)})
     print(f"settings changed: {update or 'none'}; load average {os.getloadavg()[0]:.1f}")
-    print(f"{'scenario':15s} {'duration s':>10s} {'planning s':>10s} {'timing s':>9s} {'share':>6s} "
-          f"{'quicker s':>9s} {'param. s':>8s} {'share':>6s}  trajectory")
+    print(f"{'scenario':15s} {'duration s':>10s} {'planning s':>10s} {'timing s':>9s} {'adds':>6s} "
+          f"{'quicker s':>9s} {'param. s':>8s} {'adds':>6s}  trajectory")
     for name in args.scenario:
         scenario = load_builtin(name)
         for _ in range(2):  # the second reads the survey the first cached
@@ -52,8 +53,10 @@ def main() -> None:
         stats, timing = plan["stats"], plan["stats"]["timing"]
         total, stage, quicker = stats["time_s"], timing["time_s"], timing["quicker_paths_time_s"]
         digest = hashlib.sha256(json.dumps(plan["trajectory"], sort_keys=True).encode()).hexdigest()[:12]
-        print(f"{name:15s} {plan['timing']['duration_s']:10.2f} {total:10.2f} {stage:9.2f} {100 * stage / total:5.0f}% "
-              f"{quicker:9.2f} {stage - quicker:8.2f} {100 * (stage - quicker) / total:5.0f}%  {digest}")
+        param = stage - quicker
+        print(f"{name:15s} {plan['timing']['duration_s']:10.2f} {total:10.2f} {stage:9.2f} "
+              f"{100 * stage / (total - stage):5.0f}% {quicker:9.2f} {param:8.2f} {100 * param / (total - param):5.0f}%  "
+              f"{digest}")
 
 
 if __name__ == "__main__":
