@@ -59,12 +59,13 @@ def main() -> None:
         st = configs[row["hands"]]
         n = np.array([p["stable"] + p["unstable"] for p in row["per_seed"]])
         r = np.array([p["stable"] / max(p["stable"] + p["unstable"], 1) for p in row["per_seed"]])
-        legs = np.array([[leg["counted"] for leg in seed] for seed in st["legs_per_seed"]])
+        counted = [[leg["counted"] for leg in seed] for seed in st["legs_per_seed"]]  # seeds may end after fewer legs
+        largest = [max(seed[k] for seed in counted if len(seed) > k) for k in range(max(map(len, counted), default=0))]
         repeats = sum(leg.get("repeats", 0) for seed in st["legs_per_seed"] for leg in seed)
         print(f"  {row['hands']:<12} R={row['ratio']:.4f} [{row['ratio_ci95'][0]:.4f}, {row['ratio_ci95'][1]:.4f}] "
               f"seeds {row['seeds']}{'' if row['converged'] else ' (not converged)'}, states/seed min {n.min()} "
               f"median {np.median(n):.0f} max {n.max()}, per-seed R sd {r.std():.3f}, solved {st['solved_seeds']}/{row['seeds']}")
-        print(f"  {'':<12} legs' largest seed {legs.max(axis=0).tolist()}, repeats left out {repeats:,}, "
+        print(f"  {'':<12} legs' largest seed {largest}, repeats left out {repeats:,}, "
               f"key poses {st['key_poses_s']:.2f} s, exploration {st['exploration_s']:.1f} s CPU, "
               f"{st['states_per_s']:,.0f} states/s per core")
     print(f"  recommended {doc['recommended']}, indistinguishable {doc['indistinguishable']}")

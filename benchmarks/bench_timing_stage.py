@@ -7,11 +7,13 @@ rest of the planning time (stage / (planning - stage)), and of it the quicker pa
 replans, vias, shortcuts, the ranking) and the rest, the time parameterization and its checks, with what it adds to
 everything else. ``--set KEY=VALUE`` (repeatable) changes one
 plan-timing setting (:class:`planner.regrasp.plan_timing.PlanTimingSettings`) for a before/after comparison run
-back to back; the trajectory's hash then tells whether the plan changed. Times are this machine's; the durations
-and hashes depend on the seed only.
+back to back; the trajectory's hash then tells whether the plan changed. ``--first`` reports instead the first plan
+of each task, its survey computed in the plan (an empty, temporary survey cache): what a new task's plan takes.
+Times are this machine's; the durations and hashes depend on the seed only.
 
     python benchmarks/bench_timing_stage.py
     python benchmarks/bench_timing_stage.py --set path_check_rad=0.005
+    python benchmarks/bench_timing_stage.py --first
 """
 
 from __future__ import annotations
@@ -20,10 +22,12 @@ import argparse
 import hashlib
 import json
 import os
+import tempfile
 
 from planner.jobs.plan_job import plan_scenario
 from planner.regrasp.settings import PlannerSettings
 from planner.scene.scenarios import load_builtin
+from planner.survey.cache import ENV_DIR
 
 SCENARIOS = ("upright", "staggered", "crouched", "one-legged", "drill-handover")
 
@@ -33,7 +37,10 @@ def main() -> None:
     ap.add_argument("--scenario", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a plan-timing setting, its value as JSON (e.g. path_check_rad=0.005)")
+    ap.add_argument("--first", action="store_true", help="the first plan of each task, its survey computed in it")
     args = ap.parse_args()
+    if args.first:
+        os.environ[ENV_DIR] = tempfile.mkdtemp(prefix="bench-timing-stage-")
     update = {}
     for item in args.set:
         key, _, value = item.partition("=")
@@ -45,7 +52,7 @@ def main() -> None:
           f"{'quicker s':>9s} {'param. s':>8s} {'adds':>6s}  trajectory")
     for name in args.scenario:
         scenario = load_builtin(name)
-        for _ in range(2):  # the second reads the survey the first cached
+        for _ in range(1 if args.first else 2):  # the second reads the survey the first cached
             plan = plan_scenario(scenario, settings=settings)
         if plan["status"] != "solved":
             print(f"{name:15s} {plan['status']}")
