@@ -700,11 +700,11 @@ class PlanTimer:
         shortening's every ``shortcut_check_rad``. The ``alternatives`` quickest at the velocity limits are kept; with
         ``rank_by_timing`` they are then ranked by their TOPP-RA time on a coarse grid (:meth:`_estimated_time`),
         the corners and the balance included. The motions are worked on in this process and a forked helper at
-        once (:meth:`_each_shared`)."""
+        once (:meth:`_each_planned`)."""
         t = self.task
         states = list(object_states(pieces, t.evaluator, t.placements[t.start_id]))
         planned = [k for k, (piece, *_) in enumerate(states) if piece.path is not None and len(piece.path) > 2]
-        found = self._each_shared(planned, lambda k: self._piece_paths(k, *states[k]))
+        found = self._each_planned(planned, lambda k: self._piece_paths(k, *states[k]))
         per_piece = [[replace(piece, path=Q) for Q in found[k]] if k in found else [piece]
                      for k, (piece, *_) in enumerate(states)]
         levels = max(len(a) for a in per_piece) if per_piece else 0
@@ -733,34 +733,30 @@ class PlanTimer:
             paths = [paths[i] for i in sorted(range(len(paths)), key=lambda i: (took[i], i))]
         return paths
 
-    def _each_shared(self, jobs: list[int], work) -> dict[int, object]:
-        """``work(j)`` for each job j, in this process and one forked helper at once where the task's
-        ``parallel_motions`` allows it, forking is safe and a second core exists; the same results either way, for
-        jobs that do not depend on one another (each piece's paths draw from its own stream). What the helper adds to the check counts and the kept results (:meth:`_once`) is added to this
-        process's, and what each job adds to the stats in the jobs' order (not in the order they ended)."""
+    def _each_planned(self, planned: list[int], paths_of) -> dict[int, list[np.ndarray]]:
+        """``paths_of(k)`` for each planned piece k, in this process and one forked helper at once where the task's
+        ``parallel_motions`` allows it, forking is safe and a second core exists (the same paths either way: each
+        piece draws from its own stream). The helper's check counts are added to this process's, and what each
+        piece adds to the stats in the pieces' order (not in the order they ended)."""
         checker = self.checker  # made here, before any fork, so both processes count into the same
-        if not (self.task.settings.parallel_motions and len(jobs) > 1 and spare_cores() > 0 and fork_is_safe()):
-            return {j: work(j) for j in jobs}
+        if not (self.task.settings.parallel_motions and len(planned) > 1 and spare_cores() > 0 and fork_is_safe()):
+            return {k: paths_of(k) for k in planned}
 
-        def shared(j: int, in_child: bool) -> tuple[object, dict, Counter, dict]:
-            stats, counts, kept = _copied(self.stats), Counter(checker.counters), set(self._kept)
-            result = work(j)
-            grown, self.stats = _grown(self.stats, stats), stats  # added below in the jobs' order
-            if not in_child:
-                return result, grown, Counter(), {}
-            return result, grown, Counter(checker.counters) - counts, {key: v for key, v in self._kept.items()
-                                                                        if key not in kept}
+        def work(k: int, in_child: bool) -> tuple[list[np.ndarray], dict, Counter]:
+            stats, counts = _copied(self.stats), Counter(checker.counters)
+            paths = paths_of(k)
+            grown, self.stats = _grown(self.stats, stats), stats  # added below in the pieces' order
+            return paths, grown, (Counter(checker.counters) - counts) if in_child else Counter()
 
-        results, error = share_with_child(jobs, shared, lambda: False)
-        found: dict[int, object] = {}
-        for i, j in enumerate(jobs):
-            if i not in results:  # the helper failed before this one: it is done here
-                found[j] = work(j)
+        results, error = share_with_child(planned, work, lambda: False)
+        found: dict[int, list[np.ndarray]] = {}
+        for i, k in enumerate(planned):
+            if i not in results:  # the helper failed before this one: it is planned here
+                found[k] = paths_of(k)
                 continue
-            found[j], grown, counts, kept = results[i]
+            found[k], grown, counts = results[i]
             checker.counters.update(counts)
             _add_stats(self.stats, grown)
-            self._kept.update(kept)
         if error is not None:
             self.stats.setdefault("helper_errors", []).append(error.strip().splitlines()[-1])
         return found
@@ -937,6 +933,7 @@ class PlanTimer:
             if timed is not None:
                 return k, timed
         return len(tries), None
+
 
 def _spaced(length: float, step: float) -> np.ndarray:
     """Path positions from 0 to ``length`` at most ``step`` apart, both ends included (the states a path's checks
