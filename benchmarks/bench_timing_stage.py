@@ -28,6 +28,7 @@ from planner.jobs.plan_job import plan_scenario
 from planner.regrasp.settings import PlannerSettings
 from planner.scene.scenarios import load_builtin
 from planner.survey.cache import ENV_DIR
+from schemas.plan import canonical_json
 
 SCENARIOS = ("upright", "staggered", "crouched", "one-legged", "drill-handover")
 
@@ -59,7 +60,7 @@ def main() -> None:
             continue
         stats, timing = plan["stats"], plan["stats"]["timing"]
         total, stage, quicker = stats["time_s"], timing["time_s"], timing["quicker_paths_time_s"]
-        digest = hashlib.sha256(json.dumps(plan["trajectory"], sort_keys=True).encode()).hexdigest()[:12]
+        digest = hashlib.sha256(canonical_json(plan["trajectory"])).hexdigest()[:12]  # the plan's own form
         param = stage - quicker
         print(f"{name:15s} {plan['timing']['duration_s']:10.2f} {total:10.2f} {stage:9.2f} "
               f"{100 * stage / (total - stage):5.0f}% {quicker:9.2f} {param:8.2f} {100 * param / (total - param):5.0f}%  "

@@ -319,7 +319,8 @@ class PlanTimer:
         """``compute()`` the first time ``key`` is asked for within one :meth:`time_plan`; after that its result
         again, with what it added to the stats added again (the stats are those of computing it each time), as long
         as every ZMP reserve it asked (:meth:`_zmp_floor`) comes out the same under today's cap: the reserve cap's
-        second timing recomputes only the runs the cap changes. A key names a run by id: the runs live as long as
+        second timing recomputes only the runs the cap changes, and what no cap changes (the checks of a run's
+        geometry, of a fallback's samples) runs once. A key names a run by id: the runs live as long as
         the :meth:`time_plan` that clears these."""
         cap = self._reserve_cap()
         kept = self._kept.get(key)
@@ -871,21 +872,22 @@ class PlanTimer:
         With ``zmp_reserve_cap_share`` set and a reserve to cap, the runs are timed twice: the first timing gives the
         plan's smallest static margin, which caps the ZMP reserve of the second (:meth:`_zmp_floor`)."""
         originals = runs_of(pieces, self.task)
-        self._kept = {}
         started = time.perf_counter()  # for stats only: nothing below depends on it
         levels = [runs_of(level, self.task) for level in self.alternatives(pieces)]
         self.stats["quicker_paths_time_s"] = time.perf_counter() - started
-        if self.s.zmp_reserve_cap_share is not None and self.s.zmp_reserve_share > 0.0:  # no reserve: nothing to cap
-            before = _copied(self.stats)
-            first, _ = self._time_runs(originals, levels)
-            self.stats = before  # the first timing only measures the plan
-            t = self.task
-            self.plan_static_min_m = min(
-                float(t.evaluator.evaluate(np.asarray(p.waypoints, dtype=float), hold, threshold_m=0.0).margin.min())
-                for p, _, hold, _ in object_states(first, t.evaluator, t.placements[t.start_id]))
-            self.stats["reserve_cap_m"] = self._reserve_cap()
-        out, slack = self._time_runs(originals, levels)
-        self._kept = {}
+        try:
+            if self.s.zmp_reserve_cap_share is not None and self.s.zmp_reserve_share > 0.0:  # no reserve: no cap
+                before = _copied(self.stats)
+                first, _ = self._time_runs(originals, levels)
+                self.stats = before  # the first timing only measures the plan
+                t = self.task
+                self.plan_static_min_m = min(
+                    float(t.evaluator.evaluate(np.asarray(p.waypoints, dtype=float), hold, threshold_m=0.0).margin.min())
+                    for p, _, hold, _ in object_states(first, t.evaluator, t.placements[t.start_id]))
+                self.stats["reserve_cap_m"] = self._reserve_cap()
+            out, slack = self._time_runs(originals, levels)
+        finally:
+            self._kept = {}  # its keys name this plan's runs by id
         return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
                                               "zmp_margin_m": self.zmp_margin_m,
                                               "zmp_reserve_share": self.s.zmp_reserve_share},
@@ -914,7 +916,7 @@ class PlanTimer:
             if timed is None:
                 run = original
                 self.stats["fallback_runs"] += 1
-                bad = self._fallback_failures(run)
+                bad = self._once(("fallback", id(run)), lambda: self._fallback_failures(run))  # no cap changes it
                 if bad:
                     self.stats["dense_failures"].append(bad)
                 out.extend(run.pieces)
