@@ -379,18 +379,29 @@ class CollisionWorld:
         hits[kp[exact], ks[exact]] = True
         done = np.zeros(N, dtype=bool)
         done[ks[exact]] = True
-        for k in np.flatnonzero(~exact):
+        todo = np.flatnonzero(~exact)
+        # Two bodies that keep one pose over the whole batch (an idle arm, a resting object, the table) meet in
+        # every state alike: fcl is asked once for their pair, and its answer holds for the batch's other states.
+        still = _still(Rw, pw, np.union1d(a[todo], b[todo])) if N > 1 and todo.size > 1 else {}
+        answered: dict[int, bool] = {}
+        for k in todo:
             s = ks[k]
             if first_only and done[s]:
                 continue  # this state already collides; its first pair is reported below
             ba, bb = a[k], b[k]
-            oa, ob = self._fcl[ba], self._fcl[bb]
-            Ra, Rb = Rw[ba, s], Rw[bb, s]
-            # fcl wants the shape frame; our centres are OBB centres (offset only for meshes)
-            set_fcl_transform(oa, Ra, pw[ba, s] - Ra @ self.bodies[ba].obb_offset)
-            set_fcl_transform(ob, Rb, pw[bb, s] - Rb @ self.bodies[bb].obb_offset)
-            if fcl_collide(oa, ob, float(tol[kp[k]])):
-                hits[kp[k], s] = True
+            pair = int(kp[k])
+            hit = answered.get(pair) if still.get(ba) and still.get(bb) else None
+            if hit is None:
+                oa, ob = self._fcl[ba], self._fcl[bb]
+                Ra, Rb = Rw[ba, s], Rw[bb, s]
+                # fcl wants the shape frame; our centres are OBB centres (offset only for meshes)
+                set_fcl_transform(oa, Ra, pw[ba, s] - Ra @ self.bodies[ba].obb_offset)
+                set_fcl_transform(ob, Rb, pw[bb, s] - Rb @ self.bodies[bb].obb_offset)
+                hit = fcl_collide(oa, ob, float(tol[pair]))
+                if still.get(ba) and still.get(bb):
+                    answered[pair] = hit
+            if hit:
+                hits[pair, s] = True
                 done[s] = True
         return hits
 
@@ -506,3 +517,10 @@ class CollisionWorld:
             k = int(np.argmax(hits[:, 0]))
             return Collision(self.bodies[ia[k]].name, self.bodies[ib[k]].name, "object-env")
         return None
+
+
+def _still(Rw: np.ndarray, pw: np.ndarray, bodies: np.ndarray) -> dict[int, bool]:
+    """Whether each of ``bodies`` has the same world pose, bit for bit, in every state of the batch."""
+    R, p = Rw[bodies], pw[bodies]
+    same = (R == R[:, :1]).all(axis=(1, 2, 3)) & (p == p[:, :1]).all(axis=(1, 2))
+    return dict(zip(bodies.tolist(), same.tolist()))

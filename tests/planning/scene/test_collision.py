@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections import Counter
+
 import fcl
 import numpy as np
 import pytest
@@ -10,6 +12,7 @@ from hypothesis import strategies as st
 
 from planner.compiled.box_kernels import obb_penetration
 from planner.scene.bodies import EnvBox
+from planner.scene import collision as collision_module
 from planner.scene.collision import CollisionWorld
 from planner.transforms import axis_angle_to_matrix, make_transform
 
@@ -104,6 +107,65 @@ def test_batch_equals_single_and_moving_subset(hrp5p, stances, table_box):
     singles = np.array([full.check(st.base_pose, q) is not None for q in Q])
     assert np.array_equal(batch.collides, singles)
     assert np.array_equal(sub.check_batch(st.base_pose, Q).collides, batch.collides)
+
+
+@settings(max_examples=8, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), parked_in_table=st.booleans())
+def test_a_pair_still_over_a_batch_is_asked_once_and_answers_as_each_state_alone(hrp5p, stances, table_box, seed,
+                                                                                   parked_in_table):
+    """The right arm parked (in the table, or clear of it) while the left arm moves: the batch's hits, every pair
+    of every state, are those of each state checked alone; a pair of two bodies that keep their pose over the batch
+    goes to fcl once, a pair with a moving body once per state it is screened in."""
+    st_ = stances["upright"]
+    parked = _q(hrp5p, st_.q, RSP=-0.6, REP=-0.3)
+    table = table_box
+    if parked_in_table:  # a table whose top is 10 mm above the centre of the parked right wrist's sphere
+        probe = CollisionWorld(hrp5p, [], reference_postures=[(st_.base_pose, st_.q)])
+        Rs, ps = probe.kin.forward(st_.base_pose, parked[None])
+        wrist = next(k for k, b in enumerate(probe.bodies) if b.name == "R_WRIST_Y_LINK")
+        assert probe.bodies[wrist].kind != "box"  # so that its pair with the table goes to fcl
+        centre = probe._all_world(Rs, ps, None, 1)[1][wrist, 0]
+        table = EnvBox("table", make_transform(p=[centre[0] + 0.2, centre[1], centre[2] - 0.01]), (0.50, 1.40, 0.04))
+    world = CollisionWorld(hrp5p, [table], reference_postures=[(st_.base_pose, st_.q)])
+    left = hrp5p.arm_indices("left")
+    rng = np.random.default_rng(seed)
+    Q = np.repeat(parked[None], 10, axis=0)
+    Q[:, left] = rng.uniform(hrp5p.lower[left], hrp5p.upper[left], (len(Q), left.size)) * 0.5 + st_.q[left] * 0.5
+    Rs, ps = world.kin.forward(st_.base_pose, Q)
+    Rw, pw = world._all_world(Rs, ps, None, len(Q))
+    ia, ib, *_ = world._pairs_for((), None, False, False)
+    tol = np.zeros(ia.size)
+    asked: list[tuple[int, int]] = []
+    real = collision_module.fcl_collide
+    ids = {id(o): k for k, o in enumerate(world._fcl)}
+
+    def counting(oa, ob, tolerance):
+        asked.append((ids[id(oa)], ids[id(ob)]))
+        return real(oa, ob, tolerance)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(collision_module, "fcl_collide", counting)
+        together = world._pair_hits(Rw, pw, ia, ib, tol)
+        in_batch = Counter(asked)
+        alone = np.concatenate([world._pair_hits(Rw[:, i:i + 1], pw[:, i:i + 1], ia, ib, tol)
+                                for i in range(len(Q))], axis=1)
+    assert np.array_equal(together, alone)
+    moves = ~np.all(np.isclose(Rw, Rw[:, :1]), axis=(1, 2, 3)) | ~np.all(np.isclose(pw, pw[:, :1]), axis=(1, 2))
+    still_pairs = [(a, b) for (a, b) in in_batch if not moves[a] and not moves[b]]
+    assert all(in_batch[p] == 1 for p in still_pairs)
+    alone_counts = Counter(asked[sum(in_batch.values()):])
+    for p, n in in_batch.items():
+        if moves[p[0]] or moves[p[1]]:
+            assert n == alone_counts[p]  # a moving pair: once per state, as alone
+        else:
+            assert alone_counts[p] >= n  # alone, each state asks it again
+    if parked_in_table:  # the parked hand is in the table in every state, from one question
+        table = next(k for k, b in enumerate(world.bodies) if b.name == "env:table")
+        rows = [r for r in range(ia.size) if table in (ia[r], ib[r]) and together[r].all()
+                and not (world._is_box[ia[r]] and world._is_box[ib[r]])]
+        assert rows, "the parked hand should reach fcl against the table"
+        assert any(alone_counts[(int(ia[r]), int(ib[r]))] == len(Q) and in_batch[(int(ia[r]), int(ib[r]))] == 1
+                   for r in rows)
 
 
 def test_object_pose_clear(hrp5p, upright_world):
