@@ -705,6 +705,9 @@ class PlanTimer:
         t = self.task
         states = list(object_states(pieces, t.evaluator, t.placements[t.start_id]))
         planned = [k for k, (piece, *_) in enumerate(states) if piece.path is not None and len(piece.path) > 2]
+        # the transits first (T-RRT round the table, the longest to make quicker), so that neither process is left
+        # with one of them at the end while the other waits; each piece's paths are its own whatever the order
+        planned.sort(key=lambda k: (states[k][0].kind != "transit", k))
         found = self._each_planned(planned, lambda k: self._piece_paths(k, *states[k]))
         per_piece = [[replace(piece, path=Q) for Q in found[k]] if k in found else [piece]
                      for k, (piece, *_) in enumerate(states)]
@@ -738,10 +741,11 @@ class PlanTimer:
         """``paths_of(k)`` for each planned piece k, in this process and one forked helper at once where the task's
         ``parallel_motions`` allows it, forking is safe and a second core exists (the same paths either way: each
         piece draws from its own stream). The helper's check counts are added to this process's, and what each
-        piece adds to the stats in the pieces' order (not in the order they ended)."""
+        piece adds to the stats in the pieces' order (not in the order they ended). The pieces are shared in the order
+        of ``planned``, each process taking the next one in turn."""
         checker = self.checker  # made here, before any fork, so both processes count into the same
         if not (self.task.settings.parallel_motions and len(planned) > 1 and spare_cores() > 0 and fork_is_safe()):
-            return {k: paths_of(k) for k in planned}
+            return {k: paths_of(k) for k in sorted(planned)}
 
         def work(k: int, in_child: bool) -> tuple[list[np.ndarray], dict, Counter]:
             stats, counts = _copied(self.stats), Counter(checker.counters)
@@ -751,7 +755,7 @@ class PlanTimer:
 
         results, error = share_with_child(planned, work, lambda: False)
         found: dict[int, list[np.ndarray]] = {}
-        for i, k in enumerate(planned):
+        for i, k in sorted(enumerate(planned), key=lambda ik: ik[1]):
             if i not in results:  # the helper failed before this one: it is planned here
                 found[k] = paths_of(k)
                 continue
