@@ -202,6 +202,7 @@ class CollisionWorld:
         self._half = np.array([b.half for b in bodies])
         self._radius = np.linalg.norm(self._half, axis=1)
         self._is_box = np.array([b.kind == "box" for b in bodies])
+        self._obb_offset = np.array([b.obb_offset for b in bodies], dtype=float).reshape(len(bodies), 3)
         self._local_R = np.array([b.local[:3, :3] for b in bodies])
         self._local_p = np.array([b.local[:3, 3] + b.local[:3, :3] @ b.obb_offset for b in bodies])
         self._robot_joints = np.array([b.joint for b in bodies[: self.n_robot]], dtype=int)
@@ -382,23 +383,28 @@ class CollisionWorld:
         todo = np.flatnonzero(~exact)
         # Two bodies that keep one pose over the whole batch (an idle arm, a resting object, the table) meet in
         # every state alike: fcl is asked once for their pair, and its answer holds for the batch's other states.
-        still = _still(Rw, pw, np.union1d(a[todo], b[todo])) if N > 1 and todo.size > 1 else {}
+        involved = np.union1d(a[todo], b[todo])
+        still = _still(Rw, pw, involved) if N > 1 and todo.size > 1 else {}
         answered: dict[int, bool] = {}
+        # fcl wants the shape frame; our centres are OBB centres (offset only for meshes)
+        frame = pw.copy()
+        frame[involved] -= np.einsum("bnij,bj->bni", Rw[involved], self._obb_offset[involved])
+        posed: dict[int, int] = {}  # the state each body's fcl object is posed in now (a still body: any)
         for k in todo:
-            s = ks[k]
+            s = int(ks[k])
             if first_only and done[s]:
                 continue  # this state already collides; its first pair is reported below
-            ba, bb = a[k], b[k]
+            ba, bb = int(a[k]), int(b[k])
             pair = int(kp[k])
-            hit = answered.get(pair) if still.get(ba) and still.get(bb) else None
+            both_still = still.get(ba, False) and still.get(bb, False)
+            hit = answered.get(pair) if both_still else None
             if hit is None:
-                oa, ob = self._fcl[ba], self._fcl[bb]
-                Ra, Rb = Rw[ba, s], Rw[bb, s]
-                # fcl wants the shape frame; our centres are OBB centres (offset only for meshes)
-                set_fcl_transform(oa, Ra, pw[ba, s] - Ra @ self.bodies[ba].obb_offset)
-                set_fcl_transform(ob, Rb, pw[bb, s] - Rb @ self.bodies[bb].obb_offset)
-                hit = fcl_collide(oa, ob, float(tol[pair]))
-                if still.get(ba) and still.get(bb):
+                for body in (ba, bb):
+                    if body not in posed or (posed[body] != s and not still.get(body, False)):
+                        set_fcl_transform(self._fcl[body], Rw[body, s], frame[body, s])
+                        posed[body] = s
+                hit = fcl_collide(self._fcl[ba], self._fcl[bb], float(tol[pair]))
+                if both_still:
                     answered[pair] = hit
             if hit:
                 hits[pair, s] = True
