@@ -1,10 +1,12 @@
 """Share a short list of independent jobs between this process and one forked child.
 
 Both take the next unclaimed job in turn (a shared counter), so a long job on one side does not
-leave the other idle behind a fixed split. The child sends its results back in one message when
-it runs out of jobs; this process keeps its own. Used for the motions of a candidate path
+leave the other idle behind a fixed split. The child sends each result back as soon as it has it;
+this process keeps its own, and while it waits for the child's last ones it may work on what the
+results so far allow (``idle``). Used for the motions of a candidate path
 (:meth:`planner.regrasp.hand_config_planner.HandConfigPlanner._prefetch_hops`), which are independent once
-its key poses are valid.
+its key poses are valid, and for the quicker paths of a plan's motions
+(:meth:`planner.regrasp.plan_timing.PlanTimer.alternatives`), whose runs can be timed as their paths come in.
 """
 
 from __future__ import annotations
@@ -22,12 +24,16 @@ POLL_S = 0.02
 
 
 def share_with_child(jobs: Sequence[Any], work: Callable[[Any, bool], Any],
-                     should_stop: Callable[[], bool]) -> tuple[dict[int, Any], str | None]:
+                     should_stop: Callable[[], bool],
+                     idle: Callable[[dict[int, Any]], bool] | None = None) -> tuple[dict[int, Any], str | None]:
     """Run ``work(job, in_child)`` once per job, split between this process and a forked child.
 
     Returns every job's result by index, and the child's error (a traceback) if it failed: its
     unfinished jobs are then missing, for the caller to run itself. ``work`` raising here (a
-    cancel) ends the child too. Call only where :func:`planner.forking.fork_is_safe`. A bare
+    cancel) ends the child too. ``idle(results)``, when given, is called with the results so far
+    (by index) while this process has no job left and the child's next result has not come: it
+    does one piece of the caller's own work that those results allow and says whether it did any
+    (False: this process waits). Call only where :func:`planner.forking.fork_is_safe`. A bare
     ``os.fork`` (not a multiprocessing process): a service's worker is a daemonic process, which
     multiprocessing does not let have children.
     """
@@ -48,34 +54,39 @@ def share_with_child(jobs: Sequence[Any], work: Callable[[Any, bool], Any],
         code = 0
         try:
             receive.close()
-            done: dict[int, Any] = {}
             try:
                 while (k := claim()) is not None:
-                    done[k] = work(jobs[k], True)
-                send.send((done, None))
+                    send.send((k, work(jobs[k], True)))
+                send.send((None, None))
             except BaseException:
-                send.send((done, traceback.format_exc()))
+                send.send((None, traceback.format_exc()))
         except BaseException:
             code = 1
         finally:
             os._exit(code)
     send.close()
-    reaped = False
+    reaped, status = False, 0
     results: dict[int, Any] = {}
     try:
         while (k := claim()) is not None:
             results[k] = work(jobs[k], False)
-        while not receive.poll(POLL_S):
+        while True:
+            if receive.poll(0):
+                k, result = receive.recv()
+                if k is None:  # the child's last message: done, or its error
+                    return results, result
+                results[k] = result
+                continue
             if should_stop():
                 raise Canceled()
+            if idle is not None and idle(results):
+                continue
+            if reaped:  # ended, and everything it sent has been read
+                return results, f"the helper process ended with status {status} and sent nothing more"
+            if receive.poll(POLL_S):
+                continue
             ended, status = os.waitpid(pid, os.WNOHANG)
-            if ended:
-                reaped = True
-                if not receive.poll(0):
-                    return results, f"the helper process ended with status {status} and sent nothing"
-        theirs, error = receive.recv()
-        results.update(theirs)
-        return results, error
+            reaped = bool(ended)  # what it sent before it ended is read first
     finally:
         if not reaped:
             os.kill(pid, signal.SIGKILL)  # a zombie until reaped: the pid cannot have been reused

@@ -34,7 +34,7 @@ import math
 import time
 from collections import Counter
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Callable, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -258,6 +258,10 @@ class PlanTimer:
         self._kept: dict = {}
         #: the uncapped ZMP reserves asked since the innermost :meth:`_once` began (None: nobody is listening)
         self._asked: list[float] | None = None
+        #: the runs of one :meth:`time_plan` along their alternatives' paths, by run and paths (:meth:`_run_along`)
+        self._along: dict = {}
+        #: the runs of one :meth:`time_plan` timed early, while the helper worked (:meth:`_time_early`)
+        self._early: set[int] = set()
         self.stats = {"shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "spline_runs": 0, "dense_failures": []}
 
     # -- constraints ------------------------------------------------------------------------------------------------
@@ -702,17 +706,25 @@ class PlanTimer:
         ``rank_by_timing`` they are then ranked by their TOPP-RA time on a coarse grid (:meth:`_estimated_time`),
         the corners and the balance included. The motions are worked on in this process and a forked helper at
         once (:meth:`_each_planned`)."""
+        per_piece = self._quicker(pieces)
+        levels = max(len(a) for a in per_piece) if per_piece else 0
+        return [[a[min(k, len(a) - 1)] for a in per_piece] for k in range(levels)]
+
+    def _quicker(self, pieces: list[MotionPiece],
+                 ready: Callable[[dict[int, list[np.ndarray]]], bool] | None = None) -> list[list[MotionPiece]]:
+        """Per non-empty piece of the plan (:func:`object_states`' order) its paths, quickest first
+        (:meth:`alternatives`); the piece alone where it is not a planned motion. ``ready(found)``, with the paths
+        found so far by piece, may do one piece of work they allow while this process waits for the helper's
+        last ones, and says whether it did (:meth:`_each_planned`)."""
         t = self.task
         states = list(object_states(pieces, t.evaluator, t.placements[t.start_id]))
-        planned = [k for k, (piece, *_) in enumerate(states) if piece.path is not None and len(piece.path) > 2]
+        planned = [k for k, (piece, *_) in enumerate(states) if _planned(piece)]
         # the transits first (T-RRT round the table, the longest to make quicker), so that neither process is left
         # with one of them at the end while the other waits; each piece's paths are its own whatever the order
         planned.sort(key=lambda k: (states[k][0].kind != "transit", k))
-        found = self._each_planned(planned, lambda k: self._piece_paths(k, *states[k]))
-        per_piece = [[replace(piece, path=Q) for Q in found[k]] if k in found else [piece]
-                     for k, (piece, *_) in enumerate(states)]
-        levels = max(len(a) for a in per_piece) if per_piece else 0
-        return [[a[min(k, len(a) - 1)] for a in per_piece] for k in range(levels)]
+        found = self._each_planned(planned, lambda k: self._piece_paths(k, *states[k]), ready)
+        return [[replace(piece, path=Q) for Q in found[k]] if k in found else [piece]
+                for k, (piece, *_) in enumerate(states)]
 
     def _piece_paths(self, k: int, piece: MotionPiece, holding: str, hold: HoldSpec | None,
                      current: np.ndarray) -> list[np.ndarray]:
@@ -737,12 +749,13 @@ class PlanTimer:
             paths = [paths[i] for i in sorted(range(len(paths)), key=lambda i: (took[i], i))]
         return paths
 
-    def _each_planned(self, planned: list[int], paths_of) -> dict[int, list[np.ndarray]]:
+    def _each_planned(self, planned: list[int], paths_of, ready=None) -> dict[int, list[np.ndarray]]:
         """``paths_of(k)`` for each planned piece k, in this process and one forked helper at once where the task's
         ``parallel_motions`` allows it, forking is safe and a second core exists (the same paths either way: each
         piece draws from its own stream). The helper's check counts are added to this process's, and what each
         piece adds to the stats in the pieces' order (not in the order they ended). The pieces are shared in the order
-        of ``planned``, each process taking the next one in turn."""
+        of ``planned``, each process taking the next one in turn; while this process waits for the helper's last
+        ones, ``ready`` (see :meth:`_quicker`) is given the paths found so far."""
         checker = self.checker  # made here, before any fork, so both processes count into the same
         if not (self.task.settings.parallel_motions and len(planned) > 1 and spare_cores() > 0 and fork_is_safe()):
             return {k: paths_of(k) for k in sorted(planned)}
@@ -753,7 +766,8 @@ class PlanTimer:
             grown, self.stats = _grown(self.stats, stats), stats  # added below in the pieces' order
             return paths, grown, (Counter(checker.counters) - counts) if in_child else Counter()
 
-        results, error = share_with_child(planned, work, lambda: False)
+        idle = None if ready is None else (lambda done: ready({planned[i]: r[0] for i, r in done.items()}))
+        results, error = share_with_child(planned, work, lambda: False, idle)
         found: dict[int, list[np.ndarray]] = {}
         for i, k in sorted(enumerate(planned), key=lambda ik: ik[1]):
             if i not in results:  # the helper failed before this one: it is planned here
@@ -872,14 +886,24 @@ class PlanTimer:
         """The plan's pieces made quicker, then timed run by run (a run whose samples fail the checks takes its
         next quicker alternative, at last the search's own path); and how much slower than full speed it is. The
         stats' ``quicker_paths_time_s`` is the wall time of making the paths quicker (:meth:`alternatives`: replans,
-        shortcuts, ranking); the rest of the stage is the time parameterization and the checks of its samples.
+        shortcuts, ranking), less ``early_timing_s``, what this process spent meanwhile timing the runs whose paths
+        were found while the helper worked on the last ones (:meth:`_time_early`: the first timing then finds them
+        timed); the rest of the stage is the time parameterization and the checks of its samples.
         With ``zmp_reserve_cap_share`` set and a reserve to cap, the runs are timed twice: the first timing gives the
         plan's smallest static margin, which caps the ZMP reserve of the second (:meth:`_zmp_floor`)."""
         originals = runs_of(pieces, self.task)
+        spans, first = [], 0
+        for run in originals:  # run r holds the plan's non-empty pieces spans[r]
+            spans.append(range(first, first + len(run.pieces)))
+            first += len(run.pieces)
+            run.validated = waypoints_of(run)[0]
         started = time.perf_counter()  # for stats only: nothing below depends on it
-        levels = [runs_of(level, self.task) for level in self.alternatives(pieces)]
-        self.stats["quicker_paths_time_s"] = time.perf_counter() - started
         try:
+            per_piece = self._quicker(pieces, lambda found: self._time_early(originals, spans, found))
+            levels = [[self._run_along(r, [per_piece[k][min(j, len(per_piece[k]) - 1)] for k in span], originals[r])
+                       for r, span in enumerate(spans)]
+                      for j in range(max((len(a) for a in per_piece), default=0))]
+            self.stats["quicker_paths_time_s"] = time.perf_counter() - started - self.stats.get("early_timing_s", 0.0)
             if self.s.zmp_reserve_cap_share is not None and self.s.zmp_reserve_share > 0.0:  # no reserve: no cap
                 before = _copied(self.stats)
                 first, _ = self._time_runs(originals, levels)
@@ -891,11 +915,44 @@ class PlanTimer:
                 self.stats["reserve_cap_m"] = self._reserve_cap()
             out, slack = self._time_runs(originals, levels)
         finally:
-            self._kept = {}  # its keys name this plan's runs by id
+            self._kept, self._along, self._early = {}, {}, set()  # their keys name this plan's runs and paths by id
         return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
                                               "zmp_margin_m": self.zmp_margin_m,
                                               "zmp_reserve_share": self.s.zmp_reserve_share},
                           stats={**self.stats, "slack_s": slack})
+
+    def _run_along(self, r: int, pieces: list[MotionPiece], original: Run) -> Run:
+        """Run r of the plan along these pieces' paths: one object per run and paths within a :meth:`time_plan`,
+        so that a run timed early (:meth:`_time_early`, kept by the run's id: :meth:`_once`) is found again. It holds
+        what the original run holds: the paths differ, never their ends nor the waypoints the object's state is
+        tracked through."""
+        key = (r, tuple(id(p.path) for p in pieces))
+        run = self._along.get(key)
+        if run is None:
+            run = self._along[key] = Run(pieces, original.holding, original.hold, original.free_object,
+                                         original.validated)
+        return run
+
+    def _time_early(self, originals: list[Run], spans: list[range], found: dict[int, list[np.ndarray]]) -> bool:
+        """While the helper works on the last motions (:meth:`_quicker`): time one run whose planned motions all
+        have their paths, along the quickest of each, as the first timing will ask for it first (its result and
+        stats kept for it by :meth:`_once`, the stats here left alone); whether there was one. The first timing's
+        cap is the one of now (none yet), so what is kept is what it would compute."""
+        for r, span in enumerate(spans):
+            if r in self._early or any(_planned(p) and k not in found for k, p in zip(span, originals[r].pieces)):
+                continue
+            self._early.add(r)
+            run = self._run_along(r, [replace(p, path=found[k][0]) if k in found else p
+                                      for k, p in zip(span, originals[r].pieces)], originals[r])
+            saved, self.stats = self.stats, _copied(self.stats)
+            started = time.perf_counter()  # for stats only
+            try:
+                self._once(("run", id(run)), lambda: self.time_run(run))
+            finally:
+                self.stats = saved
+                saved["early_timing_s"] = saved.get("early_timing_s", 0.0) + time.perf_counter() - started
+            return True
+        return False
 
     def _time_runs(self, originals: list[Run], levels: list[list[Run]]) -> tuple[list[MotionPiece], float]:
         """Each run timed: its quickest alternative whose samples pass, else the search's own path at last; the
@@ -903,7 +960,6 @@ class PlanTimer:
         out: list[MotionPiece] = []
         slack = 0.0
         for r, original in enumerate(originals):
-            original.validated = waypoints_of(original)[0]
             self.stats["runs"] += 1
             tries, seen = [], []
             for level in levels:
@@ -939,6 +995,11 @@ class PlanTimer:
             if timed is not None:
                 return k, timed
         return len(tries), None
+
+
+def _planned(piece: MotionPiece) -> bool:
+    """Whether a piece is a planned motion (more than one straight segment), which the timing makes quicker."""
+    return piece.path is not None and len(piece.path) > 2
 
 
 def _spaced(length: float, step: float) -> np.ndarray:

@@ -198,7 +198,7 @@ task = build_task(scenario)
 pieces = HandConfigPlanner(task, scenario.hands).plan().pieces
 spare, shared = plan_timing.spare_cores, []
 real = plan_timing.share_with_child
-plan_timing.share_with_child = lambda jobs, work, stop: shared.append(len(jobs)) or real(jobs, work, stop)
+plan_timing.share_with_child = lambda jobs, work, stop, idle=None: shared.append(len(jobs)) or real(jobs, work, stop, idle)
 
 
 def found(parallel):
@@ -239,6 +239,80 @@ def test_the_quicker_paths_are_the_same_from_one_process_or_two():
     (one_paths, one_stats, one_counts), (two_paths, two_stats, two_counts) = res["one"], res["two"]
     assert one_paths == two_paths and any(p is not None for level in one_paths for p in level)
     assert one_stats == two_stats and one_stats["replans"] > 0
+    assert one_counts == two_counts and one_counts["collision_states"] > 0
+
+
+_TIMED_EARLY = r"""
+import json, sys, time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from planner.jobs.plan_job import build_task
+from planner.regrasp import plan_timing
+from planner.regrasp.hand_config_planner import HandConfigPlanner
+from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
+from planner.scene.scenarios import load_scenario
+
+scenario = load_scenario(Path(sys.argv[1]))
+task = build_task(scenario)
+pieces = HandConfigPlanner(task, scenario.hands).plan().pieces
+spare, real = plan_timing.spare_cores, plan_timing.share_with_child
+
+
+def slow_helper(jobs, work, stop, idle=None):
+    # the helper starts its jobs late, so that this process waits for it with runs it can time meanwhile
+    def late(job, in_child):
+        if in_child:
+            time.sleep(1.0)
+        return work(job, in_child)
+    return real(jobs, late, stop, idle)
+
+
+plan_timing.share_with_child = slow_helper
+early = []
+real_early = PlanTimer._time_early
+PlanTimer._time_early = lambda self, *a: (early.append(real_early(self, *a)) or early[-1])
+
+
+def timed(parallel):
+    plan_timing.spare_cores = spare if parallel else (lambda: 0)
+    counts = Counter()
+    timer = PlanTimer(task, PlanTimingSettings(replans=2), 1.0, task.threshold_m, 0.005)
+    timer._checker = plan_timing.StateChecker(task.evaluator, task.world, task.stance.base_pose, task.constrained,
+                                              counts, limits=task.limits)
+    out = timer.time_plan(pieces)
+    walls = ("time_s", "quicker_paths_time_s", "early_timing_s")
+    return ([np.asarray(p.waypoints).tolist() for p in out.pieces], {k: v for k, v in out.stats.items() if k not in walls},
+            dict(counts), out.stats.get("early_timing_s", 0.0))
+
+
+one = timed(False)
+two = timed(True)
+print(json.dumps({"one": one, "two": two, "early": early}))
+"""
+
+
+def test_runs_timed_while_the_helper_works_give_the_plan_one_process_gives():
+    """With the helper slow to start its motions, this process times the runs whose paths it has found while it
+    waits (``early_timing_s``): the timed pieces, the timing's stats and the check counts are those of one process
+    alone, bit for bit."""
+    import json
+    import subprocess
+    import sys
+
+    from planner.forking import spare_cores
+
+    if spare_cores() == 0:
+        pytest.skip("one core: the planner never forks a helper here")
+    out = subprocess.run([sys.executable, "-c", _TIMED_EARLY, str(DATA / "small-box.yaml")], capture_output=True,
+                         text=True, timeout=600, check=True)
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    (one_pieces, one_stats, one_counts, one_early), (two_pieces, two_stats, two_counts, two_early) = res["one"], res["two"]
+    assert one_early == 0.0 and two_early > 0.0 and True in res["early"]  # runs were timed early, with two only
+    assert one_pieces == two_pieces and len(one_pieces) > 1
+    assert one_stats == two_stats and one_stats["runs"] > 0
     assert one_counts == two_counts and one_counts["collision_states"] > 0
 
 
@@ -337,8 +411,9 @@ def test_the_caps_second_timing_recomputes_only_the_runs_whose_reserve_the_cap_c
     timer, kept, calls, asked = timed(False)
     assert [np.asarray(p.waypoints).tobytes() for p in kept.pieces] == [np.asarray(p.waypoints).tobytes()
                                                                         for p in every.pieces]
-    assert {k: v for k, v in kept.stats.items() if k != "quicker_paths_time_s"} == {
-        k: v for k, v in every.stats.items() if k != "quicker_paths_time_s"}
+    walls = ("quicker_paths_time_s", "early_timing_s")
+    assert {k: v for k, v in kept.stats.items() if k not in walls} == {
+        k: v for k, v in every.stats.items() if k not in walls}
     cap = kept.stats["reserve_cap_m"]
     first = [(run, a) for (c, run), a in zip(calls, asked) if c == np.inf]
     again = [run for c, run in calls if c != np.inf]
