@@ -179,8 +179,10 @@ def test_the_ranking_times_a_path_with_the_blends_its_checks_leave_it(solved, mo
     assert np.array_equal(ranked[0][k].path, clear) and np.array_equal(ranked[1][k].path, hugging)
 
 
-_ONE_OR_TWO = r"""
-import json, sys
+#: What both scripts below start with: the small box task solved, and a timer counting its checks, of one process
+#: (``parallel`` False) or of this one and a forked helper.
+_SOLVED_TIMER = r"""
+import json, sys, time
 from collections import Counter
 from pathlib import Path
 
@@ -196,17 +198,25 @@ from planner.scene.scenarios import load_scenario
 scenario = load_scenario(Path(sys.argv[1]))
 task = build_task(scenario)
 pieces = HandConfigPlanner(task, scenario.hands).plan().pieces
-spare, shared = plan_timing.spare_cores, []
-real = plan_timing.share_with_child
-plan_timing.share_with_child = lambda jobs, work, stop, idle=None: shared.append(len(jobs)) or real(jobs, work, stop, idle)
+spare, real = plan_timing.spare_cores, plan_timing.share_with_child
 
 
-def found(parallel):
+def counted_timer(parallel):
     plan_timing.spare_cores = spare if parallel else (lambda: 0)
     counts = Counter()
     timer = PlanTimer(task, PlanTimingSettings(replans=2), 1.0, task.threshold_m, 0.005)
     timer._checker = plan_timing.StateChecker(task.evaluator, task.world, task.stance.base_pose, task.constrained,
                                               counts, limits=task.limits)
+    return timer, counts
+"""
+
+_ONE_OR_TWO = _SOLVED_TIMER + r"""
+shared = []
+plan_timing.share_with_child = lambda jobs, work, stop, idle=None: shared.append(len(jobs)) or real(jobs, work, stop, idle)
+
+
+def found(parallel):
+    timer, counts = counted_timer(parallel)
     levels = timer.alternatives(pieces)
     paths = [[None if p.path is None else np.asarray(p.path).tolist() for p in level] for level in levels]
     return paths, {k: timer.stats[k] for k in ("replans", "via_paths", "shortened_s")}, dict(counts)
@@ -242,25 +252,7 @@ def test_the_quicker_paths_are_the_same_from_one_process_or_two():
     assert one_counts == two_counts and one_counts["collision_states"] > 0
 
 
-_TIMED_EARLY = r"""
-import json, sys, time
-from collections import Counter
-from pathlib import Path
-
-import numpy as np
-
-from planner.jobs.plan_job import build_task
-from planner.regrasp import plan_timing
-from planner.regrasp.hand_config_planner import HandConfigPlanner
-from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
-from planner.scene.scenarios import load_scenario
-
-scenario = load_scenario(Path(sys.argv[1]))
-task = build_task(scenario)
-pieces = HandConfigPlanner(task, scenario.hands).plan().pieces
-spare, real = plan_timing.spare_cores, plan_timing.share_with_child
-
-
+_TIMED_EARLY = _SOLVED_TIMER + r"""
 def slow_helper(jobs, work, stop, idle=None):
     # the helper starts its jobs late, so that this process waits for it with runs it can time meanwhile
     def late(job, in_child):
@@ -277,11 +269,7 @@ PlanTimer._time_early = lambda self, *a: (early.append(real_early(self, *a)) or 
 
 
 def timed(parallel):
-    plan_timing.spare_cores = spare if parallel else (lambda: 0)
-    counts = Counter()
-    timer = PlanTimer(task, PlanTimingSettings(replans=2), 1.0, task.threshold_m, 0.005)
-    timer._checker = plan_timing.StateChecker(task.evaluator, task.world, task.stance.base_pose, task.constrained,
-                                              counts, limits=task.limits)
+    timer, counts = counted_timer(parallel)
     out = timer.time_plan(pieces)
     walls = ("time_s", "quicker_paths_time_s", "early_timing_s")
     return ([np.asarray(p.waypoints).tolist() for p in out.pieces], {k: v for k, v in out.stats.items() if k not in walls},
