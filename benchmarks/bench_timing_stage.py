@@ -9,11 +9,14 @@ everything else. ``--set KEY=VALUE`` (repeatable) changes one
 plan-timing setting (:class:`planner.regrasp.plan_timing.PlanTimingSettings`) for a before/after comparison run
 back to back; the trajectory's hash then tells whether the plan changed. ``--first`` reports instead the first plan
 of each task, its survey computed in the plan (an empty, temporary survey cache): what a new task's plan takes.
-Times are this machine's; the durations and hashes depend on the seed only.
+``--repeats N`` plans N times more (each ``--first`` plan with its own empty cache) and prints the medians of the
+times, the percentages from those medians. Times are this machine's; the durations and hashes depend on the seed
+only.
 
     python benchmarks/bench_timing_stage.py
     python benchmarks/bench_timing_stage.py --set path_check_rad=0.005
     python benchmarks/bench_timing_stage.py --first
+    python benchmarks/bench_timing_stage.py --repeats 5
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import argparse
 import hashlib
 import json
 import os
+import statistics
 import tempfile
 
 from planner.jobs.plan_job import plan_scenario
@@ -39,9 +43,8 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a plan-timing setting, its value as JSON (e.g. path_check_rad=0.005)")
     ap.add_argument("--first", action="store_true", help="the first plan of each task, its survey computed in it")
+    ap.add_argument("--repeats", type=int, default=1, help="plans measured per scenario (their median times)")
     args = ap.parse_args()
-    if args.first:
-        os.environ[ENV_DIR] = tempfile.mkdtemp(prefix="bench-timing-stage-")
     update = {}
     for item in args.set:
         key, _, value = item.partition("=")
@@ -53,18 +56,26 @@ def main() -> None:
           f"{'quicker s':>9s} {'param. s':>8s} {'adds':>6s}  trajectory")
     for name in args.scenario:
         scenario = load_builtin(name)
-        for _ in range(1 if args.first else 2):  # the second reads the survey the first cached
-            plan = plan_scenario(scenario, settings=settings)
+        if not args.first:  # the plans measured read the survey this one computes or finds cached
+            plan_scenario(scenario, settings=settings)
+        measured = []
+        for _ in range(args.repeats):
+            if args.first:
+                os.environ[ENV_DIR] = tempfile.mkdtemp(prefix="bench-timing-stage-")
+            measured.append(plan_scenario(scenario, settings=settings))
+        plan = measured[-1]
         if plan["status"] != "solved":
             print(f"{name:15s} {plan['status']}")
             continue
-        stats, timing = plan["stats"], plan["stats"]["timing"]
-        total, stage, quicker = stats["time_s"], timing["time_s"], timing["quicker_paths_time_s"]
-        digest = hashlib.sha256(canonical_json(plan["trajectory"])).hexdigest()[:12]  # the plan's own form
-        param = stage - quicker
+        total = statistics.median(p["stats"]["time_s"] for p in measured)
+        stage = statistics.median(p["stats"]["timing"]["time_s"] for p in measured)
+        quicker = statistics.median(p["stats"]["timing"]["quicker_paths_time_s"] for p in measured)
+        param = statistics.median(p["stats"]["timing"]["time_s"] - p["stats"]["timing"]["quicker_paths_time_s"]
+                                  for p in measured)
+        digests = {hashlib.sha256(canonical_json(p["trajectory"])).hexdigest()[:12] for p in measured}  # the plan's own form
         print(f"{name:15s} {plan['timing']['duration_s']:10.2f} {total:10.2f} {stage:9.2f} "
               f"{100 * stage / (total - stage):5.0f}% {quicker:9.2f} {param:8.2f} {100 * param / (total - param):5.0f}%  "
-              f"{digest}")
+              f"{' '.join(sorted(digests))}")
 
 
 if __name__ == "__main__":
