@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import pickle
+import queue
 import signal
+import threading
 import traceback
 from typing import Any, Callable, Sequence
 
@@ -54,12 +57,19 @@ def share_with_child(jobs: Sequence[Any], work: Callable[[Any, bool], Any],
         code = 0
         try:
             receive.close()
+            # Each result is pickled here and written by a thread: the caller reads only once its own jobs are
+            # done, and a result larger than the pipe holds would otherwise stop this process's next job until then.
+            outbox: queue.SimpleQueue = queue.SimpleQueue()
+            writer = threading.Thread(target=_write_all, args=(outbox, send))
+            writer.start()
             try:
                 while (k := claim()) is not None:
-                    send.send((k, work(jobs[k], True)))
-                send.send((None, None))
+                    outbox.put(pickle.dumps((k, work(jobs[k], True)), pickle.HIGHEST_PROTOCOL))
+                outbox.put(pickle.dumps((None, None)))
             except BaseException:
-                send.send((None, traceback.format_exc()))
+                outbox.put(pickle.dumps((None, traceback.format_exc())))
+            outbox.put(None)
+            writer.join()
         except BaseException:
             code = 1
         finally:
@@ -92,3 +102,9 @@ def share_with_child(jobs: Sequence[Any], work: Callable[[Any, bool], Any],
             os.kill(pid, signal.SIGKILL)  # a zombie until reaped: the pid cannot have been reused
             os.waitpid(pid, 0)
         receive.close()
+
+
+def _write_all(outbox: queue.SimpleQueue, send) -> None:
+    """Write the pickled messages of ``outbox`` to the pipe, in order, until a None (the child's own thread)."""
+    while (data := outbox.get()) is not None:
+        send.send_bytes(data)

@@ -124,3 +124,55 @@ def test_only_threads_declared_benign_leave_forking_safe():
         print(json.dumps([alone, with_undeclared, with_declared, with_another]))
     """)
     assert out == [True, False, True, False]
+
+
+def test_the_helper_goes_on_while_its_large_results_wait_to_be_read():
+    """A helper's result larger than the pipe holds (a hop's timed motion is 0.2-0.4 MB) is written while the helper
+    works on its next job: the caller, which reads only once its own jobs are done, does not end up with the jobs
+    the helper would have taken (a helper stuck on its first write does one of the eight)."""
+    out = _run("""
+        import json, os, time
+        from planner.regrasp.fork_share import share_with_child
+        parent = os.getpid()
+        def work(job, in_child):
+            time.sleep(0.25)
+            return (os.getpid() != parent, b"x" * 1_000_000)  # far more than a pipe's 64 KiB
+        done, error = share_with_child(list(range(8)), work, lambda: False)
+        print(json.dumps({"jobs": len(done), "by_helper": sum(1 for by_helper, _ in done.values() if by_helper),
+                          "sizes": sorted({len(blob) for _, blob in done.values()}), "error": error}))
+    """)
+    assert out["error"] is None and out["jobs"] == 8 and out["sizes"] == [1_000_000]
+    assert out["by_helper"] >= 3  # about half
+
+
+def test_the_helpers_results_come_back_as_they_are_found():
+    """While the caller waits, ``idle`` sees the helper's results so far: the helper's second job waits until
+    ``idle`` has seen its first (at most 5 s), which it can only if the first came back before the last."""
+    out = _run("""
+        import json, os, tempfile, time
+        from planner.regrasp.fork_share import share_with_child
+        flag = os.path.join(tempfile.mkdtemp(), "seen")
+        parent, mine = os.getpid(), []
+        def work(job, in_child):
+            if in_child:
+                mine.append(job)  # the helper's own list after the fork
+                end = time.monotonic() + (5.0 if len(mine) == 2 else 0.1)
+                while time.monotonic() < end and not (len(mine) == 2 and os.path.exists(flag)):
+                    time.sleep(0.01)
+            else:
+                time.sleep(0.05)
+            return os.getpid() != parent
+        seen = []
+        def idle(results):
+            if any(results.values()):
+                open(flag, "w").close()
+                seen.append(sum(results.values()))
+            return False
+        t0 = time.monotonic()
+        done, error = share_with_child(list(range(6)), work, lambda: False, idle)
+        print(json.dumps({"jobs": len(done), "by_helper": sum(done.values()), "seen": seen[:1], "error": error,
+                          "took_s": time.monotonic() - t0}))
+    """)
+    assert out["error"] is None and out["jobs"] == 6
+    assert out["seen"] == [1] and out["by_helper"] == 2  # its first result, seen while it worked on its second
+    assert out["took_s"] < 4.0  # the second job did not wait out its 5 s
