@@ -1,9 +1,9 @@
 """Share a short list of independent jobs between this process and one forked child.
 
 Both take the next unclaimed job in turn (a shared counter), so a long job on one side does not
-leave the other idle behind a fixed split. The child sends each result back as soon as it has it;
-this process keeps its own, and while it waits for the child's last ones it may work on what the
-results so far allow (``idle``). Used for the motions of a candidate path
+leave the other idle behind a fixed split. The child sends its results back in one message when it
+runs out of jobs, or, where this process has work of its own to do with them (``idle``), each as soon
+as it has it; this process keeps its own. Used for the motions of a candidate path
 (:meth:`planner.regrasp.hand_config_planner.HandConfigPlanner._prefetch_hops`), which are independent once
 its key poses are valid, and for the quicker paths of a plan's motions
 (:meth:`planner.regrasp.plan_timing.PlanTimer.alternatives`), whose runs can be timed as their paths come in.
@@ -36,7 +36,7 @@ def share_with_child(jobs: Sequence[Any], work: Callable[[Any, bool], Any],
     cancel) ends the child too. ``idle(results)``, when given, is called with the results so far
     (by index) while this process has no job left and the child's next result has not come: it
     does one piece of the caller's own work that those results allow and says whether it did any
-    (False: this process waits). Call only where :func:`planner.forking.fork_is_safe`. A bare
+    (False: this process waits); the child then sends each result as it is found. Call only where :func:`planner.forking.fork_is_safe`. A bare
     ``os.fork`` (not a multiprocessing process): a service's worker is a daemonic process, which
     multiprocessing does not let have children.
     """
@@ -57,19 +57,7 @@ def share_with_child(jobs: Sequence[Any], work: Callable[[Any, bool], Any],
         code = 0
         try:
             receive.close()
-            # Each result is pickled here and written by a thread: the caller reads only once its own jobs are
-            # done, and a result larger than the pipe holds would otherwise stop this process's next job until then.
-            outbox: queue.SimpleQueue = queue.SimpleQueue()
-            writer = threading.Thread(target=_write_all, args=(outbox, send))
-            writer.start()
-            try:
-                while (k := claim()) is not None:
-                    outbox.put(pickle.dumps((k, work(jobs[k], True)), pickle.HIGHEST_PROTOCOL))
-                outbox.put(pickle.dumps((None, None)))
-            except BaseException:
-                outbox.put(pickle.dumps((None, traceback.format_exc())))
-            outbox.put(None)
-            writer.join()
+            _child(claim, jobs, work, send, stream=idle is not None)
         except BaseException:
             code = 1
         finally:
@@ -82,10 +70,10 @@ def share_with_child(jobs: Sequence[Any], work: Callable[[Any, bool], Any],
             results[k] = work(jobs[k], False)
         while True:
             if receive.poll(0):
-                k, result = receive.recv()
-                if k is None:  # the child's last message: done, or its error
-                    return results, result
-                results[k] = result
+                theirs, finished, error = receive.recv()
+                results.update(theirs)
+                if finished:  # the child's last message: done, or its error
+                    return results, error
                 continue
             if should_stop():
                 raise Canceled()
@@ -104,7 +92,37 @@ def share_with_child(jobs: Sequence[Any], work: Callable[[Any, bool], Any],
         receive.close()
 
 
+def _child(claim: Callable[[], int | None], jobs: Sequence[Any], work: Callable[[Any, bool], Any], send,
+           stream: bool) -> None:
+    """The child's side: claim and work jobs until none is left, and send the results as messages
+    ``(results by index, finished, error)``. Without ``stream``, one message at the end (the caller has nothing to
+    do with a part of them). With it, one per result as it is found and an empty last one, each pickled here and
+    written by a thread of the child: the caller reads only once its own jobs are done, and a result larger than
+    the pipe holds (a hop's timed motion is 0.2-0.4 MB) would otherwise stop the child's next job until then."""
+    done: dict[int, Any] = {}
+    outbox: queue.SimpleQueue = queue.SimpleQueue()
+    writer = threading.Thread(target=_write_all, args=(outbox, send)) if stream else None
+    if writer is not None:
+        writer.start()
+    error = None
+    try:
+        while (k := claim()) is not None:
+            result = work(jobs[k], True)
+            if writer is not None:
+                outbox.put(pickle.dumps(({k: result}, False, None), pickle.HIGHEST_PROTOCOL))
+            else:
+                done[k] = result
+    except BaseException:
+        error = traceback.format_exc()
+    outbox.put(pickle.dumps((done, True, error), pickle.HIGHEST_PROTOCOL))
+    outbox.put(None)
+    if writer is not None:
+        writer.join()
+    else:
+        _write_all(outbox, send)
+
+
 def _write_all(outbox: queue.SimpleQueue, send) -> None:
-    """Write the pickled messages of ``outbox`` to the pipe, in order, until a None (the child's own thread)."""
+    """Write the pickled messages of ``outbox`` to the pipe, in order, until a None."""
     while (data := outbox.get()) is not None:
         send.send_bytes(data)

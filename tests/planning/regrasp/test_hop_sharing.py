@@ -126,10 +126,12 @@ def test_only_threads_declared_benign_leave_forking_safe():
     assert out == [True, False, True, False]
 
 
-def test_the_helper_goes_on_while_its_large_results_wait_to_be_read():
-    """A helper's result larger than the pipe holds (a hop's timed motion is 0.2-0.4 MB) is written while the helper
-    works on its next job: the caller, which reads only once its own jobs are done, does not end up with the jobs
-    the helper would have taken (a helper stuck on its first write does one of the eight)."""
+@pytest.mark.parametrize("streamed", [True, False], ids=["streamed", "at-the-end"])
+def test_the_helper_goes_on_while_its_large_results_wait_to_be_read(streamed):
+    """A helper's result larger than the pipe holds (a hop's timed motion is 0.2-0.4 MB), streamed to a caller with
+    work of its own (``idle``), is written while the helper works on its next job: the caller, which reads only
+    once its own jobs are done, does not end up with the jobs the helper would have taken (a helper stuck on its
+    first write does one of the eight). Sent at the end, in one message, they all come back too."""
     out = _run("""
         import json, os, time
         from planner.regrasp.fork_share import share_with_child
@@ -137,10 +139,10 @@ def test_the_helper_goes_on_while_its_large_results_wait_to_be_read():
         def work(job, in_child):
             time.sleep(0.25)
             return (os.getpid() != parent, b"x" * 1_000_000)  # far more than a pipe's 64 KiB
-        done, error = share_with_child(list(range(8)), work, lambda: False)
+        done, error = share_with_child(list(range(8)), work, lambda: False, (lambda results: False) if STREAMED else None)
         print(json.dumps({"jobs": len(done), "by_helper": sum(1 for by_helper, _ in done.values() if by_helper),
                           "sizes": sorted({len(blob) for _, blob in done.values()}), "error": error}))
-    """)
+    """.replace("STREAMED", repr(streamed)))
     assert out["error"] is None and out["jobs"] == 8 and out["sizes"] == [1_000_000]
     assert out["by_helper"] >= 3  # about half
 
