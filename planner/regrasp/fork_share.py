@@ -100,29 +100,30 @@ def _child(claim: Callable[[], int | None], jobs: Sequence[Any], work: Callable[
     written by a thread of the child: the caller reads only once its own jobs are done, and a result larger than
     the pipe holds (a hop's timed motion is 0.2-0.4 MB) would otherwise stop the child's next job until then."""
     done: dict[int, Any] = {}
-    outbox: queue.SimpleQueue = queue.SimpleQueue()
-    writer = threading.Thread(target=_write_all, args=(outbox, send)) if stream else None
+    outbox: queue.SimpleQueue | None = queue.SimpleQueue() if stream else None
+    writer = threading.Thread(target=_write_all, args=(outbox, send)) if outbox is not None else None
     if writer is not None:
         writer.start()
     error = None
     try:
         while (k := claim()) is not None:
             result = work(jobs[k], True)
-            if writer is not None:
+            if outbox is not None:
                 outbox.put(pickle.dumps(({k: result}, False, None), pickle.HIGHEST_PROTOCOL))
             else:
                 done[k] = result
     except BaseException:
         error = traceback.format_exc()
-    outbox.put(pickle.dumps((done, True, error), pickle.HIGHEST_PROTOCOL))
+    last = pickle.dumps((done, True, error), pickle.HIGHEST_PROTOCOL)
+    if outbox is None:
+        send.send_bytes(last)
+        return
+    outbox.put(last)
     outbox.put(None)
-    if writer is not None:
-        writer.join()
-    else:
-        _write_all(outbox, send)
+    writer.join()
 
 
 def _write_all(outbox: queue.SimpleQueue, send) -> None:
-    """Write the pickled messages of ``outbox`` to the pipe, in order, until a None."""
+    """Write the pickled messages of ``outbox`` to the pipe, in order, until a None (the child's writer thread)."""
     while (data := outbox.get()) is not None:
         send.send_bytes(data)
