@@ -57,6 +57,7 @@ from planner.motion.topp import (
 )
 from planner.forking import fork_is_safe, spare_cores
 from planner.regrasp.fork_share import share_with_child
+from planner.regrasp.concurrent_arms import LEADS, MERGEABLE, merged_pieces
 from planner.regrasp.plan_assembly import MotionPiece, object_states
 from planner.regrasp.state_checker import StateChecker
 from planner.stability.com_path import com_path_terms
@@ -149,6 +150,11 @@ class PlanTimingSettings(BaseModel):
     path_check_rad: float = Field(0.01, ge=0, description="spacing (joint-space arc length, rad) of the states of a "
                                   "run's blended path checked before it is timed, so that blends are shrunk and failing "
                                   "alternatives refused without timing them first (0: only the timed samples are checked)")
+    concurrent_arms: bool = Field(True, description="around a handover, also time each run with the two arms' "
+                                  "consecutive motions that move different joints (the giver's carry and the taker's "
+                                  "way to the handover; the giver's way home and the taker's carry) made one, both "
+                                  "arms moving at once (planner/regrasp/concurrent_arms.py), and keep it where its "
+                                  "samples pass; off: one arm after the other")
     check_rounds: int = Field(8, ge=1, description="time stretches of a run whose samples exceed a limit")
     rest_samples: int = Field(1, ge=0, description="extra copies of a run's first and last sample (exactly zero velocity)")
 
@@ -262,7 +268,9 @@ class PlanTimer:
         self._along: dict = {}
         #: the runs of one :meth:`time_plan` timed early, while the helper worked (:meth:`_time_early`)
         self._early: set[int] = set()
-        self.stats = {"shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "spline_runs": 0, "dense_failures": []}
+        #: the runs of one :meth:`time_plan` with both arms at once, by run and lead (:meth:`_both_arms`)
+        self._merged: dict = {}
+        self.stats = {"merged_runs": 0, "shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "spline_runs": 0, "dense_failures": []}
 
     # -- constraints ------------------------------------------------------------------------------------------------
     @property
@@ -915,7 +923,8 @@ class PlanTimer:
                 self.stats["reserve_cap_m"] = self._reserve_cap()
             out, slack = self._time_runs(originals, levels)
         finally:
-            self._kept, self._along, self._early = {}, {}, set()  # their keys name this plan's runs and paths by id
+            # their keys name this plan's runs and paths by id
+            self._kept, self._along, self._early, self._merged = {}, {}, set(), {}
         return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
                                               "zmp_margin_m": self.zmp_margin_m,
                                               "zmp_reserve_share": self.s.zmp_reserve_share},
@@ -944,6 +953,8 @@ class PlanTimer:
             self._early.add(r)
             run = self._run_along(r, [replace(p, path=found[k][0]) if k in found else p
                                       for k, p in zip(span, originals[r].pieces)], originals[r])
+            if self.s.concurrent_arms:
+                run = (self._both_arms([run]) or [run])[0]  # what the first timing tries first
             saved, self.stats = self.stats, _copied(self.stats)
             started = time.perf_counter()  # for stats only
             try:
@@ -972,6 +983,8 @@ class PlanTimer:
                 tries.append(original)
             for run in tries:
                 run.validated = original.validated
+            if self.s.concurrent_arms:  # both arms at once first, each alternative in turn
+                tries = self._both_arms(tries) + tries
             k, timed = self._first_timed(tries)
             if timed is None:
                 run = original
@@ -982,10 +995,29 @@ class PlanTimer:
                 out.extend(run.pieces)
                 continue
             self.stats["alternatives_dropped"] += k
+            self.stats["merged_runs"] += int(any(p.hand == "both" and p.kind in MERGEABLE for p in tries[k].pieces))
             Qs, full, actual = timed
             slack += actual - full
             out.extend(replace(p, waypoints=Q) for p, Q in zip(tries[k].pieces, Qs))
         return out, slack
+
+    def _both_arms(self, runs: list[Run]) -> list[Run]:
+        """Each of ``runs`` (in order) with its consecutive motions of the two arms made one (both arms at once:
+        :func:`planner.regrasp.concurrent_arms.merged_pieces`), the second arm starting at each of ``LEADS`` in turn;
+        none for a run without such motions. One object per run and lead within a :meth:`time_plan`, so that a run
+        timed once (:meth:`_once`, by its id) is found again."""
+        out = []
+        for run in runs:
+            for lead in LEADS:
+                key = (id(run), lead)
+                if key not in self._merged:
+                    pieces = merged_pieces(run.pieces, 1.0 / self.vlim, lead)
+                    self._merged[key] = None if pieces is None else Run(pieces, run.holding, run.hold,
+                                                                        run.free_object, run.validated)
+                if self._merged[key] is None:
+                    break
+                out.append(self._merged[key])
+        return out
 
     def _first_timed(self, tries: list[Run]) -> tuple[int, tuple[list[np.ndarray], float, float] | None]:
         """The first of a run's alternatives that can be timed (:meth:`time_run`, once per plan where the reserve
