@@ -57,7 +57,7 @@ from planner.motion.topp import (
 )
 from planner.forking import fork_is_safe, spare_cores
 from planner.regrasp.fork_share import share_with_child
-from planner.regrasp.concurrent_arms import LEADS, MERGEABLE, merged_pieces
+from planner.regrasp.concurrent_arms import LEADS, merged_pieces
 from planner.regrasp.plan_assembly import MotionPiece, object_states
 from planner.regrasp.state_checker import StateChecker
 from planner.stability.com_path import com_path_terms
@@ -270,7 +270,7 @@ class PlanTimer:
         self._early: set[int] = set()
         #: the runs of one :meth:`time_plan` with both arms at once, by run and lead (:meth:`_both_arms`)
         self._merged: dict = {}
-        self.stats = {"merged_runs": 0, "shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "spline_runs": 0, "dense_failures": []}
+        self.stats = {"merged_runs": 0, "merged_refused": 0, "shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "spline_runs": 0, "dense_failures": []}
 
     # -- constraints ------------------------------------------------------------------------------------------------
     @property
@@ -966,8 +966,11 @@ class PlanTimer:
         return False
 
     def _time_runs(self, originals: list[Run], levels: list[list[Run]]) -> tuple[list[MotionPiece], float]:
-        """Each run timed: its quickest alternative whose samples pass, else the search's own path at last; the
-        timed pieces and the time the whole-period rounding and the speed scale add."""
+        """Each run timed: its quickest alternative whose samples pass, else the search's own path at last, each
+        tried first with both arms at once where it has two arms' motions that can share it (``concurrent_arms``:
+        :meth:`_both_arms`); the timed pieces and the time the whole-period rounding and the speed scale add.
+        ``merged_runs`` counts the runs kept with both arms at once, ``merged_refused`` the merged tries whose
+        samples failed, ``alternatives_dropped`` the one-arm-after-the-other ones."""
         out: list[MotionPiece] = []
         slack = 0.0
         for r, original in enumerate(originals):
@@ -983,9 +986,11 @@ class PlanTimer:
                 tries.append(original)
             for run in tries:
                 run.validated = original.validated
-            if self.s.concurrent_arms:  # both arms at once first, each alternative in turn
-                tries = self._both_arms(tries) + tries
-            k, timed = self._first_timed(tries)
+            merged = self._both_arms(tries) if self.s.concurrent_arms else []  # both arms at once first
+            k, timed = self._first_timed(merged + tries)
+            self.stats["merged_refused"] += min(k, len(merged))
+            self.stats["merged_runs"] += int(timed is not None and k < len(merged))
+            tries = merged + tries
             if timed is None:
                 run = original
                 self.stats["fallback_runs"] += 1
@@ -994,8 +999,7 @@ class PlanTimer:
                     self.stats["dense_failures"].append(bad)
                 out.extend(run.pieces)
                 continue
-            self.stats["alternatives_dropped"] += k
-            self.stats["merged_runs"] += int(any(p.hand == "both" and p.kind in MERGEABLE for p in tries[k].pieces))
+            self.stats["alternatives_dropped"] += max(k - len(merged), 0)
             Qs, full, actual = timed
             slack += actual - full
             out.extend(replace(p, waypoints=Q) for p, Q in zip(tries[k].pieces, Qs))
