@@ -32,7 +32,7 @@ def may_merge(a: MotionPiece, b: MotionPiece) -> bool:
         return False
     if a.holding != b.holding or a.holding == "none":
         return False
-    return not np.any(_moved(_path(a)) & _moved(_path(b)))
+    return not np.any(_moved(a.joint_path()) & _moved(b.joint_path()))
 
 
 def merged_pieces(pieces: list[MotionPiece], weights: np.ndarray, lead: float) -> list[MotionPiece] | None:
@@ -45,7 +45,7 @@ def merged_pieces(pieces: list[MotionPiece], weights: np.ndarray, lead: float) -
     while i < len(pieces):
         if i + 1 < len(pieces) and may_merge(pieces[i], pieces[i + 1]):
             a, b = pieces[i], pieces[i + 1]
-            W = both_at_once(_path(a), _path(b), weights, lead)
+            W = both_at_once(a.joint_path(), b.joint_path(), weights, lead)
             kind = "transfer" if "transfer" in (a.kind, b.kind) else "transit"
             out.append(replace(a, kind=kind, hand="both", waypoints=W, path=W))
             merged = True
@@ -84,10 +84,6 @@ def _times(P: np.ndarray, weights: np.ndarray) -> np.ndarray:
 def _moving(P: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """P without the waypoints that repeat the one before (their times would not rise)."""
     return P[np.r_[True, np.abs(np.diff(P, axis=0) * weights).max(axis=1) > 0.0]]
-
-
-def _path(piece: MotionPiece) -> np.ndarray:
-    return np.asarray(piece.path if piece.path is not None else piece.waypoints, dtype=float)
 
 
 def _moved(P: np.ndarray) -> np.ndarray:

@@ -37,6 +37,10 @@ class MotionPiece:
     #: the validated joint path (waypoints joined by straight segments) once ``waypoints`` holds its timed samples
     path: np.ndarray | None = None
 
+    def joint_path(self) -> np.ndarray:
+        """The piece's joint path: its validated path once timed, its waypoints before."""
+        return np.asarray(self.path if self.path is not None else self.waypoints, dtype=float)
+
 
 @dataclass
 class TimedTrajectory:

@@ -181,7 +181,7 @@ class PlanTiming:
 
 
 def _jaw_moves(piece: MotionPiece, jaw_cols: np.ndarray) -> bool:
-    P = np.asarray(piece.path if piece.path is not None else piece.waypoints, dtype=float)
+    P = piece.joint_path()
     return bool(jaw_cols.size and np.abs(P[-1, jaw_cols] - P[0, jaw_cols]).max() > 0.0)
 
 
@@ -230,7 +230,7 @@ def waypoints_of(run: Run) -> tuple[np.ndarray, list[int]]:
     W: list[np.ndarray] = []
     starts = []
     for piece in run.pieces:
-        P = np.asarray(piece.path if piece.path is not None else piece.waypoints, dtype=float)
+        P = piece.joint_path()
         starts.append(max(len(W) - 1, 0))
         for q in P:
             if not W or np.abs(q - W[-1]).max() > SAME_WAYPOINT_RAD:
