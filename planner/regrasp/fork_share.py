@@ -114,11 +114,10 @@ def _child(claim: Callable[[], int | None], jobs: Sequence[Any], work: Callable[
                 done[k] = result
     except BaseException:
         error = traceback.format_exc()
-    last = pickle.dumps((done, True, error), pickle.HIGHEST_PROTOCOL)
     if outbox is None:
-        send.send_bytes(last)
+        send.send((done, True, error))
         return
-    outbox.put(last)
+    outbox.put(pickle.dumps((done, True, error), pickle.HIGHEST_PROTOCOL))
     outbox.put(None)
     writer.join()
 

@@ -953,8 +953,7 @@ class PlanTimer:
             self._early.add(r)
             run = self._run_along(r, [replace(p, path=found[k][0]) if k in found else p
                                       for k, p in zip(span, originals[r].pieces)], originals[r])
-            if self.s.concurrent_arms:
-                run = (self._both_arms([run]) or [run])[0]  # what the first timing tries first
+            run = self._with_merged([run])[0]  # what the first timing tries first
             saved, self.stats = self.stats, _copied(self.stats)
             started = time.perf_counter()  # for stats only
             try:
@@ -968,7 +967,7 @@ class PlanTimer:
     def _time_runs(self, originals: list[Run], levels: list[list[Run]]) -> tuple[list[MotionPiece], float]:
         """Each run timed: its quickest alternative whose samples pass, else the search's own path at last, each
         tried first with both arms at once where it has two arms' motions that can share it (``concurrent_arms``:
-        :meth:`_both_arms`); the timed pieces and the time the whole-period rounding and the speed scale add.
+        :meth:`_with_merged`); the timed pieces and the time the whole-period rounding and the speed scale add.
         ``merged_runs`` counts the runs kept with both arms at once, ``merged_refused`` the merged tries whose
         samples failed, ``alternatives_dropped`` the one-arm-after-the-other ones."""
         out: list[MotionPiece] = []
@@ -986,11 +985,12 @@ class PlanTimer:
                 tries.append(original)
             for run in tries:
                 run.validated = original.validated
-            merged = self._both_arms(tries) if self.s.concurrent_arms else []  # both arms at once first
-            k, timed = self._first_timed(merged + tries)
-            self.stats["merged_refused"] += min(k, len(merged))
-            self.stats["merged_runs"] += int(timed is not None and k < len(merged))
-            tries = merged + tries
+            unmerged = len(tries)
+            tries = self._with_merged(tries)
+            merged = len(tries) - unmerged
+            k, timed = self._first_timed(tries)
+            self.stats["merged_refused"] += min(k, merged)
+            self.stats["merged_runs"] += int(timed is not None and k < merged)
             if timed is None:
                 run = original
                 self.stats["fallback_runs"] += 1
@@ -999,11 +999,16 @@ class PlanTimer:
                     self.stats["dense_failures"].append(bad)
                 out.extend(run.pieces)
                 continue
-            self.stats["alternatives_dropped"] += max(k - len(merged), 0)
+            self.stats["alternatives_dropped"] += max(k - merged, 0)
             Qs, full, actual = timed
             slack += actual - full
             out.extend(replace(p, waypoints=Q) for p, Q in zip(tries[k].pieces, Qs))
         return out, slack
+
+    def _with_merged(self, tries: list[Run]) -> list[Run]:
+        """A run's tries in the order they are timed: with ``concurrent_arms``, first each of them with both arms at
+        once (:meth:`_both_arms`), then the tries themselves."""
+        return (self._both_arms(tries) if self.s.concurrent_arms else []) + tries
 
     def _both_arms(self, runs: list[Run]) -> list[Run]:
         """Each of ``runs`` (in order) with its consecutive motions of the two arms made one (both arms at once:
