@@ -28,7 +28,8 @@ from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
 from planner.jobs.plan_job import build_task
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import MotionPiece, assemble
-from planner.regrasp.plan_timing import PlanTimer, Run, runs_of, waypoints_of
+from planner.regrasp.timing.plan_timer import PlanTimer
+from planner.regrasp.timing.runs import Run, runs_of, waypoints_of
 from planner.scene.scenarios import load_builtin
 
 DT = 0.005

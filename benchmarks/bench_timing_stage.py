@@ -6,7 +6,7 @@ duration, the planning time (``stats.time_s``), the timing stage (``stats.timing
 rest of the planning time (stage / (planning - stage)), and of it the quicker paths (``quicker_paths_time_s``:
 replans, vias, shortcuts, the ranking) and the rest, the time parameterization and its checks, with what it adds to
 everything else. ``--set KEY=VALUE`` (repeatable) changes one
-plan-timing setting (:class:`planner.regrasp.plan_timing.PlanTimingSettings`) for a before/after comparison run
+plan-timing setting (:class:`planner.regrasp.timing.settings.PlanTimingSettings`) for a before/after comparison run
 back to back; the trajectory's hash then tells whether the plan changed. ``--first`` reports instead the first plan
 of each task, its survey computed in the plan (an empty, temporary survey cache): what a new task's plan takes.
 ``--repeats N`` plans N times more (each ``--first`` plan with its own empty cache) and prints the medians of the

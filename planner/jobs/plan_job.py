@@ -21,7 +21,8 @@ from planner.jobs.survey_job import survey_overrides
 from planner.regrasp.failure_cause import FailureCause, failures_in_words
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import assemble, effort_ratios, trajectory_points
-from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
+from planner.regrasp.timing.plan_timer import PlanTimer
+from planner.regrasp.timing.settings import PlanTimingSettings
 from planner.stability.effort import EffortEvaluator
 from planner.regrasp.results import PlannerResult
 from planner.regrasp.settings import PlannerSettings

@@ -6,7 +6,7 @@ runs out of jobs, or, where this process has work of its own to do with them (``
 as it has it; this process keeps its own. Used for the motions of a candidate path
 (:meth:`planner.regrasp.hand_config_planner.HandConfigPlanner._prefetch_hops`), which are independent once
 its key poses are valid, and for the quicker paths of a plan's motions
-(:meth:`planner.regrasp.plan_timing.PlanTimer.alternatives`), whose runs can be timed as their paths come in.
+(:meth:`planner.regrasp.timing.quicker_paths.QuickerPaths.alternatives`), whose runs can be timed as their paths come in.
 """
 
 from __future__ import annotations

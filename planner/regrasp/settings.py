@@ -11,7 +11,7 @@ from planner.grasping.handover import HandoverSettings
 from planner.motion.ik import IkSettings
 from planner.motion.smoothing import SmoothingSettings
 from planner.motion.timing import TimingSettings
-from planner.regrasp.plan_timing import PlanTimingSettings
+from planner.regrasp.timing.settings import PlanTimingSettings
 from planner.motion.trrt import TrrtSettings
 from planner.regrasp.graph import GraphWeights
 

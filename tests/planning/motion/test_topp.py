@@ -14,7 +14,9 @@ from hypothesis import strategies as st
 from planner.motion.timing import zmp_cart_table
 from planner.motion.topp import BlendedPath, SplinePath, gridpoints_for, parameterize, profile_times
 from planner.regrasp.plan_assembly import MotionPiece
-from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings, Run
+from planner.regrasp.timing.plan_timer import PlanTimer
+from planner.regrasp.timing.runs import Run
+from planner.regrasp.timing.settings import PlanTimingSettings
 from planner.stability.effort import EffortEvaluator, effort_limits
 from planner.stability.evaluator import HoldSpec, StateEvaluator
 

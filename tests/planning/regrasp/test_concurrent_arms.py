@@ -15,9 +15,9 @@ from plan_checker import check_plan
 
 from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.motion.smoothing import path_length
-from planner.regrasp.concurrent_arms import both_at_once, may_merge, merged_pieces
+from planner.regrasp.timing.concurrent_arms import both_at_once, may_merge, merged_pieces
 from planner.regrasp.plan_assembly import MotionPiece
-from planner.regrasp.plan_timing import off_path
+from planner.regrasp.timing.runs import off_path
 from planner.regrasp.settings import PlannerSettings
 from planner.robot.model import load_robot
 from planner.scene.scenarios import load_scenario

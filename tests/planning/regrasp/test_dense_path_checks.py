@@ -11,7 +11,8 @@ import pytest
 
 from planner.motion.timing import time_parameterize
 from planner.regrasp.plan_assembly import assemble, object_states
-from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
+from planner.regrasp.timing.plan_timer import PlanTimer
+from planner.regrasp.timing.settings import PlanTimingSettings
 
 
 def _collides(task, Q, hold, free_object) -> np.ndarray:

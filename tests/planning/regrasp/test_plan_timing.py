@@ -11,7 +11,9 @@ from plan_checker import check_plan
 
 from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.regrasp.plan_assembly import assemble
-from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings, Run
+from planner.regrasp.timing.plan_timer import PlanTimer
+from planner.regrasp.timing.runs import Run
+from planner.regrasp.timing.settings import PlanTimingSettings
 from planner.scene.scenarios import load_scenario
 
 DATA = Path(__file__).resolve().parents[2] / "data"
@@ -190,29 +192,31 @@ import numpy as np
 
 from planner.forking import fork_is_safe
 from planner.jobs.plan_job import build_task
-from planner.regrasp import plan_timing
+from planner.regrasp.state_checker import StateChecker
+from planner.regrasp.timing import quicker_paths
 from planner.regrasp.hand_config_planner import HandConfigPlanner
-from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
+from planner.regrasp.timing.plan_timer import PlanTimer
+from planner.regrasp.timing.settings import PlanTimingSettings
 from planner.scene.scenarios import load_scenario
 
 scenario = load_scenario(Path(sys.argv[1]))
 task = build_task(scenario)
 pieces = HandConfigPlanner(task, scenario.hands).plan().pieces
-spare, real = plan_timing.spare_cores, plan_timing.share_with_child
+spare, real = quicker_paths.spare_cores, quicker_paths.share_with_child
 
 
 def counted_timer(parallel):
-    plan_timing.spare_cores = spare if parallel else (lambda: 0)
+    quicker_paths.spare_cores = spare if parallel else (lambda: 0)
     counts = Counter()
     timer = PlanTimer(task, PlanTimingSettings(replans=2), 1.0, task.threshold_m, 0.005)
-    timer._checker = plan_timing.StateChecker(task.evaluator, task.world, task.stance.base_pose, task.constrained,
-                                              counts, limits=task.limits)
+    timer._checker = StateChecker(task.evaluator, task.world, task.stance.base_pose, task.constrained,
+                               counts, limits=task.limits)
     return timer, counts
 """
 
 _ONE_OR_TWO = _SOLVED_TIMER + r"""
 shared = []
-plan_timing.share_with_child = lambda jobs, work, stop, idle=None: shared.append(len(jobs)) or real(jobs, work, stop, idle)
+quicker_paths.share_with_child = lambda jobs, work, stop, idle=None: shared.append(len(jobs)) or real(jobs, work, stop, idle)
 
 
 def found(parallel):
@@ -262,7 +266,7 @@ def slow_helper(jobs, work, stop, idle=None):
     return real(jobs, late, stop, idle)
 
 
-plan_timing.share_with_child = slow_helper
+quicker_paths.share_with_child = slow_helper
 early = []
 real_early = PlanTimer._time_early
 PlanTimer._time_early = lambda self, *a: (early.append(real_early(self, *a)) or early[-1])
@@ -310,7 +314,7 @@ def test_a_run_goes_along_the_spline_where_it_is_quicker_and_every_state_of_it_p
     ``tol`` from the waypoints' polyline, the spline is pulled towards the corners until its states pass or the
     blended run stands: either way every sample of the run is within ``tol``; with a tolerance nothing but the
     polyline itself meets, no spline run is kept."""
-    from planner.regrasp.plan_timing import off_path, runs_of, waypoints_of
+    from planner.regrasp.timing.runs import off_path, runs_of, waypoints_of
 
     task, pieces = solved
     quicker = []

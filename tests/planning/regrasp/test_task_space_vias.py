@@ -20,7 +20,8 @@ def first_transit():
     from planner.jobs.plan_job import build_task
     from planner.regrasp.hand_config_planner import HandConfigPlanner
     from planner.regrasp.plan_assembly import object_states
-    from planner.regrasp.plan_timing import PlanTimer, PlanTimingSettings
+    from planner.regrasp.timing.plan_timer import PlanTimer
+    from planner.regrasp.timing.settings import PlanTimingSettings
     from planner.scene.scenarios import load_builtin
 
     task = build_task(load_builtin("upright"))
