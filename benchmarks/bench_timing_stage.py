@@ -50,7 +50,9 @@ def main() -> None:
         key, _, value = item.partition("=")
         update[key] = json.loads(value)
     base = PlannerSettings()
-    settings = base.model_copy(update={"plan_timing": base.plan_timing.model_copy(update=update)})
+    # validated, so that a nested setting (vias={"keep": 0}) becomes its model
+    timing = type(base.plan_timing).model_validate({**base.plan_timing.model_dump(), **update})
+    settings = base.model_copy(update={"plan_timing": timing})
     print(f"settings changed: {update or 'none'}; load average {os.getloadavg()[0]:.1f}")
     print(f"{'scenario':15s} {'duration s':>10s} {'planning s':>10s} {'timing s':>9s} {'adds':>6s} "
           f"{'quicker s':>9s} {'param. s':>8s} {'adds':>6s}  trajectory")
