@@ -7,8 +7,8 @@ giver goes home, then the taker carries the object away. Each waits for the othe
 its own pace (:func:`both_at_once`), the second starting together with the first or once the first has done a share
 of its way (``LEADS``: the taker's hand must not reach its pre-grasp before the object does, and the giver's hand
 must be clear of the object before the taker carries it away). These are only paths: the plan's timing
-(:mod:`planner.regrasp.timing.plan_timer`) times them and checks every sample, as it does the motions one after the other,
-which it keeps wherever no merged path passes.
+(:mod:`planner.regrasp.timing.plan_timer`) times them and checks every sample, as it does the motions one after the
+other, which it keeps wherever no merged path passes.
 """
 
 from __future__ import annotations

@@ -115,8 +115,9 @@ class RunLimits:
         a, b = path(grid, 1)[:, cols], path(grid, 2)[:, cols]
         return LinearRows(grid, a, b, np.zeros_like(a), -lim, lim)
 
-    def _stretch_needed(self, run: Run, Q: np.ndarray, need_at: np.ndarray) -> float:
-        """The time stretch (>= 1) the samples need to keep the limits as the checker sees them; 1 when they do."""
+    def _stretch_needed(self, run: Run, Q: np.ndarray, com: np.ndarray, need_at: np.ndarray) -> float:
+        """The time stretch (>= 1) the samples Q (their system CoM ``com``) need to keep the limits as the checker
+        sees them; 1 when they do."""
         dt = self.dt
         k = 1.0
         if len(Q) >= 2:
@@ -126,7 +127,6 @@ class RunLimits:
             a = np.abs(Q[2:] - 2.0 * Q[1:-1] + Q[:-2]) / (dt * dt)
             k = max(k, math.sqrt(float((a / self.alim).max())))
         t = self.task
-        com = t.evaluator.evaluate(Q, run.hold, threshold_m=0.0).com
         zmp = zmp_cart_table(com, dt)
         zm = t.evaluator.polygon.margin(zmp)
         bad = zm < need_at - 1e-9

@@ -256,8 +256,8 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
 
     def _both_arms(self, runs: list[Run]) -> list[Run]:
         """Each of ``runs`` (in order) with its consecutive motions of the two arms made one (both arms at once:
-        :func:`planner.regrasp.timing.concurrent_arms.merged_pieces`), the second arm starting at each of ``LEADS`` in turn;
-        none for a run without such motions. One object per run and lead within a :meth:`time_plan`, so that a run
+        :func:`planner.regrasp.timing.concurrent_arms.merged_pieces`), the second arm starting at each of ``LEADS`` in
+        turn; none for a run without such motions. One object per run and lead within a :meth:`time_plan`, so that a run
         timed once (:meth:`_once`, by its id) is found again."""
         out = []
         for run in runs:

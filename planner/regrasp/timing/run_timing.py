@@ -225,7 +225,7 @@ class RunTiming:
             Q[0], Q[-1] = W[0], W[-1]  # exactly the rest states (the polynomials reach them to rounding)
             com = self.task.evaluator.evaluate(Q, run.hold, threshold_m=0.0).com
             need_at = self._zmp_need(self.task.evaluator.polygon.margin(com[:, :2]), floor_m)
-            k = self._stretch_needed(run, Q, need_at)
+            k = self._stretch_needed(run, Q, com, need_at)
             if k <= 1.0 + 1e-9:
                 self.stats["stretched_runs"] += int(stretch > 1.0)
                 full = (max(1, int(math.ceil(T * stretch / self.dt - 1e-9))) + len(s) - 1
@@ -282,15 +282,18 @@ class RunTiming:
         """Path positions of the samples that fail the checks: every sample off the search's own segments (on a
         blend or a shortcut of the timing) through the state checker (collision, the margin, the static limits)
         with the grasping rules of the piece it belongs to; every sample and every midpoint between samples
-        against the margin."""
+        against the margin (the state checker's own margin test, at the threshold itself, covers the samples it
+        checks: the others' margins alone are computed here)."""
         t = self.task
         bounds = [path.waypoint_s[i] for i in starts[1:]]
         piece_of = np.searchsorted(np.asarray(bounds), s, side="right") if bounds else np.zeros(len(s), int)
         new = off_path(Q, run.validated) if self.s.trust_search_segments else np.ones(len(Q), dtype=bool)
         self.stats["checked_samples"] += int(new.sum())
         bad = np.zeros(len(Q), dtype=bool)
-        margin = t.evaluator.evaluate(Q, run.hold, threshold_m=0.0).margin
-        bad |= margin < self.threshold - MARGIN_TOLERANCE_M
+        if not new.all():
+            seen = np.flatnonzero(~new)
+            margin = t.evaluator.evaluate(Q[seen], run.hold, threshold_m=0.0).margin
+            bad[seen] = margin < self.threshold - MARGIN_TOLERANCE_M
         for k, piece in enumerate(run.pieces):
             idx = np.flatnonzero((piece_of == k) & new)
             if not idx.size:

@@ -1,5 +1,5 @@
-"""How a solved plan is timed: the share of the limits used, the paths tried, the blends, the TOPP-RA grid, the balance's
-reserve (:class:`PlanTimingSettings`, the planner settings' ``plan_timing``)."""
+"""How a solved plan is timed: the share of the limits used, the paths tried, the blends, the TOPP-RA grid, the
+balance's reserve (:class:`PlanTimingSettings`, the planner settings' ``plan_timing``)."""
 
 from __future__ import annotations
 
