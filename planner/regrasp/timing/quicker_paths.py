@@ -59,7 +59,7 @@ class QuickerPaths:
         # the transits first (T-RRT round the table, the longest to make quicker), so that neither process is left
         # with one of them at the end while the other waits; each piece's paths are its own whatever the order
         planned.sort(key=lambda k: (states[k][0].kind != "transit", k))
-        found = self._eachis_planned(planned, lambda k: self._piece_paths(k, *states[k]), ready)
+        found = self._each_planned(planned, lambda k: self._piece_paths(k, *states[k]), ready)
         return [[replace(piece, path=Q) for Q in found[k]] if k in found else [piece]
                 for k, (piece, *_) in enumerate(states)]
 
@@ -86,7 +86,7 @@ class QuickerPaths:
             paths = [paths[i] for i in sorted(range(len(paths)), key=lambda i: (took[i], i))]
         return paths
 
-    def _eachis_planned(self, planned: list[int], paths_of, ready=None) -> dict[int, list[np.ndarray]]:
+    def _each_planned(self, planned: list[int], paths_of, ready=None) -> dict[int, list[np.ndarray]]:
         """``paths_of(k)`` for each planned piece k, in this process and one forked helper at once where the task's
         ``parallel_motions`` allows it, forking is safe and a second core exists (the same paths either way: each
         piece draws from its own stream). The helper's check counts are added to this process's, and what each
