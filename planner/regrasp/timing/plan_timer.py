@@ -38,12 +38,9 @@ from __future__ import annotations
 import time
 from collections import Counter
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable
 
 import numpy as np
 
-from planner.forking import fork_is_safe, spare_cores
-from planner.regrasp.fork_share import share_with_child
 from planner.regrasp.plan_assembly import MotionPiece, object_states
 from planner.regrasp.state_checker import StateChecker
 from planner.regrasp.timing.concurrent_arms import LEADS, merged_pieces
@@ -122,7 +119,7 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         the :meth:`time_plan` that clears these."""
         cap = self._reserve_cap()
         kept = self._kept.get(key)
-        if self._still_kept(kept):
+        if kept is not None and all(min(a, cap) == min(a, kept_cap) for a, kept_cap in kept[2]):
             result, grown, asked = kept
             add_stats(self.stats, grown)
         else:
@@ -136,28 +133,6 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         if self._asked is not None:
             self._asked.extend(a for a, _ in asked)
         return result
-
-    def _still_kept(self, kept: tuple | None) -> bool:
-        """Whether a result kept by :meth:`_once` holds under today's reserve cap: every ZMP reserve it asked comes
-        out the same."""
-        cap = self._reserve_cap()
-        return kept is not None and all(min(a, cap) == min(a, kept_cap) for a, kept_cap in kept[2])
-
-    def _shared(self, jobs: list, work: Callable[[Any, bool], Any],
-                idle: Callable[[dict[int, Any]], bool] | None = None) -> dict[int, Any] | None:
-        """``work(job, in_child)`` for each job in this process and one forked helper at once
-        (:func:`planner.regrasp.fork_share.share_with_child`), where the task's ``parallel_motions`` allows it, there
-        is more than one job, a second core exists and forking is safe: the results by job index (a job the helper
-        left unfinished is missing, for the caller to do; its error goes to ``stats.helper_errors``). None where
-        the jobs are not shared: the caller does them all. The state checker is made before the fork, so that both
-        processes count into the same."""
-        _ = self.checker  # made here, before any fork
-        if not (self.task.settings.parallel_motions and len(jobs) > 1 and spare_cores() > 0 and fork_is_safe()):
-            return None
-        results, error = share_with_child(jobs, work, lambda: False, idle)
-        if error is not None:
-            self.stats.setdefault("helper_errors", []).append(error.strip().splitlines()[-1])
-        return results
 
     def time_plan(self, pieces: list[MotionPiece]) -> PlanTiming:
         """The plan's pieces made quicker, then timed run by run (a run whose samples fail the checks takes its
@@ -239,13 +214,24 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         :meth:`_with_merged`); the timed pieces and the time the whole-period rounding and the speed scale add.
         ``merged_runs`` counts the runs kept with both arms at once, ``merged_refused`` the merged tries whose
         samples failed, ``alternatives_dropped`` the one-arm-after-the-other ones."""
-        tries_of = [self._tries(r, original, levels) for r, original in enumerate(originals)]
-        self._time_ahead([tries for tries, _ in tries_of])
         out: list[MotionPiece] = []
         slack = 0.0
         for r, original in enumerate(originals):
             self.stats["runs"] += 1
-            tries, merged = tries_of[r]
+            tries, seen = [], []
+            for level in levels:
+                run = level[r]
+                key = [id(p.path) for p in run.pieces]
+                if key not in seen:
+                    seen.append(key)
+                    tries.append(run)
+            if [id(p.path) for p in original.pieces] not in seen:
+                tries.append(original)
+            for run in tries:
+                run.validated = original.validated
+            unmerged = len(tries)
+            tries = self._with_merged(tries)
+            merged = len(tries) - unmerged
             k, timed = self._first_timed(tries)
             self.stats["merged_refused"] += min(k, merged)
             self.stats["merged_runs"] += int(timed is not None and k < merged)
@@ -262,63 +248,6 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
             slack += actual - full
             out.extend(replace(p, waypoints=Q) for p, Q in zip(tries[k].pieces, Qs))
         return out, slack
-
-    def _tries(self, r: int, original: Run, levels: list[list[Run]]) -> tuple[list[Run], int]:
-        """Run r's tries in the order they are timed (its alternatives' levels without repeats, the search's own path
-        at last, the merged ones first: :meth:`_with_merged`) and how many of them are merged."""
-        tries, seen = [], []
-        for level in levels:
-            run = level[r]
-            key = [id(p.path) for p in run.pieces]
-            if key not in seen:
-                seen.append(key)
-                tries.append(run)
-        if [id(p.path) for p in original.pieces] not in seen:
-            tries.append(original)
-        for run in tries:
-            run.validated = original.validated
-        unmerged = len(tries)
-        tries = self._with_merged(tries)
-        return tries, len(tries) - unmerged
-
-    def _time_ahead(self, tries_of: list[list[Run]]) -> None:
-        """The runs timed ahead of :meth:`_time_runs`, in this process and the helper at once (:meth:`_shared`): each
-        run's tries as :meth:`_first_timed` will ask for them (in order, up to the first that passes), their results
-        kept for it (:meth:`_once`) and nothing else changed. The timing then finds every run timed; its stats and
-        check counts come out as if it had timed them itself (the helper sends back what it kept, new or recomputed
-        under today's reserve cap, and its counts). Only the runs with something to time are shared; one the helper
-        did not finish is timed by :meth:`_time_runs` itself."""
-        jobs = [r for r, tries in enumerate(tries_of) if self._to_time(tries)]
-        checker = self.checker
-
-        def work(r: int, in_child: bool) -> tuple[dict, Counter] | None:
-            before, counts = dict(self._kept), Counter(checker.counters)
-            saved, self.stats = self.stats, stats_copy(self.stats)
-            try:
-                self._first_timed(tries_of[r])
-            finally:
-                self.stats = saved  # what it added is kept with each result, for the timing to add
-            if not in_child:
-                return None
-            return ({key: v for key, v in self._kept.items() if before.get(key) is not v},
-                    Counter(checker.counters) - counts)
-
-        for done in (self._shared(jobs, work) or {}).values():
-            if done is not None:
-                kept, counts = done
-                self._kept.update(kept)
-                checker.counters.update(counts)
-
-    def _to_time(self, tries: list[Run]) -> bool:
-        """Whether :meth:`_first_timed` would time any of these tries anew: one of them, up to the first kept one that
-        passes, has no result that holds under today's cap."""
-        for run in tries:
-            kept = self._kept.get(("run", id(run)))
-            if not self._still_kept(kept):
-                return True
-            if kept[0] is not None:
-                return False
-        return False
 
     def _with_merged(self, tries: list[Run]) -> list[Run]:
         """A run's tries in the order they are timed: with ``concurrent_arms``, first each of them with both arms at

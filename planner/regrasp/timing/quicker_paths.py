@@ -14,6 +14,8 @@ import numpy as np
 from planner.motion.smoothing import SmoothingSettings, partial_shortcut, path_length, shortcut
 from planner.motion.task_space_vias import via_paths
 from planner.motion.trrt import plan_motion
+from planner.forking import fork_is_safe, spare_cores
+from planner.regrasp.fork_share import share_with_child
 from planner.regrasp.plan_assembly import MotionPiece, object_states
 from planner.regrasp.timing.runs import Run, is_planned
 from planner.regrasp.timing.stats import add_stats, stats_added, stats_copy
@@ -26,8 +28,7 @@ SHORTCUT_STREAM = 7919
 
 class QuickerPaths:
     """The quicker paths of a plan's motions, a part of :class:`planner.regrasp.timing.plan_timer.PlanTimer`: it
-    uses the timer's ``task``, ``s``, ``vlim``, ``stats``, ``checker``, its ranking by time (``_estimated_time``) and
-    its sharing with a forked helper (``_shared``)."""
+    uses the timer's ``task``, ``s``, ``vlim``, ``stats``, ``checker`` and its ranking by time (``_estimated_time``)."""
 
     def alternatives(self, pieces: list[MotionPiece]) -> list[list[MotionPiece]]:
         """The plan's pieces with their planned motions (more than one straight segment) made quicker, best first:
@@ -92,7 +93,9 @@ class QuickerPaths:
         piece adds to the stats in the pieces' order (not in the order they ended). The pieces are shared in the order
         of ``planned``, each process taking the next one in turn; while this process waits for the helper's last
         ones, ``ready`` (see :meth:`_quicker`) is given the paths found so far."""
-        checker = self.checker
+        checker = self.checker  # made here, before any fork, so both processes count into the same
+        if not (self.task.settings.parallel_motions and len(planned) > 1 and spare_cores() > 0 and fork_is_safe()):
+            return {k: paths_of(k) for k in sorted(planned)}
 
         def work(k: int, in_child: bool) -> tuple[list[np.ndarray], dict, Counter]:
             stats, counts = stats_copy(self.stats), Counter(checker.counters)
@@ -101,9 +104,7 @@ class QuickerPaths:
             return paths, grown, (Counter(checker.counters) - counts) if in_child else Counter()
 
         idle = None if ready is None else (lambda done: ready({planned[i]: r[0] for i, r in done.items()}))
-        results = self._shared(planned, work, idle)
-        if results is None:
-            return {k: paths_of(k) for k in sorted(planned)}
+        results, error = share_with_child(planned, work, lambda: False, idle)
         found: dict[int, list[np.ndarray]] = {}
         for i, k in sorted(enumerate(planned), key=lambda ik: ik[1]):
             if i not in results:  # the helper failed before this one: it is planned here
@@ -112,6 +113,8 @@ class QuickerPaths:
             found[k], grown, counts = results[i]
             checker.counters.update(counts)
             add_stats(self.stats, grown)
+        if error is not None:
+            self.stats.setdefault("helper_errors", []).append(error.strip().splitlines()[-1])
         return found
 
     def _shortened(self, Q: np.ndarray, validity, rng: np.random.Generator, settings: SmoothingSettings,

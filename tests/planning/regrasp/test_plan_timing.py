@@ -193,7 +193,7 @@ import numpy as np
 from planner.forking import fork_is_safe
 from planner.jobs.plan_job import build_task
 from planner.regrasp.state_checker import StateChecker
-from planner.regrasp.timing import plan_timer
+from planner.regrasp.timing import quicker_paths
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.timing.plan_timer import PlanTimer
 from planner.regrasp.timing.settings import PlanTimingSettings
@@ -202,11 +202,11 @@ from planner.scene.scenarios import load_scenario
 scenario = load_scenario(Path(sys.argv[1]))
 task = build_task(scenario)
 pieces = HandConfigPlanner(task, scenario.hands).plan().pieces
-spare, real = plan_timer.spare_cores, plan_timer.share_with_child
+spare, real = quicker_paths.spare_cores, quicker_paths.share_with_child
 
 
 def counted_timer(parallel):
-    plan_timer.spare_cores = spare if parallel else (lambda: 0)
+    quicker_paths.spare_cores = spare if parallel else (lambda: 0)
     counts = Counter()
     timer = PlanTimer(task, PlanTimingSettings(replans=2), 1.0, task.threshold_m, 0.005)
     timer._checker = StateChecker(task.evaluator, task.world, task.stance.base_pose, task.constrained,
@@ -216,7 +216,7 @@ def counted_timer(parallel):
 
 _ONE_OR_TWO = _SOLVED_TIMER + r"""
 shared = []
-plan_timer.share_with_child = lambda jobs, work, stop, idle=None: shared.append(len(jobs)) or real(jobs, work, stop, idle)
+quicker_paths.share_with_child = lambda jobs, work, stop, idle=None: shared.append(len(jobs)) or real(jobs, work, stop, idle)
 
 
 def found(parallel):
@@ -257,22 +257,16 @@ def test_the_quicker_paths_are_the_same_from_one_process_or_two():
 
 
 _TIMED_EARLY = _SOLVED_TIMER + r"""
-shares = []
-
-
 def slow_helper(jobs, work, stop, idle=None):
     # the helper starts its jobs late, so that this process waits for it with runs it can time meanwhile
     def late(job, in_child):
         if in_child:
             time.sleep(1.0)
         return work(job, in_child)
-    results, error = real(jobs, late, stop, idle)
-    if idle is None:  # runs timed ahead: the helper's come back with what it kept (this process's are None)
-        shares.append(sum(r is not None for r in results.values()))
-    return results, error
+    return real(jobs, late, stop, idle)
 
 
-plan_timer.share_with_child = slow_helper
+quicker_paths.share_with_child = slow_helper
 early = []
 real_early = PlanTimer._time_early
 PlanTimer._time_early = lambda self, *a: (early.append(real_early(self, *a)) or early[-1])
@@ -287,17 +281,15 @@ def timed(parallel):
 
 
 one = timed(False)
-alone = list(shares)
 two = timed(True)
-print(json.dumps({"one": one, "two": two, "early": early, "alone": alone, "shares": shares}))
+print(json.dumps({"one": one, "two": two, "early": early}))
 """
 
 
-def test_runs_timed_while_the_helper_works_and_by_it_give_the_plan_one_process_gives():
-    """With the helper slow to start its jobs, this process times the runs whose paths it has found while it
-    waits (``early_timing_s``); the runs are then timed in both processes at once, the helper sending back what it
-    timed. The timed pieces, the timing's stats and the check counts are those of one process alone, bit for
-    bit."""
+def test_runs_timed_while_the_helper_works_give_the_plan_one_process_gives():
+    """With the helper slow to start its motions, this process times the runs whose paths it has found while it
+    waits (``early_timing_s``): the timed pieces, the timing's stats and the check counts are those of one process
+    alone, bit for bit."""
     import json
     import subprocess
     import sys
@@ -311,7 +303,6 @@ def test_runs_timed_while_the_helper_works_and_by_it_give_the_plan_one_process_g
     res = json.loads(out.stdout.strip().splitlines()[-1])
     (one_pieces, one_stats, one_counts, one_early), (two_pieces, two_stats, two_counts, two_early) = res["one"], res["two"]
     assert one_early == 0.0 and two_early > 0.0 and True in res["early"]  # runs were timed early, with two only
-    assert res["alone"] == [] and sum(res["shares"]) > 0  # and by the helper, with two only
     assert one_pieces == two_pieces and len(one_pieces) > 1
     assert one_stats == two_stats and one_stats["runs"] > 0
     assert one_counts == two_counts and one_counts["collision_states"] > 0
@@ -376,13 +367,8 @@ def test_the_reserves_cap_comes_from_a_first_timing_of_the_plan(solved):
 def test_the_caps_second_timing_recomputes_only_the_runs_whose_reserve_the_cap_changes(solved, monkeypatch):
     """The second timing takes a run's first timing again where every ZMP reserve it asked is under the cap, and
     times again the others: the same pieces and stats, bit for bit, as timing every run twice; a cap under every
-    reserve (share 0, no overshoot) times every run again, a cap over all of them (the overshoot alone 1 m) none.
-    In one process: the calls are counted here, and a helper's would be counted in the helper (the test above shows
-    the helper's share gives the same plan)."""
-    from planner.regrasp.timing import plan_timer
-
+    reserve (share 0, no overshoot) times every run again, a cap over all of them (the overshoot alone 1 m) none."""
     task, pieces = solved
-    monkeypatch.setattr(plan_timer, "spare_cores", lambda: 0)
 
     def timed(recompute: bool, **settings) -> tuple[PlanTimer, object, list[tuple[float, int]], list[list[float]]]:
         timer = PlanTimer(task, PlanTimingSettings(**settings), 1.0, task.threshold_m, 0.005)
