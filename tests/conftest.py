@@ -122,8 +122,9 @@ RAY_FILES = ("tests/service/test_service_ray.py", "tests/service/test_service_ra
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     """With ``--dist loadgroup`` (scripts/test.sh), every file is one group, so a file's module fixtures are set up
-    once, and the files that start Ray share one group."""
-    if config.getoption("dist", default="no") != "loadgroup":
+    once, and the files that start Ray share one group. The groups are read where the tests are collected, on the
+    workers, which pytest-xdist runs with ``dist`` "no" and its own ``loadgroup`` flag set."""
+    if config.getoption("dist", default="no") != "loadgroup" and not getattr(config.option, "loadgroup", False):
         return
     for item in items:
         path = item.nodeid.split("::", 1)[0]
