@@ -11,10 +11,10 @@ from typing import Callable
 
 import numpy as np
 
+from planner.forking import fork_is_safe, spare_cores
 from planner.motion.smoothing import SmoothingSettings, partial_shortcut, path_length, shortcut
 from planner.motion.task_space_vias import via_paths
 from planner.motion.trrt import plan_motion
-from planner.forking import fork_is_safe, spare_cores
 from planner.regrasp.fork_share import share_with_child
 from planner.regrasp.plan_assembly import MotionPiece, object_states
 from planner.regrasp.timing.runs import Run, is_planned

@@ -282,8 +282,8 @@ class RunTiming:
         """Path positions of the samples that fail the checks: every sample off the search's own segments (on a
         blend or a shortcut of the timing) through the state checker (collision, the margin, the static limits)
         with the grasping rules of the piece it belongs to; every sample and every midpoint between samples
-        against the margin (the state checker's own margin test, at the threshold itself, covers the samples it
-        checks: the others' margins alone are computed here)."""
+        against the margin (a sample the state checker sees is tested on the margin the checker computed; only the
+        others' margins are computed here)."""
         t = self.task
         bounds = [path.waypoint_s[i] for i in starts[1:]]
         piece_of = np.searchsorted(np.asarray(bounds), s, side="right") if bounds else np.zeros(len(s), int)
@@ -298,8 +298,9 @@ class RunTiming:
             idx = np.flatnonzero((piece_of == k) & new)
             if not idx.size:
                 continue
-            ok, _ = self.checker.validity(run.hold, run.free_object, grasping_of(piece, run.hold), active=None)(Q[idx])
-            bad[idx] |= ~ok
+            ok, margin = self.checker.validity(run.hold, run.free_object, grasping_of(piece, run.hold),
+                                               active=None)(Q[idx])
+            bad[idx] |= ~ok | (margin < self.threshold - MARGIN_TOLERANCE_M)
         bad_s = [s[bad]]
         if len(Q) >= 2:
             mids = 0.5 * (Q[1:] + Q[:-1])
