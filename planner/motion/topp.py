@@ -102,7 +102,7 @@ class BlendedPath(_JointPath):
         for i in range(len(W) - 1):
             a = W[i] + d[i] * unit[i]
             line = length[i] - d[i] - d[i + 1]
-            if line > 0.0:
+            if line > 1e-12 * length[i]:  # a segment that its blends take whole, to rounding, has no line left
                 starts.append(s); c0.append(a); c1.append(unit[i]); c2.append(np.zeros(W.shape[1]))
                 s += line
             if i + 1 < len(W) - 1 and d[i + 1] > 0.0:
@@ -239,6 +239,7 @@ def gridpoints_for(path: BlendedPath, step: float, max_points: int) -> np.ndarra
     eps = BREAK_SIDE * path.length
     inner = path.breaks[1:-1]
     grid = np.union1d(np.linspace(0.0, path.length, n + 1), np.concatenate([path.breaks, inner - eps]))
+    grid = grid[(grid >= 0.0) & (grid <= path.length)]
     keep = np.r_[True, np.diff(grid) > 0.1 * eps]
     grid = grid[keep]
     grid[-1] = path.length

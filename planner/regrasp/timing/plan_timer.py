@@ -99,7 +99,7 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         self._early: set[int] = set()
         #: the runs of one :meth:`time_plan` with both arms at once, by run and lead (:meth:`_both_arms`)
         self._merged: dict = {}
-        self.stats = {"merged_runs": 0, "merged_refused": 0, "shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "spline_runs": 0, "dense_failures": []}
+        self.stats = {"merged_runs": 0, "merged_refused": 0, "shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "corners_pushed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "spline_runs": 0, "dense_failures": []}
 
     @property
     def checker(self) -> StateChecker:

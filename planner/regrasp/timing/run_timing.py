@@ -15,6 +15,11 @@ from planner.motion.topp import BlendedPath, SplinePath, gridpoints_for, paramet
 from planner.regrasp.timing.runs import SAME_WAYPOINT_RAD, Run, grasping_of, off_path, waypoints_of
 
 
+#: The choices of a corner pushed out (:meth:`RunTiming._pushed_corners`), in order: the share of its asked blend and
+#: how far it is pushed, in units of the distance at which that blend passes through the corner.
+PUSHES = ((1.0, 1.0), (1.0, 2.0), (0.5, 2.0), (0.25, 2.0))
+
+
 class RunTiming:
     """One run's timing and checks, a part of :class:`planner.regrasp.timing.plan_timer.PlanTimer`: it uses the
     timer's ``task``, ``s``, ``dt``, ``speed_scale``, ``threshold``, ``vlim``, ``alim``, ``stats``, ``checker``, its
@@ -31,13 +36,16 @@ class RunTiming:
             return None
         refused = len(self.stats["refused"])
         blends = np.full(len(W) - 2, self.s.blend_rad)
+        blended_W = W  # the blended run's waypoints: the run's own, or with corners pushed out (_pushed_corners)
         if self.s.path_check_rad > 0.0:
-            blends = self._once(("blends", id(run)), lambda: self._checked_blends(run, W, starts, blends))
+            checked = self._once(("blends", id(run)), lambda: self._checked_blends(run, W, starts, blends))
+            blended_W, blends = checked if checked is not None else (W, None)
         spline = (self._once(("spline", id(run)), lambda: self._checked_spline(run, W, starts))
                   if self.s.spline_runs and len(W) > 2 else None)
         tries = []
         if blends is not None:
-            tries.append((lambda: self._coarse_time(run, W, blends), 0, lambda: self._blended_run(run, W, starts, blends)))
+            tries.append((lambda: self._coarse_time(run, blended_W, blends), 0,
+                          lambda: self._blended_run(run, blended_W, starts, blends)))
         if spline is not None:
             P, at, path = spline
             tries.append((lambda: self._coarse_time(run, P, None, path), 1,
@@ -181,35 +189,98 @@ class RunTiming:
         return hit
 
     def _checked_blends(self, run: Run, W: np.ndarray, starts: list[int], blends: np.ndarray,
-                        count: bool = True) -> np.ndarray | None:
-        """The run's blends after the checks of its geometry, before any timing: states every ``path_check_rad`` of
-        arc length along the blended path go through the same checks as the timed samples, and the blends are
-        shrunk as the timed samples would have them shrunk. The timing (TOPP-RA, the sample checks) then runs once
-        on a path that passes, where a failure found only after timing costs it again per round; an alternative
-        that fails off its blends is refused before it is timed at all. None: refused."""
+                        count: bool = True) -> tuple[np.ndarray, np.ndarray] | None:
+        """The run's waypoints and blends after the checks of its geometry, before any timing: states every
+        ``path_check_rad`` of arc length along the blended path go through the same checks as the timed samples, and
+        the blends are shrunk as the timed samples would have them shrunk; with ``corner_push``, the corners whose
+        blends were shrunk are then pushed out instead where that passes (:meth:`_pushed_corners`). The timing
+        (TOPP-RA, the sample checks) then runs once on a path that passes, where a failure found only after timing
+        costs it again per round; an alternative that fails off its blends is refused before it is timed at all.
+        None: refused."""
+        asked = blends
         blends = blends.copy()
-        step = self.s.path_check_rad
         for round_ in range(self.s.blend_rounds + 2):
-            cuts = between_stops(blends)
-            paths = [BlendedPath(W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0), self.s.blend_fill)
-                     for a, b in cuts]
-            whole = Joined(paths)
-            s_all, Q_all, offset = [], [], 0.0
-            for k, (path, (a, b)) in enumerate(zip(paths, cuts)):
-                s_k = spaced(path.length, step)[(1 if k else 0):]
-                Q_k = path(s_k)
-                if k == 0:
-                    Q_k[0] = W[a]
-                Q_k[-1] = W[b]  # exactly the rest states, as the timed samples have them
-                s_all.append(s_k + offset)
-                Q_all.append(Q_k)
-                offset += path.length
-            bad_s = self._invalid_s(run, whole, starts, np.concatenate(s_all), np.vstack(Q_all))
+            whole, bad_s = self._path_failures(run, W, starts, blends)
             if not bad_s.size:
-                return blends
+                break
             if not self._shrink_blends(run, whole, starts, blends, bad_s, round_, count):
                 return None
-        return None
+        else:
+            return None
+        if self.s.corner_push:
+            return self._pushed_corners(run, W, starts, asked, blends, count)
+        return W, blends
+
+    def _pushed_corners(self, run: Run, W: np.ndarray, starts: list[int], asked: np.ndarray, passed: np.ndarray,
+                        count: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Each corner whose blend the checks shrank (``passed`` < ``asked``) moved outwards, away from where its
+        blend cuts in: ``W_i - k (d / 4)(u_out - u_in)`` for a blend of half-length ``d`` between the unit directions
+        ``u_in`` and ``u_out`` (of the path before the push). With ``k = 1`` the blend passes through the checked
+        corner instead of inside it (nearly: the pushed legs are a little longer and turn a little more), where
+        the obstacle that shrank it is; a tight corner near the table's edge then keeps a larger blend, and the robot
+        does not slow to a near stop there. The pushed path is checked as the blended one is, and a failing state is
+        put down to the nearest pushed corner whose legs hold it; that corner takes its next choice (:data:`PUSHES`:
+        the asked blend pushed once, then twice as far, then smaller blends pushed twice as far), and at last its
+        shrunk blend unpushed, until every state passes (at worst the path that passed). Returns the waypoints and
+        blends."""
+        shrunk = np.flatnonzero(passed < asked) + 1  # interior waypoints whose blend was shrunk or removed
+        if not shrunk.size:
+            return W, passed
+        choices = {int(i): [(asked[i - 1] * size, k) for size, k in PUSHES if asked[i - 1] * size > passed[i - 1]]
+                   for i in shrunk}
+        at = {i: 0 for i in choices}
+        unit = np.diff(W, axis=0)
+        unit /= np.linalg.norm(unit, axis=1)[:, None]
+        robot = self.task.robot
+        while True:
+            pushed = [i for i in choices if at[i] < len(choices[i])]
+            if not pushed:
+                return W, passed
+            blends = passed.copy()
+            for i in pushed:
+                blends[i - 1] = choices[i][at[i]][0]
+            d = Joined([BlendedPath(W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0), self.s.blend_fill)
+                        for a, b in between_stops(blends)])
+            pushed_W = W.copy()
+            for i in pushed:
+                k = choices[i][at[i]][1]
+                pushed_W[i] = np.clip(W[i] - k * 0.25 * d.blend_of(i) * (unit[i] - unit[i - 1]), robot.lower, robot.upper)
+            whole, bad_s = self._path_failures(run, pushed_W, starts, blends)
+            if not bad_s.size:
+                if count:  # a blend the checks removed and a push restored is not removed
+                    self.stats["corners_pushed"] += len(pushed)
+                    self.stats["blends_removed"] -= sum(int(passed[i - 1] == 0.0) for i in pushed)
+                return pushed_W, blends
+            ws = whole.waypoint_s
+            failed = set()
+            for s in bad_s:
+                near = [i for i in pushed if ws[i - 1] <= s <= ws[i + 1]]
+                if not near:  # a failure no pushed corner explains: the path that passed
+                    return W, passed
+                failed.add(min(near, key=lambda i: abs(s - ws[i])))
+            for i in failed:
+                at[i] += 1
+
+    def _path_failures(self, run: Run, W: np.ndarray, starts: list[int], blends: np.ndarray
+                       ) -> tuple["Joined", np.ndarray]:
+        """The blended path through W (stopping where a blend is 0) as one path position, and the positions of its
+        states every ``path_check_rad`` that fail the checks of the timed samples (:meth:`_invalid_s`)."""
+        step = self.s.path_check_rad
+        cuts = between_stops(blends)
+        paths = [BlendedPath(W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0), self.s.blend_fill)
+                 for a, b in cuts]
+        whole = Joined(paths)
+        s_all, Q_all, offset = [], [], 0.0
+        for k, (path, (a, b)) in enumerate(zip(paths, cuts)):
+            s_k = spaced(path.length, step)[(1 if k else 0):]
+            Q_k = path(s_k)
+            if k == 0:
+                Q_k[0] = W[a]
+            Q_k[-1] = W[b]  # exactly the rest states, as the timed samples have them
+            s_all.append(s_k + offset)
+            Q_all.append(Q_k)
+            offset += path.length
+        return whole, self._invalid_s(run, whole, starts, np.concatenate(s_all), np.vstack(Q_all))
 
     def time_part(self, run: Run, W: np.ndarray, blends: np.ndarray, spline: SplinePath | None = None) -> "Part | None":
         """One stretch between stops (blended through W, or along ``spline``), timed and checked; None when TOPP-RA
@@ -272,10 +343,11 @@ class RunTiming:
             return 0.0
         blends = np.full(len(W) - 2, self.s.blend_rad)
         if self.s.path_check_rad > 0.0 and len(W) > 2:
-            blends = self._checked_blends(replace(run, pieces=[replace(run.pieces[0], path=W)]), W, [0], blends,
-                                          count=False)
-            if blends is None:
+            checked = self._checked_blends(replace(run, pieces=[replace(run.pieces[0], path=W)]), W, [0], blends,
+                                           count=False)
+            if checked is None:
                 return math.inf
+            W, blends = checked
         return self._coarse_time(run, W, blends)  # the robot stops where a blend had to go
 
     def _invalid_s(self, run: Run, path: "Joined", starts: list[int], s: np.ndarray, Q: np.ndarray) -> np.ndarray:

@@ -44,7 +44,7 @@ class PlanTimingSettings(BaseModel):
                                  "the same constraints, a coarse grid) rather than by the time at the velocity limits "
                                  "alone, which leaves out the corners and the balance")
     rank_grid_step_rad: float = Field(0.05, gt=0, description="TOPP-RA gridpoint spacing (rad) of that ranking")
-    blend_rad: float = Field(0.5, ge=0, description="largest half-length of a corner blend (joint-space arc length, rad)")
+    blend_rad: float = Field(0.7, ge=0, description="largest half-length of a corner blend (joint-space arc length, rad)")
     blend_fill: bool = Field(True, description="a segment's two corner blends share it as they need (each at least "
                              "half, the rest to the one that asks more; the path's first and last segments wholly to "
                              "their one blend) instead of half each")
@@ -54,6 +54,10 @@ class PlanTimingSettings(BaseModel):
     spline_rounds: int = Field(4, ge=0, description="times a spline whose states fail the checks is pulled towards "
                                "the corners nearest the failures (a midpoint on both their legs) and checked again")
     blend_rounds: int = Field(3, ge=0, description="times a blend with an invalid sample is halved before it is removed")
+    corner_push: bool = Field(True, description="a corner whose blend the checks of the path shrank is moved outwards "
+                              "by as much as its asked blend cuts in, so that the blend passes through the checked "
+                              "corner, and keeps its full size where that path passes the same checks "
+                              "(run_timing._pushed_corners); off: the blend stays shrunk")
     grid_step_rad: float = Field(0.02, gt=0, description="TOPP-RA gridpoint spacing along the path (rad)")
     max_gridpoints: int = Field(400, ge=10, description="TOPP-RA gridpoints per run at most")
     zmp_reserve_share: float = Field(0.9, ge=0, le=1, description="the ZMP is kept at least this share of the "

@@ -3,6 +3,7 @@ at rest where the hands change what they hold, faster than rest-to-rest, and slo
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 from plan_checker import check_plan
 
 from planner.jobs.plan_job import PlanOptions, plan_scenario
+from planner.motion.topp import BlendedPath
 from planner.regrasp.plan_assembly import assemble
 from planner.regrasp.timing.plan_timer import PlanTimer
 from planner.regrasp.timing.runs import Run
@@ -137,7 +139,8 @@ def _refuse_also(timer: PlanTimer, refused, monkeypatch) -> None:
 
 def test_the_ranking_times_a_path_with_the_blends_its_checks_leave_it(solved, monkeypatch):
     """Two paths that are the same turn, in two pairs of joints: unchecked, they time alike. An obstacle inside the
-    first one's corner (a box of states the checker refuses) leaves that corner only a small blend, and the ranking
+    first one's corner (a box of states the checker refuses) leaves that corner only a small blend (its corner not
+    pushed out: ``corner_push`` off; the next test pushes it), and the ranking
     sees the time it costs: the second path is ranked first. A path through the obstacle is never ranked (its
     time is infinite)."""
     task, pieces = solved
@@ -152,11 +155,11 @@ def test_the_ranking_times_a_path_with_the_blends_its_checks_leave_it(solved, mo
         return P
 
     hugging, clear = turn("RSP", "REP"), turn("RSY", "RWRY")
-    timer = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
+    timer = PlanTimer(task, PlanTimingSettings(corner_push=False), 1.0, task.threshold_m, 0.005)
 
     def inside(Q: np.ndarray) -> np.ndarray:
-        return ((Q[:, j["RSP"]] - q0[j["RSP"]] > 0.45) & (Q[:, j["RSP"]] - q0[j["RSP"]] < 0.59)
-                & (q0[j["REP"]] - Q[:, j["REP"]] > 0.01) & (q0[j["REP"]] - Q[:, j["REP"]] < 0.15))
+        return ((Q[:, j["RSP"]] - q0[j["RSP"]] > 0.3) & (Q[:, j["RSP"]] - q0[j["RSP"]] < 0.59)
+                & (q0[j["REP"]] - Q[:, j["REP"]] > 0.01) & (q0[j["REP"]] - Q[:, j["REP"]] < 0.3))
 
     alone = Run([pieces[k]], "none", None, task.placements[task.start_id])
     unchecked = PlanTimer(task, PlanTimingSettings(path_check_rad=0.0), 1.0, task.threshold_m, 0.005)
@@ -176,9 +179,64 @@ def test_the_ranking_times_a_path_with_the_blends_its_checks_leave_it(solved, mo
     monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
     checker = timer.checker  # the one with the obstacle, for the timer below too
     monkeypatch.setattr(PlanTimer, "checker", property(lambda self: checker))
-    plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0)
+    plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0, corner_push=False)
     ranked = PlanTimer(task, PlanTimingSettings(**plain), 1.0, task.threshold_m, 0.005).alternatives(pieces)
     assert np.array_equal(ranked[0][k].path, clear) and np.array_equal(ranked[1][k].path, hugging)
+
+
+def test_a_corner_whose_blend_an_obstacle_shrinks_is_pushed_out_and_keeps_its_blend(solved, monkeypatch):
+    """A turn in two joints far from their limits with an obstacle inside its corner (a box of states the checker
+    refuses): its blend shrinks to nothing, and the robot stops there. Pushed out (``corner_push``, the default), the
+    corner moves away from the inside of the turn and keeps a large blend, every state of its path (recomputed
+    here every 1 mrad) misses the obstacle, and it times well below the stop (not as fast as the turn with no
+    obstacle: the legs are longer). With a second obstacle just outside the first leg near the corner, where a pushed
+    leg goes, no push passes: the shrunk blend stands, the corner where it was, exactly as without pushing."""
+    task, pieces = solved
+    k = next(i for i, p in enumerate(pieces) if p.path is not None and len(p.path) > 2)
+    q0 = np.asarray(pieces[k].path[0], dtype=float)
+    sp, ep = task.robot.joint_index("RSY"), task.robot.joint_index("RWRY")
+    P = np.array([q0, q0, q0])
+    P[1:, sp] += 0.6
+    P[2, ep] -= 0.6
+
+    def inside(Q: np.ndarray) -> np.ndarray:
+        return ((Q[:, sp] - q0[sp] > 0.3) & (Q[:, sp] - q0[sp] < 0.59)
+                & (q0[ep] - Q[:, ep] > 0.01) & (q0[ep] - Q[:, ep] < 0.3))
+
+    def outside(Q: np.ndarray) -> np.ndarray:  # the inside box mirrored across the first leg
+        return ((Q[:, sp] - q0[sp] > 0.3) & (Q[:, sp] - q0[sp] < 0.59)
+                & (Q[:, ep] - q0[ep] > 0.01) & (Q[:, ep] - q0[ep] < 0.3))
+
+    run = Run([replace(pieces[k], path=P)], "none", None, task.placements[task.start_id])
+    asked = np.full(1, PlanTimingSettings().blend_rad)
+
+    def timers(refused):
+        pushing = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
+        shrinking = PlanTimer(task, PlanTimingSettings(corner_push=False), 1.0, task.threshold_m, 0.005)
+        for timer in (pushing, shrinking):
+            _refuse_also(timer, refused, monkeypatch)
+        return pushing, shrinking
+
+    pushing, shrinking = timers(inside)
+    W, blends = pushing._checked_blends(run, P, [0], asked, count=False)
+    W_shrunk, shrunk = shrinking._checked_blends(run, P, [0], asked, count=False)
+    assert shrunk[0] < asked[0] / 2 and np.array_equal(W_shrunk, P)
+    assert blends[0] >= asked[0] / 4 > 2 * shrunk[0]  # pushed, it keeps a blend many times the shrunk one
+    moved = W[1] - P[1]
+    assert moved[sp] > 0.01 and moved[ep] > 0.01  # away from the inside of the turn
+    assert np.array_equal(W[[0, 2]], P[[0, 2]])  # the rests where they were
+    path = BlendedPath(W, blends, True)
+    Q = path(np.linspace(0.0, path.length, int(np.ceil(path.length / 0.001)) + 1))
+    assert not inside(Q).any()
+    pushed_time = pushing._coarse_time(run, W, blends)
+    unobstructed = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)._coarse_time(run, P, asked)
+    assert unobstructed < pushed_time < shrinking._coarse_time(run, W_shrunk, shrunk) - 0.2
+    assert pushing._estimated_time(P, run) == pytest.approx(pushed_time)  # the ranking sees the pushed corner
+
+    pushing, shrinking = timers(lambda Q: inside(Q) | outside(Q))
+    W, blends = pushing._checked_blends(run, P, [0], asked, count=False)
+    W_shrunk, shrunk = shrinking._checked_blends(run, P, [0], asked, count=False)
+    assert np.array_equal(W, P) and np.array_equal(blends, shrunk) and shrunk[0] < asked[0] / 2
 
 
 #: What both scripts below start with: the small box task solved, and a timer counting its checks, of one process
