@@ -253,11 +253,11 @@ class RunTiming:
                 return pushed_W, blends
             ws = whole.waypoint_s
             failed = set()
-            for s in bad_s:
-                near = [i for i in pushed if ws[i - 1] <= s <= ws[i + 1]]
+            for at_s in bad_s:
+                near = [i for i in pushed if ws[i - 1] <= at_s <= ws[i + 1]]
                 if not near:  # a failure no pushed corner explains: the path that passed
                     return W, passed
-                failed.add(min(near, key=lambda i: abs(s - ws[i])))
+                failed.add(min(near, key=lambda i: abs(at_s - ws[i])))
             for i in failed:
                 at[i] += 1
 
