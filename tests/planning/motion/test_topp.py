@@ -306,3 +306,18 @@ def test_a_short_segment_next_to_the_end_no_longer_halves_its_corner():
     W = np.array([[0.0, 0.0], [0.1, 0.0], [0.1, 1.0], [1.1, 1.0]])  # a 0.1 rad first segment
     assert BlendedPath(W, np.full(2, 0.3)).blend[0] == pytest.approx(0.05)
     assert BlendedPath(W, np.full(2, 0.3), fill=True).blend[0] == pytest.approx(0.1, rel=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(length=st.floats(0.05, 1.5), turn=st.floats(0.3, 3.0), extra=st.floats(0.0, 0.5))
+def test_a_blend_that_takes_its_whole_segment_leaves_the_gridpoints_inside_the_path(length, turn, extra):
+    """A blend that asks at least its end segment's length takes all of it (``fill``): to rounding, no line is left
+    before it, and the gridpoints (the break's neighbour just before it included) stay within [0, L], so TOPP-RA
+    takes them and times the path."""
+    W = np.array([[0.0, 0.0], [length, 0.0], [length + length * np.cos(turn), length * np.sin(turn)]])
+    path = BlendedPath(W, np.full(1, length + extra), fill=True)
+    assert path.blend[0] == pytest.approx(length)
+    grid = gridpoints_for(path, 0.02, 400)
+    assert grid[0] == 0.0 and grid[-1] == path.length and np.all(np.diff(grid) > 0)
+    sd = parameterize(path, grid, np.ones(2), np.full(2, 2.0), [])
+    assert sd is not None and profile_times(grid, sd)[-1] > 0.0
