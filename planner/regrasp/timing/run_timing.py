@@ -1,7 +1,8 @@
 """One run timed and checked: blended through its waypoints or along a spline of them, its geometry checked every
-``path_check_rad`` before it is timed, TOPP-RA under the run's limits (:mod:`.limits`), then every timed sample and
-midpoint checked (collision with the grasping rules of its piece, the margin, the static limits); blends with a failing
-sample are shrunk, at last removed. Also the coarse TOPP-RA time that ranks a motion's paths."""
+``path_check_rad`` before it is timed (a corner whose blend must shrink there pushed out where that passes), TOPP-RA
+under the run's limits (:mod:`.limits`), then every timed sample and midpoint checked (collision with the grasping
+rules of its piece, the margin, the static limits); blends with a failing sample are shrunk, at last removed. Also
+the coarse TOPP-RA time that ranks a motion's paths."""
 
 from __future__ import annotations
 
@@ -28,7 +29,8 @@ class RunTiming:
     def time_run(self, run: Run) -> tuple[list[np.ndarray], float, float] | None:
         """Per piece its samples (consecutive pieces share the boundary sample), the run's duration at full speed
         and its duration as timed (whole periods, rest copies left out); None when it cannot be timed here. The
-        run is blended through its waypoints or, where ``spline_runs`` and it has a corner, goes along a spline of
+        run is blended through its waypoints (the corners its checks shrank pushed out, :meth:`_pushed_corners`)
+        or, where ``spline_runs`` and it has a corner, goes along a spline of
         its waypoints (:class:`planner.motion.topp.SplinePath`): both paths are checked first, the one quicker on
         TOPP-RA's coarse ranking grid is timed and its samples checked, and the other only where that fails."""
         W, starts = waypoints_of(run)
