@@ -66,10 +66,9 @@ class RunTiming:
         """The run's TOPP-RA time on the ranking's coarse grid (``rank_grid_step_rad``), blended through W with
         ``blends`` (stopping where a blend is 0) or along ``spline``, without the checks of samples: what orders a
         run's two paths before either is timed in full."""
-        stretches = [(W, None, spline)] if spline is not None else [
-            (W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0), None) for a, b in between_stops(blends)]
+        parts = [(W, None, spline)] if spline is not None else [(Wk, bk, None) for _, _, Wk, bk in stretches(W, blends)]
         total = 0.0
-        for Wk, bk, sk in stretches:
+        for Wk, bk, sk in parts:
             _, grid, sd, _ = self._profile(run, Wk, bk, self.s.rank_grid_step_rad, soft_ends=False, spline=sk)
             if sd is None:
                 return math.inf
@@ -83,8 +82,8 @@ class RunTiming:
         blends = blends.copy()
         for round_ in range(self.s.blend_rounds + 2):
             parts = []
-            for a, b in between_stops(blends):
-                part = self.time_part(run, W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0))
+            for _, _, Wk, bk in stretches(W, blends):
+                part = self.time_part(run, Wk, bk)
                 if part is None:
                     return None
                 parts.append(part)
@@ -241,12 +240,12 @@ class RunTiming:
             blends = passed.copy()
             for i in pushed:
                 blends[i - 1] = choices[i][at[i]][0]
-            d = Joined([BlendedPath(W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0), self.s.blend_fill)
-                        for a, b in between_stops(blends)])
+            d = Joined([BlendedPath(Wk, bk, self.s.blend_fill) for _, _, Wk, bk in stretches(W, blends)])
             pushed_W = W.copy()
             for i in pushed:
                 k = choices[i][at[i]][1]
-                pushed_W[i] = np.clip(W[i] - k * 0.25 * d.blend_of(i) * (unit[i] - unit[i - 1]), robot.lower, robot.upper)
+                pushed_W[i] = np.clip(W[i] - k * 0.25 * d.blend_of(i) * (unit[i] - unit[i - 1]),
+                                      robot.lower, robot.upper)
             whole, bad_s = self._path_failures(run, pushed_W, starts, blends)
             if not bad_s.size:
                 if count:  # a blend the checks removed and a push restored is not removed
@@ -268,12 +267,11 @@ class RunTiming:
         """The blended path through W (stopping where a blend is 0) as one path position, and the positions of its
         states every ``path_check_rad`` that fail the checks of the timed samples (:meth:`_invalid_s`)."""
         step = self.s.path_check_rad
-        cuts = between_stops(blends)
-        paths = [BlendedPath(W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0), self.s.blend_fill)
-                 for a, b in cuts]
+        cuts = stretches(W, blends)
+        paths = [BlendedPath(Wk, bk, self.s.blend_fill) for _, _, Wk, bk in cuts]
         whole = Joined(paths)
         s_all, Q_all, offset = [], [], 0.0
-        for k, (path, (a, b)) in enumerate(zip(paths, cuts)):
+        for k, (path, (a, b, _, _)) in enumerate(zip(paths, cuts)):
             s_k = spaced(path.length, step)[(1 if k else 0):]
             Q_k = path(s_k)
             if k == 0:
@@ -418,6 +416,12 @@ def between_stops(blends: np.ndarray) -> list[tuple[int, int]]:
     stops = np.flatnonzero(blends <= 0.0) + 1
     cuts = [0, *stops.tolist(), len(blends) + 1]
     return list(zip(cuts[:-1], cuts[1:]))
+
+
+def stretches(W: np.ndarray, blends: np.ndarray) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """Per stretch between stops (:func:`between_stops`): its first and last waypoint indices, its waypoints and the
+    blends of its interior waypoints (what one rest-to-rest part of a blended run is made of)."""
+    return [(a, b, W[a:b + 1], blends[a:b - 1] if b - a >= 2 else np.zeros(0)) for a, b in between_stops(blends)]
 
 
 @dataclass
