@@ -46,3 +46,9 @@ def pool_context():
 def spare_cores() -> int:
     """Cores beyond the one this process runs on."""
     return max((os.cpu_count() or 1) - 1, 0)
+
+
+def helper_may_fork(asked: bool) -> bool:
+    """Whether work may be shared with a forked helper: asked for (a task's ``parallel_motions``), a second core to
+    run it (:func:`spare_cores`) and a process it is safe to fork (:func:`fork_is_safe`)."""
+    return asked and spare_cores() > 0 and fork_is_safe()

@@ -28,7 +28,7 @@ from typing import Callable
 import numpy as np
 
 from planner.errors import Canceled
-from planner.forking import fork_is_safe, spare_cores
+from planner.forking import helper_may_fork
 from planner.grasping.grasps import Grasp
 from planner.regrasp.failure_cause import FailureCause
 from planner.regrasp.fork_share import share_with_child
@@ -239,7 +239,7 @@ class HandConfigPlanner:
             self.stage_s["nodes_s"] = self.stage_s.get("nodes_s", 0.0) + time.perf_counter() - t0
 
     def _may_share_hops(self) -> bool:
-        return self.task.settings.parallel_motions and spare_cores() > 0 and fork_is_safe()
+        return helper_may_fork(self.task.settings.parallel_motions)
 
     def _prefetch_hops(self, hops: list[tuple]) -> None:
         """Plan a candidate path's motions in this process and a forked helper at once

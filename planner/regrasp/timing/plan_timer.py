@@ -41,6 +41,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from planner.forking import helper_may_fork
+from planner.regrasp.fork_share import share_with_child
 from planner.regrasp.plan_assembly import MotionPiece, object_states
 from planner.regrasp.state_checker import StateChecker
 from planner.regrasp.timing.concurrent_arms import LEADS, merged_pieces
@@ -118,8 +120,8 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         geometry, of a fallback's samples) runs once. A key names a run by id: the runs live as long as
         the :meth:`time_plan` that clears these."""
         cap = self._reserve_cap()
-        kept = self._kept.get(key)
-        if kept is not None and all(min(a, cap) == min(a, kept_cap) for a, kept_cap in kept[2]):
+        kept = self._kept_now(key)
+        if kept is not None:
             result, grown, asked = kept
             add_stats(self.stats, grown)
         else:
@@ -133,6 +135,13 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         if self._asked is not None:
             self._asked.extend(a for a, _ in asked)
         return result
+
+    def _kept_now(self, key: tuple) -> tuple | None:
+        """What :meth:`_once` keeps for ``key`` (result, stats added, reserves asked) where it still holds under
+        today's reserve cap; None where it must be computed (again)."""
+        cap = self._reserve_cap()
+        kept = self._kept.get(key)
+        return kept if kept is not None and all(min(a, cap) == min(a, kept_cap) for a, kept_cap in kept[2]) else None
 
     def time_plan(self, pieces: list[MotionPiece]) -> PlanTiming:
         """The plan's pieces made quicker, then timed run by run (a run whose samples fail the checks takes its
@@ -216,22 +225,10 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         samples failed, ``alternatives_dropped`` the one-arm-after-the-other ones."""
         out: list[MotionPiece] = []
         slack = 0.0
-        for r, original in enumerate(originals):
+        tries_of = [self._tries(r, original, levels) for r, original in enumerate(originals)]
+        self._time_shared([tries for tries, _ in tries_of])
+        for original, (tries, merged) in zip(originals, tries_of):
             self.stats["runs"] += 1
-            tries, seen = [], []
-            for level in levels:
-                run = level[r]
-                key = [id(p.path) for p in run.pieces]
-                if key not in seen:
-                    seen.append(key)
-                    tries.append(run)
-            if [id(p.path) for p in original.pieces] not in seen:
-                tries.append(original)
-            for run in tries:
-                run.validated = original.validated
-            unmerged = len(tries)
-            tries = self._with_merged(tries)
-            merged = len(tries) - unmerged
             k, timed = self._first_timed(tries)
             self.stats["merged_refused"] += min(k, merged)
             self.stats["merged_runs"] += int(timed is not None and k < merged)
@@ -248,6 +245,59 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
             slack += actual - full
             out.extend(replace(p, waypoints=Q) for p, Q in zip(tries[k].pieces, Qs))
         return out, slack
+
+    def _tries(self, r: int, original: Run, levels: list[list[Run]]) -> tuple[list[Run], int]:
+        """Run r's alternatives in the order they are timed (each level's path once, the search's own path last, each
+        first with both arms at once: :meth:`_with_merged`), and how many of them are merged ones."""
+        tries, seen = [], []
+        for level in levels:
+            run = level[r]
+            key = [id(p.path) for p in run.pieces]
+            if key not in seen:
+                seen.append(key)
+                tries.append(run)
+        if [id(p.path) for p in original.pieces] not in seen:
+            tries.append(original)
+        for run in tries:
+            run.validated = original.validated
+        unmerged = len(tries)
+        tries = self._with_merged(tries)
+        return tries, len(tries) - unmerged
+
+    def _time_shared(self, tries_of: list[list[Run]]) -> None:
+        """Each run's first timing (:meth:`_first_timed` of its tries) worked out in this process and a forked
+        helper at once, where the task's ``parallel_motions`` allows it, forking is safe and a second core exists;
+        kept (:meth:`_once`, the stats here left alone) for the pass of :meth:`_time_runs` that follows, which then
+        finds them timed. The same results either way: a run's timing depends on the run and the reserve's cap alone,
+        and what the helper computed is kept here as this process would have kept it (the helper's check counts added
+        to this process's). Where the helper fails, the pass times its runs itself."""
+        checker = self.checker  # made here, before the fork, so both processes count into the same
+        todo = [tries for tries in tries_of if self._kept_now(("run", id(tries[0]))) is None]
+        if not (len(todo) > 1 and helper_may_fork(self.task.settings.parallel_motions)):
+            return
+
+        def work(tries: list[Run], in_child: bool) -> tuple[dict, Counter] | None:
+            kept, counts = dict(self._kept), Counter(checker.counters)
+            saved, self.stats = self.stats, stats_copy(self.stats)
+            try:
+                self._first_timed(tries)
+            finally:
+                self.stats = saved
+            if not in_child:
+                return None
+            return ({key: value for key, value in self._kept.items() if kept.get(key) is not value},
+                    Counter(checker.counters) - counts)
+
+        # the longest runs first, so that neither process is left with one of them at the end
+        todo.sort(key=lambda tries: -sum(len(p.joint_path()) for p in tries[0].pieces))
+        results, error = share_with_child(todo, work, lambda: False)
+        for result in results.values():
+            if result is not None:
+                kept, counts = result
+                self._kept.update(kept)
+                checker.counters.update(counts)
+        if error is not None:
+            self.stats.setdefault("helper_errors", []).append(error.strip().splitlines()[-1])
 
     def _with_merged(self, tries: list[Run]) -> list[Run]:
         """A run's tries in the order they are timed: with ``concurrent_arms``, first each of them with both arms at

@@ -11,7 +11,7 @@ from typing import Callable
 
 import numpy as np
 
-from planner.forking import fork_is_safe, spare_cores
+from planner.forking import helper_may_fork
 from planner.motion.smoothing import SmoothingSettings, partial_shortcut, path_length, shortcut
 from planner.motion.task_space_vias import via_paths
 from planner.motion.trrt import plan_motion
@@ -94,7 +94,7 @@ class QuickerPaths:
         of ``planned``, each process taking the next one in turn; while this process waits for the helper's last
         ones, ``ready`` (see :meth:`_quicker`) is given the paths found so far."""
         checker = self.checker  # made here, before any fork, so both processes count into the same
-        if not (self.task.settings.parallel_motions and len(planned) > 1 and spare_cores() > 0 and fork_is_safe()):
+        if not (len(planned) > 1 and helper_may_fork(self.task.settings.parallel_motions)):
             return {k: paths_of(k) for k in sorted(planned)}
 
         def work(k: int, in_child: bool) -> tuple[list[np.ndarray], dict, Counter]:

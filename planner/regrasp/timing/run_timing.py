@@ -42,7 +42,9 @@ class RunTiming:
         if self.s.path_check_rad > 0.0:
             checked = self._once(("blends", id(run)), lambda: self._checked_blends(run, W, starts, blends))
             blended_W, blends = checked if checked is not None else (W, None)
-        spline = (self._once(("spline", id(run)), lambda: self._checked_spline(run, W, starts))
+        # where the blended path failed away from its corners, so does the polyline the spline's rounds pull it to
+        rounds = self.s.spline_rounds if blends is not None else 0
+        spline = (self._once(("spline", id(run)), lambda: self._checked_spline(run, W, starts, rounds))
                   if self.s.spline_runs and len(W) > 2 else None)
         tries = []
         if blends is not None:
@@ -110,15 +112,17 @@ class RunTiming:
         self.stats["blends"] += int(np.count_nonzero(blends > 0.0))
         return out, sum(part.full_speed_s for part in parts), (len(Q_cat) - 1) * self.dt
 
-    def _checked_spline(self, run: Run, W: np.ndarray, starts: list[int]
+    def _checked_spline(self, run: Run, W: np.ndarray, starts: list[int], rounds: int
                         ) -> tuple[np.ndarray, np.ndarray, SplinePath] | None:
         """A spline of the run's waypoints whose states every ``path_check_rad`` pass the checks of the timed
         samples: its control points, where each waypoint is among them, and the spline; None where none passes.
         Where the spline's states fail (it strays from the waypoints into an obstacle), both legs at the nearest
         waypoint get their midpoint as another control point, which pulls the spline towards that corner, and it is
-        checked again, ``spline_rounds`` times at most."""
+        checked again, ``rounds`` times at most. Each round brings the spline nearer the waypoints' polyline: where
+        that fails away from its corners (the blended run was refused), the rounds cannot help, and
+        :meth:`time_run` asks for none."""
         P, at = W.copy(), np.arange(len(W))  # control points; where each waypoint is among them
-        for _ in range(self.s.spline_rounds + 1):
+        for _ in range(rounds + 1):
             spline = SplinePath(P)
             if self.s.path_check_rad <= 0.0:
                 return P, at, spline

@@ -52,7 +52,9 @@ class PlanTimingSettings(BaseModel):
                               "waypoints (curvature spread along the path, not packed into a blend at each corner), "
                               "checked as a blended run is; the quicker of the two that pass is kept")
     spline_rounds: int = Field(4, ge=0, description="times a spline whose states fail the checks is pulled towards "
-                               "the corners nearest the failures (a midpoint on both their legs) and checked again")
+                               "the corners nearest the failures (a midpoint on both their legs) and checked again; "
+                               "none where the run's blended path was refused, as the rounds pull the spline "
+                               "towards that path")
     blend_rounds: int = Field(3, ge=0, description="times a blend with an invalid sample is halved before it is removed")
     corner_push: bool = Field(True, description="a corner whose blend the checks of the path shrank is moved outwards "
                               "by as much as its asked blend cuts in, so that the blend passes through the checked "

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from planner import forking
 from planner.motion.timing import time_parameterize
 from planner.regrasp.plan_assembly import assemble, object_states
 from planner.regrasp.timing.plan_timer import PlanTimer
@@ -79,6 +80,7 @@ def test_a_run_that_fails_off_its_blends_is_refused_before_it_is_timed(solved, m
         return original(self, run, W, blends, spline)
 
     monkeypatch.setattr(PlanTimer, "time_part", time_part)
+    monkeypatch.setattr(forking, "spare_cores", lambda: 0)  # no helper: every run is timed where it is counted
     dense = PlanTimer(task, PlanTimingSettings(replans=0), 1.0, task.threshold_m, 0.005).time_plan(grazing)
     assert any("off the blends" in why for why in dense.stats["refused"])
     assert timed_runs, "no run was timed at all"

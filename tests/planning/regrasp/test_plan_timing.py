@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from plan_checker import check_plan
 
+from planner import forking
 from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.motion.topp import BlendedPath
 from planner.regrasp.plan_assembly import assemble
@@ -248,6 +249,7 @@ from pathlib import Path
 
 import numpy as np
 
+from planner import forking
 from planner.forking import fork_is_safe
 from planner.jobs.plan_job import build_task
 from planner.regrasp.state_checker import StateChecker
@@ -260,11 +262,11 @@ from planner.scene.scenarios import load_scenario
 scenario = load_scenario(Path(sys.argv[1]))
 task = build_task(scenario)
 pieces = HandConfigPlanner(task, scenario.hands).plan().pieces
-spare, real = quicker_paths.spare_cores, quicker_paths.share_with_child
+spare, real = forking.spare_cores, quicker_paths.share_with_child
 
 
 def counted_timer(parallel):
-    quicker_paths.spare_cores = spare if parallel else (lambda: 0)
+    forking.spare_cores = spare if parallel else (lambda: 0)
     counts = Counter()
     timer = PlanTimer(task, PlanTimingSettings(replans=2), 1.0, task.threshold_m, 0.005)
     timer._checker = StateChecker(task.evaluator, task.world, task.stance.base_pose, task.constrained,
@@ -366,6 +368,51 @@ def test_runs_timed_while_the_helper_works_give_the_plan_one_process_gives():
     assert one_counts == two_counts and one_counts["collision_states"] > 0
 
 
+_RUNS_SHARED = _SOLVED_TIMER + r"""
+from planner.regrasp.timing import plan_timer
+
+shared = []
+real_runs = plan_timer.share_with_child
+plan_timer.share_with_child = lambda jobs, work, stop, idle=None: shared.append(len(jobs)) or real_runs(jobs, work, stop, idle)
+
+
+def timed(parallel):
+    timer, counts = counted_timer(parallel)
+    out = timer.time_plan(pieces)
+    walls = ("time_s", "quicker_paths_time_s", "early_timing_s")
+    return ([np.asarray(p.waypoints).tolist() for p in out.pieces], {k: v for k, v in out.stats.items() if k not in walls},
+            dict(counts))
+
+
+one = timed(False)
+alone = list(shared)
+two = timed(True)
+print(json.dumps({"one": one, "two": two, "alone": alone, "shared": shared[len(alone):]}))
+"""
+
+
+def test_runs_timed_in_this_process_and_the_helper_at_once_give_the_plan_one_process_gives():
+    """After the quicker paths, the runs' timings are shared with a forked helper (both timings, the reserve cap's
+    second one too): the timed pieces, the timing's stats and the check counts are those of one process alone, bit
+    for bit, and the helper's checks are counted."""
+    import json
+    import subprocess
+    import sys
+
+    from planner.forking import spare_cores
+
+    if spare_cores() == 0:
+        pytest.skip("one core: the planner never forks a helper here")
+    out = subprocess.run([sys.executable, "-c", _RUNS_SHARED, str(DATA / "small-box.yaml")], capture_output=True,
+                         text=True, timeout=600, check=True)
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    assert res["alone"] == [] and res["shared"] and max(res["shared"]) >= 2  # runs went to the two processes
+    (one_pieces, one_stats, one_counts), (two_pieces, two_stats, two_counts) = res["one"], res["two"]
+    assert one_pieces == two_pieces and len(one_pieces) > 1
+    assert one_stats == two_stats and one_stats["runs"] > 0 and "helper_errors" not in two_stats
+    assert one_counts == two_counts and one_counts["collision_states"] > 0
+
+
 def test_a_run_goes_along_the_spline_where_it_is_quicker_and_every_state_of_it_passes_the_checks(solved, monkeypatch):
     """The runs of the search's own pieces with a corner, timed with and without the spline: the quicker is kept,
     and the spline is quicker on one at least. With an obstacle that refuses every state more than
@@ -427,6 +474,7 @@ def test_the_caps_second_timing_recomputes_only_the_runs_whose_reserve_the_cap_c
     times again the others: the same pieces and stats, bit for bit, as timing every run twice; a cap under every
     reserve (share 0, no overshoot) times every run again, a cap over all of them (the overshoot alone 1 m) none."""
     task, pieces = solved
+    monkeypatch.setattr(forking, "spare_cores", lambda: 0)  # no helper: every run is timed where it is counted
 
     def timed(recompute: bool, **settings) -> tuple[PlanTimer, object, list[tuple[float, int]], list[list[float]]]:
         timer = PlanTimer(task, PlanTimingSettings(**settings), 1.0, task.threshold_m, 0.005)
