@@ -101,6 +101,9 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         self._early: set[int] = set()
         #: the runs of one :meth:`time_plan` with both arms at once, by run and lead (:meth:`_both_arms`)
         self._merged: dict = {}
+        #: the last line of each failed helper's error (its work then done here), kept apart from the stats, which a
+        #: first timing's replay would drop: ``stats.timing.helper_errors`` when there is one
+        self.helper_errors: list[str] = []
         self.stats = {"merged_runs": 0, "merged_refused": 0, "shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "corners_pushed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "spline_runs": 0, "dense_failures": []}
 
     @property
@@ -181,7 +184,8 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
                                               "zmp_margin_m": self.zmp_margin_m,
                                               "zmp_reserve_share": self.s.zmp_reserve_share},
-                          stats={**self.stats, "slack_s": slack})
+                          stats={**self.stats, **({"helper_errors": list(self.helper_errors)} if self.helper_errors
+                                                   else {}), "slack_s": slack})
 
     def _run_along(self, r: int, pieces: list[MotionPiece], original: Run) -> Run:
         """Run r of the plan along these pieces' paths: one object per run and paths within a :meth:`time_plan`,
@@ -297,7 +301,7 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
                 self._kept.update(kept)
                 checker.counters.update(counts)
         if error is not None:
-            self.stats.setdefault("helper_errors", []).append(error.strip().splitlines()[-1])
+            self.helper_errors.append(error.strip().splitlines()[-1])
 
     def _with_merged(self, tries: list[Run]) -> list[Run]:
         """A run's tries in the order they are timed: with ``concurrent_arms``, first each of them with both arms at

@@ -28,7 +28,8 @@ SHORTCUT_STREAM = 7919
 
 class QuickerPaths:
     """The quicker paths of a plan's motions, a part of :class:`planner.regrasp.timing.plan_timer.PlanTimer`: it
-    uses the timer's ``task``, ``s``, ``vlim``, ``stats``, ``checker`` and its ranking by time (``_estimated_time``)."""
+    uses the timer's ``task``, ``s``, ``vlim``, ``stats``, ``helper_errors``, ``checker`` and its ranking by time
+    (``_estimated_time``)."""
 
     def alternatives(self, pieces: list[MotionPiece]) -> list[list[MotionPiece]]:
         """The plan's pieces with their planned motions (more than one straight segment) made quicker, best first:
@@ -114,7 +115,7 @@ class QuickerPaths:
             checker.counters.update(counts)
             add_stats(self.stats, grown)
         if error is not None:
-            self.stats.setdefault("helper_errors", []).append(error.strip().splitlines()[-1])
+            self.helper_errors.append(error.strip().splitlines()[-1])
         return found
 
     def _shortened(self, Q: np.ndarray, validity, rng: np.random.Generator, settings: SmoothingSettings,

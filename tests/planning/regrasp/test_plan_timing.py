@@ -373,7 +373,24 @@ from planner.regrasp.timing import plan_timer
 
 shared = []
 real_runs = plan_timer.share_with_child
-plan_timer.share_with_child = lambda jobs, work, stop, idle=None: shared.append(len(jobs)) or real_runs(jobs, work, stop, idle)
+broken = False
+
+
+def counted_share(jobs, work, stop, idle=None):
+    shared.append(len(jobs))
+    done = []
+
+    def breaking(job, in_child):  # with ``broken``, the helper fails at its first run, which it has time to claim
+        if broken and in_child:
+            raise RuntimeError("the helper is lost")
+        if broken and not done:
+            time.sleep(1.0)
+        done.append(in_child)
+        return work(job, in_child)
+    return real_runs(jobs, breaking, stop, idle)
+
+
+plan_timer.share_with_child = counted_share
 
 
 def timed(parallel):
@@ -387,14 +404,17 @@ def timed(parallel):
 one = timed(False)
 alone = list(shared)
 two = timed(True)
-print(json.dumps({"one": one, "two": two, "alone": alone, "shared": shared[len(alone):]}))
+broken = True
+lost = timed(True)
+print(json.dumps({"one": one, "two": two, "lost": lost, "alone": alone, "shared": shared[len(alone):]}))
 """
 
 
 def test_runs_timed_in_this_process_and_the_helper_at_once_give_the_plan_one_process_gives():
     """After the quicker paths, the runs' timings are shared with a forked helper (both timings, the reserve cap's
     second one too): the timed pieces, the timing's stats and the check counts are those of one process alone, bit
-    for bit, and the helper's checks are counted."""
+    for bit, and the helper's checks are counted. A helper lost on the way leaves its runs to this process: the
+    same plan, the loss in ``helper_errors``."""
     import json
     import subprocess
     import sys
@@ -411,6 +431,10 @@ def test_runs_timed_in_this_process_and_the_helper_at_once_give_the_plan_one_pro
     assert one_pieces == two_pieces and len(one_pieces) > 1
     assert one_stats == two_stats and one_stats["runs"] > 0 and "helper_errors" not in two_stats
     assert one_counts == two_counts and one_counts["collision_states"] > 0
+    lost_pieces, lost_stats, lost_counts = res["lost"]
+    assert lost_pieces == one_pieces
+    assert set(lost_stats.pop("helper_errors")) == {"RuntimeError: the helper is lost"}
+    assert lost_stats == one_stats and lost_counts == one_counts
 
 
 def test_a_run_goes_along_the_spline_where_it_is_quicker_and_every_state_of_it_passes_the_checks(solved, monkeypatch):
