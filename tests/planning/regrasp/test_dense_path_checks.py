@@ -4,6 +4,7 @@ replanned motions the timing substitutes are collision-free at every sample."""
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import replace
 
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 
 from planner import forking
 from planner.motion.timing import time_parameterize
+from planner.motion.topp import SplinePath
 from planner.regrasp.plan_assembly import assemble, object_states
 from planner.regrasp.timing.plan_timer import PlanTimer
 from planner.regrasp.timing.settings import PlanTimingSettings
@@ -89,3 +91,24 @@ def test_a_run_that_fails_off_its_blends_is_refused_before_it_is_timed(solved, m
     timed_runs.clear()
     PlanTimer(task, PlanTimingSettings(replans=0, path_check_rad=0.0), 1.0, task.threshold_m, 0.005).time_plan(grazing)
     assert any(id(grazing[k]) in run for run in timed_runs)
+
+
+def test_a_refused_runs_spline_is_checked_once_not_pulled_towards_the_failing_path(solved, monkeypatch):
+    """A run whose blended path fails away from its corners is refused, and its spline gets one check: the rounds
+    that pull a failing spline towards the corners bring it nearer that same failing polyline, so none is spent."""
+    task, pieces = solved
+    grazing, k = _grazing_plan(task, pieces)
+    spline_checks, invalid_s = Counter(), PlanTimer._invalid_s
+
+    def counted(self, run, path, starts, s, Q):
+        bad = invalid_s(self, run, path, starts, s, Q)
+        if isinstance(path, SplinePath) and any(p is grazing[k] for p in run.pieces):
+            spline_checks[id(run), bool(bad.size)] += 1
+        return bad
+
+    monkeypatch.setattr(PlanTimer, "_invalid_s", counted)
+    monkeypatch.setattr(forking, "spare_cores", lambda: 0)  # no helper: every check is counted here
+    dense = PlanTimer(task, PlanTimingSettings(replans=0), 1.0, task.threshold_m, 0.005).time_plan(grazing)
+    assert any("off the blends" in why for why in dense.stats["refused"])
+    assert spline_checks and all(n == 1 for n in spline_checks.values()), spline_checks
+    assert all(failed for _, failed in spline_checks)  # its one check failed: the rounds would have been spent
