@@ -59,8 +59,9 @@ class PlannerSettings(BaseModel):
         "remove a goal node that a second run reaches")
     parallel_motions: bool = Field(
         True, description="plan the motions of a candidate path's hops, and the timing's quicker paths of the solved "
-        "plan's motions, in this process and one forked helper at once, where forking is safe and a second core exists "
-        "(results are the same either way: each hop and each motion draws from its own generator)")
+        "plan's motions and its runs' timings, in this process and one forked helper at once, where forking is safe "
+        "and a second core exists (results are the same either way: each hop and each motion draws from its own "
+        "generator, and a run's timing depends on the run alone)")
     waist_reach_m: float = Field(0.15, ge=0, description="how much farther the waist lets a hand reach, for the cheap reach filter")
     screen_valid: int = Field(4, ge=1, description="start/goal nodes validated up front until this many are valid")
     ready_height_m: float = Field(0.15, gt=0, description="ready posture: the hand this far above the highest table top")
