@@ -21,7 +21,8 @@ from planner.stability.effort import effort_table
 
 
 class InertialTorques:
-    """``coefficients(Q, dQ, ddQ)`` -> (A, B) (N, K): the inertial torques are ``A s_ddot + B s_dot^2``."""
+    """Along a path (:meth:`along_path`), the inertial torques ``A s_ddot + B s_dot^2`` (:meth:`coefficients`) and the
+    rate of the body's momentum (:meth:`momentum_rate`); at samples, the torques themselves (:meth:`torques`)."""
 
     def __init__(self, robot: RobotModel, base_pose: np.ndarray, object_mass: float = 0.0,
                  tcp_frame: str | None = None, T_tcp_obj: np.ndarray | None = None, com_local: np.ndarray | None = None):
@@ -61,8 +62,11 @@ class InertialTorques:
         per_joint[:, ok] = tau[:, self._jid_v[ok]]
         return per_joint @ self.fold.T
 
-    def coefficients(self, Q: np.ndarray, dQ: np.ndarray, ddQ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(A, B), each (N, K), at the path points Q with path derivatives dQ, ddQ (N, n)."""
+    def along_path(self, Q: np.ndarray, dQ: np.ndarray, ddQ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(A, B), each (N, nv) in pinocchio's velocity space, at the path points Q with path derivatives dQ, ddQ
+        (N, n): recursive Newton-Euler without gravity, ``A = rnea(q, 0, q')`` and ``B = rnea(q, q', q'')``, so that
+        the generalized forces are ``A s_ddot + B s_dot^2``. Their first six rows are the free-flyer's wrench
+        (:meth:`momentum_rate`), the rest the joints' torques (:meth:`coefficients`): one sweep serves both."""
         n = len(Q)
         A = np.empty((n, self.model.nv))
         B = np.empty((n, self.model.nv))
@@ -72,28 +76,25 @@ class InertialTorques:
             v1, a2 = self._v(dQ[i]), self._v(ddQ[i])
             A[i] = pin.rnea(self.model, self.data, qp, zero, v1)
             B[i] = pin.rnea(self.model, self.data, qp, v1, a2)
-        return self._per_checked(A), self._per_checked(B)
+        return A, B
+
+    def coefficients(self, along: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """(A, B), each (N, K): the checked wire joints' inertial torques ``A s_ddot + B s_dot^2`` along a path
+        (``along``: :meth:`along_path`)."""
+        return self._per_checked(along[0]), self._per_checked(along[1])
 
     @property
     def total_mass(self) -> float:
         """The robot's mass plus the held object's (when one is held)."""
         return float(pin.computeTotalMass(self.model))
 
-    def momentum_rate(self, Q: np.ndarray, dQ: np.ndarray, ddQ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(A, B), each (N, 6): the rate of change of the whole body's momentum along the path, world frame,
-        ``[P_dot; L_dot about the world origin] = A s_ddot + B s_dot^2``. With the base fixed and no gravity it
-        is the wrench the free-flyer joint carries (pinocchio's RNEA, base frame), moved to the world origin: what
-        the ground must add to the weight, so the multibody ZMP (the arms' angular momentum included, which the
-        cart-table model leaves out) follows from it."""
-        n = len(Q)
-        A = np.empty((n, 6))
-        B = np.empty((n, 6))
-        zero = np.zeros(self.model.nv)
-        for i in range(n):
-            qp = self.robot.to_pin_q(self.base_pose, Q[i])
-            v1, a2 = self._v(dQ[i]), self._v(ddQ[i])
-            A[i] = pin.rnea(self.model, self.data, qp, zero, v1)[:6]
-            B[i] = pin.rnea(self.model, self.data, qp, v1, a2)[:6]
+    def momentum_rate(self, along: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """(A, B), each (N, 6): the rate of change of the whole body's momentum along a path (``along``:
+        :meth:`along_path`), world frame, ``[P_dot; L_dot about the world origin] = A s_ddot + B s_dot^2``. With the
+        base fixed and no gravity it is the wrench the free-flyer joint carries (pinocchio's RNEA, base frame), moved
+        to the world origin: what the ground must add to the weight, so the multibody ZMP (the arms' angular momentum
+        included, which the cart-table model leaves out) follows from it."""
+        A, B = along[0][:, :6], along[1][:, :6]
         x, y, z, w = self.base_pose[3:7]
         R = pin.Quaternion(float(w), float(x), float(y), float(z)).toRotationMatrix()
         p = self.base_pose[:3]

@@ -34,11 +34,13 @@ class RunLimits:
         z = zmp_rows(terms.com, terms.d1, terms.d2, polygon.normals, polygon.offsets, 0.0)
         room = z.room - need[:, None]
         rows = [LinearRows(grid, z.a, z.b, np.zeros_like(z.a), np.full_like(room, -np.inf), np.maximum(room, 0.0))]
+        along = (self._inertial(run).along_path(P0, P1, P2)
+                 if self.s.zmp_angular_momentum or self.limits is not None else None)
         if self.s.zmp_angular_momentum:
-            rows.append(self._multibody_zmp(run, P0, P1, P2, grid, polygon, need, room))
+            rows.append(self._multibody_zmp(run, along, grid, polygon, need, room))
         if self.limits is not None:
             tau_s = self._static(run, P0)
-            A, B = self._inertial(run).coefficients(P0, P1, P2)
+            A, B = self._inertial(run).coefficients(along)
             lim = self.limits.table.limit * self.s.effort_scale
             moved = (np.abs(A) + np.abs(B)).max(axis=0) > 1e-9  # the joints this motion loads at all
             if moved.any():
@@ -72,14 +74,14 @@ class RunLimits:
         floor; where the CoM is closer than that, as far inside as the CoM."""
         return np.minimum(floor_m, np.maximum(static_margin, 0.0))
 
-    def _multibody_zmp(self, run: Run, P0, P1, P2, grid, polygon, need, room) -> LinearRows:
+    def _multibody_zmp(self, run: Run, along, grid, polygon, need, room) -> LinearRows:
         """The ZMP of the whole body, the rate of its angular momentum included, at least ``need`` inside every
         edge: with ``P_dot, L_dot`` (world, about the origin) from :meth:`InertialTorques.momentum_rate`, the ZMP is
         ``(M g c_xy + (-L_dot_y, L_dot_x)) / (M g + P_dot_z)``, so ``n.zmp >= offset + need`` is the row
         ``n_x L_dot_y - n_y L_dot_x + (offset + need) P_dot_z <= M g (n.c - offset - need)``. At rest it is the
         CoM's; a fast arm swing moves it where the cart-table model does not see it."""
         inert = self._inertial(run)
-        A, B = inert.momentum_rate(P0, P1, P2)
+        A, B = inert.momentum_rate(along)
         nx, ny = polygon.normals[:, 0][None], polygon.normals[:, 1][None]
         shift = polygon.offsets[None] + need[:, None]
         a = nx * A[:, 4:5] - ny * A[:, 3:4] + shift * A[:, 2:3]

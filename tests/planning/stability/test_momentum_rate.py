@@ -38,7 +38,7 @@ def test_the_momentum_rate_matches_finite_differences_of_the_momentum(robot, upr
     inert = InertialTorques(robot, upright.base_pose)
     # a straight path q(s) = q0 + s d timed by s(t) = t^2 / 2: s_ddot = 1, s_dot = t
     t, h = 0.7, 1e-4
-    A, B = inert.momentum_rate(q0[None] + 0.245 * d[None], d[None], np.zeros((1, len(d))))
+    A, B = inert.momentum_rate(inert.along_path(q0[None] + 0.245 * d[None], d[None], np.zeros((1, len(d)))))
     predicted = A[0] * 1.0 + B[0] * t ** 2
 
     def momentum(tt):
