@@ -50,10 +50,16 @@ class InertialTorques:
         self._v_mult = np.array([r.source[1] for r in rows[2:] if r.source[0] >= 0], dtype=float)
         self._jid_v = np.array([model.idx_vs[j] if j >= 2 else -1 for j in range(len(rows))], dtype=int)
 
-    def _v(self, dq: np.ndarray) -> np.ndarray:
-        v = np.zeros(self.model.nv)
-        v[self._v_index] = self._v_mult * dq[self._v_source]
-        return v
+    def _pin_states(self, Q: np.ndarray, *rates: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Pinocchio's configurations (N, nq) of the wire states Q (N, n), and each of ``rates`` (N, n: joint
+        velocities or accelerations) in its velocity space (N, nv), mimic joints following their master with the
+        multiplier: the rates all rows at once, so that the loops over the points only call RNEA."""
+        out = [np.array([self.robot.to_pin_q(self.base_pose, q) for q in Q]).reshape(len(Q), self.model.nq)]
+        for rate in rates:
+            v = np.zeros((len(Q), self.model.nv))
+            v[:, self._v_index] = self._v_mult * rate[:, self._v_source]
+            out.append(v)
+        return tuple(out)
 
     def _per_checked(self, tau: np.ndarray) -> np.ndarray:
         """Torques (N, nv) of pinocchio's velocity space -> (N, K) of the checked wire joints."""
@@ -67,15 +73,13 @@ class InertialTorques:
         (N, n): recursive Newton-Euler without gravity, ``A = rnea(q, 0, q')`` and ``B = rnea(q, q', q'')``, so that
         the generalized forces are ``A s_ddot + B s_dot^2``. Their first six rows are the free-flyer's wrench
         (:meth:`momentum_rate`), the rest the joints' torques (:meth:`coefficients`): one sweep serves both."""
-        n = len(Q)
-        A = np.empty((n, self.model.nv))
-        B = np.empty((n, self.model.nv))
+        qp, v1, a2 = self._pin_states(Q, dQ, ddQ)
+        A = np.empty((len(Q), self.model.nv))
+        B = np.empty((len(Q), self.model.nv))
         zero = np.zeros(self.model.nv)
-        for i in range(n):
-            qp = self.robot.to_pin_q(self.base_pose, Q[i])
-            v1, a2 = self._v(dQ[i]), self._v(ddQ[i])
-            A[i] = pin.rnea(self.model, self.data, qp, zero, v1)
-            B[i] = pin.rnea(self.model, self.data, qp, v1, a2)
+        for i in range(len(Q)):
+            A[i] = pin.rnea(self.model, self.data, qp[i], zero, v1[i])
+            B[i] = pin.rnea(self.model, self.data, qp[i], v1[i], a2[i])
         return A, B
 
     def coefficients(self, along: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -106,8 +110,8 @@ class InertialTorques:
 
     def torques(self, Q: np.ndarray, dQ: np.ndarray, ddQ: np.ndarray) -> np.ndarray:
         """Inertial torques (N, K) of states Q moving with joint velocities dQ and accelerations ddQ."""
+        qp, v, a = self._pin_states(Q, dQ, ddQ)
         out = np.empty((len(Q), self.model.nv))
         for i in range(len(Q)):
-            qp = self.robot.to_pin_q(self.base_pose, Q[i])
-            out[i] = pin.rnea(self.model, self.data, qp, self._v(dQ[i]), self._v(ddQ[i]))
+            out[i] = pin.rnea(self.model, self.data, qp[i], v[i], a[i])
         return self._per_checked(out)
