@@ -112,11 +112,17 @@ def test_valid_plan_is_executed(bridge, arm_plan, plant):
     assert "robot_state" in kinds
     time.sleep(0.05)
     # A segment whose acknowledgement is late is sent again (a stalled host delays acks by 100s of ms):
-    # every copy must be the same segment, and the distinct ones must cover the plan once, in order.
+    # every copy must be the same segment, signed afresh with an expiry no earlier than the last copy's, and the
+    # distinct ones must cover the plan once, in order.
     by_seq: dict[int, list[dict]] = {}
     for s in spy.trajectory:
         by_seq.setdefault(s["seq"], []).append(s)
-    assert all(all(c == copies[0] for c in copies) for copies in by_seq.values())
+
+    def content(seg: dict) -> dict:
+        return {k: v for k, v in seg.items() if k not in ("expires_at", "sig")}
+
+    assert all(all(content(c) == content(copies[0]) for c in copies) for copies in by_seq.values())
+    assert all(all(b["expires_at"] >= a["expires_at"] for a, b in zip(copies, copies[1:])) for copies in by_seq.values())
     segs = [by_seq[k][0] for k in sorted(by_seq)]
     assert [s["segment_index"] for s in segs] == list(range(segs[0]["segment_count"]))
     assert all(s["job_id"] == "job-1" and s["plan_sha256"] == res.verdict.plan_sha256 for s in segs)
