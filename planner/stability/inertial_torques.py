@@ -53,7 +53,7 @@ class InertialTorques:
     def _pin_states(self, Q: np.ndarray, *rates: np.ndarray) -> tuple[np.ndarray, ...]:
         """Pinocchio's configurations (N, nq) of the wire states Q (N, n), and each of ``rates`` (N, n: joint
         velocities or accelerations) in its velocity space (N, nv), mimic joints following their master with the
-        multiplier: the rates all rows at once, so that the loops over the points only call RNEA."""
+        multiplier: the rates all rows at once, so that the loop over the points (:meth:`_rnea`) only calls RNEA."""
         out = [np.array([self.robot.to_pin_q(self.base_pose, q) for q in Q]).reshape(len(Q), self.model.nq)]
         for rate in rates:
             v = np.zeros((len(Q), self.model.nv))
@@ -74,13 +74,14 @@ class InertialTorques:
         the generalized forces are ``A s_ddot + B s_dot^2``. Their first six rows are the free-flyer's wrench
         (:meth:`momentum_rate`), the rest the joints' torques (:meth:`coefficients`): one sweep serves both."""
         qp, v1, a2 = self._pin_states(Q, dQ, ddQ)
-        A = np.empty((len(Q), self.model.nv))
-        B = np.empty((len(Q), self.model.nv))
-        zero = np.zeros(self.model.nv)
-        for i in range(len(Q)):
-            A[i] = pin.rnea(self.model, self.data, qp[i], zero, v1[i])
-            B[i] = pin.rnea(self.model, self.data, qp[i], v1[i], a2[i])
-        return A, B
+        return self._rnea(qp, np.zeros_like(v1), v1), self._rnea(qp, v1, a2)
+
+    def _rnea(self, qp: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Pinocchio's RNEA (this model: no gravity, the held object included) row by row: (N, nv)."""
+        out = np.empty((len(qp), self.model.nv))
+        for i in range(len(qp)):
+            out[i] = pin.rnea(self.model, self.data, qp[i], v[i], a[i])
+        return out
 
     def coefficients(self, along: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """(A, B), each (N, K): the checked wire joints' inertial torques ``A s_ddot + B s_dot^2`` along a path
@@ -110,8 +111,4 @@ class InertialTorques:
 
     def torques(self, Q: np.ndarray, dQ: np.ndarray, ddQ: np.ndarray) -> np.ndarray:
         """Inertial torques (N, K) of states Q moving with joint velocities dQ and accelerations ddQ."""
-        qp, v, a = self._pin_states(Q, dQ, ddQ)
-        out = np.empty((len(Q), self.model.nv))
-        for i in range(len(Q)):
-            out[i] = pin.rnea(self.model, self.data, qp[i], v[i], a[i])
-        return self._per_checked(out)
+        return self._per_checked(self._rnea(*self._pin_states(Q, dQ, ddQ)))

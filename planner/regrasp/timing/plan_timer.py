@@ -38,6 +38,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from dataclasses import dataclass, field, replace
+from typing import Any, Callable
 
 import numpy as np
 
@@ -122,12 +123,12 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         second timing recomputes only the runs the cap changes, and what no cap changes (the checks of a run's
         geometry, of a fallback's samples) runs once. A key names a run by id: the runs live as long as
         the :meth:`time_plan` that clears these."""
-        cap = self._reserve_cap()
         kept = self._kept_now(key)
         if kept is not None:
             result, grown, asked = kept
             add_stats(self.stats, grown)
         else:
+            cap = self._reserve_cap()
             outer, self._asked = self._asked, []
             before = stats_copy(self.stats)
             try:
@@ -270,38 +271,51 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
 
     def _time_shared(self, tries_of: list[list[Run]]) -> None:
         """Each run's first timing (:meth:`_first_timed` of its tries) worked out in this process and a forked
-        helper at once, where the task's ``parallel_motions`` allows it, forking is safe and a second core exists;
-        kept (:meth:`_once`, the stats here left alone) for the pass of :meth:`_time_runs` that follows, which then
-        finds them timed. The same results either way: a run's timing depends on the run and the reserve's cap alone,
-        and what the helper computed is kept here as this process would have kept it (the helper's check counts added
-        to this process's). Where the helper fails, the pass times its runs itself."""
-        checker = self.checker  # made here, before the fork, so both processes count into the same
+        helper at once (:meth:`_with_helper`), where the task's ``parallel_motions`` allows it, forking is safe and a
+        second core exists; kept (:meth:`_once`, the stats here left alone) for the pass of :meth:`_time_runs` that
+        follows, which then finds them timed. The same results either way: a run's timing depends on the run and the
+        reserve's cap alone, and what the helper computed is kept here as this process would have kept it. Where the
+        helper fails, the pass times its runs itself."""
         todo = [tries for tries in tries_of if self._kept_now(("run", id(tries[0]))) is None]
         if not (len(todo) > 1 and helper_may_fork(self.task.settings.parallel_motions)):
             return
 
-        def work(tries: list[Run], in_child: bool) -> tuple[dict, Counter] | None:
-            kept, counts = dict(self._kept), Counter(checker.counters)
+        def work(tries: list[Run], in_child: bool) -> dict | None:
+            before = dict(self._kept) if in_child else None  # the helper sends back what it kept anew
             saved, self.stats = self.stats, stats_copy(self.stats)
             try:
                 self._first_timed(tries)
             finally:
                 self.stats = saved
-            if not in_child:
-                return None
-            return ({key: value for key, value in self._kept.items() if kept.get(key) is not value},
-                    Counter(checker.counters) - counts)
+            return None if before is None else {key: v for key, v in self._kept.items() if before.get(key) is not v}
 
         # the longest runs first, so that neither process is left with one of them at the end
         todo.sort(key=lambda tries: -sum(len(p.joint_path()) for p in tries[0].pieces))
-        results, error = share_with_child(todo, work, lambda: False)
-        for result in results.values():
-            if result is not None:
-                kept, counts = result
+        for kept in self._with_helper(todo, work).values():
+            if kept is not None:
                 self._kept.update(kept)
-                checker.counters.update(counts)
+
+    def _with_helper(self, jobs: list, work: Callable[[Any, bool], Any],
+                     idle: Callable[[dict[int, Any]], bool] | None = None) -> dict[int, Any]:
+        """``work(job, in_child)`` for each job, in this process and a forked helper at once
+        (:func:`planner.regrasp.fork_share.share_with_child`; call where :func:`planner.forking.helper_may_fork`):
+        the results by job index, a lost helper's unfinished ones missing, for the caller to work out here. The
+        helper's check counts are added to this process's checker and its loss to ``helper_errors``; ``idle``, when
+        given, gets the results so far while this process waits (see ``share_with_child``)."""
+        checker = self.checker  # made here, before the fork, so both processes count into the same
+
+        def counted(job: Any, in_child: bool) -> tuple[Any, Counter]:
+            counts = Counter(checker.counters)
+            result = work(job, in_child)
+            return result, (Counter(checker.counters) - counts) if in_child else Counter()
+
+        waiting = None if idle is None else (lambda done: idle({i: r for i, (r, _) in done.items()}))
+        results, error = share_with_child(jobs, counted, lambda: False, waiting)
+        for _, counts in results.values():
+            checker.counters.update(counts)
         if error is not None:
             self.helper_errors.append(error.strip().splitlines()[-1])
+        return {i: result for i, (result, _) in results.items()}
 
     def _with_merged(self, tries: list[Run]) -> list[Run]:
         """A run's tries in the order they are timed: with ``concurrent_arms``, first each of them with both arms at

@@ -5,7 +5,6 @@ paths do not depend on which process made them."""
 
 from __future__ import annotations
 
-from collections import Counter
 from dataclasses import replace
 from typing import Callable
 
@@ -15,7 +14,6 @@ from planner.forking import helper_may_fork
 from planner.motion.smoothing import SmoothingSettings, partial_shortcut, path_length, shortcut
 from planner.motion.task_space_vias import via_paths
 from planner.motion.trrt import plan_motion
-from planner.regrasp.fork_share import share_with_child
 from planner.regrasp.plan_assembly import MotionPiece, object_states
 from planner.regrasp.timing.runs import Run, is_planned
 from planner.regrasp.timing.stats import add_stats, stats_added, stats_copy
@@ -28,8 +26,8 @@ SHORTCUT_STREAM = 7919
 
 class QuickerPaths:
     """The quicker paths of a plan's motions, a part of :class:`planner.regrasp.timing.plan_timer.PlanTimer`: it
-    uses the timer's ``task``, ``s``, ``vlim``, ``stats``, ``helper_errors``, ``checker`` and its ranking by time
-    (``_estimated_time``)."""
+    uses the timer's ``task``, ``s``, ``vlim``, ``stats``, ``checker``, its ranking by time (``_estimated_time``) and
+    its sharing with a forked helper (``_with_helper``)."""
 
     def alternatives(self, pieces: list[MotionPiece]) -> list[list[MotionPiece]]:
         """The plan's pieces with their planned motions (more than one straight segment) made quicker, best first:
@@ -94,28 +92,24 @@ class QuickerPaths:
         piece adds to the stats in the pieces' order (not in the order they ended). The pieces are shared in the order
         of ``planned``, each process taking the next one in turn; while this process waits for the helper's last
         ones, ``ready`` (see :meth:`_quicker`) is given the paths found so far."""
-        checker = self.checker  # made here, before any fork, so both processes count into the same
         if not (len(planned) > 1 and helper_may_fork(self.task.settings.parallel_motions)):
             return {k: paths_of(k) for k in sorted(planned)}
 
-        def work(k: int, in_child: bool) -> tuple[list[np.ndarray], dict, Counter]:
-            stats, counts = stats_copy(self.stats), Counter(checker.counters)
+        def work(k: int, in_child: bool) -> tuple[list[np.ndarray], dict]:
+            stats = stats_copy(self.stats)
             paths = paths_of(k)
             grown, self.stats = stats_added(self.stats, stats), stats  # added below in the pieces' order
-            return paths, grown, (Counter(checker.counters) - counts) if in_child else Counter()
+            return paths, grown
 
         idle = None if ready is None else (lambda done: ready({planned[i]: r[0] for i, r in done.items()}))
-        results, error = share_with_child(planned, work, lambda: False, idle)
+        results = self._with_helper(planned, work, idle)
         found: dict[int, list[np.ndarray]] = {}
         for i, k in sorted(enumerate(planned), key=lambda ik: ik[1]):
             if i not in results:  # the helper failed before this one: it is planned here
                 found[k] = paths_of(k)
                 continue
-            found[k], grown, counts = results[i]
-            checker.counters.update(counts)
+            found[k], grown = results[i]
             add_stats(self.stats, grown)
-        if error is not None:
-            self.helper_errors.append(error.strip().splitlines()[-1])
         return found
 
     def _shortened(self, Q: np.ndarray, validity, rng: np.random.Generator, settings: SmoothingSettings,

@@ -253,7 +253,7 @@ from planner import forking
 from planner.forking import fork_is_safe
 from planner.jobs.plan_job import build_task
 from planner.regrasp.state_checker import StateChecker
-from planner.regrasp.timing import quicker_paths
+from planner.regrasp.timing import plan_timer
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.timing.plan_timer import PlanTimer
 from planner.regrasp.timing.settings import PlanTimingSettings
@@ -262,7 +262,7 @@ from planner.scene.scenarios import load_scenario
 scenario = load_scenario(Path(sys.argv[1]))
 task = build_task(scenario)
 pieces = HandConfigPlanner(task, scenario.hands).plan().pieces
-spare, real = forking.spare_cores, quicker_paths.share_with_child
+spare, real = forking.spare_cores, plan_timer.share_with_child
 
 
 def counted_timer(parallel):
@@ -276,7 +276,7 @@ def counted_timer(parallel):
 
 _ONE_OR_TWO = _SOLVED_TIMER + r"""
 shared = []
-quicker_paths.share_with_child = lambda jobs, work, stop, idle=None: shared.append(len(jobs)) or real(jobs, work, stop, idle)
+plan_timer.share_with_child = lambda jobs, work, stop, idle=None: shared.append(len(jobs)) or real(jobs, work, stop, idle)
 
 
 def found(parallel):
@@ -326,7 +326,7 @@ def slow_helper(jobs, work, stop, idle=None):
     return real(jobs, late, stop, idle)
 
 
-quicker_paths.share_with_child = slow_helper
+plan_timer.share_with_child = slow_helper
 early = []
 real_early = PlanTimer._time_early
 PlanTimer._time_early = lambda self, *a: (early.append(real_early(self, *a)) or early[-1])
@@ -369,8 +369,6 @@ def test_runs_timed_while_the_helper_works_give_the_plan_one_process_gives():
 
 
 _RUNS_SHARED = _SOLVED_TIMER + r"""
-from planner.regrasp.timing import plan_timer
-
 shared = []
 real_runs = plan_timer.share_with_child
 broken = False
