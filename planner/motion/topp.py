@@ -183,16 +183,29 @@ class SplinePath(_JointPath):
 
 class LinearRows(toppra.constraint.LinearConstraint):
     """Constraint rows ``lower <= a u + b x + c <= upper`` (u = s_ddot, x = s_dot^2) precomputed at the
-    gridpoints; ``a``, ``b``, ``c``, ``lower``, ``upper`` are (N + 1, m)."""
+    gridpoints; ``a``, ``b``, ``c``, ``lower``, ``upper`` are (N + 1, m). A bound infinite at every gridpoint (a
+    one-sided row) adds no row; the others must be finite.
+
+    The rows are handed to TOPP-RA in its "identical" form, ``F (a' u + b' x + c') <= g`` with one ``F`` and ``g``
+    for every gridpoint (``F`` the identity, ``g`` zero, the bounds folded into ``c'``): its seidel solver then sets
+    up the rows with one matrix product instead of three products per gridpoint, which made the setup most of a
+    short solve. The rows and their values are the same as ``F_i = [I; -I]``, ``g_i = [upper_i; -lower_i]``."""
 
     def __init__(self, gridpoints: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
                  lower: np.ndarray, upper: np.ndarray):
         super().__init__()
         self.gridpoints = np.asarray(gridpoints)
-        self.a, self.b, self.c = a, b, c
-        m = a.shape[1]
-        self.F = np.repeat(np.vstack([np.eye(m), -np.eye(m)])[None], len(gridpoints), axis=0)
-        self.g = np.hstack([upper, -lower])
+        lower, upper = np.broadcast_to(lower, a.shape), np.broadcast_to(upper, a.shape)
+        up = ~np.all(np.isposinf(upper), axis=0)  # the columns with an upper bound
+        low = ~np.all(np.isneginf(lower), axis=0)
+        if not (np.all(np.isfinite(upper[:, up])) and np.all(np.isfinite(lower[:, low]))):
+            raise ValueError("a row's bound must be finite at every gridpoint or infinite at all of them")
+        self.a = np.hstack([a[:, up], -a[:, low]])
+        self.b = np.hstack([b[:, up], -b[:, low]])
+        self.c = np.hstack([c[:, up] - upper[:, up], lower[:, low] - c[:, low]])
+        k = self.a.shape[1]
+        self.F, self.g = np.eye(k), np.zeros(k)
+        self.identical = True
         self.set_discretization_type(DiscretizationType.Interpolation)
 
     def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
@@ -200,7 +213,18 @@ class LinearRows(toppra.constraint.LinearConstraint):
             raise ValueError("the rows were computed for other gridpoints")
         # interpolation: the rows of gridpoint i + 1 also hold with the s_ddot chosen at gridpoint i, so that
         # they hold at both ends of every interval, where the profile really is
-        return canlinear_colloc_to_interpolate(self.a, self.b, self.c, self.F, self.g, None, None, gridpoints)
+        return canlinear_colloc_to_interpolate(self.a, self.b, self.c, self.F, self.g, None, None, gridpoints,
+                                               identical=True)
+
+
+class _JointVelocity(toppra.constraint.JointVelocityConstraint):
+    """TOPP-RA's joint velocity limits (a bound on s_dot^2 at each gridpoint), checked without the per-joint text
+    its own check formats for display, which cost more than the bound itself on a short path."""
+
+    def _assert_valid_limits(self) -> None:
+        if self.vlim.shape[1] != 2 or np.any(self.vlim[:, 0] >= self.vlim[:, 1]):
+            raise ValueError("each joint's lower velocity limit must be below its upper one")
+        self._format_string = f"    Velocity limit: {self.dof} joints\n"
 
 
 @dataclass(frozen=True)
@@ -249,9 +273,10 @@ def gridpoints_for(path: BlendedPath, step: float, max_points: int) -> np.ndarra
 def parameterize(path: BlendedPath, gridpoints: np.ndarray, vlim: np.ndarray, alim: np.ndarray,
                  rows: list[LinearRows]) -> np.ndarray | None:
     """The time-optimal ``s_dot`` at the gridpoints from rest to rest, or None when TOPP-RA finds none."""
-    constraints = [toppra.constraint.JointVelocityConstraint(np.column_stack([-vlim, vlim])),
-                   toppra.constraint.JointAccelerationConstraint(np.column_stack([-alim, alim]),
-                                                                 DiscretizationType.Interpolation), *rows]
+    # the joint accelerations q' s_ddot + q'' s_dot^2 within +-alim: rows as the others are
+    accelerations = LinearRows(gridpoints, path(gridpoints, 1), path(gridpoints, 2),
+                               np.zeros((len(gridpoints), len(alim))), -alim, alim)
+    constraints = [_JointVelocity(np.column_stack([-vlim, vlim])), accelerations, *rows]
     algo = toppra.algorithm.TOPPRA(constraints, path, gridpoints=gridpoints, solver_wrapper="seidel")
     algo.compute_parameterization(0.0, 0.0)
     sd = algo.problem_data.sd_vec

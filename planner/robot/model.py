@@ -115,10 +115,12 @@ class RobotModel:
         return self.pin_model.getFrameId(frame)
 
     def to_pin_q(self, base_pose: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """Pinocchio configuration: free-flyer ``[x y z qx qy qz qw]`` then every joint, mimics included."""
-        out = np.empty(self.pin_model.nq)
-        out[:7] = base_pose
-        out[self.pin_q_index] = self.q_mult * q[self.q_source] + self.q_offset
+        """Pinocchio configuration: free-flyer ``[x y z qx qy qz qw]`` then every joint, mimics included; of a
+        state ``q`` (n,), or one row per state of ``q`` (N, n)."""
+        q = np.asarray(q)
+        out = np.empty(q.shape[:-1] + (self.pin_model.nq,))
+        out[..., :7] = base_pose
+        out[..., self.pin_q_index] = self.q_mult * q[..., self.q_source] + self.q_offset
         return out
 
     def default_q(self) -> np.ndarray:

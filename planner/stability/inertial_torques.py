@@ -54,7 +54,7 @@ class InertialTorques:
         """Pinocchio's configurations (N, nq) of the wire states Q (N, n), and each of ``rates`` (N, n: joint
         velocities or accelerations) in its velocity space (N, nv), mimic joints following their master with the
         multiplier: the rates all rows at once, so that the loop over the points (:meth:`_rnea`) only calls RNEA."""
-        out = [np.array([self.robot.to_pin_q(self.base_pose, q) for q in Q]).reshape(len(Q), self.model.nq)]
+        out = [self.robot.to_pin_q(self.base_pose, Q)]
         for rate in rates:
             v = np.zeros((len(Q), self.model.nv))
             v[:, self._v_index] = self._v_mult * rate[:, self._v_source]

@@ -12,7 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from planner.motion.timing import zmp_cart_table
-from planner.motion.topp import BlendedPath, SplinePath, gridpoints_for, parameterize, profile_times
+import toppra.constraint
+from toppra.constraint import DiscretizationType
+from toppra.constraint.linear_constraint import canlinear_colloc_to_interpolate
+
+from planner.motion.topp import BlendedPath, LinearRows, SplinePath, gridpoints_for, parameterize, profile_times
 from planner.regrasp.plan_assembly import MotionPiece
 from planner.regrasp.timing.plan_timer import PlanTimer
 from planner.regrasp.timing.runs import Run
@@ -51,6 +55,51 @@ def test_a_straight_two_waypoint_path_takes_the_bang_bang_time(D, v, a, ratio):
     assert sd is not None and sd[0] == 0.0 and sd[-1] == 0.0
     T = profile_times(grid, sd)[-1]
     assert T == pytest.approx(bang_bang_duration(D, vmax, amax), rel=2e-3)
+
+
+class _RowsPerGridpoint(toppra.constraint.LinearConstraint):
+    """The reference form of the same rows: TOPP-RA's general constraint, its own ``F_i = [I; -I]`` and
+    ``g_i = [upper_i; -lower_i]`` at every gridpoint."""
+
+    def __init__(self, a, b, c, lower, upper):
+        super().__init__()
+        self.a, self.b, self.c = a, b, c
+        m = a.shape[1]
+        self.F = np.repeat(np.vstack([np.eye(m), -np.eye(m)])[None], len(a), axis=0)
+        self.g = np.hstack([upper, -lower])
+        self.set_discretization_type(DiscretizationType.Interpolation)
+
+    def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
+        return canlinear_colloc_to_interpolate(self.a, self.b, self.c, self.F, self.g, None, None, gridpoints)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), m=st.integers(1, 4), one_sided=st.lists(st.booleans(), min_size=4, max_size=4))
+def test_the_rows_give_the_profile_of_the_same_rows_set_per_gridpoint(seed, m, one_sided):
+    rng = np.random.default_rng(seed)
+    W = rng.uniform(-1.0, 1.0, (3, 3))
+    path = BlendedPath(W, np.array([0.3]))
+    grid = gridpoints_for(path, 0.02, 1000)
+    n = len(grid)
+    a, b = rng.normal(0.0, 0.5, (n, m)), rng.normal(0.0, 0.5, (n, m))
+    c = rng.normal(0.0, 0.1, (n, m))
+    upper = np.abs(c) + rng.uniform(0.5, 2.0, (n, m))  # at rest (u = x = 0) within the bounds
+    lower = -np.abs(c) - rng.uniform(0.5, 2.0, (n, m))
+    lower[:, np.array(one_sided[:m])] = -np.inf
+    vmax, amax = np.full(3, 1.5), np.full(3, 3.0)
+    ours = parameterize(path, grid, vmax, amax, [LinearRows(grid, a, b, c, lower, upper)])
+    reference = parameterize(path, grid, vmax, amax, [_RowsPerGridpoint(a, b, c, lower, upper)])
+    assert (ours is None) == (reference is None)
+    if ours is not None:
+        np.testing.assert_allclose(ours, reference, rtol=1e-9, atol=1e-12)
+
+
+def test_a_row_bound_finite_at_some_gridpoints_and_infinite_at_others_is_refused():
+    grid = np.linspace(0.0, 1.0, 5)
+    a = np.ones((5, 1))
+    upper = np.array([[1.0], [np.inf], [1.0], [1.0], [1.0]])
+    with pytest.raises(ValueError, match="finite at every gridpoint or infinite at all"):
+        LinearRows(grid, a, a, 0.0 * a, -upper, upper)
 
 
 @pytest.fixture(scope="module")
