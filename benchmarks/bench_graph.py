@@ -14,6 +14,7 @@ import time
 
 import networkx as nx
 
+from planner.blas_threads import one_blas_thread
 from planner.regrasp.graph import SINK, SOURCE, RegraspGraph
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.search_data import SearchData
@@ -30,6 +31,7 @@ def median_s(fn, repeats: int) -> float:
     return statistics.median(times)
 
 
+@one_blas_thread  # as the CLI's plans run (planner/blas_threads.py)
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenarios", default="upright,drill-handover")

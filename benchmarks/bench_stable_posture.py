@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 
+from planner.blas_threads import one_blas_thread
 from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.regrasp.settings import PlannerSettings
 from planner.regrasp.search_data import SearchData, solve_ik, stable_posture
@@ -79,6 +80,7 @@ def plans(scenario_name: str, repeats: int) -> None:
                   f"{statistics.median(times[on]):>8.2f}")
 
 
+@one_blas_thread  # as the CLI's plans run (planner/blas_threads.py)
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenario", default="crouched")

@@ -25,6 +25,7 @@ import time
 import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
 
+from planner.blas_threads import one_blas_thread
 from planner.jobs.plan_job import build_task
 from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import MotionPiece, assemble
@@ -93,6 +94,7 @@ def run_floor(run: Run, vmax: np.ndarray, amax: np.ndarray) -> float:
     return at_speed + ramp
 
 
+@one_blas_thread  # as the CLI's plans run (planner/blas_threads.py)
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="upright")

@@ -15,6 +15,7 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Callable
 
+from planner.blas_threads import one_blas_thread
 from planner.errors import Canceled, InputError
 from planner.jobs.robot_task import scenario_for_robot
 from planner.jobs.survey_job import survey_overrides
@@ -213,6 +214,7 @@ def _end_over_limits(planner: HandConfigPlanner, end: str) -> tuple[str, str] | 
                     f"{ratio.min():.2f} to {ratio.max():.2f}")
 
 
+@one_blas_thread
 def plan_scenario(
     scenario: Scenario,
     options: PlanOptions | None = None,

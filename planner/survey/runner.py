@@ -20,6 +20,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from planner.blas_threads import one_blas_thread
 from planner.errors import Canceled
 from planner.forking import pool_may_fork
 from planner.motion.trrt import TrrtSettings
@@ -162,6 +163,7 @@ class RemoteSeeds:
     def __getstate__(self) -> dict[str, Any]:
         return dict(self.__dict__, _built=None)
 
+    @one_blas_thread
     def __call__(self, hands: str, seed: int, keep_states: bool) -> SeedCount:
         if self._built is None:
             task = Task(self.scenario, self.settings, threshold_m=self.task_threshold_m, seed=self.seed)
@@ -286,6 +288,7 @@ def _outcome(r: RowWork, estimator: Estimator, keep_states: bool) -> ConfigOutco
     return out
 
 
+@one_blas_thread
 def run_survey(
     scenario: Scenario,
     *,

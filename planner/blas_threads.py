@@ -1,0 +1,25 @@
+"""One BLAS thread for the planner's own work.
+
+The planner runs in parallel across processes, never threads: forked helpers share a plan's search hops, quicker
+paths and run timings; a survey's seeds run in worker processes or Ray tasks, one per core. Each does small matrix
+products (TOPP-RA's constraint set-up, the timing's rows, the state checks). With its default thread pool, OpenBLAS
+splits such a product over every core and its threads then wait by spinning, so a helper and its parent each take
+the other's core: a plan's time parameterization took up to twice as long beside its helper than alone (the
+numbers are in the CHANGELOG). One thread per process is what that parallelism assumes. The results do not depend
+on it (a product's elements are computed by the same kernel either way; the plans are the same bit for bit).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TypeVar
+
+from threadpoolctl import threadpool_limits
+
+F = TypeVar("F", bound=Callable)
+
+
+def one_blas_thread(fn: F) -> F:
+    """``fn`` run with the BLAS libraries held to one thread (the previous limit restored after; a forked child
+    inherits it, a spawned one or a Ray worker is held again by the function it runs)."""
+    return threadpool_limits.wrap(limits=1, user_api="blas")(fn)
