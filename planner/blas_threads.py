@@ -4,9 +4,10 @@ The planner runs in parallel across processes, never threads: forked helpers sha
 paths and run timings; a survey's seeds run in worker processes or Ray tasks, one per core. Each does small matrix
 products (TOPP-RA's constraint set-up, the timing's rows, the state checks). With its default thread pool, OpenBLAS
 splits such a product over every core and its threads then wait by spinning, so a helper and its parent each take
-the other's core: a plan's time parameterization took up to twice as long beside its helper than alone (the
-numbers are in the CHANGELOG). One thread per process is what that parallelism assumes. The results do not depend
-on it (a product's elements are computed by the same kernel either way; the plans are the same bit for bit).
+the other's core. One thread per process is what that parallelism assumes.
+
+It also keeps a plan independent of the machine's core count: the last bits of a product can change with the
+number of threads OpenBLAS splits it over, and through them a search's or a timing's choices followed the cores.
 """
 
 from __future__ import annotations
