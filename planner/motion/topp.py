@@ -184,7 +184,7 @@ class SplinePath(_JointPath):
 class LinearRows(toppra.constraint.LinearConstraint):
     """Constraint rows ``lower <= a u + b x + c <= upper`` (u = s_ddot, x = s_dot^2) precomputed at the
     gridpoints; ``a``, ``b``, ``c``, ``lower``, ``upper`` are (N + 1, m). A bound infinite at every gridpoint (a
-    one-sided row) adds no row; the others must be finite.
+    one-sided row) adds no row; one infinite at some gridpoints only is refused.
 
     The rows are handed to TOPP-RA in its "identical" form, ``F (a' u + b' x + c') <= g`` with one ``F`` and ``g``
     for every gridpoint (``F`` the identity, ``g`` zero, the bounds folded into ``c'``): its seidel solver then sets
@@ -198,7 +198,7 @@ class LinearRows(toppra.constraint.LinearConstraint):
         lower, upper = np.broadcast_to(lower, a.shape), np.broadcast_to(upper, a.shape)
         up = ~np.all(np.isposinf(upper), axis=0)  # the columns with an upper bound
         low = ~np.all(np.isneginf(lower), axis=0)
-        if not (np.all(np.isfinite(upper[:, up])) and np.all(np.isfinite(lower[:, low]))):
+        if np.any(np.isinf(upper[:, up])) or np.any(np.isinf(lower[:, low])):  # (a NaN goes on, as TOPP-RA takes it)
             raise ValueError("a row's bound must be finite at every gridpoint or infinite at all of them")
         self.a = np.hstack([a[:, up], -a[:, low]])
         self.b = np.hstack([b[:, up], -b[:, low]])
