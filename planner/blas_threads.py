@@ -12,15 +12,30 @@ number of threads OpenBLAS splits it over, and through them a search's or a timi
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from typing import TypeVar
 
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 F = TypeVar("F", bound=Callable)
 
 
+def one_thread(libraries: ThreadpoolController | None = None) -> AbstractContextManager:
+    """A context holding the BLAS libraries to one thread, the previous limit restored at its end. ``libraries``: the
+    loaded libraries found once (a ``ThreadpoolController``), for a caller that enters it often; by default they are
+    looked up on entry, which takes about a millisecond."""
+    return (libraries or ThreadpoolController()).limit(limits=1, user_api="blas")
+
+
 def one_blas_thread(fn: F) -> F:
-    """``fn`` run with the BLAS libraries held to one thread (the previous limit restored after; a forked child
-    inherits it, a spawned one or a Ray worker is held again by the function it runs)."""
-    return threadpool_limits.wrap(limits=1, user_api="blas")(fn)
+    """``fn`` run in :func:`one_thread` (a forked child inherits the limit; a spawned process or a Ray worker is held
+    again by the function it runs)."""
+
+    @functools.wraps(fn)
+    def held(*args, **kwargs):
+        with one_thread():
+            return fn(*args, **kwargs)
+
+    return held  # type: ignore[return-value]

@@ -19,8 +19,9 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
-from planner.blas_threads import one_blas_thread
+from planner.blas_threads import one_blas_thread, one_thread
 from planner.errors import Canceled
 from planner.forking import pool_may_fork
 from planner.motion.trrt import TrrtSettings
@@ -158,21 +159,24 @@ class RemoteSeeds:
                                                 for member in r.legs], key_paths=list(r.key_paths))
                      for r in rows if r.legs}
         self.estimator, self.counting, self.trrt = estimator, counting, trrt
-        self._built: tuple[Any, dict[str, RowWork]] | None = None
+        self._built: tuple[ThreadpoolController, Any, dict[str, RowWork]] | None = None
 
     def __getstate__(self) -> dict[str, Any]:
         return dict(self.__dict__, _built=None)
 
-    @one_blas_thread
     def __call__(self, hands: str, seed: int, keep_states: bool) -> SeedCount:
         if self._built is None:
-            task = Task(self.scenario, self.settings, threshold_m=self.task_threshold_m, seed=self.seed)
-            evaluator = survey_limits.limited(task, task.evaluator.with_threshold(self.threshold_m))
-            self._built = evaluator, {h: RowWork(h, [[_leg_collisions(task, g) for g in member] for member in r.legs],
-                                                 key_paths=r.key_paths) for h, r in self.rows.items()}
-        evaluator, rows = self._built
-        return rows[hands].explore(evaluator, seed, self.base_seed, self.estimator, settings=self.counting,
-                                   trrt=self.trrt, keep_states=keep_states)
+            blas = ThreadpoolController()  # the BLAS libraries found once per worker process, not once per seed
+            with one_thread(blas):
+                task = Task(self.scenario, self.settings, threshold_m=self.task_threshold_m, seed=self.seed)
+                evaluator = survey_limits.limited(task, task.evaluator.with_threshold(self.threshold_m))
+                rows = {h: RowWork(h, [[_leg_collisions(task, g) for g in member] for member in r.legs],
+                                   key_paths=r.key_paths) for h, r in self.rows.items()}
+            self._built = blas, evaluator, rows
+        blas, evaluator, rows = self._built
+        with one_thread(blas):
+            return rows[hands].explore(evaluator, seed, self.base_seed, self.estimator, settings=self.counting,
+                                       trrt=self.trrt, keep_states=keep_states)
 
 
 def draw_key_path(task: Task, data: SearchData, hands: str, kp_seed: int,

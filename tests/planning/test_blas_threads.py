@@ -4,7 +4,7 @@ limit back after."""
 from __future__ import annotations
 
 import pytest
-from threadpoolctl import threadpool_info, threadpool_limits
+from threadpoolctl import ThreadpoolController, threadpool_info, threadpool_limits
 
 from planner.jobs import plan_job
 from planner.scene.scenarios import load_builtin
@@ -48,7 +48,7 @@ def test_a_remote_seed_runs_with_one_blas_thread():
             return "counts"
 
     seeds = runner.RemoteSeeds.__new__(runner.RemoteSeeds)
-    seeds._built = (None, {"right-right": Row()})
+    seeds._built = (ThreadpoolController(), None, {"right-right": Row()})
     seeds.base_seed, seeds.estimator, seeds.counting, seeds.trrt = 0, None, None, None
     with threadpool_limits(limits=2, user_api="blas"):
         assert seeds("right-right", 3, False) == "counts"
