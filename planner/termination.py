@@ -17,7 +17,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 
-def _never() -> bool:
+def never() -> bool:
+    """The cancel predicate of work nobody cancels."""
     return False
 
 
@@ -27,7 +28,7 @@ class Termination:
 
     max_iterations: int
     time_limit_s: float = math.inf
-    canceled: Callable[[], bool] = _never
+    canceled: Callable[[], bool] = never
     started: float = field(default_factory=time.monotonic)
 
     @property
@@ -45,7 +46,7 @@ class Termination:
         return self.canceled() or self.past_deadline()
 
     @classmethod
-    def of_limits(cls, limits: Any, canceled: Callable[[], bool] = _never, started: float | None = None) -> Termination:
+    def of_limits(cls, limits: Any, canceled: Callable[[], bool] = never, started: float | None = None) -> Termination:
         """A scenario's ``limits`` (:class:`schemas.scenario.Limits`): its iteration cap, and its time budget
         when the user gave one (none: no deadline)."""
         time_s = math.inf if limits.time_s is None else float(limits.time_s)

@@ -147,14 +147,16 @@ class HandConfigPlanner:
 
     # -- node validation ----------------------------------------------------------------------------
     def validate_node(self, node) -> Validation:
-        """Validate a node once (cached across searches, e.g. for the K best solutions)."""
+        """Validate a node once (cached across searches, e.g. for the K best solutions). A validation's long
+        step (a batch probe) polls the cancel request and raises :class:`Canceled`, caching nothing; the deadline
+        is the search's to check between nodes (it ends the search ``TIMEOUT``)."""
         if node in self._validated:
             return self._validated[node]
         t = self.task
         v = self.data.node_cache.get(node)
         if v is None:
             rng = np.random.default_rng(t.node_seed(node))
-            v = (validate_placement(t, self.data, node, rng) if isinstance(node, PlacementNode)
+            v = (validate_placement(t, self.data, node, rng, self.termination.canceled) if isinstance(node, PlacementNode)
                  else validate_handover(t, self.data, node, rng))
             self.data.node_cache[node] = v  # shared with the other hand configurations of this task
         if v.ok:
@@ -330,11 +332,11 @@ class HandConfigPlanner:
         t = self.task
         handovers = [n for n in graph.nodes() if isinstance(n, HandoverNode)]
         if handovers:
-            probe_givers(t, self.data, handovers)
+            probe_givers(t, self.data, handovers, self.termination.canceled)
         if graph.w.margin == 0.0:
             return
         nodes = [n for n in graph.nodes() if isinstance(n, PlacementNode)]
-        probes = probe_grasps(t, self.data, nodes)
+        probes = probe_grasps(t, self.data, nodes, self.termination.canceled)
         for node in nodes:
             m = probes[node].margin_m
             graph._apply_margin_cost(node, 0.0 if m is None else m)

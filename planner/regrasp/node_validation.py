@@ -16,6 +16,8 @@ the search's :class:`~planner.regrasp.search_data.SearchData`.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from planner.motion.ik import key_pose_targets
@@ -28,10 +30,14 @@ from planner.regrasp.settings import HANDS_INDEX
 from planner.regrasp.search_data import SearchData, solve_ik, solve_targets, stable_posture
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
+from planner.termination import never
 from planner.transforms import inverse
 
 
-def validate_placement(task: Task, data: SearchData, node: PlacementNode, rng: np.random.Generator) -> Validation:
+def validate_placement(task: Task, data: SearchData, node: PlacementNode, rng: np.random.Generator,
+                       canceled: Callable[[], bool] = never) -> Validation:
+    """The verdict on a placement node (its key poses when valid). ``canceled`` is polled inside the one long step,
+    the batch probe with the waist helping (:func:`planner.regrasp.probes.probe_grasps_with_waist`)."""
     t, d, s = task, data, task.settings
     side = node.hand
     grasp = t.grasps[side][node.grasp]
@@ -42,7 +48,7 @@ def validate_placement(task: Task, data: SearchData, node: PlacementNode, rng: n
     # Cheapest decisive checks first: the grasp pose, then the held object there, then lift, then pre-grasp.
     probe = d.grasp_probes.get(node)
     if probe is not None and probe.q is None and node not in d.waist_probed:
-        probe_grasps_with_waist(t, d, side)
+        probe_grasps_with_waist(t, d, side, canceled)
         v = d.node_cache.get(node)
         if v is not None:
             return v  # the batch found what this validation would find first

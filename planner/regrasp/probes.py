@@ -11,8 +11,11 @@ validation would find them first. The task itself is only read.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
+from planner.errors import Canceled
 from planner.grasping.grasps import Grasp
 from planner.motion.ik_batch import BatchIkResult
 from planner.regrasp.failure_cause import FailureCause
@@ -22,13 +25,18 @@ from planner.regrasp.settings import HANDS_INDEX, Side
 from planner.regrasp.search_data import SearchData, stable_posture
 from planner.regrasp.seed_free import array_key
 from planner.regrasp.task import Task
+from planner.termination import never
 from planner.stability.evaluator import HoldSpec
 from planner.transforms import inverse
 
 
-def probe_grasps(task: Task, data: SearchData, nodes: list[PlacementNode]) -> dict[PlacementNode, GraspProbe]:
+def probe_grasps(task: Task, data: SearchData, nodes: list[PlacementNode],
+                 canceled: Callable[[], bool] = never) -> dict[PlacementNode, GraspProbe]:
     """The IK solution at each node's grasp pose and the CoM margin of holding the object there, for
     the nodes not probed yet: batched descents per hand (:mod:`planner.motion.ik_batch`).
+
+    ``canceled`` is polled between the nodes' stable-posture searches (thousands on a large task): when it
+    asks, :class:`~planner.errors.Canceled` is raised and the batch leaves nothing in ``data``.
 
     The search weighs nodes by these margins before validating any: they bound a node's validated
     margin from above (its lift starts from this very state), so the cheapest path stays the
@@ -42,11 +50,11 @@ def probe_grasps(task: Task, data: SearchData, nodes: list[PlacementNode]) -> di
             continue
         T_obj, targets = _grasp_targets(task, side, mine)
         res = _batch_arm_ik(task, data, side, targets, [task.node_seed(n) for n in mine])
-        _record_probes(task, data, side, mine, T_obj, res, task.arm_only[side])
+        _record_probes(task, data, side, mine, T_obj, res, task.arm_only[side], canceled)
     return data.grasp_probes
 
 
-def probe_grasps_with_waist(task: Task, data: SearchData, side: Side) -> None:
+def probe_grasps_with_waist(task: Task, data: SearchData, side: Side, canceled: Callable[[], bool] = never) -> None:
     """For every placement node of ``side`` whose probe missed (the arm alone did not reach) and
     that has no verdict yet: one batched descent with the waist helping, from home, then the same
     margin and jaw-closing probes; a node's validation starts from the posture found.
@@ -54,18 +62,19 @@ def probe_grasps_with_waist(task: Task, data: SearchData, side: Side) -> None:
     Called when a search first validates such a node. Those nodes come last in the search (no
     margin, the highest cost), so most searches never get there; one that does (a configuration
     with no key path) would otherwise validate them by the dozen, one by one, most failing on the
-    margin at the grasp."""
+    margin at the grasp. ``canceled``: as in :func:`probe_grasps`."""
     mine = [n for n, p in data.grasp_probes.items()
             if p.q is None and n.hand == side and n not in data.waist_probed and n not in data.node_cache]
     if not mine:
         return
-    data.waist_probed.update(mine)
     T_obj, targets = _grasp_targets(task, side, mine)
     res = _batch_from_home(task, data, "waist", side, targets)
     data.counters["ik_solves"] += len(mine)
     reached = np.flatnonzero(res.ok)
     if reached.size:
-        _record_probes(task, data, side, [mine[k] for k in reached], T_obj[reached], res.take(reached), task.active[side])
+        _record_probes(task, data, side, [mine[k] for k in reached], T_obj[reached], res.take(reached), task.active[side],
+                       canceled)
+    data.waist_probed.update(mine)
 
 
 def _grasp_targets(task: Task, side: Side, nodes: list[PlacementNode]) -> tuple[np.ndarray, np.ndarray]:
@@ -75,26 +84,34 @@ def _grasp_targets(task: Task, side: Side, nodes: list[PlacementNode]) -> tuple[
 
 
 def _record_probes(task: Task, data: SearchData, side: Side, nodes: list[PlacementNode], T_obj: np.ndarray, res: BatchIkResult,
-                   moving: np.ndarray) -> None:
+                   moving: np.ndarray, canceled: Callable[[], bool]) -> None:
     """Store the probes of ``nodes`` from their batched IK (``moving``: the columns it moved), with the
-    margin of holding the object at the grasp; cache the verdicts the validation would reach first."""
+    margin of holding the object at the grasp; cache the verdicts the validation would reach first. The
+    probes are stored once all are found, so a cancel (``canceled``, polled per node) leaves none."""
     grasps = task.grasps[side]
     Q = res.q.copy()
     task.put_jaw(Q, side, [grasps[n.grasp].jaw_value for n in nodes])
     robot_com = task.evaluator.evaluate(Q, active=[*moving, *task.jaw[side]]).robot_com
     held = task.evaluator.with_object(robot_com, T_obj)  # the object stays where it rests
     data.counters["com_states"] += len(nodes)
+    probes: dict[PlacementNode, GraspProbe] = {}
+    unstable: list[PlacementNode] = []
     for k, n in enumerate(nodes):
         q, margin = (res.q[k], float(held.margin[k])) if res.ok[k] else (None, None)
         if res.ok[k] and not held.stable[k] and task.constrained:
+            if canceled():
+                raise Canceled()
             # Exactly what the node's validation would find first, from the same state: the nearest
             # posture that holds the object there with the margin kept, or the node fails the margin.
             q_stable = stable_posture(task, data, Q[k], (side,), T_obj[k])
             if q_stable is None:
-                data.node_cache.setdefault(n, Validation(False, FailureCause.COM_MARGIN, "holding the object at the grasp pose"))
+                unstable.append(n)
             else:
                 q, margin = q_stable, task.evaluator.evaluate_one(q_stable, _hold_at(task, side, q_stable, T_obj[k])).margin
-        data.grasp_probes[n] = GraspProbe(q, margin)
+        probes[n] = GraspProbe(q, margin)
+    for n in unstable:
+        data.node_cache.setdefault(n, Validation(False, FailureCause.COM_MARGIN, "holding the object at the grasp pose"))
+    data.grasp_probes.update(probes)
     _probe_jaw_closing(task, data, side, [n for k, n in enumerate(nodes) if res.ok[k] and n not in data.node_cache], grasps)
 
 
@@ -125,13 +142,15 @@ def _probe_jaw_closing(task: Task, data: SearchData, side: Side, nodes: list[Pla
             data.node_cache[n] = Validation(False, cause, "closing the jaw", margin_m=float(margin))
 
 
-def probe_givers(task: Task, data: SearchData, nodes: list[HandoverNode]) -> None:
+def probe_givers(task: Task, data: SearchData, nodes: list[HandoverNode], canceled: Callable[[], bool] = never) -> None:
     """The giver alone at each handover pose (the search's ``giver_at``), for the (pose, giver grasp) pairs
     of ``nodes`` not known yet, in batches: arm-only IK, margin and collisions holding the object.
 
     Most handover nodes fail right there (the giver's arm or the object against the body), so a
     batch spares a one-by-one solve per pair. Where the arm alone misses (the same two attempts as the
-    one-by-one solve), the node's validation lets the waist help."""
+    one-by-one solve), the node's validation lets the waist help. ``canceled`` is polled between the givers'
+    stable-posture searches; a cancel raises :class:`~planner.errors.Canceled` before that hand's batch is stored
+    (but for the pairs whose arm missed, already known)."""
     keys = [k for k in dict.fromkeys((n.pose, n.giver_grasp, n.giver) for n in nodes) if k not in data.giver_at]
     for side in ("left", "right"):
         mine = [k for k in keys if k[2] == side]
@@ -158,12 +177,16 @@ def probe_givers(task: Task, data: SearchData, nodes: list[HandoverNode]) -> Non
                                           held_object_poses=T_obj[ok]).collides
         data.counters["com_states"] += len(ok)
         data.counters["collision_states"] += len(ok)
+        found: dict = {}
         for row, k in enumerate(ok):
             hold = HoldSpec(side, inverse(T_obj[k]) @ T_tcp[row])
             if task.constrained and not held.stable[row]:
-                data.giver_at[mine[k]] = steady_giver(task, data, side, Q[row], hold, T_obj[k])
+                if canceled():
+                    raise Canceled()
+                found[mine[k]] = steady_giver(task, data, side, Q[row], hold, T_obj[k])
             else:
-                data.giver_at[mine[k]] = (Q[row], hold, FailureCause.COLLISION if collides[row] else None, float(held.margin[row]))
+                found[mine[k]] = (Q[row], hold, FailureCause.COLLISION if collides[row] else None, float(held.margin[row]))
+        data.giver_at.update(found)
 
 
 def steady_giver(task: Task, data: SearchData, side: Side, q: np.ndarray, hold: HoldSpec, T_obj: np.ndarray) -> tuple:

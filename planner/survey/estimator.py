@@ -38,6 +38,7 @@ from planner.survey.counting import (
     explore_counted,
 )
 from planner.survey.seed_map import ForkedSeeds, SeedFn, SeedMap
+from planner.termination import never
 from schemas.common import HAND_CONFIGS
 
 #: Bootstrap resamples of the seeds per interval.
@@ -266,7 +267,8 @@ def explore_seed(legs: list[ExploreLeg], evaluator, hands: str, seed: int, estim
     ex = explore_counted(legs, evaluator, seed_rng(seed, hands), leg_cap_states=estimator.leg_cap_states, budget=budget,
                          settings=settings, trrt=trrt, should_stop=should_stop)
     limits = getattr(evaluator, "limits", None)  # a planner.survey.limits.LimitedEvaluator checks them
-    over = None if limits is None else over_limits(limits, ex.q, ex.holding, ex.object_pose)
+    over = (None if limits is None or ex.status == "canceled"
+            else over_limits(limits, ex.q, ex.holding, ex.object_pose, should_stop or never))
     return SeedCount(seed=seed, stable=ex.n_stable, unstable=ex.n_unstable, solved=ex.solved, status=ex.status,
                      time_s=time.perf_counter() - t0, legs=ex.stats["legs"], states=ex if keep_states else None,
                      over_limits=over)

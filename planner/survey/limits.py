@@ -10,13 +10,15 @@ With the limits off (``PlannerSettings.limits``) both leave the survey as the pa
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from planner.errors import Canceled
 from planner.kinematics.batch import select_states
 from planner.stability.effort import EffortEvaluator
 from planner.stability.evaluator import HoldSpec, StateBatch, StateEvaluator
+from planner.termination import never
 from planner.transforms import quat_to_matrix
 
 
@@ -64,8 +66,16 @@ def limited(task: Any, evaluator: StateEvaluator) -> StateEvaluator | LimitedEva
     return evaluator if task.limits is None else LimitedEvaluator(evaluator, task.limits)
 
 
-def over_limits(limits: EffortEvaluator, q: np.ndarray, holding: np.ndarray, object_pose7: np.ndarray) -> int:
-    """How many counted poses (q (N, n), holding (N,), object poses (N, 7)) are over an effort or grip limit."""
+#: states per batch of :func:`over_limits`: a few tens of milliseconds between two polls of the cancel
+OVER_LIMITS_BATCH = 4096
+
+
+def over_limits(limits: EffortEvaluator, q: np.ndarray, holding: np.ndarray, object_pose7: np.ndarray,
+                should_stop: Callable[[], bool] = never) -> int:
+    """How many counted poses (q (N, n), holding (N,), object poses (N, 7)) are over an effort or grip limit.
+
+    A long seed counts hundreds of thousands of poses (a second or more of torques): they go in batches of
+    :data:`OVER_LIMITS_BATCH`, ``should_stop`` polled before each (:class:`~planner.errors.Canceled` when it asks)."""
     if len(q) == 0:
         return 0
     T = np.zeros((len(q), 4, 4))
@@ -76,6 +86,9 @@ def over_limits(limits: EffortEvaluator, q: np.ndarray, holding: np.ndarray, obj
     holding = np.asarray(holding).astype(str)
     for label in np.unique(holding):
         idx = np.flatnonzero(holding == label)
-        res = limits.evaluate(q[idx], label, object_pose=T[idx])
-        count += int((~res.ok).sum())
+        for start in range(0, len(idx), OVER_LIMITS_BATCH):
+            if should_stop():
+                raise Canceled()
+            batch = idx[start:start + OVER_LIMITS_BATCH]
+            count += int((~limits.evaluate(q[batch], label, object_pose=T[batch]).ok).sum())
     return count

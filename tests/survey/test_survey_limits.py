@@ -41,3 +41,39 @@ def test_poses_over_a_limit_are_unstable_and_counted(hrp5p):
                          task=Task(sc, PlannerSettings(limits=False), robot=weak))
     assert free["rows"][0]["over_limits"] is None and free["limits"] == "off"
     assert with_limits["limits"] == "effort and grip"
+
+
+def test_over_limits_polls_the_cancel_between_batches_and_counts_the_same(hrp5p, monkeypatch):
+    """A long seed's poses go through the limits in batches with the cancel polled before each: the count does
+    not depend on the batch size, and a cancel stops the count with :class:`Canceled`."""
+    import pytest
+
+    from planner.errors import Canceled
+    from planner.survey import limits as survey_limits
+
+    sc = _scenario()
+    weak = dataclasses.replace(hrp5p, spec=hrp5p.spec.model_copy(
+        update={"effort_limits": {**hrp5p.spec.effort_limits, "RWRP": 12.0}}))
+    task = Task(sc, robot=weak)
+    _, out = run_survey(sc, states=150, hands=["right-right"], workers=1, task=task)
+    o = out[0]
+    whole = survey_limits.over_limits(task.limits, o.q, o.holding, o.object_pose)
+    assert whole > 0 and len(o.q) > 3 * 7
+    monkeypatch.setattr(survey_limits, "OVER_LIMITS_BATCH", 7)
+    polls: list[int] = []
+
+    def count_polls() -> bool:
+        polls.append(1)
+        return False
+
+    assert survey_limits.over_limits(task.limits, o.q, o.holding, o.object_pose, count_polls) == whole
+    assert len(polls) >= len(o.q) // 7  # one poll per batch, every label's batches
+    asked: list[int] = []
+
+    def stop_on_third() -> bool:
+        asked.append(1)
+        return len(asked) >= 3
+
+    with pytest.raises(Canceled):
+        survey_limits.over_limits(task.limits, o.q, o.holding, o.object_pose, stop_on_third)
+    assert len(asked) == 3  # it stopped at the poll that asked, not at the end
