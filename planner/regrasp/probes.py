@@ -25,8 +25,8 @@ from planner.regrasp.settings import HANDS_INDEX, Side
 from planner.regrasp.search_data import SearchData, stable_posture
 from planner.regrasp.seed_free import array_key
 from planner.regrasp.task import Task
-from planner.termination import never
 from planner.stability.evaluator import HoldSpec
+from planner.termination import never
 from planner.transforms import inverse
 
 
@@ -36,7 +36,7 @@ def probe_grasps(task: Task, data: SearchData, nodes: list[PlacementNode],
     the nodes not probed yet: batched descents per hand (:mod:`planner.motion.ik_batch`).
 
     ``canceled`` is polled between the nodes' stable-posture searches (thousands on a large task): when it
-    asks, :class:`~planner.errors.Canceled` is raised and the batch leaves nothing in ``data``.
+    asks, :class:`~planner.errors.Canceled` is raised and the hand's batch under way leaves nothing in ``data``.
 
     The search weighs nodes by these margins before validating any: they bound a node's validated
     margin from above (its lift starts from this very state), so the cheapest path stays the

@@ -4,6 +4,8 @@ goes on with the same data finds what a fresh one finds."""
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 import pytest
 
@@ -22,7 +24,7 @@ def task():
     return Task(load_builtin("upright"))
 
 
-def _polls(stop_at: int | None) -> tuple[list[int], callable]:
+def _polls(stop_at: int | None) -> tuple[list[int], Callable[[], bool]]:
     """A cancel predicate counting its polls; it asks to stop from poll ``stop_at`` on (None: never)."""
     polls: list[int] = []
 
