@@ -35,7 +35,7 @@ from planner.scene.placements import PlacementError
 from planner.scene.scenarios import resolve_scenario, with_overrides
 from planner.stability.stances import StanceError
 from planner.survey.auto import auto_order, survey_summary
-from planner.termination import Termination
+from planner.termination import Termination, never
 from schemas.plan import PLAN_SCHEMA
 from schemas.policy import default_policy
 from schemas.scenario import Scenario
@@ -221,7 +221,7 @@ def plan_scenario(
     *,
     settings: PlannerSettings | None = None,
     progress: ProgressFn = lambda f, m: None,
-    should_stop: StopFn = lambda: False,
+    should_stop: StopFn = never,
     task: Task | None = None,
 ) -> dict[str, Any]:
     """Plan one scenario; returns the plan document (docs/contract.md section 3)."""

@@ -37,7 +37,7 @@ from planner.motion.timing import MARGIN_TOLERANCE_M, TimingSettings, time_path
 from planner.motion.trrt import TrrtSettings, plan_motion
 from planner.regrasp.plan_assembly import MotionPiece, assemble, trajectory_points
 from planner.stability.evaluator import HoldSpec, StateEvaluator
-from planner.termination import Termination
+from planner.termination import Termination, never
 from planner.transforms import pose7_to_matrix
 from schemas.plan import PLAN_SCHEMA
 
@@ -167,7 +167,7 @@ def plan_recovery(robot_name: str, stance_name: str, joint_names: list[str], q: 
         active = np.setdiff1d(np.arange(robot.nq), np.concatenate([stance.leg_indices, jaws]).astype(int))
         active = np.union1d(active, moving)
         res = plan_motion(q0, goal, active, valid, robot.lower, robot.upper, np.random.default_rng(s.seed), s.trrt,
-                          Termination(s.trrt.max_iterations, canceled=should_stop or (lambda: False)))
+                          Termination(s.trrt.max_iterations, canceled=should_stop or never))
         stats["recovery"]["path"] = f"T-RRT ({res.status})"
         stats["recovery"]["trrt"] = res.stats
         if res.path is None:

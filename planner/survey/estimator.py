@@ -304,7 +304,7 @@ class RowWork:
 
 def run_rows(rows: list[RowWork], evaluator, estimator: Estimator, seed: int, *, workers: int = 1,
              settings: CountingSettings | None = None, trrt: TrrtSettings | None = None,
-             should_stop: Callable[[], bool] = lambda: False, progress: Callable[[float, str], None] = lambda f, m: None,
+             should_stop: Callable[[], bool] = never, progress: Callable[[float, str], None] = lambda f, m: None,
              keep_states: bool = False, can_fork: bool = False, seed_map: SeedMap | None = None,
              seed_fn: SeedFn | None = None) -> None:
     """Run each row's seeds until it converged or reached ``seeds_max``; fills ``counts`` and ``verdict``.

@@ -15,6 +15,7 @@ from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.search_data import SearchData
 from planner.regrasp.task import Task
 from planner.survey.runner import key_path, key_pose_termination
+from planner.termination import never
 from schemas.scenario import Scenario
 
 #: The configurations that hand the object over.
@@ -31,7 +32,7 @@ def handover_diagnosis(scenario: Scenario) -> dict[str, Any]:
                                                                          + (h.T_world_obj[:3, :3] @ task.obj.com_local)[2]), 3)
                                                              for h in data.handover_poses(task)})}
     for hands in DUAL_ARM:
-        path, reason = key_path(HandConfigPlanner(task, hands, key_pose_termination(task, lambda: False), data=data))
+        path, reason = key_path(HandConfigPlanner(task, hands, key_pose_termination(task, never), data=data))
         out[hands] = "key path found" if path is not None else reason
     causes = Counter(f"{v.cause or 'valid'}: {v.detail}" if v.detail else (v.cause or "valid")
                      for k, v in data.node_cache.items() if isinstance(k, HandoverNode))

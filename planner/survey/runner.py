@@ -39,7 +39,7 @@ from planner.survey.estimator import Estimator, RowWork, SeedCount, run_rows
 from planner.survey.key_paths import KeyPathDraw, node_id, pool_seeds, task_for_seed
 from planner.survey.seed_map import ForkedSeeds, SeedMap
 from planner.survey.shared_checks import HeldCollisions
-from planner.termination import Termination
+from planner.termination import Termination, never
 from schemas.common import HAND_CONFIGS
 from schemas.scenario import Scenario
 from schemas.survey import SURVEY_SCHEMA, SurveyRow, indistinguishable, recommend
@@ -180,7 +180,7 @@ class RemoteSeeds:
 
 
 def draw_key_path(task: Task, data: SearchData, hands: str, kp_seed: int,
-                  should_stop: Callable[[], bool] = lambda: False) -> KeyPathDraw:
+                  should_stop: Callable[[], bool] = never) -> KeyPathDraw:
     """The planner's key path for ``hands`` with ``task`` (seeded ``kp_seed``: :func:`task_for_seed`) and its
     search's scratch ``data``, and the legs it carries the object on."""
     t0 = time.perf_counter()
@@ -194,7 +194,7 @@ def draw_key_path(task: Task, data: SearchData, hands: str, kp_seed: int,
                        None if legs else "the key-pose path carries the object nowhere", time.perf_counter() - t0)
 
 
-def draw_seed(task: Task, configs: list[str], kp_seed: int, should_stop: Callable[[], bool] = lambda: False,
+def draw_seed(task: Task, configs: list[str], kp_seed: int, should_stop: Callable[[], bool] = never,
               data: SearchData | None = None, seed_free: SeedFreeResults | None = None) -> dict[str, KeyPathDraw]:
     """The planner's key path of each configuration at one key-path seed: a pure function of (task, configurations,
     key-path seed). As a plan's search does, the configurations share one search scratch (``data``, the run's
@@ -303,7 +303,7 @@ def run_survey(
     hands: list[str] | None = None,
     workers: int | None = None,
     settings: PlannerSettings | None = None,
-    should_stop: Callable[[], bool] = lambda: False,
+    should_stop: Callable[[], bool] = never,
     progress: Callable[[float, str], None] = lambda f, m: None,
     task: Task | None = None,
     data: SearchData | None = None,

@@ -6,6 +6,7 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from planner.regrasp.settings import PlannerSettings
 from planner.regrasp.task import Task
@@ -21,11 +22,19 @@ def _scenario():
     return parse_scenario(data)
 
 
-def test_poses_over_a_limit_are_unstable_and_counted(hrp5p):
+@pytest.fixture(scope="module")
+def weak_survey(hrp5p):
+    """The heavy small box surveyed (right-right, 150 states) by a robot whose right wrist is weak: (scenario, the
+    weak robot, the survey document, its outcomes with their states)."""
     sc = _scenario()
     weak = dataclasses.replace(hrp5p, spec=hrp5p.spec.model_copy(
         update={"effort_limits": {**hrp5p.spec.effort_limits, "RWRP": 12.0}}))
-    with_limits, out = run_survey(sc, states=150, hands=["right-right"], workers=1, task=Task(sc, robot=weak))
+    doc, out = run_survey(sc, states=150, hands=["right-right"], workers=1, task=Task(sc, robot=weak))
+    return sc, weak, doc, out
+
+
+def test_poses_over_a_limit_are_unstable_and_counted(weak_survey):
+    sc, weak, with_limits, out = weak_survey
     row = with_limits["rows"][0]
     assert row["over_limits"] is not None and row["over_limits"] > 0
     assert row["unstable"] >= row["over_limits"]
@@ -43,19 +52,14 @@ def test_poses_over_a_limit_are_unstable_and_counted(hrp5p):
     assert with_limits["limits"] == "effort and grip"
 
 
-def test_over_limits_polls_the_cancel_between_batches_and_counts_the_same(hrp5p, monkeypatch):
+def test_over_limits_polls_the_cancel_between_batches_and_counts_the_same(weak_survey, monkeypatch):
     """A long seed's poses go through the limits in batches with the cancel polled before each: the count does
     not depend on the batch size, and a cancel stops the count with :class:`Canceled`."""
-    import pytest
-
     from planner.errors import Canceled
     from planner.survey import limits as survey_limits
 
-    sc = _scenario()
-    weak = dataclasses.replace(hrp5p, spec=hrp5p.spec.model_copy(
-        update={"effort_limits": {**hrp5p.spec.effort_limits, "RWRP": 12.0}}))
+    sc, weak, _, out = weak_survey
     task = Task(sc, robot=weak)
-    _, out = run_survey(sc, states=150, hands=["right-right"], workers=1, task=task)
     o = out[0]
     whole = survey_limits.over_limits(task.limits, o.q, o.holding, o.object_pose)
     assert whole > 0 and len(o.q) > 3 * 7

@@ -54,6 +54,7 @@ from planner.regrasp.timing.runs import Run, is_planned, runs_of, waypoints_of
 from planner.regrasp.timing.settings import PlanTimingSettings
 from planner.regrasp.timing.stats import add_stats, stats_added, stats_copy
 from planner.stability.effort import EffortEvaluator
+from planner.termination import never
 
 METHOD = "topp-ra"
 
@@ -310,7 +311,7 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
             return result, (Counter(checker.counters) - counts) if in_child else Counter()
 
         waiting = None if idle is None else (lambda done: idle({i: r for i, (r, _) in done.items()}))
-        results, error = share_with_child(jobs, counted, lambda: False, waiting)
+        results, error = share_with_child(jobs, counted, never, waiting)
         for _, counts in results.values():
             checker.counters.update(counts)
         if error is not None:

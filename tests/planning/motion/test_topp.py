@@ -8,14 +8,13 @@ from types import SimpleNamespace
 import numpy as np
 import pinocchio as pin
 import pytest
+import toppra.constraint
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from planner.motion.timing import zmp_cart_table
-import toppra.constraint
 from toppra.constraint import DiscretizationType
 from toppra.constraint.linear_constraint import canlinear_colloc_to_interpolate
 
+from planner.motion.timing import zmp_cart_table
 from planner.motion.topp import BlendedPath, LinearRows, SplinePath, gridpoints_for, parameterize, profile_times
 from planner.regrasp.plan_assembly import MotionPiece
 from planner.regrasp.timing.plan_timer import PlanTimer
