@@ -11,6 +11,7 @@ from typing import Callable
 import numpy as np
 
 from planner.forking import helper_may_fork
+from planner.motion.corner_easing import eased
 from planner.motion.smoothing import SmoothingSettings, partial_shortcut, path_length, shortcut
 from planner.motion.task_space_vias import via_paths
 from planner.motion.trrt import plan_motion
@@ -79,11 +80,34 @@ class QuickerPaths:
         paths = self._quickest([self._shortened(Q, validity, rng, settings, weights) for Q in paths[:full]]
                                + paths[full:], weights)
         self.stats["shortened_s"] += path_length(P, weights) - path_length(paths[0], weights)
+        alone = Run([piece], holding, hold, None if hold is not None else current)
+        took = None
         if self.s.rank_by_timing and len(paths) > 1:  # the shortened quickest among the others, by their timing
-            alone = Run([piece], holding, hold, None if hold is not None else current)
             took = [self._estimated_time(Q, alone) for Q in paths]
-            paths = [paths[i] for i in sorted(range(len(paths)), key=lambda i: (took[i], i))]
+            order = sorted(range(len(paths)), key=lambda i: (took[i], i))
+            paths, took = [paths[i] for i in order], [took[i] for i in order]
+        if self.s.corner_easing_sweeps and len(paths[0]) > 2:
+            paths = self._with_eased(paths, None if took is None else took[0], alone, validity)
         return paths
+
+    def _with_eased(self, paths: list[np.ndarray], took: float | None, alone: Run, validity) -> list[np.ndarray]:
+        """``paths`` with the first one's corners eased (:func:`planner.motion.corner_easing.eased`) put before it:
+        each move judged by the path's TOPP-RA time on the ranking's coarse grid, blended as a run is (the piece
+        alone, ``alone``, from rest to rest), its changed segments checked every ``shortcut_check_rad``; the eased
+        path kept where its estimated time, its blends checked first (:meth:`_estimated_time`), is less than the
+        first path's (``took``, where the ranking has it). The first path stays, the next alternative should the
+        eased one fail the checks of its samples."""
+        res = eased(paths[0], validity, lambda V: self._coarse_time(alone, V, np.full(len(V) - 2, self.s.blend_rad)),
+                    self.s.shortcut_check_rad, self.s.corner_easing_sweeps)
+        if not res.moves:
+            return paths
+        before = self._estimated_time(paths[0], alone) if took is None else took
+        after = self._estimated_time(res.path, alone)
+        if not after < before:
+            return paths
+        self.stats["eased_s"] += before - after
+        self.stats["easing_moves"] += res.moves
+        return [res.path] + paths
 
     def _each_planned(self, planned: list[int], paths_of, ready=None) -> dict[int, list[np.ndarray]]:
         """``paths_of(k)`` for each planned piece k, in this process and one forked helper at once where the task's

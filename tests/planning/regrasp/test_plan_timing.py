@@ -115,7 +115,7 @@ def test_a_motions_paths_are_ranked_by_their_timing_not_by_the_time_at_the_veloc
 
     monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [stairs, one_turn])
     monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
-    plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0)
+    plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0, corner_easing_sweeps=0)  # the ranking alone
     ranked = PlanTimer(task, PlanTimingSettings(**plain), 1.0, task.threshold_m, 0.005).alternatives(pieces)
     assert np.array_equal(ranked[0][k].path, one_turn) and np.array_equal(ranked[1][k].path, stairs)
     unranked = PlanTimer(task, PlanTimingSettings(rank_by_timing=False, **plain), 1.0, task.threshold_m,
@@ -180,7 +180,7 @@ def test_the_ranking_times_a_path_with_the_blends_its_checks_leave_it(solved, mo
     monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
     checker = timer.checker  # the one with the obstacle, for the timer below too
     monkeypatch.setattr(PlanTimer, "checker", property(lambda self: checker))
-    plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0, corner_push=False)
+    plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0, corner_push=False, corner_easing_sweeps=0)
     ranked = PlanTimer(task, PlanTimingSettings(**plain), 1.0, task.threshold_m, 0.005).alternatives(pieces)
     assert np.array_equal(ranked[0][k].path, clear) and np.array_equal(ranked[1][k].path, hugging)
 
@@ -576,7 +576,7 @@ def test_every_path_of_a_motion_is_partially_shortcut_before_the_ranking(solved,
     monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
 
     def alternatives(**settings):
-        timing = PlanTimingSettings(shortcut_iterations=0, rank_by_timing=False, **settings)
+        timing = PlanTimingSettings(shortcut_iterations=0, rank_by_timing=False, corner_easing_sweeps=0, **settings)
         return PlanTimer(task, timing, 1.0, task.threshold_m, 0.005).alternatives(pieces)
 
     levels = alternatives()
@@ -602,3 +602,37 @@ def test_the_alternatives_are_the_seeds(solved):
         for p, q in zip(a, b):
             assert (p.path is None) == (q.path is None)
             assert p.path is None or np.array_equal(p.path, q.path)
+
+
+def test_a_motions_best_path_is_eased_where_that_makes_it_quicker(solved, monkeypatch):
+    """A motion's own path, with a zig-zag of the idle left elbow added (three waypoints swung out and back): its
+    corners cost time. With corner easing the eased path comes first, the same ends, every state of it valid by the
+    task's own checks (densely, here), quicker by the ranking's estimate, and the path it came from second; without
+    easing, that path is first (the test's control)."""
+    from planner.motion.interpolation import densify
+
+    task, pieces = solved
+    k = next(i for i, p in enumerate(pieces) if p.path is not None and len(p.path) > 2)
+    own = np.asarray(pieces[k].path, dtype=float)
+    j = task.robot.joint_index("LEP")
+    assert np.ptp(own[:, j]) == 0.0  # the right hand's motion: the left elbow stays
+    zigzag = _detour(_detour(own, j, 0.3), j, -0.3)
+    monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [zigzag])
+    monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
+
+    def timer(**settings):
+        return PlanTimer(task, PlanTimingSettings(shortcut_iterations=0, partial_shortcut_iterations=0, **settings),
+                         1.0, task.threshold_m, 0.005)
+
+    easing = timer()
+    levels = easing.alternatives(pieces)
+    assert len(levels) == 2 and np.array_equal(levels[1][k].path, zigzag)
+    eased = levels[0][k].path
+    assert np.array_equal(eased[0], own[0]) and np.array_equal(eased[-1], own[-1]) and eased.shape == zigzag.shape
+    assert not np.array_equal(eased, zigzag) and easing.stats["easing_moves"] > 0
+    alone = Run([pieces[k]], "none", None, task.placements[task.start_id])
+    assert easing._estimated_time(eased, alone) < easing._estimated_time(zigzag, alone) - 0.05
+    validity = easing.checker.validity(None, task.placements[task.start_id], None)
+    assert validity(densify(eased, 0.005))[0].all()
+    control = timer(corner_easing_sweeps=0).alternatives(pieces)
+    assert len(control) == 1 and np.array_equal(control[0][k].path, zigzag)
