@@ -86,28 +86,38 @@ class QuickerPaths:
             took = [self._estimated_time(Q, alone) for Q in paths]
             order = sorted(range(len(paths)), key=lambda i: (took[i], i))
             paths, took = [paths[i] for i in order], [took[i] for i in order]
-        if self.s.corner_easing_sweeps and len(paths[0]) > 2:
-            paths = self._with_eased(paths, None if took is None else took[0], alone, validity)
+        if self.s.corner_easing_sweeps:
+            paths = self._with_eased(paths, took, alone, validity)
         return paths
 
-    def _with_eased(self, paths: list[np.ndarray], took: float | None, alone: Run, validity) -> list[np.ndarray]:
-        """``paths`` with the first one's corners eased (:func:`planner.motion.corner_easing.eased`) put before it:
-        each move judged by the path's TOPP-RA time on the ranking's coarse grid, blended as a run is (the piece
-        alone, ``alone``, from rest to rest), its changed segments checked every ``shortcut_check_rad``; the eased
-        path kept where its estimated time, its blends checked first (:meth:`_estimated_time`), is less than the
-        first path's (``took``, where the ranking has it). The first path stays, the next alternative should the
-        eased one fail the checks of its samples."""
-        res = eased(paths[0], validity, lambda V: self._coarse_time(alone, V, np.full(len(V) - 2, self.s.blend_rad)),
-                    self.s.shortcut_check_rad, self.s.corner_easing_sweeps)
-        if not res.moves:
-            return paths
-        before = self._estimated_time(paths[0], alone) if took is None else took
-        after = self._estimated_time(res.path, alone)
-        if not after < before:
-            return paths
-        self.stats["eased_s"] += before - after
-        self.stats["easing_moves"] += res.moves
-        return [res.path] + paths
+    def _with_eased(self, paths: list[np.ndarray], took: list[float] | None, alone: Run,
+                    validity) -> list[np.ndarray]:
+        """``paths`` with the first ``eased_paths`` of them eased (:func:`planner.motion.corner_easing.eased`), each
+        eased path put just before the one it came from: each move judged by the path's TOPP-RA time on the
+        ranking's coarse grid, blended as a run is (the piece alone, ``alone``, from rest to rest), its changed
+        segments checked every ``shortcut_check_rad``; an eased path kept where its estimated time, its blends
+        checked first (:meth:`_estimated_time`), is less than its source's (``took``: the ranking's times of
+        ``paths``, which the eased ones then join in order of those times). The source stays, the next alternative
+        should the eased one fail the checks of its samples."""
+        out, times = [], []
+        for i, Q in enumerate(paths):
+            before = took[i] if took is not None else None
+            if i < self.s.eased_paths and len(Q) > 2:
+                res = eased(Q, validity, lambda V: self._coarse_time(alone, V, np.full(len(V) - 2, self.s.blend_rad)),
+                            self.s.shortcut_check_rad, self.s.corner_easing_sweeps)
+                if res.moves:
+                    before = self._estimated_time(Q, alone) if before is None else before
+                    after = self._estimated_time(res.path, alone)
+                    if after < before:
+                        self.stats["eased_s"] += before - after
+                        self.stats["easing_moves"] += res.moves
+                        out.append(res.path)
+                        times.append(after)
+            out.append(Q)
+            times.append(before)
+        if took is None:
+            return out
+        return [out[i] for i in sorted(range(len(out)), key=lambda i: (times[i], i))]
 
     def _each_planned(self, planned: list[int], paths_of, ready=None) -> dict[int, list[np.ndarray]]:
         """``paths_of(k)`` for each planned piece k, in this process and one forked helper at once where the task's

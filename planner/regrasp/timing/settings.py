@@ -32,6 +32,8 @@ class PlanTimingSettings(BaseModel):
                                       "midpoint where its coarse TOPP-RA time falls and the changed segments pass "
                                       "the checks every shortcut_check_rad (planner/motion/corner_easing.py); the "
                                       "eased path goes first where its estimated time is less (0: none)")
+    eased_paths: int = Field(1, ge=1, description="the best-ranked paths of each planned motion whose corners are "
+                             "eased (corner_easing_sweeps), each eased path ranked with the others")
     alternatives: int = Field(4, ge=1, description="quickest paths of each planned motion kept, tried in order when "
                               "a quicker one fails the dense checks of its samples")
     replan_shortcut_iterations: int = Field(60, ge=0, description="random shortcuts of each replanned motion before "
