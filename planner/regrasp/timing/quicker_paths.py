@@ -1,6 +1,6 @@
 """Quicker paths for each planned motion of a solved plan: more T-RRT runs between its ends, paths through task-space
 vias of the moving hand, each shortened by random and partial shortcuts in the time metric, ranked by their TOPP-RA
-time; shared between this process and a forked helper, each motion drawing from its own seeded stream so that the
+time, the best one's corners eased; shared between this process and a forked helper, each motion drawing from its own seeded stream so that the
 paths do not depend on which process made them."""
 
 from __future__ import annotations
@@ -41,8 +41,9 @@ class QuickerPaths:
         segment is checked by the task's state checker, a replan's at the search's resolution and the full
         shortening's every ``shortcut_check_rad``. The ``alternatives`` quickest at the velocity limits are kept; with
         ``rank_by_timing`` they are then ranked by their TOPP-RA time on a coarse grid (:meth:`_estimated_time`),
-        the corners and the balance included. The motions are worked on in this process and a forked helper at
-        once (:meth:`_each_planned`)."""
+        the corners and the balance included, and the best's corners eased (``corner_easing_sweeps``,
+        :meth:`_with_eased`). The motions are worked on in this process and a forked helper at once
+        (:meth:`_each_planned`)."""
         per_piece = self._quicker(pieces)
         levels = max(len(a) for a in per_piece) if per_piece else 0
         return [[a[min(k, len(a) - 1)] for a in per_piece] for k in range(levels)]
@@ -103,7 +104,8 @@ class QuickerPaths:
         for i, Q in enumerate(paths):
             before = took[i] if took is not None else None
             if i < self.s.eased_paths and len(Q) > 2:
-                res = eased(Q, validity, lambda V: self._coarse_time(alone, V, np.full(len(V) - 2, self.s.blend_rad)),
+                res = eased(Q, validity,
+                            lambda V: self._coarse_time(alone, V, np.full(len(V) - 2, self.s.blend_rad)),
                             self.s.shortcut_check_rad, self.s.corner_easing_sweeps)
                 if res.moves:
                     before = self._estimated_time(Q, alone) if before is None else before

@@ -27,11 +27,12 @@ class PlanTimingSettings(BaseModel):
     vias: ViaSettings = Field(default_factory=ViaSettings, description="paths through one or two task-space via "
                               "postures of the moving hand, added to each one-hand motion's replans (the quick way "
                               "around the table's edge that T-RRT seldom finds; keep 0: none)")
-    corner_easing_sweeps: int = Field(6, ge=0, description="passes of corner easing over the best-ranked path of each "
-                                      "planned motion: interior waypoints moved part of the way to their neighbours' "
-                                      "midpoint where its coarse TOPP-RA time falls and the changed segments pass "
-                                      "the checks every shortcut_check_rad (planner/motion/corner_easing.py); the "
-                                      "eased path goes first where its estimated time is less (0: none)")
+    corner_easing_sweeps: int = Field(6, ge=0, description="passes of corner easing over the eased_paths "
+                                      "best-ranked paths of each planned motion: interior waypoints moved part of "
+                                      "the way to their neighbours' midpoint where the path's coarse TOPP-RA time "
+                                      "falls and the changed segments pass the checks every shortcut_check_rad "
+                                      "(planner/motion/corner_easing.py); an eased path is ranked with the others "
+                                      "where its estimated time is less than its source's, which stays (0: none)")
     eased_paths: int = Field(1, ge=1, description="the best-ranked paths of each planned motion whose corners are "
                              "eased (corner_easing_sweeps), each eased path ranked with the others")
     alternatives: int = Field(4, ge=1, description="quickest paths of each planned motion kept, tried in order when "
