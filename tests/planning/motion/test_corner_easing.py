@@ -12,6 +12,8 @@ from planner.motion.corner_easing import eased
 from planner.motion.interpolation import densify
 from planner.motion.topp import BlendedPath, gridpoints_for, parameterize, profile_times
 
+from .over_the_wall import over_the_wall, wall
+
 VLIM = np.array([1.0, 1.0, 2.0])
 ALIM = np.array([2.0, 2.0, 4.0])
 
@@ -24,19 +26,10 @@ def topp_time(W: np.ndarray) -> float:
     return float(profile_times(grid, sd)[-1]) if sd is not None else np.inf
 
 
-def wall(Q: np.ndarray, shrink: float = 0.0):
-    """A wall in joints 0-1: |q0 - 2| < 0.5 and q1 < 1 is invalid; a path must climb over it."""
-    Q = np.atleast_2d(Q)
-    return ~((np.abs(Q[:, 0] - 2.0) < 0.5 - shrink) & (Q[:, 1] < 1.0 - shrink)), np.ones(len(Q))
-
-
 def zigzag(rng: np.random.Generator) -> np.ndarray:
     """From x=0 to x=4 over the wall, the third joint zig-zagging."""
-    x = np.array([0.0, 0.8, 1.4, 2.0, 2.6, 3.2, 4.0])
-    y = np.array([0.0, 1.0, 1.1, 1.15, 1.1, 1.0, 0.0])
-    z = rng.uniform(-0.6, 0.6, len(x))
-    z[0] = z[-1] = 0.0
-    return np.column_stack([x, y, z])
+    return over_the_wall(rng, np.array([0.0, 0.8, 1.4, 2.0, 2.6, 3.2, 4.0]),
+                         np.array([0.0, 1.0, 1.1, 1.15, 1.1, 1.0, 0.0]), 1, 0.6)
 
 
 @settings(max_examples=10, deadline=None)
