@@ -40,9 +40,10 @@ def eased(path: np.ndarray, validity: Validity, time_of: Callable[[np.ndarray], 
           sweeps: int) -> EasedPath:
     """``path`` (K, n) with its interior waypoints eased, in at most ``sweeps`` passes: the first over every interior
     waypoint, each next one over the waypoints beside a move the last one kept (the others' corners are as they
-    were when they were tried; a pass that keeps no move ends it). At each waypoint the steps of :data:`EASING_STEPS` are tried largest first; the first that
-    ``time_of`` finds quicker by :data:`MIN_GAIN_S` and whose two changed segments pass ``validity`` (their states at
-    most ``resolution`` rad apart per joint) is kept."""
+    were when they were tried; a pass that keeps no move ends it). At each waypoint the steps of
+    :data:`EASING_STEPS` are tried largest first; the first that ``time_of`` finds quicker by :data:`MIN_GAIN_S` and
+    whose two changed segments pass ``validity`` (their states at most ``resolution`` rad apart per joint) is
+    kept."""
     P = np.asarray(path, dtype=float).copy()
     best = before = float(time_of(P))
     moves = evaluations = 0
