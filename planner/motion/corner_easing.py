@@ -38,21 +38,16 @@ class EasedPath:
 
 def eased(path: np.ndarray, validity: Validity, time_of: Callable[[np.ndarray], float], resolution: float,
           sweeps: int) -> EasedPath:
-    """``path`` (K, n) with its interior waypoints eased, in at most ``sweeps`` passes: the first over every interior
-    waypoint, each next one over the waypoints beside a move the last one kept (the others' corners are as they
-    were when they were tried; a pass that keeps no move ends it). At each waypoint the steps of
-    :data:`EASING_STEPS` are tried largest first; the first that ``time_of`` finds quicker by :data:`MIN_GAIN_S` and
-    whose two changed segments pass ``validity`` (their states at most ``resolution`` rad apart per joint) is
-    kept."""
+    """``path`` (K, n) with its interior waypoints eased, in at most ``sweeps`` passes over them (a pass that keeps
+    no move ends it). At each waypoint the steps of :data:`EASING_STEPS` are tried largest first; the first that
+    ``time_of`` finds quicker by :data:`MIN_GAIN_S` and whose two changed segments pass ``validity`` (their states at
+    most ``resolution`` rad apart per joint) is kept."""
     P = np.asarray(path, dtype=float).copy()
     best = before = float(time_of(P))
     moves = evaluations = 0
-    todo = set(range(1, len(P) - 1))  # the waypoints whose corner, or a neighbour's, changed since they were tried
-    for _ in range(sweeps):
-        if not todo:
-            break
-        again: set[int] = set()
-        for i in sorted(todo):
+    for _ in range(sweeps if len(P) > 2 else 0):
+        moved = False
+        for i in range(1, len(P) - 1):
             toward = 0.5 * (P[i - 1] + P[i + 1]) - P[i]
             for step in EASING_STEPS:
                 U = P.copy()
@@ -63,9 +58,9 @@ def eased(path: np.ndarray, validity: Validity, time_of: Callable[[np.ndarray], 
                     continue
                 changed = np.vstack([edge_states(U[i - 1], U[i], resolution), edge_states(U[i], U[i + 1], resolution)])
                 if all_valid_coarse_to_fine([changed], validity)[0]:
-                    P, best = U, took
+                    P, best, moved = U, took, True
                     moves += 1
-                    again.update(j for j in (i - 1, i, i + 1) if 0 < j < len(P) - 1)
                     break
-        todo = again
+        if not moved:
+            break
     return EasedPath(path=P, time_before_s=before, time_after_s=best, moves=moves, evaluations=evaluations)
