@@ -182,7 +182,9 @@ def _bridge_process(srv: Server, controller_port: int) -> int:
 def test_a_frozen_bridge_process_records_the_controllers_own_stop(tmp_path: Path) -> None:
     """The server's bridge process is frozen (SIGSTOP) mid-execution for longer than the controller's dead-man and
     the zenoh lease: the controller stops by itself while nobody listens. On SIGCONT the job ends aborted with the
-    controller's own reason (its dead-man), within 1 s of the resume."""
+    controller's own reason, within 1 s of the resume: its dead-man (no heartbeat), or its starvation where the
+    segments it had been sent ran out first (which comes first depends on how far ahead the dispatcher had sent when
+    it froze; both are the controller's own stop)."""
     port = free_port()
     srv = Server(tmp_path, workers=1, bridge_port=port).start()
     proc = start_controller_sim(srv.data_dir, port, speed=1)
@@ -206,7 +208,8 @@ def test_a_frozen_bridge_process_records_the_controllers_own_stop(tmp_path: Path
                 resumed = datetime.now(timezone.utc)
             done = wait_state(bob, job_id, END_STATES, timeout=30)
             assert done["state"] == "aborted", (done["message"], done["error"])
-            assert done["error"]["message"].startswith("controller stopped: dead-man"), done["error"]
+            assert done["error"]["message"].startswith(("controller stopped: dead-man", "controller starved:")), \
+                done["error"]
             aborted = next(e for e in job_events(bob, job_id) if e["kind"] == "state" and e["state"] == "aborted")
         assert (datetime.fromisoformat(aborted["at"]) - resumed).total_seconds() < 1.0
     finally:
