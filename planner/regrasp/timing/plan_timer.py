@@ -106,7 +106,10 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         #: the last line of each failed helper's error (its work then done here), kept apart from the stats, which a
         #: first timing's replay would drop: ``stats.timing.helper_errors`` when there is one
         self.helper_errors: list[str] = []
-        self.stats = {"merged_runs": 0, "merged_refused": 0, "shortened_s": 0.0, "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0, "corners_pushed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0, "eased_s": 0.0, "easing_moves": 0, "spline_runs": 0, "dense_failures": []}
+        self.stats = {"merged_runs": 0, "merged_refused": 0, "shortened_s": 0.0, "alternatives_dropped": 0,
+                      "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0,
+                      "corners_pushed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0,
+                      "eased_s": 0.0, "easing_moves": 0, "spline_runs": 0, "dense_failures": []}
 
     @property
     def checker(self) -> StateChecker:

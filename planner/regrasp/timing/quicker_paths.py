@@ -1,7 +1,7 @@
 """Quicker paths for each planned motion of a solved plan: more T-RRT runs between its ends, paths through task-space
 vias of the moving hand, each shortened by random and partial shortcuts in the time metric, ranked by their TOPP-RA
-time, the best one's corners eased; shared between this process and a forked helper, each motion drawing from its own seeded stream so that the
-paths do not depend on which process made them."""
+time, the best one's corners eased; shared between this process and a forked helper, each motion drawing from its
+own seeded stream so that the paths do not depend on which process made them."""
 
 from __future__ import annotations
 

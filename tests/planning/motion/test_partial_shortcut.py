@@ -16,7 +16,8 @@ from .over_the_wall import over_the_wall, wall
 
 def _path(rng: np.random.Generator) -> np.ndarray:
     """From x=0 to x=4 over the wall, with random detours of the other joints."""
-    return over_the_wall(rng, np.array([0.0, 1.0, 1.5, 2.5, 3.0, 4.0]), np.array([0.0, 1.2, 1.3, 1.3, 1.2, 0.0]), 2, 1.0)
+    return over_the_wall(rng, np.array([0.0, 1.0, 1.5, 2.5, 3.0, 4.0]), np.array([0.0, 1.2, 1.3, 1.3, 1.2, 0.0]),
+                         2, 1.0)
 
 
 @settings(max_examples=15, deadline=None)
