@@ -15,6 +15,7 @@ and what a shorter path (other key postures) could still win. It is the floor of
 along the spline of its waypoints cuts their corners and can come in under it.
 
     python benchmarks/bench_timing.py --scenario upright --hands left-left
+    python benchmarks/bench_timing.py --scenario staggered --hands left-left --seed 2
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from planner.regrasp.hand_config_planner import HandConfigPlanner
 from planner.regrasp.plan_assembly import MotionPiece, assemble
 from planner.regrasp.timing.plan_timer import PlanTimer
 from planner.regrasp.timing.runs import Run, runs_of, waypoints_of
-from planner.scene.scenarios import load_builtin
+from planner.scene.scenarios import load_builtin, with_overrides
 
 DT = 0.005
 
@@ -99,12 +100,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="upright")
     ap.add_argument("--hands", default="left-left")
+    ap.add_argument("--seed", type=int, default=None, help="over the scenario's own seed")
     ap.add_argument("--jerk-per-accel", type=float, default=5.0, help="ruckig's jerk limit as a multiple of the "
                     "acceleration limit, 1/s (the robot's spec gives none)")
     ap.add_argument("--shaping", type=float, nargs="+", default=[0.0, 0.1, 0.4, 0.83],
                     help="moving-average windows of the plan timing to compare, s (0.83 s: one period of a 1.2 Hz sway)")
     args = ap.parse_args()
     scenario = load_builtin(args.scenario)
+    if args.seed is not None:
+        scenario = with_overrides(scenario, seed=args.seed)
     task = build_task(scenario)
     res = HandConfigPlanner(task, args.hands).plan()
     if res.status != "solved":

@@ -106,10 +106,10 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         #: the last line of each failed helper's error (its work then done here), kept apart from the stats, which a
         #: first timing's replay would drop: ``stats.timing.helper_errors`` when there is one
         self.helper_errors: list[str] = []
-        self.stats = {"merged_runs": 0, "merged_refused": 0, "shortened_s": 0.0, "alternatives_dropped": 0,
-                      "refused": [], "checked_samples": 0, "runs": 0, "blends": 0, "blends_removed": 0,
-                      "corners_pushed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0, "via_paths": 0,
-                      "eased_s": 0.0, "easing_moves": 0, "spline_runs": 0, "dense_failures": []}
+        self.stats = {"merged_runs": 0, "merged_refused": 0, "merged_slower": 0, "shortened_s": 0.0,
+                      "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0,
+                      "blends_removed": 0, "corners_pushed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0,
+                      "via_paths": 0, "eased_s": 0.0, "easing_moves": 0, "spline_runs": 0, "dense_failures": []}
 
     @property
     def checker(self) -> StateChecker:
@@ -227,20 +227,21 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         return False
 
     def _time_runs(self, originals: list[Run], levels: list[list[Run]]) -> tuple[list[MotionPiece], float]:
-        """Each run timed: its quickest alternative whose samples pass, else the search's own path at last, each
-        tried first with both arms at once where it has two arms' motions that can share it (``concurrent_arms``:
-        :meth:`_with_merged`); the timed pieces and the time the whole-period rounding and the speed scale add.
-        ``merged_runs`` counts the runs kept with both arms at once, ``merged_refused`` the merged tries whose
-        samples failed, ``alternatives_dropped`` the one-arm-after-the-other ones."""
+        """Each run timed: its quickest alternative whose samples pass, else the search's own path at last, tried
+        with both arms at once too where it has two arms' motions that can share it (``concurrent_arms``:
+        :meth:`_with_merged`, :meth:`_kept_try`); the timed pieces and the time the whole-period rounding and the
+        speed scale add. ``merged_runs`` counts the runs kept with both arms at once, ``merged_refused`` the merged
+        tries whose samples failed, ``merged_slower`` the runs whose first merged try that passed was slower than
+        the arms one after the other, ``alternatives_dropped`` the one-arm-after-the-other tries whose samples
+        failed before the one kept."""
         out: list[MotionPiece] = []
         slack = 0.0
         tries_of = [self._tries(r, original, levels) for r, original in enumerate(originals)]
-        self._time_shared([tries for tries, _ in tries_of])
+        self._time_shared(tries_of)
         for original, (tries, merged) in zip(originals, tries_of):
             self.stats["runs"] += 1
-            k, timed = self._first_timed(tries)
-            self.stats["merged_refused"] += min(k, merged)
-            self.stats["merged_runs"] += int(timed is not None and k < merged)
+            k, timed, refused = self._kept_try(tries, merged)
+            self.stats["merged_refused"] += refused[0]
             if timed is None:
                 run = original
                 self.stats["fallback_runs"] += 1
@@ -249,11 +250,29 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
                     self.stats["dense_failures"].append(bad)
                 out.extend(run.pieces)
                 continue
-            self.stats["alternatives_dropped"] += max(k - merged, 0)
+            self.stats["alternatives_dropped"] += refused[1]
+            self.stats["merged_runs"] += int(k < merged)
+            self.stats["merged_slower"] += int(k >= merged and refused[0] < merged)
             Qs, full, actual = timed
             slack += actual - full
             out.extend(replace(p, waypoints=Q) for p, Q in zip(tries[k].pieces, Qs))
         return out, slack
+
+    def _kept_try(self, tries: list[Run], merged: int
+                  ) -> tuple[int, tuple[list[np.ndarray], float, float] | None, tuple[int, int]]:
+        """Which of a run's tries is kept (the first ``merged`` of them with both arms at once, :meth:`_tries`): the
+        first merged one whose samples pass, unless the first one-arm-after-the-other try that passes is quicker
+        (moving both arms at once is meant to save time; a merge that passes only on a slower path or a later lead
+        can cost it), else the first that passes. Its index, its timing (None: none passed) and how many merged and
+        one-arm tries were refused on the way (:meth:`_first_timed`)."""
+        k, timed = self._first_timed(tries[:merged])
+        if timed is None:
+            u, timed = self._first_timed(tries[merged:])
+            return merged + u, timed, (merged, u)
+        u, alone = self._first_timed(tries[merged:])
+        if alone is not None and alone[2] < timed[2]:
+            return merged + u, alone, (k, u)
+        return k, timed, (k, 0)
 
     def _tries(self, r: int, original: Run, levels: list[list[Run]]) -> tuple[list[Run], int]:
         """Run r's alternatives in the order they are timed (each level's path once, the search's own path last, each
@@ -273,28 +292,28 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         tries = self._with_merged(tries)
         return tries, len(tries) - unmerged
 
-    def _time_shared(self, tries_of: list[list[Run]]) -> None:
-        """Each run's first timing (:meth:`_first_timed` of its tries) worked out in this process and a forked
-        helper at once (:meth:`_with_helper`), where the task's ``parallel_motions`` allows it, forking is safe and a
-        second core exists; kept (:meth:`_once`, the stats here left alone) for the pass of :meth:`_time_runs` that
-        follows, which then finds them timed. The same results either way: a run's timing depends on the run and the
-        reserve's cap alone, and what the helper computed is kept here as this process would have kept it. Where the
-        helper fails, the pass times its runs itself."""
-        todo = [tries for tries in tries_of if self._kept_now(("run", id(tries[0]))) is None]
+    def _time_shared(self, tries_of: list[tuple[list[Run], int]]) -> None:
+        """Each run's timings (:meth:`_kept_try` of its tries and their merged count, :meth:`_tries`) worked out in
+        this process and a forked helper at once (:meth:`_with_helper`), where the task's ``parallel_motions``
+        allows it, forking is safe and a second core exists; kept (:meth:`_once`, the stats here left alone) for the
+        pass of :meth:`_time_runs` that follows, which then finds them timed. The same results either way: a run's
+        timing depends on the run and the reserve's cap alone, and what the helper computed is kept here as this
+        process would have kept it. Where the helper fails, the pass times its runs itself."""
+        todo = [(tries, merged) for tries, merged in tries_of if self._kept_now(("run", id(tries[0]))) is None]
         if not (len(todo) > 1 and helper_may_fork(self.task.settings.parallel_motions)):
             return
 
-        def work(tries: list[Run], in_child: bool) -> dict | None:
+        def work(job: tuple[list[Run], int], in_child: bool) -> dict | None:
             before = dict(self._kept) if in_child else None  # the helper sends back what it kept anew
             saved, self.stats = self.stats, stats_copy(self.stats)
             try:
-                self._first_timed(tries)
+                self._kept_try(*job)
             finally:
                 self.stats = saved
             return None if before is None else {key: v for key, v in self._kept.items() if before.get(key) is not v}
 
         # the longest runs first, so that neither process is left with one of them at the end
-        todo.sort(key=lambda tries: -sum(len(p.joint_path()) for p in tries[0].pieces))
+        todo.sort(key=lambda job: -sum(len(p.joint_path()) for p in job[0][0].pieces))
         for kept in self._with_helper(todo, work).values():
             if kept is not None:
                 self._kept.update(kept)

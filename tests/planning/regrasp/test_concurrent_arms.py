@@ -1,11 +1,13 @@
 """Both arms at once around a handover: the merged path does each arm's own motion at its own pace, takes the time
 of the longer one (not their sum) at the velocity limits, and is made only of two arms' motions that can share it;
-a handover plan timed with it is quicker, rests where the hands change what they hold, and passes the independent
-plan checker and the safety gate."""
+a merged run is kept only where it is quicker than the arms one after the other; a handover plan timed with it is
+quicker, rests where the hands change what they hold, and passes the independent plan checker and the safety
+gate."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,6 +18,8 @@ from plan_checker import check_plan
 from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.motion.smoothing import path_length
 from planner.regrasp.timing.concurrent_arms import both_at_once, may_merge, merged_pieces
+from planner.regrasp.timing.plan_timer import PlanTimer
+from planner.regrasp.timing.settings import PlanTimingSettings
 from planner.regrasp.plan_assembly import MotionPiece
 from planner.regrasp.timing.runs import off_path
 from planner.regrasp.settings import PlannerSettings
@@ -108,3 +112,48 @@ def test_a_handover_plan_moves_both_arms_at_once_and_passes_the_checker_and_the_
     assert check_plan(plan).errors == []
     verdict = SafetyGate().check(plan, offline=True)
     assert verdict.passed, verdict.message
+
+
+class _Timings(PlanTimer):
+    """A plan timer whose runs' timings are given (``durations[i]``: run i's duration, None where its samples fail
+    the checks), to test which try is kept apart from the timing itself."""
+
+    def __init__(self, durations: list[float | None]):
+        robot = SimpleNamespace(velocity_limit=np.ones(N), acceleration_limit=np.ones(N))
+        task = SimpleNamespace(robot=robot, limits=None, constrained=True, evaluator=SimpleNamespace(threshold_m=0.05))
+        super().__init__(task, PlanTimingSettings(), 1.0, 0.05, 0.005)
+        self.durations = durations
+        self.timed: list[int] = []
+
+    def time_run(self, run):
+        self.timed.append(run)
+        d = self.durations[run]
+        return None if d is None else ([np.zeros((2, N))], d, d)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.one_of(st.none(), st.floats(0.5, 10.0)), min_size=1, max_size=12).flatmap(
+    lambda d: st.tuples(st.just(d), st.integers(0, len(d)))))
+def test_a_merged_run_is_kept_only_where_it_is_quicker_than_the_arms_one_after_the_other(case):
+    durations, merged = case
+    timer = _Timings(durations)
+    tries = list(range(len(durations)))  # run i is try i; the first `merged` of them both arms at once
+    k, timed, (merged_refused, alone_refused) = timer._kept_try(tries, merged)
+    first_merged = next((i for i in range(merged) if durations[i] is not None), None)
+    first_alone = next((i for i in range(merged, len(durations)) if durations[i] is not None), None)
+    passed = [i for i in (first_merged, first_alone) if i is not None]
+    if not passed:
+        assert timed is None and merged_refused == merged
+        return
+    # the kept try passed, and is the quicker of the first merged and the first one-arm try that pass (the merged
+    # one on a tie)
+    assert k in passed and timed[2] == durations[k]
+    assert durations[k] == min(durations[i] for i in passed)
+    if first_merged is not None and first_alone is not None and durations[first_alone] >= durations[first_merged]:
+        assert k == first_merged
+    # the refusals counted are the failed tries before the first passing one of each family that was looked at
+    assert merged_refused == (first_merged if first_merged is not None else merged)
+    assert alone_refused == (k - merged if k >= merged else 0)
+    # no try beyond the first passing one of each family is timed
+    assert set(timer.timed) == set(range(first_merged + 1 if first_merged is not None else merged)) | set(
+        range(merged, (first_alone + 1) if first_alone is not None else len(durations)))
