@@ -261,18 +261,25 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
     def _kept_try(self, tries: list[Run], merged: int
                   ) -> tuple[int, tuple[list[np.ndarray], float, float] | None, tuple[int, int]]:
         """Which of a run's tries is kept (the first ``merged`` of them with both arms at once, :meth:`_tries`): the
-        first merged one whose samples pass, unless the first one-arm-after-the-other try that passes is quicker
-        (moving both arms at once is meant to save time; a merge that passes only on a slower path or a later lead
-        can cost it), else the first that passes. Its index, its timing (None: none passed) and how many merged and
-        one-arm tries were refused on the way (:meth:`_first_timed`)."""
+        first merged one whose samples pass, unless it is a merge of another path than the first one-arm try's (the
+        best-ranked path's merges all failed) and the first one-arm-after-the-other try that passes is quicker; else
+        the first that passes. At the velocity limits a merge of a path takes no longer than the path's arms one
+        after the other (the second arm starts sooner), but a merge of a slower path can take longer than the best
+        path with the arms one after the other. Its index, its timing (None: none passed) and how many merged and one-arm tries were
+        refused on the way (:meth:`_first_timed`)."""
         k, timed = self._first_timed(tries[:merged])
         if timed is None:
             u, timed = self._first_timed(tries[merged:])
             return merged + u, timed, (merged, u)
-        u, alone = self._first_timed(tries[merged:])
-        if alone is not None and alone[2] < timed[2]:
-            return merged + u, alone, (k, u)
+        if not self._merges_of(tries[merged], tries[k]):
+            u, alone = self._first_timed(tries[merged:])
+            if alone is not None and alone[2] < timed[2]:
+                return merged + u, alone, (k, u)
         return k, timed, (k, 0)
+
+    def _merges_of(self, run: Run, merged: Run) -> bool:
+        """Whether ``merged`` is ``run`` with both arms at once (:meth:`_both_arms`), at any lead."""
+        return any(self._merged.get((id(run), lead)) is merged for lead in LEADS)
 
     def _tries(self, r: int, original: Run, levels: list[list[Run]]) -> tuple[list[Run], int]:
         """Run r's alternatives in the order they are timed (each level's path once, the search's own path last, each

@@ -1,8 +1,8 @@
 """Both arms at once around a handover: the merged path does each arm's own motion at its own pace, takes the time
 of the longer one (not their sum) at the velocity limits, and is made only of two arms' motions that can share it;
-a merged run is kept only where it is quicker than the arms one after the other; a handover plan timed with it is
-quicker, rests where the hands change what they hold, and passes the independent plan checker and the safety
-gate."""
+a merge of a slower path than the best-ranked one is kept only where it is quicker than that path with the arms one
+after the other; a handover plan timed with it is quicker, rests where the hands change what they hold, and passes
+the independent plan checker and the safety gate."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from plan_checker import check_plan
 
 from planner.jobs.plan_job import PlanOptions, plan_scenario
 from planner.motion.smoothing import path_length
-from planner.regrasp.timing.concurrent_arms import both_at_once, may_merge, merged_pieces
+from planner.regrasp.timing.concurrent_arms import LEADS, both_at_once, may_merge, merged_pieces
 from planner.regrasp.timing.plan_timer import PlanTimer
 from planner.regrasp.timing.settings import PlanTimingSettings
 from planner.regrasp.plan_assembly import MotionPiece
@@ -115,45 +115,53 @@ def test_a_handover_plan_moves_both_arms_at_once_and_passes_the_checker_and_the_
 
 
 class _Timings(PlanTimer):
-    """A plan timer whose runs' timings are given (``durations[i]``: run i's duration, None where its samples fail
-    the checks), to test which try is kept apart from the timing itself."""
+    """A plan timer whose runs' timings are given (``durations[i]``: try i's duration, None where its samples fail
+    the checks), to test which try is kept apart from the timing itself. The first ``of_best`` merged tries are
+    merges of the first one-arm try (the best-ranked path), at the first leads."""
 
-    def __init__(self, durations: list[float | None]):
+    def __init__(self, durations: list[float | None], merged: int, of_best: int):
         robot = SimpleNamespace(velocity_limit=np.ones(N), acceleration_limit=np.ones(N))
         task = SimpleNamespace(robot=robot, limits=None, constrained=True, evaluator=SimpleNamespace(threshold_m=0.05))
         super().__init__(task, PlanTimingSettings(), 1.0, 0.05, 0.005)
+        self.tries = [SimpleNamespace(index=i) for i in range(len(durations))]
+        for j in range(of_best):
+            self._merged[(id(self.tries[merged]), LEADS[j])] = self.tries[j]
         self.durations = durations
         self.timed: list[int] = []
 
     def time_run(self, run):
-        self.timed.append(run)
-        d = self.durations[run]
+        self.timed.append(run.index)
+        d = self.durations[run.index]
         return None if d is None else ([np.zeros((2, N))], d, d)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=300, deadline=None)
 @given(st.lists(st.one_of(st.none(), st.floats(0.5, 10.0)), min_size=1, max_size=12).flatmap(
-    lambda d: st.tuples(st.just(d), st.integers(0, len(d)))))
-def test_a_merged_run_is_kept_only_where_it_is_quicker_than_the_arms_one_after_the_other(case):
-    durations, merged = case
-    timer = _Timings(durations)
-    tries = list(range(len(durations)))  # run i is try i; the first `merged` of them both arms at once
-    k, timed, (merged_refused, alone_refused) = timer._kept_try(tries, merged)
+    lambda d: st.tuples(st.just(d), st.integers(0, len(d) - 1))).flatmap(
+    lambda dm: st.tuples(st.just(dm[0]), st.just(dm[1]), st.integers(0, min(dm[1], len(LEADS))))))
+def test_a_merge_of_a_slower_path_is_kept_only_where_it_is_quicker_than_the_best_path_one_arm_after_the_other(case):
+    durations, merged, of_best = case
+    timer = _Timings(durations, merged, of_best)
+    k, timed, (merged_refused, alone_refused) = timer._kept_try(timer.tries, merged)
     first_merged = next((i for i in range(merged) if durations[i] is not None), None)
     first_alone = next((i for i in range(merged, len(durations)) if durations[i] is not None), None)
-    passed = [i for i in (first_merged, first_alone) if i is not None]
-    if not passed:
+    timed_merged = set(range(first_merged + 1 if first_merged is not None else merged))
+    timed_alone = set(range(merged, (first_alone + 1) if first_alone is not None else len(durations)))
+    if first_merged is None and first_alone is None:
         assert timed is None and merged_refused == merged
         return
-    # the kept try passed, and is the quicker of the first merged and the first one-arm try that pass (the merged
-    # one on a tie)
-    assert k in passed and timed[2] == durations[k]
-    assert durations[k] == min(durations[i] for i in passed)
-    if first_merged is not None and first_alone is not None and durations[first_alone] >= durations[first_merged]:
-        assert k == first_merged
-    # the refusals counted are the failed tries before the first passing one of each family that was looked at
+    assert timed is not None and timed[2] == durations[k]
     assert merged_refused == (first_merged if first_merged is not None else merged)
-    assert alone_refused == (k - merged if k >= merged else 0)
-    # no try beyond the first passing one of each family is timed
-    assert set(timer.timed) == set(range(first_merged + 1 if first_merged is not None else merged)) | set(
-        range(merged, (first_alone + 1) if first_alone is not None else len(durations)))
+    if first_merged is None:  # no merge passed: the arms one after the other
+        assert k == first_alone and alone_refused == first_alone - merged
+        assert set(timer.timed) == timed_merged | timed_alone
+    elif first_merged < of_best:  # a merge of the best-ranked path: kept, the one-arm tries never timed
+        assert k == first_merged and alone_refused == 0
+        assert set(timer.timed) == timed_merged
+    else:  # a merge of a slower path: kept only where the best path one arm after the other is not quicker
+        passed = [i for i in (first_merged, first_alone) if i is not None]
+        assert durations[k] == min(durations[i] for i in passed)
+        assert k == (first_alone if first_alone is not None and durations[first_alone] < durations[first_merged]
+                     else first_merged)
+        assert alone_refused == (k - merged if k >= merged else 0)
+        assert set(timer.timed) == timed_merged | timed_alone
