@@ -68,9 +68,10 @@ def main() -> None:
           f"{'target s':>8s} {'met':>4s}")
     for name, ratios, timed in summary:
         n = len(ratios)
+        met = sum(t <= TARGET_S[name] for t in timed)
         print(f"{name:15s} {n:2d} {statistics.median(ratios):8.2f} ({min(ratios):.2f}-{max(ratios):.2f}) "
               f"{sum(r <= 0.5 for r in ratios):4d}/{n:<3d} {statistics.median(timed):10.2f} "
-              f"({min(timed):.2f}-{max(timed):.2f}) {TARGET_S[name]:8.2f} {sum(t <= TARGET_S[name] for t in timed):2d}/{n}")
+              f"({min(timed):.2f}-{max(timed):.2f}) {TARGET_S[name]:8.2f} {met:2d}/{n}")
 
 
 if __name__ == "__main__":

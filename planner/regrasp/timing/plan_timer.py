@@ -265,8 +265,8 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         best-ranked path's merges all failed) and the first one-arm-after-the-other try that passes is quicker; else
         the first that passes. At the velocity limits a merge of a path takes no longer than the path's arms one
         after the other (the second arm starts sooner), but a merge of a slower path can take longer than the best
-        path with the arms one after the other. Its index, its timing (None: none passed) and how many merged and one-arm tries were
-        refused on the way (:meth:`_first_timed`)."""
+        path with the arms one after the other. Its index, its timing (None: none passed) and how many merged and
+        one-arm tries were refused on the way (:meth:`_first_timed`)."""
         k, timed = self._first_timed(tries[:merged])
         if timed is None:
             u, timed = self._first_timed(tries[merged:])
