@@ -95,12 +95,16 @@ def validate_placement(task: Task, data: SearchData, node: PlacementNode, rng: n
 
 
 def validate_handover(task: Task, data: SearchData, node: HandoverNode, rng: np.random.Generator) -> Validation:
+    """The verdict on a handover node (the exchange's motions when valid). Where the exchange collides with the
+    giver posed as first solved (the taker's hand or arm against the giver's), up to
+    ``handover_giver_postures`` more giver postures are tried, each from a start of the giver's IK drawn uniformly
+    within the joint limits by the node's generator (a start near the first one returns it): the arm is redundant, and which elbow the first solve finds decides whether the taker
+    can reach in. The first verdict is returned when none passes."""
     t, d = task, data
-    giver, taker = node.giver, node.taker
-    gg, tg = t.grasps[giver][node.giver_grasp], t.grasps[taker][node.taker_grasp]
+    giver = node.giver
+    gg = t.grasps[giver][node.giver_grasp]
     T_obj = d.handover_poses(t)[node.pose].T_world_obj
     T_g = T_obj @ gg.T_obj_tcp
-    T_t = T_obj @ tg.T_obj_tcp
     # Arms without the waist first: a turning waist swings the idle arm into the table. With the
     # waist still the arms are independent, so the giver is solved and checked alone, once per
     # (pose, giver grasp): most handover nodes fail there (the object or the giver's arm
@@ -109,12 +113,40 @@ def validate_handover(task: Task, data: SearchData, node: HandoverNode, rng: np.
     if giver_key not in d.giver_at:
         q_g = solve_ik(t, d, giver, T_g, t.home, np.random.default_rng([t.seed, 2, *giver_key[:2], HANDS_INDEX[giver]]),
                          arm_only=True)
-        checked = None
-        if q_g is not None:
-            q_g[t.jaw[giver]] = gg.jaw_value
-            checked = steady_giver(t, d, giver, q_g, HoldSpec(giver, inverse(T_obj) @ t.tcp(q_g, giver)), T_obj)
-        d.giver_at[giver_key] = checked
-    checked = d.giver_at[giver_key]
+        d.giver_at[giver_key] = None if q_g is None else _checked_giver(t, d, node, q_g, T_obj)
+    first = _handover_from(t, d, node, d.giver_at[giver_key], rng)
+    if first.ok or first.cause != FailureCause.COLLISION or d.giver_at[giver_key] is None or d.giver_at[giver_key][2]:
+        return first  # not a collision, or the giver's first posture itself failed (the probes drop those nodes)
+    q_first = d.giver_at[giver_key][0]
+    active = t.ik_arm_only.active_indices((giver,))
+    for attempt in range(1, t.settings.handover_giver_postures + 1):
+        q_g = solve_ik(t, d, giver, T_g, t.ik_arm_only.attempt_start(attempt, t.home, active, rng), rng, arm_only=True)
+        if q_g is None or np.abs(q_g[active] - q_first[active]).max() < 1e-3:
+            continue  # out of reach from there, or the first posture again
+        checked = _checked_giver(t, d, node, q_g, T_obj)
+        if checked[2] is None:
+            d.counters["handover_giver_postures"] += 1
+            v = _handover_from(t, d, node, checked, rng)
+            if v.ok:
+                return v
+    return first
+
+
+def _checked_giver(t: Task, d: SearchData, node: HandoverNode, q_g: np.ndarray, T_obj: np.ndarray) -> tuple:
+    """The giver alone at the handover pose in posture ``q_g`` (jaw closed on its grasp), checked: ``(q, hold,
+    cause, margin)`` (:func:`planner.regrasp.probes.steady_giver`)."""
+    q_g[t.jaw[node.giver]] = t.grasps[node.giver][node.giver_grasp].jaw_value
+    return steady_giver(t, d, node.giver, q_g, HoldSpec(node.giver, inverse(T_obj) @ t.tcp(q_g, node.giver)), T_obj)
+
+
+def _handover_from(t: Task, d: SearchData, node: HandoverNode, checked: tuple | None, rng: np.random.Generator) -> Validation:
+    """The verdict on a handover node with the giver posed as ``checked`` (None: the arm alone did not reach;
+    both arms and the waist are then solved together)."""
+    giver, taker = node.giver, node.taker
+    gg, tg = t.grasps[giver][node.giver_grasp], t.grasps[taker][node.taker_grasp]
+    T_obj = d.handover_poses(t)[node.pose].T_world_obj
+    T_g = T_obj @ gg.T_obj_tcp
+    T_t = T_obj @ tg.T_obj_tcp
     q_both = None
     if checked is not None:
         q_g, hold_g, cause, m0 = checked
