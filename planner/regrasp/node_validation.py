@@ -96,10 +96,11 @@ def validate_placement(task: Task, data: SearchData, node: PlacementNode, rng: n
 
 def validate_handover(task: Task, data: SearchData, node: HandoverNode, rng: np.random.Generator) -> Validation:
     """The verdict on a handover node (the exchange's motions when valid). Where the exchange collides with the
-    giver posed as first solved (the taker's hand or arm against the giver's), up to
-    ``handover_giver_postures`` more giver postures are tried, each from a start of the giver's IK drawn uniformly
-    within the joint limits by the node's generator (a start near the first one returns it): the arm is redundant, and which elbow the first solve finds decides whether the taker
-    can reach in. The first verdict is returned when none passes."""
+    giver posed as first solved (the taker's hand or arm against the giver's), up to ``handover_giver_postures``
+    more giver postures are tried: the giver's IK from starts the node's generator draws (home perturbed, then a
+    uniform draw within the limits, alternately; a start that leads back to the first posture is skipped). The arm
+    is redundant, and the elbow the first solve finds can leave the taker's hand no way in. The first posture
+    whose exchange passes is kept; the first verdict is returned when none does."""
     t, d = task, data
     giver = node.giver
     gg = t.grasps[giver][node.giver_grasp]
@@ -114,10 +115,11 @@ def validate_handover(task: Task, data: SearchData, node: HandoverNode, rng: np.
         q_g = solve_ik(t, d, giver, T_g, t.home, np.random.default_rng([t.seed, 2, *giver_key[:2], HANDS_INDEX[giver]]),
                          arm_only=True)
         d.giver_at[giver_key] = None if q_g is None else _checked_giver(t, d, node, q_g, T_obj)
-    first = _handover_from(t, d, node, d.giver_at[giver_key], rng)
-    if first.ok or first.cause != FailureCause.COLLISION or d.giver_at[giver_key] is None or d.giver_at[giver_key][2]:
+    given = d.giver_at[giver_key]
+    first = _handover_from(t, d, node, given, rng)
+    if first.ok or first.cause != FailureCause.COLLISION or given is None or given[2] is not None:
         return first  # not a collision, or the giver's first posture itself failed (the probes drop those nodes)
-    q_first = d.giver_at[giver_key][0]
+    q_first = given[0]
     active = t.ik_arm_only.active_indices((giver,))
     for attempt in range(1, t.settings.handover_giver_postures + 1):
         q_g = solve_ik(t, d, giver, T_g, t.ik_arm_only.attempt_start(attempt, t.home, active, rng), rng, arm_only=True)
@@ -139,7 +141,8 @@ def _checked_giver(t: Task, d: SearchData, node: HandoverNode, q_g: np.ndarray, 
     return steady_giver(t, d, node.giver, q_g, HoldSpec(node.giver, inverse(T_obj) @ t.tcp(q_g, node.giver)), T_obj)
 
 
-def _handover_from(t: Task, d: SearchData, node: HandoverNode, checked: tuple | None, rng: np.random.Generator) -> Validation:
+def _handover_from(t: Task, d: SearchData, node: HandoverNode, checked: tuple | None,
+                   rng: np.random.Generator) -> Validation:
     """The verdict on a handover node with the giver posed as ``checked`` (None: the arm alone did not reach;
     both arms and the waist are then solved together)."""
     giver, taker = node.giver, node.taker

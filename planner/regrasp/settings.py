@@ -44,7 +44,8 @@ class PlannerSettings(BaseModel):
     handover_poses: int = Field(96, ge=0, description="floating poses kept for handovers")
     handover_giver_postures: int = Field(
         6, ge=0, description="more giver postures (restarts of the giver's IK) tried at a handover node whose exchange "
-        "collides with the giver as first solved: which elbow the first solve finds decides whether the taker reaches in")
+        "collides with the giver as first solved: which elbow the first solve finds decides whether the taker "
+        "reaches in")
     weights: GraphWeights = Field(default_factory=GraphWeights)
     grasp: GraspSettings = Field(default_factory=GraspSettings)
     ik: IkSettings = Field(default_factory=lambda: IkSettings(restarts=2, max_iterations=60))

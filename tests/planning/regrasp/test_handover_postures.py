@@ -20,10 +20,10 @@ from planner.scene.scenarios import load_builtin
 NODES = 60
 
 
-def _givers_and_planner(postures: int) -> HandConfigPlanner:
+def _planner(postures: int) -> HandConfigPlanner:
+    """Drill-handover's right-left planner (seed 1), with ``postures`` more giver postures."""
     settings = PlannerSettings(handover_giver_postures=postures, parallel_motions=False)
-    planner = HandConfigPlanner(build_task(load_builtin("drill-handover"), settings), "right-left")
-    return planner
+    return HandConfigPlanner(build_task(load_builtin("drill-handover"), settings), "right-left")
 
 
 @pytest.fixture(scope="module")
@@ -31,12 +31,13 @@ def verdicts():
     """The same handover nodes validated with the first giver posture only and with the default retries."""
     out = {}
     for postures in (0, PlannerSettings().handover_giver_postures):
-        p = _givers_and_planner(postures)
+        p = _planner(postures)
         t, d = p.task, p.data
         nodes = p.graph_spec().handover_nodes
         probe_givers(t, d, nodes)
-        passing = [n for n in nodes if (g := d.giver_at.get((n.pose, n.giver_grasp, n.giver))) is not None and g[2] is None]
-        out[postures] = (t, d, {n: validate_handover(t, d, n, np.random.default_rng(t.node_seed(n))) for n in passing[:NODES]})
+        given = [d.giver_at.get((n.pose, n.giver_grasp, n.giver)) for n in nodes]
+        passing = [n for n, g in zip(nodes, given) if g is not None and g[2] is None][:NODES]
+        out[postures] = (t, d, {n: validate_handover(t, d, n, np.random.default_rng(t.node_seed(n))) for n in passing})
     return out
 
 
