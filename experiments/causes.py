@@ -136,8 +136,7 @@ def _cause_run(res: Results, settings: PaperSettings, cid: str, variant: str | N
                 held, why = judge_all_stable(lighter["rows"])
                 run["sweep"].append({"mass_kg": mass, "verdict": "reproduced" if held else "not reproduced", "evidence": why})
     elif cid == "upright-left-no-removal":
-        run["plans"] = {h: runs.plan_summary(runs.plan("upright", h, 0.04, settings.plan_iterations,
-                                                       stable_postures=settings.stable_postures))
+        run["plans"] = {h: runs.plan_summary(runs.plan("upright", h, 0.04, settings))
                         for h in NO_REMOVAL_HANDS}
         ok, ev = judge_no_removal(run["plans"])
     elif cid == "threshold-changes-motion":

@@ -75,12 +75,11 @@ def run(out: Path, settings: PaperSettings, progress: Callable[[str], None] = pr
     for hands in NO_REMOVAL_HANDS:
         progress(f"plan: upright, {hands} (node removals)")
         res.plans[f"upright-{hands}"] = {"constrained": runs.plan_summary(
-            runs.plan("upright", hands, None, settings.plan_iterations, stable_postures=settings.stable_postures))}
+            runs.plan("upright", hands, None, settings))}
     # 4. The real-robot tasks at 55 mm.
     for name in DRILL_TASKS:
         progress(f"real-robot task: {name}")
-        doc = runs.plan(name, None, None, settings.plan_iterations, estimator=settings.estimator,
-                        stable_postures=settings.stable_postures)
+        doc = runs.plan(name, None, None, settings, estimator=settings.estimator)
         res.drills[name] = runs.plan_summary(doc)
         if doc["status"] == "solved":
             fig = out / f"com-trace-{name}.png"
@@ -129,7 +128,7 @@ def run_extensions(res: Results, settings: PaperSettings, progress: Callable[[st
         progress(f"extensions: {stance} stance survey and plan with stable key postures")
         with_sp = runs.survey(runs.scenario(stance), settings, stable_postures=True)
         hands = res.tables[stance]["recommended"] or "right-right"
-        plan = runs.plan(stance, hands, None, settings.plan_iterations, stable_postures=True)
+        plan = runs.plan(stance, hands, None, settings, stable_postures=True)
         rows = {r["hands"]: r for r in res.tables[stance]["rows"]}
         res.extensions[stance] = {
             "rows": [{"hands": r["hands"], "ratio_without": rows.get(r["hands"], {}).get("ratio"),
@@ -140,7 +139,7 @@ def run_extensions(res: Results, settings: PaperSettings, progress: Callable[[st
             "plan": {"hands": hands, "without": res.plans[stance]["constrained"], "with": runs.plan_summary(plan)}}
     res.extensions["node_removals"] = {
         hands: {"without": res.plans[f"upright-{hands}"]["constrained"],
-                "with": runs.plan_summary(runs.plan("upright", hands, None, settings.plan_iterations, stable_postures=True))}
+                "with": runs.plan_summary(runs.plan("upright", hands, None, settings, stable_postures=True))}
         for hands in NO_REMOVAL_HANDS}
     res.timings["extensions_s"] = time.perf_counter() - t0
 
@@ -152,7 +151,7 @@ def run_limits(res: Results, settings: PaperSettings, progress: Callable[[str], 
         progress(f"limits: {stance} stance survey and plan with effort and grip checked")
         with_limits = runs.survey(runs.scenario(stance), settings, no_limits=False)
         hands = res.tables[stance]["recommended"] or "right-right"
-        plan = runs.plan(stance, hands, None, settings.plan_iterations, limits=True, stable_postures=settings.stable_postures)
+        plan = runs.plan(stance, hands, None, settings, limits=True)
         rows = {r["hands"]: r for r in res.tables[stance]["rows"]}
         res.limits[stance] = {
             "rows": [{"hands": r["hands"], "ratio_without": rows.get(r["hands"], {}).get("ratio"),

@@ -13,6 +13,11 @@ from experiments.tables import PAPER_TABLES
 from planner.api.catalogue import resolve_scenario, with_overrides
 from planner.api.jobs import CountingSettings, PlannerSettings, PlanOptions, plan_scenario, run_survey
 
+#: The quick run's plan timing: no replans, vias, ranking or easing (a large share of a plan's time); each motion
+#: is still shortcut, blended and timed by TOPP-RA, every sample checked.
+QUICK_PLAN_TIMING: dict[str, Any] = {"replans": 0, "alternatives": 1, "shortened_paths": 1, "rank_by_timing": False,
+                                     "corner_easing_sweeps": 0}
+
 
 @dataclass(frozen=True)
 class PaperSettings:
@@ -33,6 +38,9 @@ class PaperSettings:
     stable_postures: bool = False
     #: where the surveys' seeds run (a planner.survey.seed_map.SeedMap, e.g. a Ray cluster's); None: on this machine
     seed_map: Any = field(default=None, compare=False, repr=False)
+    #: the plans' timing settings changed from the planner's (``plan_timing``; the quick run searches no quicker
+    #: paths: the motions are timed as the search left them, so its durations are longer than a product plan's)
+    plan_timing: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def full(cls) -> "PaperSettings":
@@ -43,13 +51,21 @@ class PaperSettings:
     @classmethod
     def quick_run(cls) -> "PaperSettings":
         return cls(estimator={"until": "states", "states_per_seed": 150, "seeds_min": 4, "seeds_max": 4,
-                              "leg_cap_states": 150, "key_path_pool": 1}, plan_iterations=300, quick=True)
+                              "leg_cap_states": 150, "key_path_pool": 1}, plan_iterations=300, quick=True,
+                   plan_timing=QUICK_PLAN_TIMING)
 
     def document(self) -> dict[str, Any]:
         return {"estimator": dict(self.estimator), "plan_iterations": self.plan_iterations, "workers": self.workers,
                 "no_limits": self.no_limits, "quick": self.quick,
                 "limits_section": self.limits_section, "extensions_section": self.extensions_section,
-                "stable_postures": self.stable_postures}
+                "stable_postures": self.stable_postures, "plan_timing": dict(self.plan_timing)}
+
+    def planner(self, stable_postures: bool | None = None) -> PlannerSettings:
+        """The planner the report's plans run: its stable key postures (the report's unless given) and timing."""
+        base = PlannerSettings()
+        return base.model_copy(update={
+            "stable_postures": self.stable_postures if stable_postures is None else stable_postures,
+            "plan_timing": base.plan_timing.model_copy(update=self.plan_timing)})
 
     def paper_planner(self) -> dict[str, bool]:
         """What the reproduction's planner has of the product's extensions (report.json ``paper_planner``)."""
@@ -91,7 +107,7 @@ def survey(sc, settings: PaperSettings, no_limits: bool | None = None, stable_po
     ``stable_postures`` True; ``sampler`` changes the exploration's sampler (the ablation)."""
     t0 = time.perf_counter()
     sc = with_overrides(sc, survey=settings.estimator)
-    planner = PlannerSettings(stable_postures=settings.stable_postures if stable_postures is None else stable_postures)
+    planner = settings.planner(stable_postures)
     doc, _ = run_survey(sc, workers=settings.workers, keep_states=False, seed_map=settings.seed_map, settings=planner,
                         no_limits=settings.no_limits if no_limits is None else no_limits,
                         counting=None if sampler is None else CountingSettings(sampler=sampler))
@@ -106,18 +122,18 @@ def table(stance: str, settings: PaperSettings) -> dict[str, Any]:
     return t
 
 
-def plan(scenario: Any, hands: str | None, threshold_m: float | None, iterations: int, stance: str | None = None,
-         estimator: dict[str, Any] | None = None, limits: bool = False, stable_postures: bool = False) -> dict[str, Any]:
-    """A plan of a scenario (a name or a Scenario); ``hands: auto`` surveys with ``estimator`` (the report's).
-    On the paper's planner (without effort and grip limits, without stable key postures) unless ``limits`` or
-    ``stable_postures``."""
+def plan(scenario: Any, hands: str | None, threshold_m: float | None, settings: PaperSettings, stance: str | None = None,
+         estimator: dict[str, Any] | None = None, limits: bool = False, stable_postures: bool | None = None) -> dict[str, Any]:
+    """A plan of a scenario (a name or a Scenario) with the report's iteration cap and planner
+    (:meth:`PaperSettings.planner`); ``hands: auto`` surveys with ``estimator`` (the report's). Without effort and
+    grip limits unless ``limits``; with the report's stable key postures unless ``stable_postures`` says."""
     sc = scenario if not isinstance(scenario, str) else resolve_scenario(scenario, stance=stance)
     if estimator:
         sc = with_overrides(sc, survey=estimator)
-    sc = sc.model_copy(update={"limits": sc.limits.model_copy(update={"max_iterations": iterations})})
+    sc = sc.model_copy(update={"limits": sc.limits.model_copy(update={"max_iterations": settings.plan_iterations})})
     t0 = time.perf_counter()
     doc = plan_scenario(sc, PlanOptions(hands=hands, threshold_m=threshold_m, limits=limits),
-                        settings=PlannerSettings(stable_postures=stable_postures))
+                        settings=settings.planner(stable_postures))
     doc.setdefault("stats", {})["wall_s"] = time.perf_counter() - t0
     return doc
 
@@ -136,8 +152,8 @@ def plan_summary(doc: dict) -> dict[str, Any]:
 
 
 def plan_pair(scenario: Any, hands: str, settings: PaperSettings, threshold_m: float | None = None) -> tuple[dict, dict, dict]:
-    constrained = plan(scenario, hands, threshold_m, settings.plan_iterations, stable_postures=settings.stable_postures)
-    free = plan(scenario, hands, 0.0, settings.plan_iterations, stable_postures=settings.stable_postures)
+    constrained = plan(scenario, hands, threshold_m, settings)
+    free = plan(scenario, hands, 0.0, settings)
     differ = (constrained["status"] == "solved" and free["status"] == "solved"
               and [p["q"] for p in constrained["trajectory"]] != [p["q"] for p in free["trajectory"]])
     thr = constrained["threshold_m"]

@@ -7,6 +7,7 @@ import json
 import pytest
 from click.testing import CliRunner
 
+from experiments.runs import QUICK_PLAN_TIMING
 from experiments.tables import INCONSISTENCIES, PAPER_TABLES, STANCES
 from service.cli.main import cli
 
@@ -46,6 +47,9 @@ def test_every_section_is_there(report):
     for issue, _ in INCONSISTENCIES:
         assert issue in md
     assert f"{data['timings']['total_s']:.1f} s" in md
+    # The quick run's plans are timed without the search for quicker paths, and the report says so.
+    assert data["settings"]["plan_timing"] == QUICK_PLAN_TIMING
+    assert f"Plans: {data['settings']['plan_iterations']} search iterations; the plan timing changed" in md
 
 
 def test_table_numbers_match_the_json(report):
