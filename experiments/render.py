@@ -45,8 +45,8 @@ def render(res: Results) -> str:
         f"{(res.tables.get('upright') or {}).get('estimator', {}).get('key_path_pool', 'n')} (the same for every base "
         "seed), an equal share of seeds each, so R is the task's and not one key path's (docs/survey.md).",
         f"- Plans: {s.plan_iterations} search iterations; "
-        + (f"the plan timing changed from the planner's: {s.plan_timing} (motions timed without the search for quicker "
-           "paths: longer than a product plan's)." if s.plan_timing else "the planner's plan timing."),
+        + (f"the plan timing changed from the planner's: {dict(s.plan_timing)} (motions timed without the search "
+           "for quicker paths: longer than a product plan's)." if s.plan_timing else "the planner's plan timing."),
         f"- Total run time: {res.timings.get('total_s', 0):.1f} s.", "",
         "## Tables I-IV: stability per hand configuration", "",
     ]

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from types import MappingProxyType
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -15,8 +16,8 @@ from planner.api.jobs import CountingSettings, PlannerSettings, PlanOptions, pla
 
 #: The quick run's plan timing: no replans, vias, ranking or easing (a large share of a plan's time); each motion
 #: is still shortcut, blended and timed by TOPP-RA, every sample checked.
-QUICK_PLAN_TIMING: dict[str, Any] = {"replans": 0, "alternatives": 1, "shortened_paths": 1, "rank_by_timing": False,
-                                     "corner_easing_sweeps": 0}
+QUICK_PLAN_TIMING: Mapping[str, Any] = MappingProxyType({
+    "replans": 0, "alternatives": 1, "shortened_paths": 1, "rank_by_timing": False, "corner_easing_sweeps": 0})
 
 
 @dataclass(frozen=True)
@@ -40,7 +41,7 @@ class PaperSettings:
     seed_map: Any = field(default=None, compare=False, repr=False)
     #: the plans' timing settings changed from the planner's (``plan_timing``; the quick run searches no quicker
     #: paths: the motions are timed as the search left them, so its durations are longer than a product plan's)
-    plan_timing: dict[str, Any] = field(default_factory=dict)
+    plan_timing: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
     def full(cls) -> "PaperSettings":
@@ -65,7 +66,7 @@ class PaperSettings:
         base = PlannerSettings()
         return base.model_copy(update={
             "stable_postures": self.stable_postures if stable_postures is None else stable_postures,
-            "plan_timing": base.plan_timing.model_copy(update=self.plan_timing)})
+            "plan_timing": base.plan_timing.model_copy(update=dict(self.plan_timing))})
 
     def paper_planner(self) -> dict[str, bool]:
         """What the reproduction's planner has of the product's extensions (report.json ``paper_planner``)."""
@@ -122,8 +123,9 @@ def table(stance: str, settings: PaperSettings) -> dict[str, Any]:
     return t
 
 
-def plan(scenario: Any, hands: str | None, threshold_m: float | None, settings: PaperSettings, stance: str | None = None,
-         estimator: dict[str, Any] | None = None, limits: bool = False, stable_postures: bool | None = None) -> dict[str, Any]:
+def plan(scenario: Any, hands: str | None, threshold_m: float | None, settings: PaperSettings,
+         stance: str | None = None, estimator: dict[str, Any] | None = None, limits: bool = False,
+         stable_postures: bool | None = None) -> dict[str, Any]:
     """A plan of a scenario (a name or a Scenario) with the report's iteration cap and planner
     (:meth:`PaperSettings.planner`); ``hands: auto`` surveys with ``estimator`` (the report's). Without effort and
     grip limits unless ``limits``; with the report's stable key postures unless ``stable_postures`` says."""
