@@ -56,11 +56,22 @@ class HandoverSettings(BaseModel):
 
 @dataclass(frozen=True)
 class HandoverPose:
-    """A floating object pose and the usable (right grasp id, left grasp id) pairs there."""
+    """A floating object pose and the usable (right grasp id, left grasp id) pairs there.
+
+    ``pairs`` may be a thinned selection; ``all_pairs`` then holds every usable pair (None: ``pairs`` is every
+    pair), so that a planner can still join the grasps a task starts and ends with (see
+    :meth:`planner.regrasp.hand_config_planner.HandConfigPlanner.with_direct_handovers`).
+    """
 
     id: int
     T_world_obj: np.ndarray
     pairs: np.ndarray  # (M, 2) int: right grasp id, left grasp id
+    all_pairs: np.ndarray | None = None
+
+    @property
+    def every_pair(self) -> np.ndarray:
+        """Every usable (right, left) pair at this pose, thinned or not."""
+        return self.pairs if self.all_pairs is None else self.all_pairs
 
 
 def compatible_pairs(right: GraspSet, left: GraspSet, hand_r: HandGeometry, hand_l: HandGeometry) -> np.ndarray:

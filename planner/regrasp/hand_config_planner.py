@@ -90,7 +90,8 @@ class HandConfigPlanner:
         #: Why the forked helper of :meth:`_prefetch_hops` failed, if it did (its hops are then planned here).
         self.helper_errors: list[str] = []
         self.hops_by_helper = 0
-        self.dropped_known = 0  # nodes removed before the search, their failure known (_drop_known_failures)
+        self._dropped: set = set()  # nodes removed before a search, their failure known (_drop_known_failures)
+        self.direct_handover_nodes = 0  # handover nodes added by with_direct_handovers
 
 
     # -- graph construction ---------------------------------------------------------------------
@@ -180,26 +181,70 @@ class HandConfigPlanner:
     def plan(self, *, on_iteration: Callable[[int, dict], None] | None = None, solutions: int = 1) -> PlannerResult:
         """The best plan of this hand configuration, and up to ``solutions - 1`` next-best ones.
 
+        Where the best path of a handover configuration puts the object down on a table before it hands over,
+        the search runs again with the direct handover nodes added (:meth:`with_direct_handovers`), and the
+        cheaper result is kept: those nodes are added only then, as more nodes of equal estimated cost can lead
+        the lazy search to a valid path of a higher true cost first.
+
         The planner's termination caps each search's iterations; its deadline covers the whole call (a
         search past it ends ``TIMEOUT``); a cancel, or the deadline inside a motion, raises :class:`Canceled`.
         """
         t0 = time.perf_counter()
-        termination = self.termination
         spec = self.graph_spec()
         if self.end_problems:  # an end no hand pose can reach: no search can succeed
             end = "start" if "start" in self.end_problems else "goal"
             return PlannerResult("infeasible", self.hands, failure_code=f"{end.upper()}_INVALID", message=self.end_problems[end],
                                  failures={FailureCause.IK: len(self.end_problems)}, stats={"time_s": time.perf_counter() - t0})
         spec = self.screen(spec)
+        t_search = time.perf_counter()
+        found, res, failures, iterations = self._search(spec, solutions, on_iteration)
+        if found and self._regrasps_before_handover(found[0].path):
+            direct = self.with_direct_handovers(spec)
+            if self.direct_handover_nodes:
+                found2, res2, failures2, iterations2 = self._search(direct, solutions, on_iteration)
+                failures.update(failures2)
+                iterations += iterations2
+                if found2 and found2[0].cost < found[0].cost:
+                    found, res = found2, res2
+        failures.update(self.screen_failures)  # the screening's and the known ones dropped before each search
+        stage = dict(self.stage_s)
+        stage["search_s"] = max(time.perf_counter() - t_search - sum(stage.values()), 0.0)
+        stats = {"graph_nodes": res.graph_nodes if res else 0, "graph_edges": res.graph_edges if res else 0,
+                 "search_iterations": iterations, "nodes_validated": len(self._validated) - self.dropped_known,
+                 "nodes_dropped_known": self.dropped_known, "edges_validated": len(self._edges),
+                 "direct_handover_nodes": self.direct_handover_nodes,
+                 "hops_by_helper": self.hops_by_helper, "stage_s": stage, "time_s": time.perf_counter() - t0}
+        if self.helper_errors:
+            stats["helper_errors"] = list(self.helper_errors)
+        if not found:
+            return PlannerResult("infeasible", self.hands, failure_code=res.code if res else "NO_PATH",
+                                 message=res.message if res else "", failures=dict(failures), stats=stats)
+        t_asm = time.perf_counter()
+        best = found[0]
+        out = PlannerResult("solved", self.hands, pieces=assemble_pieces(best, self.motions), cost=best.cost,
+                            failures=dict(failures), stats=stats,
+                            others=[(r.cost, assemble_pieces(r, self.motions)) for r in found[1:]])
+        stats["stage_s"]["assembly_s"] = time.perf_counter() - t_asm
+        return out
+
+    @property
+    def dropped_known(self) -> int:
+        """Nodes removed before a search, their failure already known (:meth:`_drop_known_failures`)."""
+        return len(self._dropped)
+
+    def _search(self, spec: GraphSpec, solutions: int, on_iteration: Callable[[int, dict], None] | None
+                ) -> tuple[list[SearchResult], SearchResult | None, Counter, int]:
+        """Up to ``solutions`` best paths of the graph of ``spec``: (found, the last search's result, the searches'
+        failures, iterations)."""
+        termination = self.termination
         weights = self.task.settings.weights
         if not self.task.constrained:  # the unconstrained planner: no margin cost either
             weights = dataclasses.replace(weights, margin=0.0)
         graph = RegraspGraph(spec, weights)
         self.prepare_search(graph)
-        t_search = time.perf_counter()
         found: list[SearchResult] = []
         res: SearchResult | None = None
-        failures: Counter = Counter(self.screen_failures)
+        failures: Counter = Counter()
         iterations = 0
         while len(found) < solutions:
             if found and termination.past_deadline():
@@ -214,24 +259,14 @@ class HandConfigPlanner:
             if res.status != "solved":
                 break
             found.append(res)
-        stage = dict(self.stage_s)
-        stage["search_s"] = max(time.perf_counter() - t_search - sum(stage.values()), 0.0)
-        stats = {"graph_nodes": res.graph_nodes if res else 0, "graph_edges": res.graph_edges if res else 0,
-                 "search_iterations": iterations, "nodes_validated": len(self._validated) - self.dropped_known,
-                 "nodes_dropped_known": self.dropped_known, "edges_validated": len(self._edges),
-                 "hops_by_helper": self.hops_by_helper, "stage_s": stage, "time_s": time.perf_counter() - t0}
-        if self.helper_errors:
-            stats["helper_errors"] = list(self.helper_errors)
-        if not found:
-            return PlannerResult("infeasible", self.hands, failure_code=res.code if res else "NO_PATH",
-                                 message=res.message if res else "", failures=dict(failures), stats=stats)
-        t_asm = time.perf_counter()
-        best = found[0]
-        out = PlannerResult("solved", self.hands, pieces=assemble_pieces(best, self.motions), cost=best.cost,
-                            failures=dict(failures), stats=stats,
-                            others=[(r.cost, assemble_pieces(r, self.motions)) for r in found[1:]])
-        stats["stage_s"]["assembly_s"] = time.perf_counter() - t_asm
-        return out
+        return found, res, failures, iterations
+
+    def _regrasps_before_handover(self, path: list) -> bool:
+        """Whether a handover path puts the object down on the way (more placement nodes than its start and goal):
+        the path :meth:`with_direct_handovers` looks for a direct handover in place of."""
+        if self.start_hand == self.goal_hand:
+            return False
+        return sum(isinstance(n, PlacementNode) for n in path) > 2
 
     def _timed_node(self, node) -> Validation:
         t0 = time.perf_counter()
@@ -319,6 +354,45 @@ class HandConfigPlanner:
                     self.screen_failures[v.cause or FailureCause.IK] += 1
         return dataclasses.replace(spec, placement_nodes=[n for n in spec.placement_nodes if n not in bad])
 
+    def with_direct_handovers(self, spec: GraphSpec) -> GraphSpec:
+        """Add handover nodes that join a start node to a goal node directly (after :meth:`screen`): at each
+        handover pose up to ``handover_direct_pairs_per_pose`` usable pairs of a giver grasp still among the start
+        nodes and a taker grasp still among the goal nodes, those whose grasps come first in the screening's order
+        (found valid, then by grasp id, closest to the CoM first) first.
+
+        The pairs kept per pose are spread evenly over all of them, blind to the task; a plan that hands over
+        without a table regrasp needs the giver to hold the object as it picked it up and the taker as it will
+        put it down, and such a pair is rarely among the few kept. The nodes are validated lazily like the
+        others; a single-arm configuration gets none. :attr:`direct_handover_nodes` counts them.
+        """
+        keep = self.task.settings.handover_direct_pairs_per_pose
+        if self.start_hand == self.goal_hand or not spec.handover_nodes or not keep:
+            return spec
+        t = self.task
+
+        def ranks(pid: int, hand: Side) -> np.ndarray:
+            """Each grasp id's rank among the nodes left at an end (-1: none), valid ones first."""
+            alive = sorted((not (n in self._validated and self._validated[n].ok), n.grasp)
+                           for n in spec.placement_nodes if n.placement == pid and n.hand == hand)
+            out = np.full(len(t.grasps[hand]), -1)
+            out[[g for _, g in alive]] = np.arange(len(alive))
+            return out
+
+        giver = self.start_hand
+        give_rank, take_rank = ranks(t.start_id, giver), ranks(t.goal_id, self.goal_hand)
+        g_col, t_col = (0, 1) if giver == "right" else (1, 0)
+        have = set(spec.handover_nodes)
+        added: list[HandoverNode] = []
+        for f, hp in enumerate(self.data.handover_poses(t)):
+            pairs = hp.every_pair
+            rg, rt = give_rank[pairs[:, g_col]], take_rank[pairs[:, t_col]]
+            usable = np.flatnonzero((rg >= 0) & (rt >= 0))
+            order = usable[np.lexsort((rg[usable] + rt[usable], np.maximum(rg[usable], rt[usable])))]
+            nodes = (HandoverNode(f, int(pairs[k, g_col]), int(pairs[k, t_col]), giver) for k in order)
+            added.extend([n for n in nodes if n not in have][:keep])
+        self.direct_handover_nodes = len(added)
+        return dataclasses.replace(spec, handover_nodes=[*spec.handover_nodes, *added]) if added else spec
+
     def prepare_search(self, graph: RegraspGraph) -> None:
         """Before the first search: probe and weigh the nodes, then remove those whose failure that made known."""
         self._weigh_nodes(graph)
@@ -365,6 +439,7 @@ class HandConfigPlanner:
                 v = self.validate_node(node)  # the cached verdict, and the start/goal bookkeeping
                 if not v.ok:
                     graph.remove_node(node)
-                    self.screen_failures[v.cause or FailureCause.IK] += 1
-                    self.dropped_known += 1
+                    if node not in self._dropped:  # counted once, however many graphs drop it
+                        self._dropped.add(node)
+                        self.screen_failures[v.cause or FailureCause.IK] += 1
 

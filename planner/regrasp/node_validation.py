@@ -24,9 +24,8 @@ from planner.motion.ik import key_pose_targets
 from planner.regrasp.failure_cause import FailureCause
 from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
 from planner.regrasp.plan_assembly import MotionPiece
-from planner.regrasp.probes import probe_grasps_with_waist, steady_giver
+from planner.regrasp.probes import check_givers, probe_givers, probe_grasps_with_waist
 from planner.regrasp.results import HandoverPoses, KeyPoses
-from planner.regrasp.settings import HANDS_INDEX
 from planner.regrasp.search_data import SearchData, solve_ik, solve_targets, stable_posture
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
@@ -108,13 +107,12 @@ def validate_handover(task: Task, data: SearchData, node: HandoverNode, rng: np.
     T_g = T_obj @ gg.T_obj_tcp
     # Arms without the waist first: a turning waist swings the idle arm into the table. With the
     # waist still the arms are independent, so the giver is solved and checked alone, once per
-    # (pose, giver grasp): most handover nodes fail there (the object or the giver's arm
-    # against the body), and the pairs of a pose share their giver grasps.
+    # (pose, giver grasp), by the probe (the search probes all its nodes' givers before it starts): most
+    # handover nodes fail there (the object or the giver's arm against the body), and the pairs of a pose
+    # share their giver grasps.
     giver_key = (node.pose, node.giver_grasp, giver)
     if giver_key not in d.giver_at:
-        q_g = solve_ik(t, d, giver, T_g, t.home, np.random.default_rng([t.seed, 2, *giver_key[:2], HANDS_INDEX[giver]]),
-                         arm_only=True)
-        d.giver_at[giver_key] = None if q_g is None else _checked_giver(t, d, node, q_g, T_obj)
+        probe_givers(t, d, [node])
     given = d.giver_at[giver_key]
     first = _handover_from(t, d, node, given, rng)
     if first.ok or first.cause != FailureCause.COLLISION or given is None or given[2] is not None:
@@ -136,9 +134,9 @@ def validate_handover(task: Task, data: SearchData, node: HandoverNode, rng: np.
 
 def _checked_giver(t: Task, d: SearchData, node: HandoverNode, q_g: np.ndarray, T_obj: np.ndarray) -> tuple:
     """The giver alone at the handover pose in posture ``q_g`` (jaw closed on its grasp), checked: ``(q, hold,
-    cause, margin)`` (:func:`planner.regrasp.probes.steady_giver`)."""
-    q_g[t.jaw[node.giver]] = t.grasps[node.giver][node.giver_grasp].jaw_value
-    return steady_giver(t, d, node.giver, q_g, HoldSpec(node.giver, inverse(T_obj) @ t.tcp(q_g, node.giver)), T_obj)
+    cause, margin)`` (:func:`planner.regrasp.probes.check_givers`)."""
+    key = (node.pose, node.giver_grasp, node.giver)
+    return check_givers(t, d, node.giver, [key], q_g[None], T_obj[None], never)[key]
 
 
 def _handover_from(t: Task, d: SearchData, node: HandoverNode, checked: tuple | None,

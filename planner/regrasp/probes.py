@@ -148,9 +148,12 @@ def probe_givers(task: Task, data: SearchData, nodes: list[HandoverNode], cancel
 
     Most handover nodes fail right there (the giver's arm or the object against the body), so a
     batch spares a one-by-one solve per pair. Where the arm alone misses (the same two attempts as the
-    one-by-one solve), the node's validation lets the waist help. ``canceled`` is polled between the givers'
-    stable-posture searches; a cancel raises :class:`~planner.errors.Canceled` before that hand's batch is stored
-    (but for the pairs whose arm missed, already known)."""
+    one-by-one solve), the node's validation lets the waist help. Where the posture found collides (the
+    upper arm or forearm against the chest or the object: the elbow the descent from home chose), up to
+    ``handover_giver_postures`` more descents from starts drawn for that pair are tried, in batches, and the
+    first posture that passes is kept: the arm is redundant, and another elbow often clears. ``canceled`` is
+    polled between the givers' stable-posture searches; a cancel raises :class:`~planner.errors.Canceled` before
+    that hand's batch is stored (but for the pairs whose arm missed, already known)."""
     keys = [k for k in dict.fromkeys((n.pose, n.giver_grasp, n.giver) for n in nodes) if k not in data.giver_at]
     for side in ("left", "right"):
         mine = [k for k in keys if k[2] == side]
@@ -163,30 +166,69 @@ def probe_givers(task: Task, data: SearchData, nodes: list[HandoverNode], cancel
         for k in np.flatnonzero(~res.ok):
             data.giver_at[mine[k]] = None  # the same two attempts the one-by-one solve makes missed
         ok = np.flatnonzero(res.ok)
-        if not ok.size:
-            continue
-        Q = res.q[ok]
-        task.put_jaw(Q, side, [grasps[mine[k][1]].jaw_value for k in ok])
-        tcp = task.robot.spec.arms[side].tcp
-        robot_com, frames = task.world.kin.com_and_frames(task.stance.base_pose, Q, [tcp])
-        R, p = frames[tcp]
-        T_tcp = np.zeros((len(ok), 4, 4))
-        T_tcp[:, :3, :3], T_tcp[:, :3, 3], T_tcp[:, 3, 3] = R, p, 1.0
-        held = task.evaluator.with_object(robot_com, T_obj[ok])
-        collides = task.world.check_batch(task.stance.base_pose, Q, held=[(side, np.eye(4))],
-                                          held_object_poses=T_obj[ok]).collides
-        data.counters["com_states"] += len(ok)
-        data.counters["collision_states"] += len(ok)
-        found: dict = {}
-        for row, k in enumerate(ok):
-            hold = HoldSpec(side, inverse(T_obj[k]) @ T_tcp[row])
-            if task.constrained and not held.stable[row]:
-                if canceled():
-                    raise Canceled()
-                found[mine[k]] = steady_giver(task, data, side, Q[row], hold, T_obj[k])
-            else:
-                found[mine[k]] = (Q[row], hold, FailureCause.COLLISION if collides[row] else None, float(held.margin[row]))
+        found = check_givers(task, data, side, [mine[k] for k in ok], res.q[ok], T_obj[ok], canceled)
+        colliding = [k for k in ok if found[mine[k]][2] == FailureCause.COLLISION]
+        found.update(_other_givers(task, data, side, [mine[k] for k in colliding], T_obj[colliding],
+                                   targets[colliding], canceled))
         data.giver_at.update(found)
+
+
+def check_givers(task: Task, data: SearchData, side: Side, keys: list, Q: np.ndarray, T_obj: np.ndarray,
+                    canceled: Callable[[], bool]) -> dict:
+    """``key -> (q, hold, cause, margin)`` of the giver in each posture of ``Q`` holding the object at ``T_obj``
+    (jaw closed on the key's grasp): collisions and the margin, a margin failure given its steadied posture
+    (:func:`steady_giver`)."""
+    if not keys:
+        return {}
+    grasps = task.grasps[side]
+    Q = Q.copy()
+    task.put_jaw(Q, side, [grasps[k[1]].jaw_value for k in keys])
+    tcp = task.robot.spec.arms[side].tcp
+    robot_com, frames = task.world.kin.com_and_frames(task.stance.base_pose, Q, [tcp])
+    R, p = frames[tcp]
+    T_tcp = np.zeros((len(keys), 4, 4))
+    T_tcp[:, :3, :3], T_tcp[:, :3, 3], T_tcp[:, 3, 3] = R, p, 1.0
+    held = task.evaluator.with_object(robot_com, T_obj)
+    collides = task.world.check_batch(task.stance.base_pose, Q, held=[(side, np.eye(4))],
+                                      held_object_poses=T_obj).collides
+    data.counters["com_states"] += len(keys)
+    data.counters["collision_states"] += len(keys)
+    found: dict = {}
+    for row, key in enumerate(keys):
+        hold = HoldSpec(side, inverse(T_obj[row]) @ T_tcp[row])
+        if task.constrained and not held.stable[row]:
+            if canceled():
+                raise Canceled()
+            found[key] = steady_giver(task, data, side, Q[row], hold, T_obj[row])
+        else:
+            found[key] = (Q[row], hold, FailureCause.COLLISION if collides[row] else None, float(held.margin[row]))
+    return found
+
+
+def _other_givers(task: Task, data: SearchData, side: Side, keys: list, T_obj: np.ndarray, targets: np.ndarray,
+                  canceled: Callable[[], bool]) -> dict:
+    """For givers whose first posture collides: the first of up to ``handover_giver_postures`` more postures that
+    passes, each round a batched descent from a start drawn for each key (its own generator: the verdict does not
+    depend on which other keys share the batch)."""
+    out: dict = {}
+    ik = task.ik_arm_only
+    cols = ik.batch.active_columns(side)
+    rngs = [np.random.default_rng([task.seed, 2, k[0], k[1], HANDS_INDEX[side], 1]) for k in keys]
+    todo = np.arange(len(keys))
+    for attempt in range(2, 2 + task.settings.handover_giver_postures):
+        if not todo.size:
+            break
+        starts = np.array([ik.attempt_start(attempt, task.home, cols, rngs[k]) for k in todo])
+        res = ik.batch.solve(side, targets[todo], task.stance.base_pose, starts, task.home)
+        data.counters["ik_solves"] += len(todo)
+        data.counters["giver_postures_tried"] += len(todo)
+        reached = todo[res.ok]
+        checked = check_givers(task, data, side, [keys[k] for k in reached], res.q[res.ok], T_obj[reached], canceled)
+        passed = {k for k in reached if checked[keys[k]][2] is None}
+        out.update({keys[k]: checked[keys[k]] for k in passed})
+        data.counters["giver_postures_rescued"] += len(passed)
+        todo = np.array([k for k in todo if k not in passed], dtype=int)
+    return out
 
 
 def steady_giver(task: Task, data: SearchData, side: Side, q: np.ndarray, hold: HoldSpec, T_obj: np.ndarray) -> tuple:

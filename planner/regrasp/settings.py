@@ -38,6 +38,10 @@ class PlannerSettings(BaseModel):
                                   "a graze between two checked states does not reach the plan")
     max_grasps: int = Field(400, ge=1, description="grasps per hand kept for the graph (closest to the CoM first)")
     handover_pairs_per_pose: int = Field(12, ge=1, description="grasp pairs kept per handover pose (evenly spread)")
+    handover_direct_pairs_per_pose: int = Field(
+        12, ge=0, description="more grasp pairs per handover pose, each of a giver grasp the task may start with and a "
+        "taker grasp it may end with (those found valid first, then in grasp order): the pairs a handover without a "
+        "table regrasp needs, rarely among the evenly spread ones")
     intermediate_placements: int = Field(6, ge=0, description="table spots x yaws besides start and goal")
     handover: HandoverSettings = Field(default_factory=lambda: HandoverSettings(
         positions=((0.40, 0.0, 0.30), (0.36, 0.0, 0.38), (0.42, 0.0, 0.22), (0.32, 0.0, 0.47))))

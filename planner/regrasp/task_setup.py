@@ -175,7 +175,8 @@ def _ready_sampled(task: TaskParts, side: Side) -> np.ndarray:
 
 
 def task_handover_poses(task: TaskParts) -> list[HandoverPose]:
-    """Floating poses with compatible grasp pairs, each pose's pairs evenly thinned to the settings' count."""
+    """Floating poses with compatible grasp pairs, each pose's pairs evenly thinned to the settings' count (every
+    pair kept beside them, as 32-bit ids)."""
     s = task.settings
     if not s.handover_poses:
         return []
@@ -186,8 +187,8 @@ def task_handover_poses(task: TaskParts) -> list[HandoverPose]:
     keep = s.handover_pairs_per_pose
     out = []
     for hp in poses[: s.handover_poses]:
-        pairs = hp.pairs
+        pairs, every = hp.pairs, None
         if len(pairs) > keep:  # evenly spread over the (sorted) pairs: hands at different places
-            pairs = pairs[np.linspace(0, len(pairs) - 1, keep).astype(int)]
-        out.append(HandoverPose(hp.id, hp.T_world_obj, pairs))
+            pairs, every = pairs[np.linspace(0, len(pairs) - 1, keep).astype(int)], pairs.astype(np.int32)
+        out.append(HandoverPose(hp.id, hp.T_world_obj, pairs, every))
     return out

@@ -1,6 +1,7 @@
-"""Other giver postures at a handover node whose exchange collides with the giver as first solved
-(``handover_giver_postures``): a node that fails with the first posture only is valid with another, and what it
-carries holds the object where the handover pose has it and passes the task's own checks."""
+"""Other giver postures (``handover_giver_postures``): a giver whose first posture at a handover pose collides
+gets another that passes (the probe), and a node whose exchange collides with the giver as first solved is valid
+with another (the node's validation); what each carries holds the object where the handover pose has it and
+passes the task's own checks."""
 
 from __future__ import annotations
 
@@ -27,18 +28,64 @@ def _planner(postures: int) -> HandConfigPlanner:
 
 
 @pytest.fixture(scope="module")
-def verdicts():
-    """The same handover nodes validated with the first giver posture only and with the default retries."""
+def probed():
+    """The graph's handover nodes probed with the first giver posture only and with the default retries:
+    ``postures -> (planner, nodes)``."""
     out = {}
     for postures in (0, PlannerSettings().handover_giver_postures):
         p = _planner(postures)
-        t, d = p.task, p.data
         nodes = p.graph_spec().handover_nodes
-        probe_givers(t, d, nodes)
-        given = [d.giver_at.get((n.pose, n.giver_grasp, n.giver)) for n in nodes]
-        passing = [n for n, g in zip(nodes, given) if g is not None and g[2] is None][:NODES]
+        probe_givers(p.task, p.data, nodes)
+        out[postures] = (p, nodes)
+    return out
+
+
+@pytest.fixture(scope="module")
+def verdicts(probed):
+    """The same handover nodes (those whose giver's first posture passes) validated with the first giver posture
+    only and with the default retries."""
+    p0, nodes = probed[0]
+    passing = [n for n in nodes if (g := p0.data.giver_at.get((n.pose, n.giver_grasp, n.giver))) is not None
+               and g[2] is None][:NODES]
+    out = {}
+    for postures, (p, _) in probed.items():
+        t, d = p.task, p.data
         out[postures] = (t, d, {n: validate_handover(t, d, n, np.random.default_rng(t.node_seed(n))) for n in passing})
     return out
+
+
+def _holds_at_pose(t, d, n: HandoverNode, q: np.ndarray) -> None:
+    """The giver's hand in ``q`` holds the object where the handover pose has it, with the giver's grasp, within
+    the IK's tolerances (its rotation tolerance bounds each component of the rotation error)."""
+    T_want = d.handover_poses(t)[n.pose].T_world_obj @ t.grasps[n.giver][n.giver_grasp].T_obj_tcp
+    T_got = t.tcp(q, n.giver)
+    ik = t.settings.ik
+    assert np.linalg.norm(T_got[:3, 3] - T_want[:3, 3]) <= np.sqrt(3) * ik.pos_tol_m
+    cos = np.clip((np.trace(T_got[:3, :3].T @ T_want[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    assert np.arccos(cos) <= np.sqrt(3) * ik.rot_tol_rad
+
+
+def test_a_giver_whose_first_posture_collides_passes_with_another(probed):
+    (p0, nodes), (p, _) = probed[0], probed[PlannerSettings().handover_giver_postures]
+    keys = list(dict.fromkeys((n.pose, n.giver_grasp, n.giver) for n in nodes))
+    first, retried = p0.data.giver_at, p.data.giver_at
+    rescued = [k for k in keys if first[k] is not None and first[k][2] == FailureCause.COLLISION
+               and retried[k][2] is None]
+    assert rescued, "no giver whose first posture collides passes with another"
+    assert p.data.counters["giver_postures_rescued"] == len(rescued)
+    assert p0.data.counters["giver_postures_tried"] == 0
+    for k in keys:
+        if first[k] is None or first[k][2] != FailureCause.COLLISION:  # only colliding postures are retried
+            assert (first[k] is None) == (retried[k] is None)
+            if first[k] is not None:
+                assert np.array_equal(first[k][0], retried[k][0]) and first[k][2] == retried[k][2]
+    t, d = p.task, p.data
+    for k in rescued:
+        q, hold = retried[k][0], retried[k][1]
+        assert not np.allclose(q, first[k][0], atol=1e-3)
+        _holds_at_pose(t, d, HandoverNode(k[0], k[1], 0, k[2]), q)
+        cause, margin = d.checker.classify(q[None], hold, None)  # collision-free, and the margin kept
+        assert cause is None and margin >= t.threshold_m
 
 
 def test_a_node_whose_exchange_collides_with_the_first_giver_posture_passes_with_another(verdicts):
@@ -60,12 +107,7 @@ def test_a_node_whose_exchange_collides_with_the_first_giver_posture_passes_with
         hp = retried[n].payload
         first_posture = d.giver_at[(n.pose, n.giver_grasp, n.giver)][0]
         assert not np.allclose(hp.q_giver_at, first_posture, atol=1e-3)
-        # The other posture holds the object where the handover pose has it, with the giver's grasp.
-        T_obj = d.handover_poses(t)[n.pose].T_world_obj
-        T_want = T_obj @ t.grasps[n.giver][n.giver_grasp].T_obj_tcp
-        T_got = t.tcp(hp.q_giver_at, n.giver)
-        assert np.linalg.norm(T_got[:3, 3] - T_want[:3, 3]) < 2e-3
-        assert np.linalg.norm(T_got[:3, :3] - T_want[:3, :3]) < 1e-2
+        _holds_at_pose(t, d, n, hp.q_giver_at)  # the other posture holds the object where the pose has it
         # Every state of its exchange passes the task's checker again (collision and margin); the fingers of the
         # hand closing or opening may touch the object. A transit's path is planned later between its two ends.
         touching = [None, n.taker, n.taker, n.giver, n.giver, None]
