@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections import Counter
+from itertools import islice
 from typing import Callable
 
 import numpy as np
@@ -389,7 +390,7 @@ class HandConfigPlanner:
             usable = np.flatnonzero((rg >= 0) & (rt >= 0))
             order = usable[np.lexsort((rg[usable] + rt[usable], np.maximum(rg[usable], rt[usable])))]
             nodes = (HandoverNode(f, int(pairs[k, g_col]), int(pairs[k, t_col]), giver) for k in order)
-            added.extend([n for n in nodes if n not in have][:keep])
+            added.extend(islice((n for n in nodes if n not in have), keep))  # the first few, not all of them
         self.direct_handover_nodes = len(added)
         return dataclasses.replace(spec, handover_nodes=[*spec.handover_nodes, *added]) if added else spec
 

@@ -174,7 +174,7 @@ def probe_givers(task: Task, data: SearchData, nodes: list[HandoverNode], cancel
 
 
 def check_givers(task: Task, data: SearchData, side: Side, keys: list, Q: np.ndarray, T_obj: np.ndarray,
-                    canceled: Callable[[], bool]) -> dict:
+                 canceled: Callable[[], bool]) -> dict:
     """``key -> (q, hold, cause, margin)`` of the giver in each posture of ``Q`` holding the object at ``T_obj``
     (jaw closed on the key's grasp): collisions and the margin, a margin failure given its steadied posture
     (:func:`steady_giver`)."""
