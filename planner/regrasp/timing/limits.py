@@ -19,7 +19,7 @@ from planner.stability.inertial_torques import InertialTorques
 class RunLimits:
     """The limits of a run's timing, a part of :class:`planner.regrasp.timing.plan_timer.PlanTimer`: it uses the
     timer's ``task``, ``s`` (the settings), ``limits``, ``vlim``, ``alim``, ``dt``, ``zmp_margin_m``,
-    ``plan_static_min_m``, ``_inertials`` and ``_asked``."""
+    ``reserve_share``, ``plan_static_min_m``, ``_inertials`` and ``_asked``."""
 
     def _rows(self, run: Run, path: BlendedPath, grid: np.ndarray) -> tuple[list[LinearRows], float]:
         """TOPP-RA's rows at the gridpoints (the ZMP, cart-table and multibody, and the torques) and the run's ZMP
@@ -50,13 +50,13 @@ class RunLimits:
 
     def _zmp_floor(self, static_margin: np.ndarray) -> float:
         """How far inside the polygon a run keeps its ZMP, given the static CoM margins along its path: the ZMP
-        margin, or ``zmp_reserve_share`` of the smallest of those margins where that is more. A fast swing's ZMP
-        steps set the body swaying, and the feet then feel more than the planned ZMP; keeping the ZMP close to
-        where the CoM is at its tightest leaves that sway the rest of the margin. With ``zmp_reserve_cap_share`` and
+        margin, or the reserve's share (``reserve_share``: more on one foot) of the smallest of those margins where
+        that is more. A fast swing's ZMP steps set the body swaying, and the feet then feel more than the planned
+        ZMP; keeping the ZMP close to where the CoM is at its tightest leaves that sway the rest of the margin. With ``zmp_reserve_cap_share`` and
         the plan's smallest static margin known (:meth:`time_plan`), the reserve asks at most that share of it plus
         ``zmp_overshoot_m``."""
         tightest = float(np.maximum(static_margin, 0.0).min()) if static_margin.size else 0.0
-        reserve = self.s.zmp_reserve_share * tightest
+        reserve = self.reserve_share * tightest
         if self._asked is not None:
             self._asked.append(reserve)
         return max(self.zmp_margin_m, min(reserve, self._reserve_cap()))

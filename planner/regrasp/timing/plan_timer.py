@@ -13,7 +13,8 @@ rest to rest (:mod:`planner.motion.timing`). Here the plan is timed again as it 
 3. **Time-optimal timing** (TOPP-RA, :func:`planner.motion.topp.parameterize`) within the joint
    velocity and acceleration limits, the static plus inertial joint torques within the effort
    limits, and the cart-table ZMP at least ``zmp_margin_m`` inside the support polygon, or
-   ``zmp_reserve_share`` of the run's smallest static CoM margin where that is more (where the
+   ``zmp_reserve_share`` (``zmp_reserve_share_one_foot`` on one foot) of the run's smallest static CoM margin
+   where that is more (where the
    CoM itself is closer to an edge than that, as far inside as the CoM). The CoM terms come from
    :mod:`planner.stability.com_path`, the torques from :mod:`planner.stability.effort` and
    :mod:`planner.stability.inertial_torques`. Then ``1 / speed_scale`` stretches it in time.
@@ -82,6 +83,8 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         self._checker = checker
         self.s = settings
         self.speed_scale = float(speed_scale)
+        #: the ZMP reserve's share for this task's stance (:meth:`PlanTimingSettings.reserve_share`)
+        self.reserve_share = settings.reserve_share(sum(1 for foot in task.stance.feet if foot.in_contact))
         self.zmp_margin_m = float(zmp_margin_m)
         self.dt = float(dt)
         robot = task.robot
@@ -173,7 +176,7 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
                        for r, span in enumerate(spans)]
                       for j in range(max((len(a) for a in per_piece), default=0))]
             self.stats["quicker_paths_time_s"] = time.perf_counter() - started - self.stats.get("early_timing_s", 0.0)
-            if self.s.zmp_reserve_cap_share is not None and self.s.zmp_reserve_share > 0.0:  # no reserve: no cap
+            if self.s.zmp_reserve_cap_share is not None and self.reserve_share > 0.0:  # no reserve: no cap
                 before = stats_copy(self.stats)
                 first, _ = self._time_runs(originals, levels)
                 self.stats = before  # the first timing only measures the plan
@@ -188,7 +191,7 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
             self._kept, self._along, self._early, self._merged = {}, {}, set(), {}
         return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
                                               "zmp_margin_m": self.zmp_margin_m,
-                                              "zmp_reserve_share": self.s.zmp_reserve_share},
+                                              "zmp_reserve_share": self.reserve_share},
                           stats={**self.stats, **({"helper_errors": list(self.helper_errors)} if self.helper_errors
                                                    else {}), "slack_s": slack})
 

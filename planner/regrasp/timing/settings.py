@@ -75,6 +75,11 @@ class PlanTimingSettings(BaseModel):
                                      "zmp_margin_m; where the CoM itself is closer, as far as the CoM): the motion's "
                                      "own dynamics may take at most the rest of the margin the run has at its "
                                      "tightest. A user's own zmp_margin_m replaces it (0: the margin alone)")
+    zmp_reserve_share_one_foot: float = Field(0.95, ge=0, le=1, description="zmp_reserve_share in a stance on one "
+                                              "foot (one sole in contact): one ankle alone corrects the body's sway "
+                                              "there, and the centre of pressure passes a stepping ZMP by more; "
+                                              "the reserve off (zmp_reserve_share 0, or a user's own zmp_margin_m) "
+                                              "turns this off too")
     zmp_reserve_cap_share: float | None = Field(0.75, ge=0, le=1, description="the reserve asks at most this share "
                                                 "of the plan's smallest static CoM margin (0.75: the physics twin's "
                                                 "target for the CoP) plus zmp_overshoot_m, so a run with far more margin "
@@ -106,3 +111,10 @@ class PlanTimingSettings(BaseModel):
                                   "samples pass; off: one arm after the other")
     check_rounds: int = Field(8, ge=1, description="time stretches of a run whose samples exceed a limit")
     rest_samples: int = Field(1, ge=0, description="extra copies of a run's first and last sample (exactly zero velocity)")
+
+    def reserve_share(self, soles_in_contact: int) -> float:
+        """The ZMP reserve's share for a stance with this many soles on the ground: ``zmp_reserve_share_one_foot``
+        on one, ``zmp_reserve_share`` otherwise; 0 (no reserve) wherever ``zmp_reserve_share`` is 0."""
+        if self.zmp_reserve_share <= 0.0:
+            return 0.0
+        return self.zmp_reserve_share_one_foot if soles_in_contact == 1 else self.zmp_reserve_share

@@ -168,6 +168,41 @@ def test_the_reserve_keeps_the_zmp_a_share_of_the_runs_tightest_static_margin_in
     assert out[0.0][1] <= out[0.5][1] <= out[0.9][1] and out[0.0][1] < out[0.9][1]
 
 
+def test_on_one_foot_the_reserve_keeps_the_zmp_its_own_larger_share_inside(hrp5p, stances):
+    """A stance with one sole on the ground takes ``zmp_reserve_share_one_foot`` (0.95), two take
+    ``zmp_reserve_share`` (0.9); a reserve turned off (share 0) is off on one foot too. Timed on one foot, the ZMP
+    stays at least 0.95 of the run's tightest static CoM margin inside (active within 1 mm), and the run takes longer
+    than with the two-foot share."""
+    one, two = stances["one-legged"], stances["upright"]
+    assert sum(f.in_contact for f in one.feet) == 1 and sum(f.in_contact for f in two.feet) == 2
+    mass, com_local = 10.0, np.array([0.05, 0.0, 0.0])
+    assert _timer(hrp5p, one, mass, com_local, 0.0)[0].reserve_share == 0.95
+    assert _timer(hrp5p, two, mass, com_local, 0.0)[0].reserve_share == 0.9
+    assert _timer(hrp5p, one, mass, com_local, 0.0, zmp_reserve_share=0.0)[0].reserve_share == 0.0
+
+    q0, q1 = one.q.copy(), one.q.copy()
+    j = hrp5p.joint_index
+    q0[j("RSP")], q0[j("REP")] = 0.2, -1.6
+    q1[j("RSP")], q1[j("REP")] = -0.9, -0.3
+    W = np.array([q0, q1])
+    hold = HoldSpec("right", np.eye(4))
+    run = Run([MotionPiece("transfer", "right", W, "right", hold, path=W)], "right", hold, None)
+    line = W[0] + np.linspace(0.0, 1.0, 400)[:, None] * (W[1] - W[0])
+    _, ev = _timer(hrp5p, one, mass, com_local, 0.0)
+    tightest = float(ev.evaluate(line, hold).margin.min())
+    assert tightest > 0.01
+    out = {}
+    for share in (0.9, 0.95):
+        timer, ev = _timer(hrp5p, one, mass, com_local, 0.0, zmp_reserve_share_one_foot=share)
+        part = timer.time_part(run, W, np.zeros(0))
+        assert part is not None
+        out[share] = (ev.polygon.margin(zmp_cart_table(ev.evaluate(part.Q, hold).com, DT)).min(), len(part.Q))
+    assert out[0.95][0] >= 0.95 * tightest - 1e-4  # never violated (to the plan check's tolerance)
+    assert out[0.95][0] <= 0.95 * tightest + 0.001  # and active
+    assert out[0.9][0] < 0.95 * tightest - 1e-4  # the two-foot share lets it go farther out
+    assert out[0.95][1] > out[0.9][1]
+
+
 def test_the_reserve_asks_no_more_than_its_cap_once_the_plans_margin_is_known(hrp5p, arm_move):
     """With the plan's smallest static margin known, the reserve asks at most ``zmp_reserve_cap_share`` of it plus
     ``zmp_overshoot_m`` (never less than the ZMP margin); without it the cap does nothing. A capped run keeps its ZMP

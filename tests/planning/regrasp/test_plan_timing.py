@@ -514,7 +514,7 @@ def test_the_caps_second_timing_recomputes_only_the_runs_whose_reserve_the_cap_c
 
         def floor_asked(self, static_margin):
             if inside:  # not the ranking's, before any run is timed
-                asked[-1].append(self.s.zmp_reserve_share * float(np.maximum(static_margin, 0.0).min()))
+                asked[-1].append(self.reserve_share * float(np.maximum(static_margin, 0.0).min()))
             return floor(self, static_margin)
 
         with monkeypatch.context() as m:
