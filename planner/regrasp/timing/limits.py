@@ -22,8 +22,8 @@ class RunLimits:
     ``reserve_share``, ``plan_static_min_m``, ``_inertials`` and ``_asked``."""
 
     def _rows(self, run: Run, path: BlendedPath, grid: np.ndarray) -> tuple[list[LinearRows], float]:
-        """TOPP-RA's rows at the gridpoints (the ZMP, cart-table and multibody, and the torques) and the run's ZMP
-        floor (:meth:`_zmp_floor`) they keep."""
+        """TOPP-RA's rows at the gridpoints (the ZMP, cart-table and multibody, its step where the path's acceleration
+        switches, and the torques) and the run's ZMP floor (:meth:`_zmp_floor`) they keep."""
         P0, P1, P2 = path(grid, 0), path(grid, 1), path(grid, 2)
         t = self.task
         terms = com_path_terms(t.evaluator, P0, P1, P2, run.hold)
@@ -34,6 +34,9 @@ class RunLimits:
         z = zmp_rows(terms.com, terms.d1, terms.d2, polygon.normals, polygon.offsets, 0.0)
         room = z.room - need[:, None]
         rows = [LinearRows(grid, z.a, z.b, np.zeros_like(z.a), np.full_like(room, -np.inf), np.maximum(room, 0.0))]
+        if self.s.zmp_step_m > 0.0:  # where s_ddot switches, the ZMP steps by at most zmp_step_m along each normal
+            half = np.full_like(z.a, 0.5 * self.s.zmp_step_m)
+            rows.append(LinearRows(grid, z.a, np.zeros_like(z.b), np.zeros_like(z.a), -half, half))
         along = (self._inertial(run).along_path(P0, P1, P2)
                  if self.s.zmp_angular_momentum or self.limits is not None else None)
         if self.s.zmp_angular_momentum:

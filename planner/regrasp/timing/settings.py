@@ -80,6 +80,11 @@ class PlanTimingSettings(BaseModel):
                                               "there, and the centre of pressure passes a stepping ZMP by more; "
                                               "the reserve off (zmp_reserve_share 0, or a user's own zmp_margin_m) "
                                               "turns this off too")
+    zmp_step_m: float = Field(0.0, ge=0, description="largest step of the planned ZMP where the path's "
+                              "acceleration switches (TOPP-RA's profile goes from speeding up to braking in one "
+                              "gridpoint): the acceleration's part of the cart-table ZMP's offset from the CoM is "
+                              "held within half of it along every edge normal. The balanced body lags a ZMP step and "
+                              "overshoots it, and the feet feel the overshoot (0: no bound)")
     zmp_reserve_cap_share: float | None = Field(0.75, ge=0, le=1, description="the reserve asks at most this share "
                                                 "of the plan's smallest static CoM margin (0.75: the physics twin's "
                                                 "target for the CoP) plus zmp_overshoot_m, so a run with far more margin "

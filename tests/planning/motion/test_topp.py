@@ -203,6 +203,28 @@ def test_on_one_foot_the_reserve_keeps_the_zmp_its_own_larger_share_inside(hrp5p
     assert out[0.95][1] > out[0.9][1]
 
 
+def test_the_zmp_step_bound_keeps_each_step_of_the_planned_zmp_within_it(hrp5p, arm_move):
+    """Without a bound, the ZMP of a heavy straight swing steps where the profile switches from speeding up to
+    braking; with ``zmp_step_m``, the cart-table ZMP as the plan checker computes it moves by at most that (plus
+    0.5 mm for the speed term's change) along every edge normal from one sample to the next, and the run takes
+    longer."""
+    stance, W = arm_move
+    mass, com_local = 10.0, np.array([0.05, 0.0, 0.0])
+    hold = HoldSpec("right", np.eye(4))
+    run = Run([MotionPiece("transfer", "right", W, "right", hold, path=W)], "right", hold, None)
+    out = {}
+    for step in (0.0, 0.004):
+        timer, ev = _timer(hrp5p, stance, mass, com_local, 0.0, zmp_reserve_share=0.0, zmp_step_m=step)
+        part = timer.time_part(run, W, np.zeros(0))
+        assert part is not None
+        zmp = zmp_cart_table(ev.evaluate(part.Q, hold).com, DT)
+        moves = np.abs(np.diff(zmp @ ev.polygon.normals.T, axis=0)).max()
+        out[step] = (moves, len(part.Q))
+    assert out[0.0][0] > 0.004 + 0.0005  # unbounded, the switch steps farther
+    assert out[0.004][0] <= 0.004 + 0.0005
+    assert out[0.004][1] > out[0.0][1]
+
+
 def test_the_reserve_asks_no_more_than_its_cap_once_the_plans_margin_is_known(hrp5p, arm_move):
     """With the plan's smallest static margin known, the reserve asks at most ``zmp_reserve_cap_share`` of it plus
     ``zmp_overshoot_m`` (never less than the ZMP margin); without it the cap does nothing. A capped run keeps its ZMP
