@@ -55,9 +55,9 @@ class RunLimits:
         """How far inside the polygon a run keeps its ZMP, given the static CoM margins along its path: the ZMP
         margin, or the reserve's share (``reserve_share``: more on one foot) of the smallest of those margins where
         that is more. A fast swing's ZMP steps set the body swaying, and the feet then feel more than the planned
-        ZMP; keeping the ZMP close to where the CoM is at its tightest leaves that sway the rest of the margin. With ``zmp_reserve_cap_share`` and
-        the plan's smallest static margin known (:meth:`time_plan`), the reserve asks at most that share of it plus
-        ``zmp_overshoot_m``."""
+        ZMP; keeping the ZMP close to where the CoM is at its tightest leaves that sway the rest of the margin. With
+        ``zmp_reserve_cap_share`` and the plan's smallest static margin known (:meth:`time_plan`), the reserve asks
+        at most that share of it plus ``zmp_overshoot_m``."""
         tightest = float(np.maximum(static_margin, 0.0).min()) if static_margin.size else 0.0
         reserve = self.reserve_share * tightest
         if self._asked is not None:

@@ -14,9 +14,8 @@ rest to rest (:mod:`planner.motion.timing`). Here the plan is timed again as it 
    velocity and acceleration limits, the static plus inertial joint torques within the effort
    limits, and the cart-table ZMP at least ``zmp_margin_m`` inside the support polygon, or
    ``zmp_reserve_share`` (``zmp_reserve_share_one_foot`` on one foot) of the run's smallest static CoM margin
-   where that is more (where the
-   CoM itself is closer to an edge than that, as far inside as the CoM). The CoM terms come from
-   :mod:`planner.stability.com_path`, the torques from :mod:`planner.stability.effort` and
+   where that is more (where the CoM itself is closer to an edge than that, as far inside as the CoM). The CoM
+   terms come from :mod:`planner.stability.com_path`, the torques from :mod:`planner.stability.effort` and
    :mod:`planner.stability.inertial_torques`. Then ``1 / speed_scale`` stretches it in time.
 4. **Checks of the samples**, as the plan checker computes them: velocities and accelerations by
    finite differences, the ZMP by central differences, the static plus inertial torques; a run
