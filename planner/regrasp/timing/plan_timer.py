@@ -82,8 +82,6 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         self._checker = checker
         self.s = settings
         self.speed_scale = float(speed_scale)
-        #: the ZMP reserve's share for this task's stance (:meth:`PlanTimingSettings.reserve_share`)
-        self.reserve_share = settings.reserve_share(sum(1 for foot in task.stance.feet if foot.in_contact))
         self.zmp_margin_m = float(zmp_margin_m)
         self.dt = float(dt)
         robot = task.robot
@@ -112,6 +110,12 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
                       "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0,
                       "blends_removed": 0, "corners_pushed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0,
                       "via_paths": 0, "eased_s": 0.0, "easing_moves": 0, "spline_runs": 0, "dense_failures": []}
+
+    @property
+    def reserve_share(self) -> float:
+        """The ZMP reserve's share for this task's stance (:meth:`PlanTimingSettings.reserve_share`: more on one
+        foot)."""
+        return self.s.reserve_share(sum(1 for foot in self.task.stance.feet if foot.in_contact))
 
     @property
     def checker(self) -> StateChecker:
