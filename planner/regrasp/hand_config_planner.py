@@ -201,7 +201,7 @@ class HandConfigPlanner:
         found, res, failures, iterations = self._search(spec, solutions, on_iteration)
         if found and self._regrasps_before_handover(found[0].path):
             direct = self.with_direct_handovers(spec)
-            if self.direct_handover_nodes:
+            if direct is not spec:  # nodes were added
                 found2, res2, failures2, iterations2 = self._search(direct, solutions, on_iteration)
                 failures.update(failures2)
                 iterations += iterations2

@@ -101,15 +101,20 @@ def test_a_row_bound_finite_at_some_gridpoints_and_infinite_at_others_is_refused
         LinearRows(grid, a, a, 0.0 * a, -upper, upper)
 
 
-@pytest.fixture(scope="module")
-def arm_move(hrp5p, stances):
-    """The right hand carrying a heavy object from close to the chest to far in front (the CoM goes forward)."""
-    st_ = stances["upright"]
-    q0, q1 = st_.q.copy(), st_.q.copy()
-    j = hrp5p.joint_index
+def _arm_move_from(robot, stance) -> np.ndarray:
+    """The right hand carrying a heavy object from close to the chest to far in front (the CoM goes forward), the
+    rest of the body in the stance's posture: the two waypoints."""
+    q0, q1 = stance.q.copy(), stance.q.copy()
+    j = robot.joint_index
     q0[j("RSP")], q0[j("REP")] = 0.2, -1.6
     q1[j("RSP")], q1[j("REP")] = -0.9, -0.3
-    return st_, np.array([q0, q1])
+    return np.array([q0, q1])
+
+
+@pytest.fixture(scope="module")
+def arm_move(hrp5p, stances):
+    """That arm move in the upright stance."""
+    return stances["upright"], _arm_move_from(hrp5p, stances["upright"])
 
 
 def _timer(robot, stance, mass, com_local, zmp_margin, limits=True, **timing):
@@ -180,11 +185,7 @@ def test_on_one_foot_the_reserve_keeps_the_zmp_its_own_larger_share_inside(hrp5p
     assert _timer(hrp5p, two, mass, com_local, 0.0)[0].reserve_share == 0.9
     assert _timer(hrp5p, one, mass, com_local, 0.0, zmp_reserve_share=0.0)[0].reserve_share == 0.0
 
-    q0, q1 = one.q.copy(), one.q.copy()
-    j = hrp5p.joint_index
-    q0[j("RSP")], q0[j("REP")] = 0.2, -1.6
-    q1[j("RSP")], q1[j("REP")] = -0.9, -0.3
-    W = np.array([q0, q1])
+    W = _arm_move_from(hrp5p, one)
     hold = HoldSpec("right", np.eye(4))
     run = Run([MotionPiece("transfer", "right", W, "right", hold, path=W)], "right", hold, None)
     line = W[0] + np.linspace(0.0, 1.0, 400)[:, None] * (W[1] - W[0])
