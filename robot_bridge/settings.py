@@ -27,6 +27,12 @@ class BridgeSettings(BaseSettings):
     connect: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT], description="zenoh endpoints this peer connects to")
     multicast_scouting: bool = Field(False, description="off: explicit endpoints only (fast, no surprise peers)")
     lease_s: float = Field(1.0, gt=0, le=60, description="zenoh transport lease: a silent peer is dropped after it")
+    connect_retry_s: float = Field(
+        0.1, gt=0, le=10.0,
+        description="first wait before a lost or absent connect endpoint is tried again; each wait doubles up to "
+                    "connect_retry_max_s. zenoh's own 1 s doubling to 4 s left a peer of the service (its balance "
+                    "telemetry) unconnected for seconds after a controller restart")
+    connect_retry_max_s: float = Field(1.0, gt=0, le=60.0, description="the longest wait between connect attempts")
     heartbeat_period_s: float = Field(0.05, gt=0, le=1.0, description="controller heartbeat period")
     watchdog_timeout_s: float = Field(
         0.25, gt=0, le=5.0,
@@ -76,6 +82,13 @@ class BridgeSettings(BaseSettings):
     tls_root_ca: Path | None = Field(None, description="zenoh TLS: CA certificate (PEM) both peers trust")
     tls_cert: Path | None = Field(None, description="zenoh TLS: this peer's certificate (PEM), for mutual TLS")
     tls_key: Path | None = Field(None, description="zenoh TLS: this peer's private key (PEM)")
+
+    @model_validator(mode="after")
+    def _retry_waits_ordered(self) -> "BridgeSettings":
+        if self.connect_retry_max_s < self.connect_retry_s:
+            raise ValueError(f"connect_retry_max_s ({self.connect_retry_max_s} s) is below connect_retry_s "
+                             f"({self.connect_retry_s} s)")
+        return self
 
     @field_validator("listen", "connect")
     @classmethod

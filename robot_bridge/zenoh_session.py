@@ -2,7 +2,9 @@
 
 Never the library defaults: multicast scouting is off and the endpoints are
 explicit (a peer opens in milliseconds instead of half a second, and no stray
-peer on the network joins). The transport lease is shortened so a frozen peer's
+peer on the network joins). A lost endpoint is tried again within the settings'
+``connect_retry_max_s`` (1 s), so a restarted controller is found again by every
+peer of the service, its telemetry's as well as its commands'. The transport lease is shortened so a frozen peer's
 liveliness token goes away in about a second; the application heartbeat covers
 the rest. Shared memory between peers of one host is off by default: the robot's
 controller is on another host, so loopback then measures the TCP path the robot
@@ -31,6 +33,8 @@ from .settings import BridgeSettings
 
 #: zenoh's keep-alive messages per lease period.
 KEEP_ALIVE_PER_LEASE = 4
+#: Growth of the wait between connect attempts (up to the settings' maximum).
+CONNECT_RETRY_FACTOR = 2.0
 
 
 def make_config(settings: BridgeSettings) -> zenoh.Config:
@@ -40,6 +44,9 @@ def make_config(settings: BridgeSettings) -> zenoh.Config:
     config.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
     config.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
     config.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    config.insert_json5("connect/retry", json.dumps({
+        "period_init_ms": int(settings.connect_retry_s * 1000), "period_max_ms": int(settings.connect_retry_max_s * 1000),
+        "period_increase_factor": CONNECT_RETRY_FACTOR}))
     config.insert_json5("transport/link/tx/lease", json.dumps(int(settings.lease_s * 1000)))
     config.insert_json5("transport/link/tx/keep_alive", json.dumps(KEEP_ALIVE_PER_LEASE))
     config.insert_json5("transport/link/tx/queue/size/real_time", json.dumps(settings.tx_queue_batches))

@@ -258,6 +258,9 @@ class Health(StrictModel):
     controller_alive: bool
     version: str
     robot_id: str | None = Field(None, description="the robot this service's bridge drives (what a recover job names)")
+    balance_age_s: float | None = Field(
+        None, description="seconds since the controller's last balance sample (a physics plant's state/balance) "
+                          "reached the service; None when none has (a kinematic controller publishes none)")
 
 
 class Problem(OpenModel):

@@ -47,7 +47,12 @@ def healthz(svc: Service = Depends(service)) -> Health:
     return Health(status="ok" if runner_ok else "degraded", database=svc.store.engine.dialect.name,
                   executor=svc.executor.name if svc.executor is not None else "none", workers=workers,
                   queue_depth=depth, controller_alive=svc.bridge.controller_alive(), version=code_version(),
-                  robot_id=getattr(svc.bridge, "robot_id", None))
+                  robot_id=getattr(svc.bridge, "robot_id", None), balance_age_s=_balance_age(svc))
+
+
+def _balance_age(svc: Service) -> float | None:
+    """Seconds since the physics plant's last balance sample reached the service (None: none has, or no watch)."""
+    return None if svc.executions.balance is None else svc.executions.balance.last_sample_age_s()
 
 
 class Identity(StrictModel):

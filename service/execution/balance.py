@@ -1,27 +1,24 @@
 """The robot's balance as its controller reports it (``state/balance``, the physics plant; CONTRACT 6).
 
-A zenoh peer of the service's own, on the bridge's endpoints, keeps the recent samples (for the console's live CoP
-trace) and hands them to listeners (an execution records them in its job's events, hence the audit's
-``/robot/balance``). Telemetry only: nothing here commands the robot, and a controller without a physics plant
+A zenoh peer of the service's own, on the bridge's endpoints, hands every sample to its listeners (an execution
+records them in its job's events, hence the console's live CoP trace and the audit's ``/robot/balance``) and keeps
+when the last one came (``/healthz``'s ``balance_age_s``: whether the stream reaches the service before a dispatch). Telemetry only: nothing here commands the robot, and a controller without a physics plant
 simply publishes none.
 """
 
 from __future__ import annotations
 
-import collections
 import json
 import logging
 import threading
+import time
 from typing import Any, Callable
 
 log = logging.getLogger("regrasp.execution")
 
-#: Samples kept for the console (10 s at the controller's 50 Hz).
-KEPT_SAMPLES = 500
-
 
 class BalanceWatch:
-    """Subscribes to ``regrasp/ROBOT/state/balance``; ``recent(after)`` gives what came since a stamp."""
+    """Subscribes to ``regrasp/ROBOT/state/balance``; ``listen(fn)`` hands on each sample."""
 
     def __init__(self) -> None:
         from robot_bridge.settings import BridgeSettings, Keys
@@ -29,7 +26,7 @@ class BalanceWatch:
 
         settings = BridgeSettings()
         self.robot_id = settings.robot_id
-        self._samples: collections.deque[dict[str, Any]] = collections.deque(maxlen=KEPT_SAMPLES)
+        self._last_at: float | None = None  # this process's monotonic clock at the last sample
         self._listeners: list[Callable[[dict[str, Any]], None]] = []
         self._lock = threading.Lock()
         self._session = open_session(settings)
@@ -43,7 +40,7 @@ class BalanceWatch:
         if not isinstance(doc, dict):
             return
         with self._lock:
-            self._samples.append(doc)
+            self._last_at = time.monotonic()
             listeners = list(self._listeners)
         for fn in listeners:
             try:
@@ -51,10 +48,10 @@ class BalanceWatch:
             except Exception:  # noqa: BLE001 - a listener's fault never reaches zenoh's thread
                 log.exception("balance listener failed")
 
-    def recent(self, after: float | None = None) -> list[dict[str, Any]]:
-        """The kept samples with ``stamp`` after ``after`` (all when None), oldest first."""
+    def last_sample_age_s(self) -> float | None:
+        """Seconds since the last sample reached this peer; None when none has."""
         with self._lock:
-            return [s for s in self._samples if after is None or float(s.get("stamp", 0.0)) > after]
+            return None if self._last_at is None else time.monotonic() - self._last_at
 
     def listen(self, fn: Callable[[dict[str, Any]], None]) -> Callable[[], None]:
         """Call ``fn`` with every sample from now; returns the function that stops it."""

@@ -361,5 +361,5 @@ def test_unsigned_messages_from_a_rogue_do_not_end_a_running_execution(bridge, l
     rec = Recorder()
     res = disp.execute(long_plan, job_id="forged-job", approved_sha256=sha, approval_expires_at=exp, on_event=rec)
     assert res.status == "succeeded", res.reason
-    refused = [d for _, k, d in rec.events if k == "controller" and d["status"] == "refused"]
+    refused = rec.refused_commands()
     assert refused and all("unsigned" in d["reason"] for d in refused)

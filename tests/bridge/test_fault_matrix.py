@@ -73,6 +73,12 @@ class Recorder:
     def first(self, kind: str):
         return next((e for e in self.events if e[1] == kind), None)
 
+    def refused_commands(self) -> list[dict]:
+        """The controller's refusals of what the dispatcher sent, but for its heartbeats: a heartbeat that
+        crosses the job's end on the wire is refused as of an ended job, whatever the test is about."""
+        return [d for _, k, d in self.events
+                if k == "controller" and d["status"] == "refused" and d.get("kind") != "heartbeat"]
+
 
 def run(disp, plan, job_id="job-1", approved_plan=None, expires_in=300.0, on_event=None, stop_event=None, threshold_m=None):
     sha, exp = approval_for(approved_plan if approved_plan is not None else plan, expires_in)
@@ -225,7 +231,7 @@ def test_reordered_segments_are_refused_and_recovered(bridge, long_plan, plant):
     ctl, disp, spy = bridge(speed=2.0, dispatcher_cls=Reordering)
     res, rec = run(disp, long_plan)
     # the controller never plays out of order: it refuses segment 2, takes 1, then 2 again
-    refused = [d for _, k, d in rec.events if k == "controller" and d["status"] == "refused"]
+    refused = rec.refused_commands()
     assert refused and "out of sequence" in refused[0]["reason"] and refused[0]["fatal"] is False
     assert res.status == "succeeded", res.reason
     js = disp.measured_state()
@@ -285,8 +291,10 @@ def test_segments_refused_behind_a_gap_keep_their_resend_budget(bridge, long_pla
     res, rec = run(disp, long_plan)
     assert res.status == "succeeded", res.reason
     assert disp.publishes[8] == 9  # sent once, then eight times more: more than its budget, behind gaps
-    refused = [d for _, k, d in rec.events if k == "controller" and d["status"] == "refused"]
+    refused = rec.refused_commands()
     assert refused and all(d["fatal"] is False for d in refused)
+    heartbeats = [d for _, k, d in rec.events if k == "controller" and d.get("kind") == "heartbeat"]
+    assert all("which this controller ended (succeeded)" in d["reason"] for d in heartbeats), heartbeats
     head_resends = [d["resent"] for _, k, d in rec.events if k == "segment" and "resent" in d and not d["behind_gap"]]
     assert max(head_resends) <= dispatch.max_resends
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import threading
+import time
 
 import pytest
 from pydantic import ValidationError
@@ -12,7 +14,14 @@ from robot_bridge.settings import BridgeSettings, Keys
 from robot_bridge.zenoh_session import make_config
 from schemas.bridge import TrajectorySegment
 
+from .conftest import free_port
 from .plans import build_plan
+
+#: How long the listening peer is away: past zenoh's own 4 s longest wait between connect attempts.
+PEER_AWAY_S = 4.5
+#: How soon after the peer is back its samples must arrive: the settings' 1 s longest wait, and slack for a busy host
+#: (zenoh's own doubling waits took 2-2.5 s after this absence).
+REFOUND_WITHIN_S = 1.8
 
 
 def _segment(**over):
@@ -62,6 +71,8 @@ def test_bridge_settings_and_zenoh_config():
         BridgeSettings(connect=["127.0.0.1:7447"])
     with pytest.raises(ValidationError, match="heartbeat"):
         BridgeSettings(heartbeat_period_s=0.2, watchdog_timeout_s=0.3)
+    with pytest.raises(ValidationError, match="connect_retry_max_s"):
+        BridgeSettings(connect_retry_s=2.0, connect_retry_max_s=1.0)
     k = Keys("hrp5p")
     assert (k.trajectory, k.stop, k.joints, k.exec, k.heartbeat, k.alive) == (
         "regrasp/hrp5p/cmd/trajectory", "regrasp/hrp5p/cmd/stop", "regrasp/hrp5p/state/joints",
@@ -89,3 +100,30 @@ def test_control_publishers_are_declared_with_the_control_qos():
             assert str(pub.key_expr) == key
             assert pub.priority == zenoh.Priority.REAL_TIME
             assert pub.congestion_control == zenoh.CongestionControl.DROP
+
+
+def test_a_peer_that_went_away_is_connected_again_within_the_longest_retry_wait():
+    """A controller restarted on its endpoint reaches every peer of the service again within about
+    ``connect_retry_max_s``, the telemetry's as well as the commands' (zenoh's own waits double to 4 s)."""
+    from robot_bridge.zenoh_session import open_session
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    listener = open_session(BridgeSettings(listen=[endpoint], connect=[]))
+    follower = open_session(BridgeSettings(connect=[endpoint]))
+    heard = threading.Event()
+    follower.declare_subscriber("regrasp/test/refound", lambda sample: heard.set())
+    try:
+        time.sleep(0.5)
+        listener.close()
+        time.sleep(PEER_AWAY_S)
+        listener = open_session(BridgeSettings(listen=[endpoint], connect=[]))
+        back = time.monotonic()
+        publisher = listener.declare_publisher("regrasp/test/refound")
+        while not heard.is_set() and time.monotonic() - back < 10.0:
+            publisher.put(b"x")
+            heard.wait(0.01)
+        assert heard.is_set(), "the follower never connected again"
+        assert time.monotonic() - back < REFOUND_WITHIN_S
+    finally:
+        listener.close()
+        follower.close()

@@ -25,6 +25,7 @@ from tests.service.conftest import (
     free_port,
     stop_process,
     submit_approved_plan,
+    wait_balance_stream,
     wait_controller_alive,
     wait_state,
 )
@@ -58,6 +59,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Server, subp
                            cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
     try:
         wait_controller_alive(srv, sim, CONTROLLER_UP_TIMEOUT_S)
+        wait_balance_stream(srv, sim, CONTROLLER_UP_TIMEOUT_S)
         yield srv, sim
     finally:
         stop_process(sim)

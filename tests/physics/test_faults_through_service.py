@@ -28,6 +28,7 @@ from tests.service.conftest import (
     free_port,
     stop_process,
     submit_approved_plan,
+    wait_balance_stream,
     wait_controller_alive,
     wait_state,
 )
@@ -88,6 +89,7 @@ def test_a_physics_fault_aborts_the_execution_with_its_reason_in_the_audit(rig, 
     proc = _physics_controller(srv.data_dir, port, flags)
     try:
         wait_controller_alive(srv, proc, CONTROLLER_UP_TIMEOUT_S)
+        wait_balance_stream(srv, proc, CONTROLLER_UP_TIMEOUT_S)
         job_id = submit_approved_plan(srv, {"scenario": "stand-10"}, JOB_TIMEOUT_S)
         with srv.client("bob") as bob:
             r = bob.post(f"/v1/jobs/{job_id}/dispatch")

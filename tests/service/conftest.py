@@ -112,6 +112,24 @@ def wait_controller_alive(srv: "Server", proc: subprocess.Popen[bytes], timeout_
         time.sleep(0.2)
 
 
+#: A balance sample younger than this (s) says a physics controller's stream reaches the service now
+#: (the controller publishes at 50 Hz).
+BALANCE_FRESH_S = 0.5
+
+
+def wait_balance_stream(srv: "Server", proc: subprocess.Popen[bytes], timeout_s: float) -> None:
+    """Wait until the server's balance watch hears the physics controller ``proc`` (``/healthz``'s
+    ``balance_age_s`` fresh): its samples then reach the job's audit from the dispatch on."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        age = httpx.get(srv.url + "/healthz", timeout=5).json()["balance_age_s"]
+        if age is not None and age < BALANCE_FRESH_S:
+            return
+        assert proc.poll() is None, (srv.data_dir / "controller-sim.log").read_text()[-2000:]
+        assert time.monotonic() < deadline, f"the controller's balance stream never reached the service (age {age})"
+        time.sleep(0.1)
+
+
 def stop_process(proc: subprocess.Popen[bytes], timeout: float = 10.0) -> None:
     """SIGTERM, then SIGKILL if it has not exited within ``timeout`` s."""
     proc.send_signal(signal.SIGTERM)

@@ -14,6 +14,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Iterator
 
+import httpx
 import pytest
 from conftest import (
     BRIDGE_WATCHDOG_S,
@@ -83,6 +84,8 @@ def test_dispatch_executes_to_success(rig: tuple[Server, int], sim: None) -> Non
         for expected in ('"event":"gate"', '"event":"segment"', '"state":"dispatching"', '"state":"executing"',
                          '"state":"succeeded"'):
             assert expected in history, expected
+    # a kinematic controller publishes no balance: the health says none has come
+    assert httpx.get(srv.url + "/healthz", timeout=5).json()["balance_age_s"] is None
 
 
 def test_operator_stop_aborts(rig: tuple[Server, int], sim: None) -> None:
