@@ -4,9 +4,9 @@ Never the library defaults: multicast scouting is off and the endpoints are
 explicit (a peer opens in milliseconds instead of half a second, and no stray
 peer on the network joins). A lost endpoint is tried again within the settings'
 ``connect_retry_max_s`` (1 s), so a restarted controller is found again by every
-peer of the service, its telemetry's as well as its commands'. The transport lease is shortened so a frozen peer's
-liveliness token goes away in about a second; the application heartbeat covers
-the rest. Shared memory between peers of one host is off by default: the robot's
+peer of the service, its telemetry's as well as its commands'. The transport
+lease is shortened so a frozen peer's liveliness token goes away in about a
+second; the application heartbeat covers the rest. Shared memory between peers of one host is off by default: the robot's
 controller is on another host, so loopback then measures the TCP path the robot
 uses (zenoh's lazily set-up shared memory delays the first large messages of
 each link).

@@ -2,8 +2,9 @@
 
 A zenoh peer of the service's own, on the bridge's endpoints, hands every sample to its listeners (an execution
 records them in its job's events, hence the console's live CoP trace and the audit's ``/robot/balance``) and keeps
-when the last one came (``/healthz``'s ``balance_age_s``: whether the stream reaches the service before a dispatch). Telemetry only: nothing here commands the robot, and a controller without a physics plant
-simply publishes none.
+when the last one came (``/healthz``'s ``balance_age_s``: whether the stream reaches the service before a
+dispatch). Telemetry only: nothing here commands the robot, and a controller without a physics plant simply
+publishes none.
 """
 
 from __future__ import annotations
