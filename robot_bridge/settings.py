@@ -83,13 +83,6 @@ class BridgeSettings(BaseSettings):
     tls_cert: Path | None = Field(None, description="zenoh TLS: this peer's certificate (PEM), for mutual TLS")
     tls_key: Path | None = Field(None, description="zenoh TLS: this peer's private key (PEM)")
 
-    @model_validator(mode="after")
-    def _retry_waits_ordered(self) -> "BridgeSettings":
-        if self.connect_retry_max_s < self.connect_retry_s:
-            raise ValueError(f"connect_retry_max_s ({self.connect_retry_max_s} s) is below connect_retry_s "
-                             f"({self.connect_retry_s} s)")
-        return self
-
     @field_validator("listen", "connect")
     @classmethod
     def _endpoints(cls, values: list[str]) -> list[str]:
@@ -102,6 +95,9 @@ class BridgeSettings(BaseSettings):
     def _check(self) -> "BridgeSettings":
         if self.watchdog_timeout_s <= 2 * self.heartbeat_period_s:
             raise ValueError("watchdog_timeout_s must exceed two heartbeat periods, or one late heartbeat aborts a job")
+        if self.connect_retry_max_s < self.connect_retry_s:
+            raise ValueError(f"connect_retry_max_s ({self.connect_retry_max_s} s) is below connect_retry_s "
+                             f"({self.connect_retry_s} s)")
         tls = [self.tls_root_ca, self.tls_cert, self.tls_key]
         if any(v is not None for v in tls) and any(v is None for v in tls):
             raise ValueError("mutual TLS needs tls_root_ca, tls_cert and tls_key together")

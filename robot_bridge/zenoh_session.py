@@ -6,10 +6,10 @@ peer on the network joins). A lost endpoint is tried again within the settings'
 ``connect_retry_max_s`` (1 s), so a restarted controller is found again by every
 peer of the service, its telemetry's as well as its commands'. The transport
 lease is shortened so a frozen peer's liveliness token goes away in about a
-second; the application heartbeat covers the rest. Shared memory between peers of one host is off by default: the robot's
-controller is on another host, so loopback then measures the TCP path the robot
-uses (zenoh's lazily set-up shared memory delays the first large messages of
-each link).
+second; the application heartbeat covers the rest. Shared memory between peers
+of one host is off by default: the robot's controller is on another host, so
+loopback then measures the TCP path the robot uses (zenoh's lazily set-up shared
+memory delays the first large messages of each link).
 
 zenoh's own mutual TLS is switched on by the settings' ``tls_root_ca``,
 ``tls_cert`` and ``tls_key`` (both peers; endpoints ``tls/HOST:PORT``): each peer

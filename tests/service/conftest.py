@@ -14,7 +14,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import httpx
 import pytest
@@ -103,13 +103,20 @@ def start_controller_sim(data_dir: Path, port: int, speed: float, **settings: An
         cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
 
 
+def wait_health(srv: "Server", proc: subprocess.Popen[bytes], timeout_s: float, ready: Callable[[dict], bool],
+                what: str) -> None:
+    """Poll ``/healthz`` until ``ready(health)``; fail if the simulated controller ``proc`` exits (with its log's
+    tail) or ``timeout_s`` passes (saying ``what`` never happened, and the last health)."""
+    deadline = time.monotonic() + timeout_s
+    while not ready(health := httpx.get(srv.url + "/healthz", timeout=5).json()):
+        assert proc.poll() is None, (srv.data_dir / "controller-sim.log").read_text()[-2000:]
+        assert time.monotonic() < deadline, f"{what} (last health: {health})"
+        time.sleep(0.1)
+
+
 def wait_controller_alive(srv: "Server", proc: subprocess.Popen[bytes], timeout_s: float) -> None:
     """Wait until the server's bridge sees the simulated controller ``proc``; fail if it exits or never shows."""
-    deadline = time.monotonic() + timeout_s
-    while not httpx.get(srv.url + "/healthz", timeout=5).json()["controller_alive"]:
-        assert proc.poll() is None, (srv.data_dir / "controller-sim.log").read_text()[-2000:]
-        assert time.monotonic() < deadline, "the simulated controller never came up"
-        time.sleep(0.2)
+    wait_health(srv, proc, timeout_s, lambda h: h["controller_alive"], "the simulated controller never came up")
 
 
 #: A balance sample younger than this (s) says a physics controller's stream reaches the service now
@@ -120,14 +127,8 @@ BALANCE_FRESH_S = 0.5
 def wait_balance_stream(srv: "Server", proc: subprocess.Popen[bytes], timeout_s: float) -> None:
     """Wait until the server's balance watch hears the physics controller ``proc`` (``/healthz``'s
     ``balance_age_s`` fresh): its samples then reach the job's audit from the dispatch on."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        age = httpx.get(srv.url + "/healthz", timeout=5).json()["balance_age_s"]
-        if age is not None and age < BALANCE_FRESH_S:
-            return
-        assert proc.poll() is None, (srv.data_dir / "controller-sim.log").read_text()[-2000:]
-        assert time.monotonic() < deadline, f"the controller's balance stream never reached the service (age {age})"
-        time.sleep(0.1)
+    wait_health(srv, proc, timeout_s, lambda h: h["balance_age_s"] is not None and h["balance_age_s"] < BALANCE_FRESH_S,
+                "the controller's balance stream never reached the service")
 
 
 def stop_process(proc: subprocess.Popen[bytes], timeout: float = 10.0) -> None:
