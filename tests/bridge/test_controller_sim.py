@@ -193,9 +193,11 @@ def _idle(peer: Peer) -> tuple[list[str], np.ndarray]:
 
 
 def _posture_after(peer: Peer, t: float) -> np.ndarray:
-    """The posture in the first joint state that arrived after ``t`` with no job executing."""
+    """The posture in the first joint state that arrived after ``t`` with no job executing (which names no index
+    of one either)."""
     found = peer.wait_for(lambda: next((js for _, js in peer.joints_since(t) if js.job_id is None), None),
                           "a joint state after the job ended")
+    assert found.index is None, found
     return np.array(found.q)
 
 
