@@ -73,11 +73,14 @@ class Recorder:
     def first(self, kind: str):
         return next((e for e in self.events if e[1] == kind), None)
 
+    def controller(self) -> list[dict]:
+        """What the dispatcher recorded of the controller's statuses, in order."""
+        return [d for _, k, d in self.events if k == "controller"]
+
     def refused_commands(self) -> list[dict]:
         """The controller's refusals of what the dispatcher sent, but for its heartbeats: a heartbeat that
         crosses the job's end on the wire is refused as of an ended job, whatever the test is about."""
-        return [d for _, k, d in self.events
-                if k == "controller" and d["status"] == "refused" and d.get("kind") != "heartbeat"]
+        return [d for d in self.controller() if d["status"] == "refused" and d.get("kind") != "heartbeat"]
 
 
 def run(disp, plan, job_id="job-1", approved_plan=None, expires_in=300.0, on_event=None, stop_event=None, threshold_m=None):
@@ -208,7 +211,7 @@ def test_duplicated_segments_are_ignored_and_the_job_succeeds(bridge, long_plan)
     ctl, disp, spy = bridge(speed=3.0, dispatcher_cls=Duplicating)
     res, rec = run(disp, long_plan)
     assert res.status == "succeeded", res.reason
-    duplicates = [d for _, k, d in rec.events if k == "controller" and d["status"] == "duplicate"]
+    duplicates = [d for d in rec.controller() if d["status"] == "duplicate"]
     assert duplicates and "already held" in duplicates[0]["reason"]
 
 
@@ -293,7 +296,7 @@ def test_segments_refused_behind_a_gap_keep_their_resend_budget(bridge, long_pla
     assert disp.publishes[8] == 9  # sent once, then eight times more: more than its budget, behind gaps
     refused = rec.refused_commands()
     assert refused and all(d["fatal"] is False for d in refused)
-    heartbeats = [d for _, k, d in rec.events if k == "controller" and d.get("kind") == "heartbeat"]
+    heartbeats = [d for d in rec.controller() if d.get("kind") == "heartbeat"]
     assert all("which this controller ended (succeeded)" in d["reason"] for d in heartbeats), heartbeats
     head_resends = [d["resent"] for _, k, d in rec.events if k == "segment" and "resent" in d and not d["behind_gap"]]
     assert max(head_resends) <= dispatch.max_resends

@@ -190,9 +190,9 @@ def test_a_refusal_for_the_controllers_own_end_waits_for_its_own_report(bridge, 
     rec = Recorder()
     res = disp.execute(long_plan, job_id=LATE_JOB, approved_sha256=sha, approval_expires_at=exp, on_event=rec)
     ended_at = time.monotonic()
-    refused = [d for _, k, d in rec.events if k == "controller" and d["status"] == "refused"
-               and ENDED_BY_CONTROLLER in (d.get("reason") or "")]
-    assert refused and "(stopped)" in refused[0]["reason"], [d for _, k, d in rec.events if k == "controller"]
+    refused = [d for d in rec.controller()
+               if d["status"] == "refused" and ENDED_BY_CONTROLLER in (d.get("reason") or "")]
+    assert refused and "(stopped)" in refused[0]["reason"], rec.controller()
     assert watch.refusal_taken_at is not None  # the loop took the refusal before the controller's own report
     assert res.status == "aborted", res.reason
     assert res.reason.startswith("controller stopped: dead-man"), res.reason

@@ -11,7 +11,7 @@ from pydantic import ValidationError
 
 from robot_bridge.dispatcher import split_segments
 from robot_bridge.settings import BridgeSettings, Keys
-from robot_bridge.zenoh_session import make_config
+from robot_bridge.zenoh_session import make_config, open_session
 from schemas.bridge import TrajectorySegment
 
 from .conftest import free_port
@@ -105,8 +105,6 @@ def test_control_publishers_are_declared_with_the_control_qos():
 def test_a_peer_that_went_away_is_connected_again_within_the_longest_retry_wait():
     """A controller restarted on its endpoint reaches every peer of the service again within about
     ``connect_retry_max_s``, the telemetry's as well as the commands' (zenoh's own waits double to 4 s)."""
-    from robot_bridge.zenoh_session import open_session
-
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     listener = open_session(BridgeSettings(listen=[endpoint], connect=[]))
     follower = open_session(BridgeSettings(connect=[endpoint]))
