@@ -68,8 +68,10 @@ class PlanTimingSettings(BaseModel):
                               "by as much as its asked blend cuts in, so that the blend passes through the checked "
                               "corner, and keeps its full size where that path passes the same checks "
                               "(run_timing._pushed_corners); off: the blend stays shrunk")
-    grid_step_rad: float = Field(0.02, gt=0, description="TOPP-RA gridpoint spacing along the path (rad)")
-    max_gridpoints: int = Field(400, ge=10, description="TOPP-RA gridpoints per run at most")
+    grid_step_rad: float = Field(0.005, gt=0, description="TOPP-RA gridpoint spacing along the path (rad): s'' is "
+                                 "constant between gridpoints and each row holds at both ends of an interval, so a "
+                                 "coarser grid is slower where the limits change along the path (the blends)")
+    max_gridpoints: int = Field(2000, ge=10, description="TOPP-RA gridpoints per run at most")
     zmp_reserve_share: float = Field(0.9, ge=0, le=1, description="the ZMP is kept at least this share of the "
                                      "run's smallest static CoM margin inside the polygon too (never less than "
                                      "zmp_margin_m; where the CoM itself is closer, as far as the CoM): the motion's "

@@ -56,6 +56,31 @@ def test_a_straight_two_waypoint_path_takes_the_bang_bang_time(D, v, a, ratio):
     assert T == pytest.approx(bang_bang_duration(D, vmax, amax), rel=2e-3)
 
 
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), corners=st.integers(1, 3))
+def test_the_default_grid_times_a_blended_path_within_a_tenth_of_a_percent_of_a_converged_one(seed, corners):
+    """TOPP-RA's interpolation discretisation holds each row at both ends of an interval with s'' constant across
+    it: a coarser grid is slower where the limits change along the path (the blends), never quicker. The plan
+    timing's default grid stays within 0.15 % of a 0.0005 rad grid's time (a 0.02 rad grid was up to 0.4 % slower on
+    such paths)."""
+    rng = np.random.default_rng(seed)
+    n = 3
+    W = np.cumsum(rng.uniform(-1.2, 1.2, (corners + 2, n)), axis=0)
+    path = BlendedPath(W, np.full(corners, 0.7), True)
+    vmax, amax = rng.uniform(0.5, 1.5, n), rng.uniform(0.5, 3.0, n)
+    timing = PlanTimingSettings()
+
+    def duration(step: float, most: int) -> float:
+        grid = gridpoints_for(path, step, most)
+        sd = parameterize(path, grid, vmax, amax, [])
+        assert sd is not None
+        return float(profile_times(grid, sd)[-1])
+
+    converged = duration(0.0005, 100_000)
+    default = duration(timing.grid_step_rad, timing.max_gridpoints)
+    assert converged * (1 - 1e-6) <= default <= converged * 1.0015
+
+
 class _RowsPerGridpoint(toppra.constraint.LinearConstraint):
     """The reference form of the same rows: TOPP-RA's general constraint, its own ``F_i = [I; -I]`` and
     ``g_i = [upper_i; -lower_i]`` at every gridpoint."""
