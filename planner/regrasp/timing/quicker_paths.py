@@ -14,6 +14,7 @@ from planner.forking import helper_may_fork
 from planner.motion.corner_easing import eased
 from planner.motion.smoothing import SmoothingSettings, partial_shortcut, path_length, shortcut
 from planner.motion.task_space_vias import via_paths
+from planner.motion.time_box_vias import box_via_paths, straight_time
 from planner.motion.trrt import plan_motion
 from planner.regrasp.plan_assembly import MotionPiece, object_states
 from planner.regrasp.timing.runs import Run, is_planned
@@ -23,6 +24,8 @@ from planner.termination import Termination
 
 #: The random stream of the timing's shortcuts (apart from the search's hop streams).
 SHORTCUT_STREAM = 7919
+#: The random stream of the joint-space box vias (apart from the shortcuts', so adding them leaves those draws alone).
+BOX_VIA_STREAM = 7927
 
 
 class QuickerPaths:
@@ -74,8 +77,8 @@ class QuickerPaths:
         validity = self.checker.validity(hold, None if hold is not None else current, None, active=None)
         rng = np.random.default_rng([t.scenario.seed, SHORTCUT_STREAM, k])
         P = np.asarray(piece.path, dtype=float)
-        paths = self._quickest(self._replans(P, validity, rng, weights) + self._via_paths(piece, validity, rng, weights),
-                               weights)
+        found = self._replans(P, validity, rng, weights) + self._via_paths(piece, validity, rng, weights)
+        paths = self._quickest(found + self._box_via_paths(k, P, found, validity, weights), weights)
         full = min(len(paths), self.s.shortened_paths)
         settings = self._smoothing(self.s.shortcut_iterations)
         paths = self._quickest([self._shortened(Q, validity, rng, settings, weights) for Q in paths[:full]]
@@ -191,6 +194,22 @@ class QuickerPaths:
                 paths.append(shortcut(res.path, validity, rng, short, weights=weights).path if len(res.path) > 2
                              else res.path)
         return paths
+
+    def _box_via_paths(self, k: int, P: np.ndarray, found: list[np.ndarray], validity,
+                       weights: np.ndarray) -> list[np.ndarray]:
+        """Paths between the ends of the k-th piece's path P through joint-space vias that keep it within a share of
+        the straight line's time at the velocity limits (:mod:`planner.motion.time_box_vias`), checked every
+        ``shortcut_check_rad``; none where a path ``found`` so far is within ``box_vias.min_ratio`` of that time. They
+        draw from the piece's own stream of them, so the other paths' draws stay as they were."""
+        s = self.s.box_vias
+        line = straight_time(P[0], P[-1], weights)
+        if not s.draws or min(path_length(Q, weights) for Q in found) <= s.min_ratio * line:
+            return []
+        robot = self.task.robot
+        out = box_via_paths(P[0], P[-1], validity, np.random.default_rng([self.task.scenario.seed, BOX_VIA_STREAM, k]),
+                            weights, robot.lower, robot.upper, self.s.shortcut_check_rad, s)
+        self.stats["box_via_paths"] += len(out)
+        return out
 
     def _via_paths(self, piece: MotionPiece, validity, rng: np.random.Generator,
                    weights: np.ndarray) -> list[np.ndarray]:

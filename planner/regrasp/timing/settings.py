@@ -6,6 +6,7 @@ from __future__ import annotations
 from pydantic import BaseModel, ConfigDict, Field
 
 from planner.motion.task_space_vias import ViaSettings
+from planner.motion.time_box_vias import BoxViaSettings
 
 
 class PlanTimingSettings(BaseModel):
@@ -27,6 +28,11 @@ class PlanTimingSettings(BaseModel):
     vias: ViaSettings = Field(default_factory=ViaSettings, description="paths through one or two task-space via "
                               "postures of the moving hand, added to each one-hand motion's replans (the quick way "
                               "around the table's edge that T-RRT seldom finds; keep 0: none)")
+    box_vias: BoxViaSettings = Field(default_factory=BoxViaSettings, description="paths through one or two "
+                                     "joint-space vias drawn where the path keeps within a share of the straight "
+                                     "line's time at the velocity limits, added to a planned motion's candidates "
+                                     "where none of them is that quick (planner/motion/time_box_vias.py; draws 0: "
+                                     "none)")
     corner_easing_sweeps: int = Field(6, ge=0, description="passes of corner easing over the eased_paths "
                                       "best-ranked paths of each planned motion: interior waypoints moved part of "
                                       "the way to their neighbours' midpoint where the path's coarse TOPP-RA time "

@@ -115,6 +115,7 @@ def test_a_motions_paths_are_ranked_by_their_timing_not_by_the_time_at_the_veloc
 
     monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [stairs, one_turn])
     monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
+    monkeypatch.setattr(PlanTimer, "_box_via_paths", lambda self, k, P, found, validity, w: [])
     plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0, corner_easing_sweeps=0)  # the ranking alone
     ranked = PlanTimer(task, PlanTimingSettings(**plain), 1.0, task.threshold_m, 0.005).alternatives(pieces)
     assert np.array_equal(ranked[0][k].path, one_turn) and np.array_equal(ranked[1][k].path, stairs)
@@ -178,6 +179,7 @@ def test_the_ranking_times_a_path_with_the_blends_its_checks_leave_it(solved, mo
 
     monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [hugging, clear])
     monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
+    monkeypatch.setattr(PlanTimer, "_box_via_paths", lambda self, k, P, found, validity, w: [])
     checker = timer.checker  # the one with the obstacle, for the timer below too
     monkeypatch.setattr(PlanTimer, "checker", property(lambda self: checker))
     plain = dict(shortcut_iterations=0, partial_shortcut_iterations=0, corner_push=False, corner_easing_sweeps=0)
@@ -574,6 +576,7 @@ def test_every_path_of_a_motion_is_partially_shortcut_before_the_ranking(solved,
 
     monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [own, detour])
     monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
+    monkeypatch.setattr(PlanTimer, "_box_via_paths", lambda self, k, P, found, validity, w: [])
 
     def alternatives(**settings):
         timing = PlanTimingSettings(shortcut_iterations=0, rank_by_timing=False, corner_easing_sweeps=0, **settings)
@@ -619,6 +622,7 @@ def test_a_motions_best_path_is_eased_where_that_makes_it_quicker(solved, monkey
     zigzag = _detour(_detour(own, j, 0.3), j, -0.3)
     monkeypatch.setattr(PlanTimer, "_replans", lambda self, P, validity, rng, w: [zigzag])
     monkeypatch.setattr(PlanTimer, "_via_paths", lambda self, P, validity, rng, w: [])
+    monkeypatch.setattr(PlanTimer, "_box_via_paths", lambda self, k, P, found, validity, w: [])
 
     def timer(**settings):
         return PlanTimer(task, PlanTimingSettings(shortcut_iterations=0, partial_shortcut_iterations=0, **settings),
