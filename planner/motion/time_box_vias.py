@@ -10,8 +10,8 @@ every joint can reach ``q`` from the start in ``f T`` and the end from ``q`` in 
 a box round the straight line, thin along the joint that takes longest and wide along the others. With ``T`` the
 straight line's own time, every path through a via in the box is as quick at the velocity limits as the line: the
 slowest joint goes straight to its end while the others swing out of an obstacle's way and back. T-RRT's samples are
-uniform over the joint limits and seldom fall in this thin set; its paths round a table's edge from the hips take
-1.3-1.8 times the line's time. :func:`box_via_paths` draws vias (one, or two in turn) in the boxes of budgets
+uniform over the joint limits and seldom fall in this thin set, so its ways round an obstacle can take far longer than
+the line, and shortcuts do not take a path out of the way it went. :func:`box_via_paths` draws vias (one, or two in turn) in the boxes of budgets
 ``(1 + slack) T`` from a generator, checks the via postures, then their paths (every ``resolution`` rad per joint,
 coarse to fine, a chunk at a time) and returns the first few valid ones, the smallest slack first.
 
@@ -80,7 +80,8 @@ def box_via_paths(a: np.ndarray, b: np.ndarray, validity: Validity, rng: np.rand
                   settings: BoxViaSettings | None = None) -> list[np.ndarray]:
     """Up to ``keep`` valid paths from ``a`` to ``b`` through one or two vias drawn in the boxes of the straight
     line's time times ``1 + slack`` (see the module's docstring), the smallest slack first; each path (3 or 4, n)
-    with its ends exactly ``a`` and ``b``, every state ``resolution`` apart valid. None when the line does not move."""
+    with its ends exactly ``a`` and ``b``, every state ``resolution`` apart valid. None (an empty list) when the line
+    does not move or no draws are asked for."""
     s = settings or BoxViaSettings()
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     moving = np.flatnonzero(b != a)
@@ -91,9 +92,8 @@ def box_via_paths(a: np.ndarray, b: np.ndarray, validity: Validity, rng: np.rand
     found: list[np.ndarray] = []
     for slack in s.slacks:
         budget = (1.0 + slack) * line
-        candidates = [np.vstack([a, v, b]) for v in _valid(_drawn(a, moving, [_one(a, b, moving, w, lo, hi, budget,
-                                                                                   f, s.draws, rng)
-                                                                            for f in s.fractions]), validity)]
+        singles = _drawn(a, moving, [_one(a, b, moving, w, lo, hi, budget, f, s.draws, rng) for f in s.fractions])
+        candidates = [np.vstack([a, v, b]) for v in _valid(singles, validity)]
         for first, second in s.pairs:
             V1 = _one(a, b, moving, w, lo, hi, budget, first, s.draws, rng)
             V2 = np.empty_like(V1)
