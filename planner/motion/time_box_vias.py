@@ -11,9 +11,10 @@ a box round the straight line, thin along the joint that takes longest and wide 
 straight line's own time, every path through a via in the box is as quick at the velocity limits as the line: the
 slowest joint goes straight to its end while the others swing out of an obstacle's way and back. T-RRT's samples are
 uniform over the joint limits and seldom fall in this thin set, so its ways round an obstacle can take far longer than
-the line, and shortcuts do not take a path out of the way it went. :func:`box_via_paths` draws vias (one, or two in turn) in the boxes of budgets
-``(1 + slack) T`` from a generator, checks the via postures, then their paths (every ``resolution`` rad per joint,
-coarse to fine, a chunk at a time) and returns the first few valid ones, the smallest slack first.
+the line, and shortcuts do not take a path out of the way it went. :func:`box_via_paths` draws vias (one, or two in
+turn) in the boxes of budgets ``(1 + slack) T`` from a generator, checks the via postures, then their paths (every
+``resolution`` rad per joint, in levels from coarse to fine, a chunk at a time) and returns the first few valid ones,
+the smallest slack first.
 
 Only the joints that move between the ends move; the rest stay as they are at the start. Deterministic for a
 generator.

@@ -109,7 +109,8 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         self.stats = {"merged_runs": 0, "merged_refused": 0, "merged_slower": 0, "shortened_s": 0.0,
                       "alternatives_dropped": 0, "refused": [], "checked_samples": 0, "runs": 0, "blends": 0,
                       "blends_removed": 0, "corners_pushed": 0, "fallback_runs": 0, "stretched_runs": 0, "replans": 0,
-                      "via_paths": 0, "box_via_paths": 0, "eased_s": 0.0, "easing_moves": 0, "spline_runs": 0, "dense_failures": []}
+                      "via_paths": 0, "box_via_paths": 0, "eased_s": 0.0, "easing_moves": 0, "spline_runs": 0,
+                      "dense_failures": []}
 
     @property
     def reserve_share(self) -> float:

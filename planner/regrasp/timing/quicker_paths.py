@@ -1,5 +1,6 @@
 """Quicker paths for each planned motion of a solved plan: more T-RRT runs between its ends, paths through task-space
-vias of the moving hand, each shortened by random and partial shortcuts in the time metric, ranked by their TOPP-RA
+vias of the moving hand and, where none of those comes near the straight line's time, through joint-space box vias,
+each shortened by random and partial shortcuts in the time metric, ranked by their TOPP-RA
 time, the best one's corners eased; shared between this process and a forked helper, each motion drawing from its
 own seeded stream so that the paths do not depend on which process made them."""
 
@@ -36,8 +37,9 @@ class QuickerPaths:
     def alternatives(self, pieces: list[MotionPiece]) -> list[list[MotionPiece]]:
         """The plan's pieces with their planned motions (more than one straight segment) made quicker, best first:
         level k holds each motion's k-th quickest path (its last one where it has fewer). Each motion's paths are its
-        own, ``replans`` more T-RRT runs between its ends (:meth:`_replans`) and paths through task-space vias
-        (:meth:`_via_paths`); the ``shortened_paths`` quickest
+        own, ``replans`` more T-RRT runs between its ends (:meth:`_replans`), paths through task-space vias
+        (:meth:`_via_paths`) and, where none of those comes near the straight line's time, through joint-space box
+        vias (:meth:`_box_via_paths`); the ``shortened_paths`` quickest
         of them at the velocity limits are all shortened alike (:meth:`_shortened`) before any is chosen, so that
         the path the ranking picks has had the same shortening as the ones it beats (the slower rest, which seldom
         win, are left as their replans made them: the shortening is a large share of the timing's cost). Every new

@@ -11,7 +11,8 @@ from planner.motion.edge_checks import all_valid_coarse_to_fine
 
 
 @settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), edges=st.integers(1, 12), strides=st.sampled_from([(5,), (25, 5), (7, 3, 2), (1,)]))
+@given(seed=st.integers(0, 2**31 - 1), edges=st.integers(1, 12),
+       strides=st.sampled_from([(5,), (25, 5), (7, 3, 2), (1,)]))
 def test_the_levels_give_the_answer_of_every_state_and_check_each_once(seed, edges, strides):
     rng = np.random.default_rng(seed)
     parts = [rng.uniform(-1, 1, (int(rng.integers(1, 80)), 2)) for _ in range(edges)]

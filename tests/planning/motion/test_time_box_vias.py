@@ -76,7 +76,10 @@ def test_no_path_where_no_way_round_fits_the_budget():
     a, b = np.zeros(3), np.array([2.0, 0.0, 0.0])
     weights = np.ones(3)
     # a wall across the whole box of the largest budget: joint 0 between 0.9 and 1.1 refused
-    validity = lambda Q: (np.abs(np.atleast_2d(Q)[:, 0] - 1.0) > 0.1, np.abs(np.atleast_2d(Q)[:, 0] - 1.0) - 0.1)  # noqa: E731
+    def validity(Q: np.ndarray):
+        gap = np.abs(np.atleast_2d(Q)[:, 0] - 1.0) - 0.1
+        return gap > 0, gap
+
     assert box_via_paths(a, b, validity, np.random.default_rng(3), weights, LOWER, UPPER, 0.005) == []
     # and none where the line does not move, or where no draws are asked for
     assert box_via_paths(a, a, validity, np.random.default_rng(3), weights, LOWER, UPPER, 0.005) == []

@@ -39,11 +39,12 @@ def transit_home():
 def test_the_box_vias_go_round_the_table_in_little_more_than_the_lines_time(transit_home):
     task, _, _, own, validity, weights = transit_home
     a, b = own[0], own[-1]
-    assert not validity(edge_states(a, b, 0.005))[0].all(), "the straight line must be blocked for this test to mean anything"
+    assert not validity(edge_states(a, b, 0.005))[0].all(), "the straight line must be blocked for this test to mean it"
     line = straight_time(a, b, weights)
     assert path_length(own, weights) > 2.0 * line
     s = BoxViaSettings()
-    found = box_via_paths(a, b, validity, np.random.default_rng(5), weights, task.robot.lower, task.robot.upper, 0.005, s)
+    robot = task.robot
+    found = box_via_paths(a, b, validity, np.random.default_rng(5), weights, robot.lower, robot.upper, 0.005, s)
     assert found
     for W in found:
         assert np.array_equal(W[0], a) and np.array_equal(W[-1], b)
