@@ -58,11 +58,11 @@ def test_a_straight_two_waypoint_path_takes_the_bang_bang_time(D, v, a, ratio):
 
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), corners=st.integers(1, 3))
-def test_the_default_grid_times_a_blended_path_within_a_tenth_of_a_percent_of_a_converged_one(seed, corners):
+def test_the_default_grid_times_a_blended_path_within_0_3_percent_of_a_converged_one(seed, corners):
     """TOPP-RA's interpolation discretisation holds each row at both ends of an interval with s'' constant across
-    it: a coarser grid is slower where the limits change along the path (the blends), never quicker. The plan
-    timing's default grid stays within 0.15 % of a 0.0005 rad grid's time (a 0.02 rad grid was up to 0.4 % slower on
-    such paths)."""
+    it: a coarser grid is slower where the limits change along the path (the blends), not quicker (to the converged
+    grid's own 1e-5). The plan timing's default grid stays within 0.3 % of a 0.0005 rad grid's time (over 600 such
+    paths at most 0.15 %; a 0.02 rad grid up to 0.58 %, over 0.3 % on one path in twenty)."""
     rng = np.random.default_rng(seed)
     n = 3
     W = np.cumsum(rng.uniform(-1.2, 1.2, (corners + 2, n)), axis=0)
@@ -78,7 +78,7 @@ def test_the_default_grid_times_a_blended_path_within_a_tenth_of_a_percent_of_a_
 
     converged = duration(0.0005, 100_000)
     default = duration(timing.grid_step_rad, timing.max_gridpoints)
-    assert converged * (1 - 1e-6) <= default <= converged * 1.0015
+    assert converged * (1 - 1e-5) <= default <= converged * 1.003
 
 
 class _RowsPerGridpoint(toppra.constraint.LinearConstraint):
