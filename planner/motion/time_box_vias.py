@@ -25,10 +25,11 @@ from __future__ import annotations
 from typing import Annotated
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from planner.motion.edge_checks import Validity, all_valid_coarse_to_fine
 from planner.motion.interpolation import edge_states
+from planner.motion.smoothing import path_length
 
 Share = Annotated[float, Field(gt=0, lt=1)]
 #: The levels of the paths' checks (every 25th state, then every 5th, then the rest): most drawn paths fail, and
@@ -57,22 +58,20 @@ class BoxViaSettings(BaseModel):
     min_ratio: float = Field(1.05, ge=1.0, description="drawn only where the motion's quickest path so far takes "
                              "more than this times the straight line's time at the velocity limits")
 
-    def model_post_init(self, _context) -> None:
-        for first, second in self.pairs:
+    @field_validator("pairs")
+    @classmethod
+    def _in_order(cls, pairs: tuple[tuple[float, float], ...]) -> tuple[tuple[float, float], ...]:
+        for first, second in pairs:
             if not first < second:
                 raise ValueError(f"a pair of via places must be in order along the way, got ({first}, {second})")
-
-
-def straight_time(a: np.ndarray, b: np.ndarray, weights: np.ndarray) -> float:
-    """The straight segment's time at the velocity limits (``weights``: 1 / velocity limit), s."""
-    return float(np.abs((b - a) * weights).max())
+        return pairs
 
 
 def via_box(a: np.ndarray, b: np.ndarray, weights: np.ndarray, before: float, budget: float, lower: np.ndarray,
             upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The box of vias ``q`` that ``a -> q`` takes at most ``before`` and ``q -> b`` at most ``budget - before`` at
-    the velocity limits, within the joint limits: (low, high). Empty along a joint where low > high (the budget is
-    less than the straight line's time)."""
+    the velocity limits, within the joint limits: (low, high), per row where ``a`` holds one start per row. Empty
+    along a joint where low > high (the budget is less than the straight line's time)."""
     reach = 1.0 / weights
     low = np.maximum(a - before * reach, b - (budget - before) * reach)
     high = np.minimum(a + before * reach, b + (budget - before) * reach)
@@ -92,7 +91,7 @@ def box_via_paths(a: np.ndarray, b: np.ndarray, validity: Validity, rng: np.rand
     if not s.draws or not moving.size:
         return []
     w, lo, hi = weights[moving], lower[moving], upper[moving]
-    line = straight_time(a, b, weights)
+    line = path_length(np.vstack([a, b]), weights)
     found: list[np.ndarray] = []
     for slack in s.slacks:
         budget = (1.0 + slack) * line
@@ -100,10 +99,9 @@ def box_via_paths(a: np.ndarray, b: np.ndarray, validity: Validity, rng: np.rand
         candidates = [np.vstack([a, v, b]) for v in _valid(singles, validity)]
         for first, second in s.pairs:
             V1 = _one(a, b, moving, w, lo, hi, budget, first, s.draws, rng)
-            V2 = np.empty_like(V1)
-            for i, q in enumerate(V1):  # the second in the box of what the first leaves of the budget
-                low, high = via_box(q, b[moving], w, (second - first) * budget, (1.0 - first) * budget, lo, hi)
-                V2[i] = low + rng.random(len(moving)) * np.maximum(high - low, 0.0)
+            # each second via in the box of what its first leaves of the budget
+            low, high = via_box(V1, b[moving], w, (second - first) * budget, (1.0 - first) * budget, lo, hi)
+            V2 = low + rng.random(V1.shape) * np.maximum(high - low, 0.0)
             Q1, Q2 = _drawn(a, moving, [V1]), _drawn(a, moving, [V2])
             both = np.asarray(validity(Q1)[0], dtype=bool) & np.asarray(validity(Q2)[0], dtype=bool)
             candidates += [np.vstack([a, q1, q2, b]) for q1, q2 in zip(Q1[both], Q2[both])]

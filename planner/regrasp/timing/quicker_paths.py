@@ -15,7 +15,7 @@ from planner.forking import helper_may_fork
 from planner.motion.corner_easing import eased
 from planner.motion.smoothing import SmoothingSettings, partial_shortcut, path_length, shortcut
 from planner.motion.task_space_vias import via_paths
-from planner.motion.time_box_vias import box_via_paths, straight_time
+from planner.motion.time_box_vias import box_via_paths
 from planner.motion.trrt import plan_motion
 from planner.regrasp.plan_assembly import MotionPiece, object_states
 from planner.regrasp.timing.runs import Run, is_planned
@@ -204,7 +204,7 @@ class QuickerPaths:
         ``shortcut_check_rad``; none where a path ``found`` so far is within ``box_vias.min_ratio`` of that time. They
         draw from the piece's own stream of them, so the other paths' draws stay as they were."""
         s = self.s.box_vias
-        line = straight_time(P[0], P[-1], weights)
+        line = path_length(P[[0, -1]], weights)
         if not s.draws or min(path_length(Q, weights) for Q in found) <= s.min_ratio * line:
             return []
         robot = self.task.robot

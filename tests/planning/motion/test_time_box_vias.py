@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from planner.motion.interpolation import edge_states
 from planner.motion.smoothing import path_length
-from planner.motion.time_box_vias import BoxViaSettings, box_via_paths, straight_time, via_box
+from planner.motion.time_box_vias import BoxViaSettings, box_via_paths, via_box
 
 LOWER, UPPER = np.full(3, -10.0), np.full(3, 10.0)
 
@@ -22,7 +22,7 @@ def test_every_via_in_the_box_keeps_the_path_within_its_budget(seed, slack, shar
     rng = np.random.default_rng(seed)
     a, b = rng.uniform(-2, 2, 3), rng.uniform(-2, 2, 3)
     weights = 1.0 / rng.uniform(0.3, 2.0, 3)
-    line = straight_time(a, b, weights)
+    line = path_length(np.vstack([a, b]), weights)
     budget = (1 + slack) * line
     low, high = via_box(a, b, weights, share * budget, budget, LOWER, UPPER)
     assert np.all(low <= high + 1e-12)
@@ -31,8 +31,8 @@ def test_every_via_in_the_box_keeps_the_path_within_its_budget(seed, slack, shar
         on_line = a + share * (b - a)
         assert np.all(low - 1e-9 <= on_line) and np.all(on_line <= high + 1e-9)
     for q in low + rng.random((20, 3)) * (high - low):
-        assert straight_time(a, q, weights) <= share * budget + 1e-9
-        assert straight_time(q, b, weights) <= (1 - share) * budget + 1e-9
+        assert path_length(np.vstack([a, q]), weights) <= share * budget + 1e-9
+        assert path_length(np.vstack([q, b]), weights) <= (1 - share) * budget + 1e-9
         assert path_length(np.vstack([a, q, b]), weights) <= budget + 1e-9
 
 
@@ -54,7 +54,7 @@ def test_the_paths_go_round_an_obstacle_on_the_line_within_the_budget():
     s = BoxViaSettings()
     found = box_via_paths(a, b, validity, np.random.default_rng(1), weights, LOWER, UPPER, 0.005, s)
     assert 1 <= len(found) <= s.keep
-    line = straight_time(a, b, weights)
+    line = path_length(np.vstack([a, b]), weights)
     for P in found:
         assert np.array_equal(P[0], a) and np.array_equal(P[-1], b) and len(P) in (3, 4)
         dense = np.vstack([edge_states(p, q, 0.005) for p, q in zip(P[:-1], P[1:])])

@@ -10,7 +10,7 @@ import pytest
 
 from planner.motion.interpolation import edge_states
 from planner.motion.smoothing import path_length
-from planner.motion.time_box_vias import BoxViaSettings, box_via_paths, straight_time
+from planner.motion.time_box_vias import BoxViaSettings, box_via_paths
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +40,7 @@ def test_the_box_vias_go_round_the_table_in_little_more_than_the_lines_time(tran
     task, _, _, own, validity, weights = transit_home
     a, b = own[0], own[-1]
     assert not validity(edge_states(a, b, 0.005))[0].all(), "the straight line must be blocked for this test to mean it"
-    line = straight_time(a, b, weights)
+    line = path_length(np.vstack([a, b]), weights)
     assert path_length(own, weights) > 2.0 * line
     s = BoxViaSettings()
     robot = task.robot
