@@ -19,7 +19,7 @@ from planner.stability.inertial_torques import InertialTorques
 class RunLimits:
     """The limits of a run's timing, a part of :class:`planner.regrasp.timing.plan_timer.PlanTimer`: it uses the
     timer's ``task``, ``s`` (the settings), ``limits``, ``vlim``, ``alim``, ``dt``, ``zmp_margin_m``,
-    ``reserve_share``, ``plan_static_min_m``, ``_inertials`` and ``_asked``."""
+    ``reserve_share``, ``local_share``, ``plan_static_min_m``, ``_inertials`` and ``_asked``."""
 
     def _rows(self, run: Run, path: BlendedPath, grid: np.ndarray) -> tuple[list[LinearRows], float]:
         """TOPP-RA's rows at the gridpoints (the ZMP, cart-table and multibody, its step where the path's acceleration
@@ -30,7 +30,7 @@ class RunLimits:
         polygon = t.evaluator.polygon
         static_margin = polygon.margin(terms.com[:, :2])
         floor_m = self._zmp_floor(static_margin)
-        need = self._zmp_need(static_margin, floor_m + self.s.zmp_inner_m)
+        need = self._zmp_need(static_margin, floor_m, self.s.zmp_inner_m)
         z = zmp_rows(terms.com, terms.d1, terms.d2, polygon.normals, polygon.offsets, 0.0)
         room = z.room - need[:, None]
         rows = [LinearRows(grid, z.a, z.b, np.zeros_like(z.a), np.full_like(room, -np.inf), np.maximum(room, 0.0))]
@@ -71,11 +71,21 @@ class RunLimits:
             return math.inf
         return self.s.zmp_reserve_cap_share * self.plan_static_min_m + self.s.zmp_overshoot_m
 
-    @staticmethod
-    def _zmp_need(static_margin: np.ndarray, floor_m: float) -> np.ndarray:
+    def _zmp_need(self, static_margin: np.ndarray, floor_m: float, inner_m: float = 0.0) -> np.ndarray:
         """How far inside every edge the ZMP must stay at points whose CoM is ``static_margin`` inside: the run's
-        floor; where the CoM is closer than that, as far inside as the CoM."""
-        return np.minimum(floor_m, np.maximum(static_margin, 0.0))
+        floor; where the CoM is closer than that, as far inside as the CoM. On one foot (``local_share``) also that
+        share of the CoM's own margin at each point, up to the reserve's cap: the floor bounds where the ZMP may go
+        at the run's tightest point, this how far ahead of the CoM it may step anywhere, so the body brakes before
+        its CoM nears the edge. ``inner_m`` more inside, as far as the CoM (TOPP-RA's rows: room for the finite
+        differences between gridpoints)."""
+        inside = np.maximum(static_margin, 0.0)
+        need = np.minimum(floor_m + inner_m, inside)
+        local = self.local_share
+        if local > 0.0 and inside.size:
+            if self._asked is not None:  # what the cap may change (PlanTimer._once)
+                self._asked.append(local * float(inside.max()))
+            need = np.maximum(need, np.minimum(np.minimum(local * inside, self._reserve_cap()) + inner_m, inside))
+        return need
 
     def _multibody_zmp(self, run: Run, along, grid, polygon, need, room) -> LinearRows:
         """The ZMP of the whole body, the rate of its angular momentum included, at least ``need`` inside every

@@ -116,7 +116,17 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
     def reserve_share(self) -> float:
         """The ZMP reserve's share for this task's stance (:meth:`PlanTimingSettings.reserve_share`: more on one
         foot)."""
-        return self.s.reserve_share(sum(1 for foot in self.task.stance.feet if foot.in_contact))
+        return self.s.reserve_share(self._soles_in_contact)
+
+    @property
+    def local_share(self) -> float:
+        """The share of the CoM's own margin the ZMP keeps at each point for this task's stance
+        (:meth:`PlanTimingSettings.local_share`: on one foot only)."""
+        return self.s.local_share(self._soles_in_contact)
+
+    @property
+    def _soles_in_contact(self) -> int:
+        return sum(1 for foot in self.task.stance.feet if foot.in_contact)
 
     @property
     def checker(self) -> StateChecker:
@@ -195,7 +205,8 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
             self._kept, self._along, self._early, self._merged = {}, {}, set(), {}
         return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
                                               "zmp_margin_m": self.zmp_margin_m,
-                                              "zmp_reserve_share": self.reserve_share},
+                                              "zmp_reserve_share": self.reserve_share,
+                                              "zmp_local_share": self.local_share},
                           stats={**self.stats, **({"helper_errors": list(self.helper_errors)} if self.helper_errors
                                                    else {}), "slack_s": slack})
 

@@ -88,6 +88,14 @@ class PlanTimingSettings(BaseModel):
                                               "there, and the centre of pressure passes a stepping ZMP by more; "
                                               "the reserve off (zmp_reserve_share 0, or a user's own zmp_margin_m) "
                                               "turns this off too")
+    zmp_local_share_one_foot: float = Field(0.9, ge=0, lt=1, description="on one foot, the ZMP is also kept at "
+                                            "least this share of the CoM's own static margin inside the polygon at "
+                                            "each point of the path (up to the reserve's cap): the motion's dynamics "
+                                            "may take at most the rest of the margin the CoM has where it is. A body "
+                                            "moving towards an edge on one foot then brakes while its CoM still has "
+                                            "room, and the centre of pressure's overshoot past the braking ZMP stays "
+                                            "inside the plan's margin (0: the run's floor alone; the reserve off "
+                                            "turns this off too)")
     zmp_step_m: float = Field(0.0, ge=0, description="largest step of the planned ZMP where the path's "
                               "acceleration switches (TOPP-RA's profile goes from speeding up to braking in one "
                               "gridpoint): the acceleration's part of the cart-table ZMP's offset from the CoM is "
@@ -131,3 +139,10 @@ class PlanTimingSettings(BaseModel):
         if self.zmp_reserve_share <= 0.0:
             return 0.0
         return self.zmp_reserve_share_one_foot if soles_in_contact == 1 else self.zmp_reserve_share
+
+    def local_share(self, soles_in_contact: int) -> float:
+        """The share of the CoM's own static margin the ZMP keeps at each point of a path: ``zmp_local_share_one_foot``
+        on one foot; 0 (none) on more, or wherever the reserve is off (``zmp_reserve_share`` 0)."""
+        if self.zmp_reserve_share <= 0.0 or soles_in_contact != 1:
+            return 0.0
+        return self.zmp_local_share_one_foot

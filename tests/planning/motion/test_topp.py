@@ -229,6 +229,57 @@ def test_on_one_foot_the_reserve_keeps_the_zmp_its_own_larger_share_inside(hrp5p
     assert out[0.95][1] > out[0.9][1]
 
 
+def test_on_one_foot_the_zmp_keeps_a_share_of_the_coms_own_margin_at_every_sample(hrp5p, stances):
+    """On one foot the ZMP also keeps ``zmp_local_share_one_foot`` (0.9) of the CoM's own static margin at each
+    point, not only the run's floor: at every timed sample the ZMP (as the plan checker computes it) is at least 0.9
+    of that sample's CoM margin inside, active within 1 mm where it binds. Without it the swing brakes with its ZMP
+    farther out than that, and it is quicker. Two feet, or the reserve off, take none."""
+    one, two = stances["one-legged"], stances["upright"]
+    mass, com_local = 10.0, np.array([0.05, 0.0, 0.0])
+    assert _timer(hrp5p, one, mass, com_local, 0.0)[0].local_share == 0.9
+    assert _timer(hrp5p, two, mass, com_local, 0.0)[0].local_share == 0.0
+    assert _timer(hrp5p, one, mass, com_local, 0.0, zmp_reserve_share=0.0)[0].local_share == 0.0
+
+    W = _arm_move_from(hrp5p, one)
+    hold = HoldSpec("right", np.eye(4))
+    run = Run([MotionPiece("transfer", "right", W, "right", hold, path=W)], "right", hold, None)
+    out = {}
+    for local in (0.0, 0.9):
+        timer, ev = _timer(hrp5p, one, mass, com_local, 0.0, zmp_local_share_one_foot=local)
+        part = timer.time_part(run, W, np.zeros(0))
+        assert part is not None
+        com = ev.evaluate(part.Q, hold).com
+        zmp = ev.polygon.margin(zmp_cart_table(com, DT))
+        out[local] = (zmp - 0.9 * ev.polygon.margin(com[:, :2]), len(part.Q))
+    assert out[0.9][0].min() >= -1e-6  # never violated, at any sample
+    assert out[0.9][0].min() <= 0.001  # and active
+    assert out[0.0][0].min() < -0.001  # the run's floor alone lets the ZMP step farther ahead of the CoM
+    assert out[0.9][1] > out[0.0][1]
+
+
+@settings(max_examples=60, deadline=None)
+@given(static=st.lists(st.floats(-0.02, 0.15), min_size=1, max_size=12), floor=st.floats(0.0, 0.08),
+       inner=st.floats(0.0, 0.002), plan_min=st.one_of(st.none(), st.floats(0.0, 0.1)))
+def test_the_local_share_asks_no_more_than_the_com_has_and_no_more_than_the_cap(hrp5p, stances, static, floor, inner,
+                                                                              plan_min):
+    """What the ZMP must keep at each point on one foot: never more than the CoM's own margin there (the ZMP at the
+    CoM is always allowed), never less than the run's floor asks, at least 0.9 of the CoM's margin up to the
+    reserve's cap, and what the cap may change is told to :meth:`PlanTimer._once` (the largest share asked)."""
+    timer, _ = _timer(hrp5p, stances["one-legged"], 10.0, np.zeros(3), 0.0, limits=False)
+    timer.plan_static_min_m = plan_min
+    timer._asked = []
+    m = np.array(static)
+    inside = np.maximum(m, 0.0)
+    need = timer._zmp_need(m, floor, inner)
+    assert np.all(need <= inside + 1e-12)
+    assert np.all(need >= np.minimum(floor + inner, inside) - 1e-12)
+    assert np.all(need >= np.minimum(np.minimum(0.9 * inside, timer._reserve_cap()), inside) - 1e-12)
+    assert timer._asked == [pytest.approx(0.9 * inside.max())]
+    if plan_min is not None:
+        cap = 0.75 * plan_min + 0.019
+        assert np.all(need <= np.maximum(np.minimum(floor + inner, inside), np.minimum(cap + inner, inside)) + 1e-12)
+
+
 def test_the_zmp_step_bound_keeps_each_step_of_the_planned_zmp_within_it(hrp5p, arm_move):
     """Without a bound, the ZMP of a heavy straight swing steps where the profile switches from speeding up to
     braking; with ``zmp_step_m``, the cart-table ZMP as the plan checker computes it moves by at most that (plus
