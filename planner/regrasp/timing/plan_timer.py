@@ -126,6 +126,7 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
 
     @property
     def _soles_in_contact(self) -> int:
+        """How many of the stance's soles are on the ground (the shares differ on one foot)."""
         return sum(1 for foot in self.task.stance.feet if foot.in_contact)
 
     @property

@@ -354,6 +354,13 @@ def test_a_reserve_share_outside_0_1_is_refused(share):
         PlanTimingSettings(zmp_reserve_share=share)
 
 
+@pytest.mark.parametrize("share", [-0.1, 1.0, 1.1, float("nan")])
+def test_a_local_share_outside_0_1_is_refused(share):
+    """1 is refused too: the ZMP at the CoM's own margin everywhere leaves no braking towards an edge."""
+    with pytest.raises(ValueError, match="zmp_local_share_one_foot"):
+        PlanTimingSettings(zmp_local_share_one_foot=share)
+
+
 def test_torques_stay_within_the_effort_limits_along_the_timed_path(hrp5p, arm_move):
     """Static plus inertial torques of the waist and arm joints, recomputed with pinocchio's inverse dynamics on a
     fixed-base model of the URDF with the object as a point mass in the hand, from finite differences of the samples.
