@@ -198,6 +198,18 @@ def test_the_reserve_keeps_the_zmp_a_share_of_the_runs_tightest_static_margin_in
     assert out[0.0][1] <= out[0.5][1] <= out[0.9][1] and out[0.0][1] < out[0.9][1]
 
 
+def _timed_swing(robot, stance, **timing) -> tuple[np.ndarray, StateEvaluator, HoldSpec]:
+    """The heavy arm move from ``stance`` (10 kg in the right hand) timed alone with these timing settings and a ZMP
+    margin of 0: its timed samples, the evaluator and the hold."""
+    W = _arm_move_from(robot, stance)
+    hold = HoldSpec("right", np.eye(4))
+    run = Run([MotionPiece("transfer", "right", W, "right", hold, path=W)], "right", hold, None)
+    timer, ev = _timer(robot, stance, 10.0, np.array([0.05, 0.0, 0.0]), 0.0, **timing)
+    part = timer.time_part(run, W, np.zeros(0))
+    assert part is not None
+    return part.Q, ev, hold
+
+
 def test_on_one_foot_the_reserve_keeps_the_zmp_its_own_larger_share_inside(hrp5p, stances):
     """A stance with one sole on the ground takes ``zmp_reserve_share_one_foot`` (0.95), two take
     ``zmp_reserve_share`` (0.9); a reserve turned off (share 0) is off on one foot too. Timed on one foot, the ZMP
@@ -211,18 +223,14 @@ def test_on_one_foot_the_reserve_keeps_the_zmp_its_own_larger_share_inside(hrp5p
     assert _timer(hrp5p, one, mass, com_local, 0.0, zmp_reserve_share=0.0)[0].reserve_share == 0.0
 
     W = _arm_move_from(hrp5p, one)
-    hold = HoldSpec("right", np.eye(4))
-    run = Run([MotionPiece("transfer", "right", W, "right", hold, path=W)], "right", hold, None)
     line = W[0] + np.linspace(0.0, 1.0, 400)[:, None] * (W[1] - W[0])
     _, ev = _timer(hrp5p, one, mass, com_local, 0.0)
-    tightest = float(ev.evaluate(line, hold).margin.min())
+    tightest = float(ev.evaluate(line, HoldSpec("right", np.eye(4))).margin.min())
     assert tightest > 0.01
     out = {}
     for share in (0.9, 0.95):
-        timer, ev = _timer(hrp5p, one, mass, com_local, 0.0, zmp_reserve_share_one_foot=share)
-        part = timer.time_part(run, W, np.zeros(0))
-        assert part is not None
-        out[share] = (ev.polygon.margin(zmp_cart_table(ev.evaluate(part.Q, hold).com, DT)).min(), len(part.Q))
+        Q, ev, hold = _timed_swing(hrp5p, one, zmp_reserve_share_one_foot=share)
+        out[share] = (ev.polygon.margin(zmp_cart_table(ev.evaluate(Q, hold).com, DT)).min(), len(Q))
     assert out[0.95][0] >= 0.95 * tightest - 1e-4  # never violated (to the plan check's tolerance)
     assert out[0.95][0] <= 0.95 * tightest + 0.001  # and active
     assert out[0.9][0] < 0.95 * tightest - 1e-4  # the two-foot share lets it go farther out
@@ -240,17 +248,12 @@ def test_on_one_foot_the_zmp_keeps_a_share_of_the_coms_own_margin_at_every_sampl
     assert _timer(hrp5p, two, mass, com_local, 0.0)[0].local_share == 0.0
     assert _timer(hrp5p, one, mass, com_local, 0.0, zmp_reserve_share=0.0)[0].local_share == 0.0
 
-    W = _arm_move_from(hrp5p, one)
-    hold = HoldSpec("right", np.eye(4))
-    run = Run([MotionPiece("transfer", "right", W, "right", hold, path=W)], "right", hold, None)
     out = {}
     for local in (0.0, 0.9):
-        timer, ev = _timer(hrp5p, one, mass, com_local, 0.0, zmp_local_share_one_foot=local)
-        part = timer.time_part(run, W, np.zeros(0))
-        assert part is not None
-        com = ev.evaluate(part.Q, hold).com
+        Q, ev, hold = _timed_swing(hrp5p, one, zmp_local_share_one_foot=local)
+        com = ev.evaluate(Q, hold).com
         zmp = ev.polygon.margin(zmp_cart_table(com, DT))
-        out[local] = (zmp - 0.9 * ev.polygon.margin(com[:, :2]), len(part.Q))
+        out[local] = (zmp - 0.9 * ev.polygon.margin(com[:, :2]), len(Q))
     assert out[0.9][0].min() >= -1e-6  # never violated, at any sample
     assert out[0.9][0].min() <= 0.001  # and active
     assert out[0.0][0].min() < -0.001  # the run's floor alone lets the ZMP step farther ahead of the CoM
