@@ -81,11 +81,12 @@ class RunLimits:
         inside = np.maximum(static_margin, 0.0)
         need = np.minimum(floor_m + inner_m, inside)
         local = self.local_share
-        if local > 0.0 and inside.size:
-            if self._asked is not None:  # what the cap may change (PlanTimer._once)
-                self._asked.append(local * float(inside.max()))
-            need = np.maximum(need, np.minimum(np.minimum(local * inside, self._reserve_cap()) + inner_m, inside))
-        return need
+        if local <= 0.0 or not inside.size:
+            return need
+        if self._asked is not None:  # what the cap may change (PlanTimer._once)
+            self._asked.append(local * float(inside.max()))
+        local_need = np.minimum(local * inside, self._reserve_cap()) + inner_m
+        return np.maximum(need, np.minimum(local_need, inside))
 
     def _multibody_zmp(self, run: Run, along, grid, polygon, need, room) -> LinearRows:
         """The ZMP of the whole body, the rate of its angular momentum included, at least ``need`` inside every
