@@ -6,50 +6,82 @@ plan checker sees them (finite differences)."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from planner.motion.timing import zmp_cart_table
-from planner.motion.topp import GRAVITY, BlendedPath, LinearRows, zmp_rows
+from planner.motion.topp import GRAVITY, BlendedPath, LinearRows, ZmpRows, zmp_rows
 from planner.regrasp.timing.runs import Run
 from planner.stability.com_path import com_path_terms
 from planner.stability.inertial_torques import InertialTorques
 
 
+@dataclass(frozen=True)
+class PathGeometry:
+    """A path's terms at its TOPP-RA gridpoints that no ZMP floor changes (:meth:`RunLimits._geometry`)."""
+
+    static_margin: np.ndarray
+    zmp: ZmpRows
+    along: tuple[np.ndarray, np.ndarray] | None
+    torques: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
+
+
 class RunLimits:
     """The limits of a run's timing, a part of :class:`planner.regrasp.timing.plan_timer.PlanTimer`: it uses the
     timer's ``task``, ``s`` (the settings), ``limits``, ``vlim``, ``alim``, ``dt``, ``zmp_margin_m``,
-    ``reserve_share``, ``local_share``, ``plan_static_min_m``, ``_inertials`` and ``_asked``."""
+    ``reserve_share``, ``local_share``, ``plan_static_min_m``, ``_inertials``, ``_geometries`` and ``_asked``."""
 
     def _rows(self, run: Run, path: BlendedPath, grid: np.ndarray) -> tuple[list[LinearRows], float]:
         """TOPP-RA's rows at the gridpoints (the ZMP, cart-table and multibody, its step where the path's acceleration
         switches, and the torques) and the run's ZMP floor (:meth:`_zmp_floor`) they keep."""
-        P0, P1, P2 = path(grid, 0), path(grid, 1), path(grid, 2)
-        t = self.task
-        terms = com_path_terms(t.evaluator, P0, P1, P2, run.hold)
-        polygon = t.evaluator.polygon
-        static_margin = polygon.margin(terms.com[:, :2])
-        floor_m = self._zmp_floor(static_margin)
-        need = self._zmp_need(static_margin, floor_m, self.s.zmp_inner_m)
-        z = zmp_rows(terms.com, terms.d1, terms.d2, polygon.normals, polygon.offsets, 0.0)
+        g = self._geometry(run, path, grid)
+        polygon = self.task.evaluator.polygon
+        floor_m = self._zmp_floor(g.static_margin)
+        need = self._zmp_need(g.static_margin, floor_m, self.s.zmp_inner_m)
+        z = g.zmp
         room = z.room - need[:, None]
         rows = [LinearRows(grid, z.a, z.b, np.zeros_like(z.a), np.full_like(room, -np.inf), np.maximum(room, 0.0))]
         if self.s.zmp_step_m > 0.0:  # where s_ddot switches, the ZMP steps by at most zmp_step_m along each normal
             half = np.full_like(z.a, 0.5 * self.s.zmp_step_m)
             rows.append(LinearRows(grid, z.a, np.zeros_like(z.b), np.zeros_like(z.a), -half, half))
+        if self.s.zmp_angular_momentum:
+            rows.append(self._multibody_zmp(run, g.along, grid, polygon, need, room))
+        if g.torques is not None:
+            A, B, tau_s, lim = g.torques
+            rows.append(LinearRows(grid, A, B, tau_s, np.minimum(-lim, tau_s), np.maximum(lim, tau_s)))
+        return rows, floor_m
+
+    def _geometry(self, run: Run, path: BlendedPath, grid: np.ndarray) -> "PathGeometry":
+        """What the rows need of the path at the gridpoints and nothing of the ZMP floor: the CoM terms, the static
+        margins, the cart-table ZMP's coefficients, the inertial sweep, the torques' rows. Kept by the path's points
+        and what the run holds within one :meth:`time_plan` (``_geometries``), so that the reserve cap's second
+        timing of a run, and a ranked path timed again as a run, solve TOPP-RA again without recomputing them: the
+        same numbers, so the same rows."""
+        P0, P1, P2 = path(grid, 0), path(grid, 1), path(grid, 2)
+        hold = None if run.hold is None else (run.hold.tcp_side, run.hold.T_tcp_obj.tobytes())
+        key = (run.holding, hold, grid.tobytes(), P0.tobytes(), P1.tobytes(), P2.tobytes())
+        kept = self._geometries.get(key)
+        if kept is not None:
+            return kept
+        t = self.task
+        terms = com_path_terms(t.evaluator, P0, P1, P2, run.hold)
+        polygon = t.evaluator.polygon
         along = (self._inertial(run).along_path(P0, P1, P2)
                  if self.s.zmp_angular_momentum or self.limits is not None else None)
-        if self.s.zmp_angular_momentum:
-            rows.append(self._multibody_zmp(run, along, grid, polygon, need, room))
+        torques = None
         if self.limits is not None:
             tau_s = self._static(run, P0)
             A, B = self._inertial(run).coefficients(along)
             lim = self.limits.table.limit * self.s.effort_scale
             moved = (np.abs(A) + np.abs(B)).max(axis=0) > 1e-9  # the joints this motion loads at all
             if moved.any():
-                A, B, tau_s, lim = A[:, moved], B[:, moved], tau_s[:, moved], lim[moved]
-                rows.append(LinearRows(grid, A, B, tau_s, np.minimum(-lim, tau_s), np.maximum(lim, tau_s)))
-        return rows, floor_m
+                torques = (A[:, moved], B[:, moved], tau_s[:, moved], lim[moved])
+        geometry = self._geometries[key] = PathGeometry(
+            static_margin=polygon.margin(terms.com[:, :2]),
+            zmp=zmp_rows(terms.com, terms.d1, terms.d2, polygon.normals, polygon.offsets, 0.0),
+            along=along, torques=torques)
+        return geometry
 
     def _zmp_floor(self, static_margin: np.ndarray) -> float:
         """How far inside the polygon a run keeps its ZMP, given the static CoM margins along its path: the ZMP

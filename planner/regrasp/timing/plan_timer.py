@@ -90,6 +90,8 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
         self.limits: EffortEvaluator | None = task.limits
         self.threshold = task.evaluator.threshold_m if task.constrained else -np.inf
         self._inertials: dict = {}
+        #: the paths' terms at their gridpoints within one :meth:`time_plan`, by the path's points (:meth:`_geometry`)
+        self._geometries: dict = {}
         #: the timed plan's smallest static CoM margin, for the reserve's cap (set by :meth:`time_plan`)
         self.plan_static_min_m: float | None = None
         #: results kept within one :meth:`time_plan`, by key: the result, what it added to the stats, the uncapped ZMP
@@ -203,7 +205,7 @@ class PlanTimer(RunLimits, RunTiming, QuickerPaths):
             out, slack = self._time_runs(originals, levels)
         finally:
             # their keys name this plan's runs and paths by id
-            self._kept, self._along, self._early, self._merged = {}, {}, set(), {}
+            self._kept, self._along, self._early, self._merged, self._geometries = {}, {}, set(), {}, {}
         return PlanTiming(pieces=out, record={"method": METHOD, "speed_scale": self.speed_scale,
                                               "zmp_margin_m": self.zmp_margin_m,
                                               "zmp_reserve_share": self.reserve_share,

@@ -549,6 +549,43 @@ def test_the_caps_second_timing_recomputes_only_the_runs_whose_reserve_the_cap_c
         first = [run for c, run in calls if c == np.inf]
         assert [run for c, run in calls if c != np.inf] == (first if times_again else [])
 
+def test_a_paths_terms_at_its_gridpoints_are_computed_once_per_plan(solved, monkeypatch):
+    """The terms of a path at its TOPP-RA gridpoints that no ZMP floor changes (the CoM terms, the inertial sweep,
+    the torques' rows) are kept within a plan: the reserve cap's second timing of a run solves TOPP-RA again without
+    recomputing them. The same pieces and stats, bit for bit, as computing them at every timing, with fewer
+    computed, and nothing kept past the plan."""
+    from planner.regrasp.timing import limits
+
+    task, pieces = solved
+    monkeypatch.setattr(forking, "spare_cores", lambda: 0)  # no helper: every computation is counted here
+
+    class Forgetful(dict):
+        def __setitem__(self, key, value):  # keeps nothing: every timing computes its paths' terms
+            pass
+
+    def timed(keep: bool) -> tuple[PlanTimer, object, int]:
+        timer = PlanTimer(task, PlanTimingSettings(), 1.0, task.threshold_m, 0.005)
+        if not keep:
+            timer._geometries = Forgetful()
+        computed = []
+        terms = limits.com_path_terms
+        with monkeypatch.context() as m:
+            m.setattr(limits, "com_path_terms", lambda *a: computed.append(1) or terms(*a))
+            timing = timer.time_plan(pieces)
+        return timer, timing, len(computed)
+
+    _, every, every_computed = timed(False)
+    timer, kept, computed = timed(True)
+    assert "reserve_cap_m" in kept.stats  # timed twice
+    assert [np.asarray(p.waypoints).tobytes() for p in kept.pieces] == [np.asarray(p.waypoints).tobytes()
+                                                                        for p in every.pieces]
+    walls = ("quicker_paths_time_s", "early_timing_s")
+    assert {k: v for k, v in kept.stats.items() if k not in walls} == {
+        k: v for k, v in every.stats.items() if k not in walls}
+    assert 0 < computed < every_computed
+    assert timer._geometries == {}
+
+
 def _detour(P: np.ndarray, joint: int, rad: float) -> np.ndarray:
     """P with one joint swung out and back in the middle of its second segment (three waypoints on that segment, the
     middle one ``rad`` out): a detour of that joint alone, which costs time at the velocity limits."""
