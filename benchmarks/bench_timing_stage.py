@@ -37,6 +37,18 @@ from schemas.plan import canonical_json
 SCENARIOS = ("upright", "staggered", "crouched", "one-legged", "drill-handover")
 
 
+def settings_with(items: list[str], base: PlannerSettings | None = None) -> tuple[dict, PlannerSettings]:
+    """The plan-timing settings ``KEY=VALUE`` items change (each value JSON) and the planner settings with them."""
+    update = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        update[key] = json.loads(value)
+    base = PlannerSettings() if base is None else base
+    # validated, so that a nested setting (vias={"keep": 0}) becomes its model
+    timing = type(base.plan_timing).model_validate({**base.plan_timing.model_dump(), **update})
+    return update, base.model_copy(update={"plan_timing": timing})
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", nargs="+", default=list(SCENARIOS))
@@ -45,14 +57,7 @@ def main() -> None:
     ap.add_argument("--first", action="store_true", help="the first plan of each task, its survey computed in it")
     ap.add_argument("--repeats", type=int, default=1, help="plans measured per scenario (their median times)")
     args = ap.parse_args()
-    update = {}
-    for item in args.set:
-        key, _, value = item.partition("=")
-        update[key] = json.loads(value)
-    base = PlannerSettings()
-    # validated, so that a nested setting (vias={"keep": 0}) becomes its model
-    timing = type(base.plan_timing).model_validate({**base.plan_timing.model_dump(), **update})
-    settings = base.model_copy(update={"plan_timing": timing})
+    update, settings = settings_with(args.set)
     print(f"settings changed: {update or 'none'}; load average {os.getloadavg()[0]:.1f}")
     print(f"{'scenario':15s} {'duration s':>10s} {'planning s':>10s} {'timing s':>9s} {'adds':>6s} "
           f"{'quicker s':>9s} {'param. s':>8s} {'adds':>6s}  trajectory")

@@ -3,13 +3,14 @@ is its own): per scenario the search (the planning time less the timing stage), 
 replans, the task-space vias, the joint-space box vias, the full shortening, the ranking by coarse TOPP-RA time, the
 corner easing) and the time parameterization's two timings (the first gives the plan's smallest static margin for the
 reserve's cap, the second is the plan's; :meth:`planner.regrasp.timing.plan_timer.PlanTimer.time_plan`), and each
-one's share of the search. A step's time is counted once, where it is entered first (the easing's own estimated times
+one's share of the search, with the plan's motion duration (the seed's alone). A step's time is counted once, where it is entered first (the easing's own estimated times
 are the easing's). Like ``bench_timing_stage.py`` it measures a second plan of each task (its survey cached) unless
 ``--first``; ``--repeats N`` prints the medians of N plans. The timing's steps are wrapped for the measurement only:
 the plans are the ones ``regrasp plan`` makes with ``parallel_motions`` off (the same plans, as its tests check).
-Times are this machine's.
+``--set KEY=VALUE`` changes a plan-timing setting as in ``bench_timing_stage.py``. Times are this machine's.
 
     python benchmarks/bench_timing_steps.py
+    python benchmarks/bench_timing_steps.py --set corner_easing_sweeps=2
     python benchmarks/bench_timing_steps.py --scenario drill-handover --repeats 3
 """
 
@@ -26,6 +27,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench_timing_stage import settings_with  # noqa: E402  (this script's own directory)
 from planner.jobs.plan_job import plan_scenario  # noqa: E402
 from planner.regrasp.settings import PlannerSettings  # noqa: E402
 from planner.regrasp.timing.plan_timer import PlanTimer  # noqa: E402
@@ -75,13 +77,16 @@ def main() -> None:
     ap.add_argument("--scenario", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--first", action="store_true", help="the first plan of each task, its survey computed in it")
     ap.add_argument("--repeats", type=int, default=1, help="plans measured per scenario (their median times)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a plan-timing setting, its value as JSON (e.g. corner_easing_sweeps=2)")
     args = ap.parse_args()
     clock = StepClock()
     for method, label in STEPS:
         setattr(PlanTimer, method, clock.wrap(getattr(PlanTimer, method), label))
-    settings = PlannerSettings().model_copy(update={"parallel_motions": False})
-    print(f"one process; seconds (share of the search); load average {os.getloadavg()[0]:.1f}")
-    print(f"{'scenario':15s} {'plan s':>7s} " + " ".join(f"{c:>13s}" for c in COLUMNS))
+    update, settings = settings_with(args.set, PlannerSettings().model_copy(update={"parallel_motions": False}))
+    print(f"one process; settings changed: {update or 'none'}; seconds (share of the search); "
+          f"load average {os.getloadavg()[0]:.1f}")
+    print(f"{'scenario':15s} {'motion s':>8s} {'plan s':>7s} " + " ".join(f"{c:>13s}" for c in COLUMNS))
     for name in args.scenario:
         scenario = load_builtin(name)
         if not args.first:
@@ -104,7 +109,7 @@ def main() -> None:
         med = {c: statistics.median(r.get(c, 0.0) for r in rows) for c in (*COLUMNS, "plan")}
         cells = [f"{med['search']:6.2f}" + " " * 7] + [f"{med[c]:6.2f} ({100 * med[c] / med['search']:3.0f}%)"
                                                      for c in COLUMNS[1:]]
-        print(f"{name:15s} {med['plan']:7.2f} " + " ".join(f"{c:>13s}" for c in cells))
+        print(f"{name:15s} {plan['timing']['duration_s']:8.2f} {med['plan']:7.2f} " + " ".join(f"{c:>13s}" for c in cells))
 
 
 if __name__ == "__main__":
