@@ -5,6 +5,7 @@ plan checker sees them (finite differences)."""
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 
@@ -57,10 +58,13 @@ class RunLimits:
         margins, the cart-table ZMP's coefficients, the inertial sweep, the torques' rows. Kept by the path's points
         and what the run holds within one :meth:`time_plan` (``_geometries``), so that the reserve cap's second
         timing of a run, and a ranked path timed again as a run, solve TOPP-RA again without recomputing them: the
-        same numbers, so the same rows."""
+        same numbers, so the same rows. A plan keeps some 10-20 MB of them until it is timed."""
         P0, P1, P2 = path(grid, 0), path(grid, 1), path(grid, 2)
         hold = None if run.hold is None else (run.hold.tcp_side, run.hold.T_tcp_obj.tobytes())
-        key = (run.holding, hold, grid.tobytes(), P0.tobytes(), P1.tobytes(), P2.tobytes())
+        digest = hashlib.blake2b(digest_size=32)
+        for a in (grid, P0, P1, P2):
+            digest.update(np.ascontiguousarray(a).tobytes())
+        key = (run.holding, hold, digest.digest())  # the points' digest: the arrays themselves weigh megabytes
         kept = self._geometries.get(key)
         if kept is not None:
             return kept
