@@ -1,13 +1,14 @@
 """Where the plan timing's time goes, step by step, in one process (no forked helper, so that every step's wall time
-is its own): per scenario the search (the planning time less the timing stage), then the quicker paths' steps (the
-replans, the task-space vias, the joint-space box vias, the full shortening, the ranking by coarse TOPP-RA time, the
-corner easing) and the time parameterization's two timings (the first gives the plan's smallest static margin for the
-reserve's cap, the second is the plan's; :meth:`planner.regrasp.timing.plan_timer.PlanTimer.time_plan`), and each
-one's share of the search, with the plan's motion duration (the seed's alone). A step's time is counted once, where it is entered first (the easing's own estimated times
-are the easing's). Like ``bench_timing_stage.py`` it measures a second plan of each task (its survey cached) unless
-``--first``; ``--repeats N`` prints the medians of N plans. The timing's steps are wrapped for the measurement only:
-the plans are the ones ``regrasp plan`` makes with ``parallel_motions`` off (the same plans, as its tests check).
-``--set KEY=VALUE`` changes a plan-timing setting as in ``bench_timing_stage.py``. Times are this machine's.
+is its own): per scenario the plan's motion duration (the seed's alone), the search (the planning time less the
+timing stage), then the quicker paths' steps (the replans, the task-space vias, the joint-space box vias, the full
+shortening, the ranking by coarse TOPP-RA time, the corner easing) and the time parameterization's two timings (the
+first gives the plan's smallest static margin for the reserve's cap, the second is the plan's; with no cap the only
+one is the first: :meth:`planner.regrasp.timing.plan_timer.PlanTimer.time_plan`), each with its share of the search.
+A step's time is counted once, where it is entered first (the easing's own estimated times are the easing's). Like
+``bench_timing_stage.py`` it measures a second plan of each task (its survey cached) unless ``--first``;
+``--repeats N`` prints the medians of N plans; ``--set KEY=VALUE`` changes a plan-timing setting as there. The
+timing's steps are wrapped for the measurement only: the plans are the ones ``regrasp plan`` makes with
+``parallel_motions`` off (the same plans, as its tests check). Times are this machine's.
 
     python benchmarks/bench_timing_steps.py
     python benchmarks/bench_timing_steps.py --set corner_easing_sweeps=2
