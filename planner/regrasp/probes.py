@@ -23,7 +23,7 @@ from planner.regrasp.graph import HandoverNode, PlacementNode, Validation
 from planner.regrasp.results import GraspProbe
 from planner.regrasp.settings import HANDS_INDEX, Side
 from planner.regrasp.search_data import SearchData, stable_posture
-from planner.regrasp.seed_free import array_key
+from planner.array_keys import array_key
 from planner.regrasp.task import Task
 from planner.stability.evaluator import HoldSpec
 from planner.termination import never

@@ -24,7 +24,8 @@ from planner.grasping.handover import HandoverPose
 from planner.motion.stable_posture import PostureProblem, stable_posture as nearest_stable_posture
 from planner.regrasp.graph import HandoverNode, PlacementNode
 from planner.regrasp.results import GraspProbe
-from planner.regrasp.seed_free import SeedFreeResults, array_key
+from planner.array_keys import array_key
+from planner.regrasp.seed_free import SeedFreeResults
 from planner.regrasp.settings import Side
 from planner.regrasp.state_checker import StateChecker
 from planner.regrasp.task import Task

@@ -18,11 +18,8 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from planner.array_keys import exact_bytes
 from planner.motion.ik_batch import BatchIkResult
-
-
-def _key(a: np.ndarray) -> bytes:
-    return np.ascontiguousarray(a, dtype=float).tobytes()
 
 
 class SeedFreeResults:
@@ -42,7 +39,8 @@ class SeedFreeResults:
            rng: np.random.Generator, rest_q: np.ndarray) -> np.ndarray | None:
         """``solver.solve(targets, seed_q, rng, rest_q).q``; a solution found by the first attempt (which
         starts at ``seed_q`` and draws nothing from ``rng``) is kept and handed out again for the same inputs."""
-        key = (solver_name, tuple((s, _key(targets[s])) for s in sorted(targets)), _key(seed_q), _key(rest_q))
+        key = (solver_name, tuple((s, exact_bytes(targets[s])) for s in sorted(targets)), exact_bytes(seed_q),
+               exact_bytes(rest_q))
         q = self._ik.get(key)
         if q is not None:
             self.hits["ik"] += 1
@@ -81,7 +79,3 @@ class SeedFreeResults:
             causes, margins = self._checks[key] = solve()
         return list(causes), margins.copy()
 
-
-def array_key(*arrays: np.ndarray | None) -> tuple:
-    """A lookup key of arrays by their exact values (None stays None)."""
-    return tuple(None if a is None else _key(a) for a in arrays)

@@ -18,7 +18,8 @@ import numpy as np
 
 from planner.kinematics.batch import select_states
 from planner.regrasp.failure_cause import FailureCause
-from planner.regrasp.seed_free import SeedFreeResults, array_key
+from planner.array_keys import array_key
+from planner.regrasp.seed_free import SeedFreeResults
 from planner.scene.collision import CollisionWorld
 from planner.stability.effort import EffortEvaluator
 from planner.stability.evaluator import HoldSpec, StateEvaluator

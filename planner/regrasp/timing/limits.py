@@ -5,12 +5,12 @@ plan checker sees them (finite differences)."""
 
 from __future__ import annotations
 
-import hashlib
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from planner.array_keys import array_digest
 from planner.motion.timing import zmp_cart_table
 from planner.motion.topp import GRAVITY, BlendedPath, LinearRows, ZmpRows, zmp_rows
 from planner.regrasp.timing.runs import Run
@@ -61,10 +61,7 @@ class RunLimits:
         same numbers, so the same rows. A plan keeps some 10-20 MB of them until it is timed."""
         P0, P1, P2 = path(grid, 0), path(grid, 1), path(grid, 2)
         hold = None if run.hold is None else (run.hold.tcp_side, run.hold.T_tcp_obj.tobytes())
-        digest = hashlib.blake2b(digest_size=32)
-        for a in (grid, P0, P1, P2):
-            digest.update(np.ascontiguousarray(a).tobytes())
-        key = (run.holding, hold, digest.digest())  # the points' digest: the arrays themselves weigh megabytes
+        key = (run.holding, hold, array_digest(grid, P0, P1, P2))  # a digest: the arrays themselves weigh megabytes
         kept = self._geometries.get(key)
         if kept is not None:
             return kept
