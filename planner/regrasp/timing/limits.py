@@ -82,6 +82,9 @@ class RunLimits:
             static_margin=polygon.margin(terms.com[:, :2]),
             zmp=zmp_rows(terms.com, terms.d1, terms.d2, polygon.normals, polygon.offsets, 0.0),
             along=along, torques=torques)
+        z = geometry.zmp
+        for a in (geometry.static_margin, z.a, z.b, z.room, *(along or ()), *(torques or ())):
+            a.flags.writeable = False  # handed to every timing that asks: a write into one would change them all
         return geometry
 
     def _zmp_floor(self, static_margin: np.ndarray) -> float:
