@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.array_keys import array_digest
+from planner.array_keys import array_digest, array_key
 from planner.motion.timing import zmp_cart_table
 from planner.motion.topp import GRAVITY, BlendedPath, LinearRows, ZmpRows, zmp_rows
 from planner.regrasp.timing.runs import Run
@@ -26,6 +26,11 @@ class PathGeometry:
     zmp: ZmpRows
     along: tuple[np.ndarray, np.ndarray] | None
     torques: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
+
+
+def _grasp_key(run: Run) -> tuple | None:
+    """What the run's hand holds, as a lookup key: the TCP's side and the object's pose in it (None: nothing held)."""
+    return None if run.hold is None else (run.hold.tcp_side, *array_key(run.hold.T_tcp_obj))
 
 
 class RunLimits:
@@ -53,15 +58,14 @@ class RunLimits:
             rows.append(LinearRows(grid, A, B, tau_s, np.minimum(-lim, tau_s), np.maximum(lim, tau_s)))
         return rows, floor_m
 
-    def _geometry(self, run: Run, path: BlendedPath, grid: np.ndarray) -> "PathGeometry":
+    def _geometry(self, run: Run, path: BlendedPath, grid: np.ndarray) -> PathGeometry:
         """What the rows need of the path at the gridpoints and nothing of the ZMP floor: the CoM terms, the static
         margins, the cart-table ZMP's coefficients, the inertial sweep, the torques' rows. Kept by the path's points
         and what the run holds within one :meth:`time_plan` (``_geometries``), so that the reserve cap's second
         timing of a run, and a ranked path timed again as a run, solve TOPP-RA again without recomputing them: the
         same numbers, so the same rows. A plan keeps some 10-20 MB of them until it is timed."""
         P0, P1, P2 = path(grid, 0), path(grid, 1), path(grid, 2)
-        hold = None if run.hold is None else (run.hold.tcp_side, run.hold.T_tcp_obj.tobytes())
-        key = (run.holding, hold, array_digest(grid, P0, P1, P2))  # a digest: the arrays themselves weigh megabytes
+        key = (run.holding, _grasp_key(run), array_digest(grid, P0, P1, P2))  # a digest: the arrays weigh megabytes
         kept = self._geometries.get(key)
         if kept is not None:
             return kept
@@ -146,7 +150,7 @@ class RunLimits:
     def _inertial(self, run: Run) -> InertialTorques:
         """The inertial torques of the robot holding what the run holds: one model per grasp, built once per plan."""
         t = self.task
-        key = None if run.hold is None else (run.hold.tcp_side, run.hold.T_tcp_obj.tobytes())
+        key = _grasp_key(run)
         if key not in self._inertials:
             if run.hold is None:
                 self._inertials[key] = InertialTorques(t.robot, t.stance.base_pose)
