@@ -33,7 +33,7 @@ class PlanTimingSettings(BaseModel):
                                      "line's time at the velocity limits, added to a planned motion's candidates "
                                      "where none of them is that quick (planner/motion/time_box_vias.py; draws 0: "
                                      "none)")
-    corner_easing_sweeps: int = Field(6, ge=0, description="passes of corner easing over the eased_paths "
+    corner_easing_sweeps: int = Field(2, ge=0, description="passes of corner easing over the eased_paths "
                                       "best-ranked paths of each planned motion: interior waypoints moved part of "
                                       "the way to their neighbours' midpoint where the path's coarse TOPP-RA time "
                                       "falls and the changed segments pass the checks every shortcut_check_rad "
