@@ -27,13 +27,16 @@ MIN_GAIN_S = 1e-3
 
 @dataclass
 class EasedPath:
-    """The eased path, its time before and after, the moves kept and the times asked for."""
+    """The eased path, its time before and after, the moves kept and the times asked for; ``passes``, the path after
+    each pass that kept a move (the last is ``path``), so that a caller whose own checks refuse the last can fall
+    back to an earlier one."""
 
     path: np.ndarray
     time_before_s: float
     time_after_s: float
     moves: int
     evaluations: int
+    passes: tuple[np.ndarray, ...] = ()
 
 
 def eased(path: np.ndarray, validity: Validity, time_of: Callable[[np.ndarray], float], resolution: float,
@@ -45,6 +48,7 @@ def eased(path: np.ndarray, validity: Validity, time_of: Callable[[np.ndarray], 
     P = np.asarray(path, dtype=float).copy()
     best = before = float(time_of(P))
     moves = evaluations = 0
+    passes: list[np.ndarray] = []
     for _ in range(sweeps if len(P) > 2 else 0):
         moved = False
         for i in range(1, len(P) - 1):
@@ -63,4 +67,6 @@ def eased(path: np.ndarray, validity: Validity, time_of: Callable[[np.ndarray], 
                     break
         if not moved:
             break
-    return EasedPath(path=P, time_before_s=before, time_after_s=best, moves=moves, evaluations=evaluations)
+        passes.append(P)
+    return EasedPath(path=P, time_before_s=before, time_after_s=best, moves=moves, evaluations=evaluations,
+                     passes=tuple(passes))

@@ -103,8 +103,10 @@ class QuickerPaths:
         ranking's coarse grid, blended as a run is (the piece alone, ``alone``, from rest to rest), its changed
         segments checked every ``shortcut_check_rad``; an eased path kept where its estimated time, its blends
         checked first (:meth:`_estimated_time`), is less than its source's (``took``: the ranking's times of
-        ``paths``, which the eased ones then join in order of those times). The source stays, the next alternative
-        should the eased one fail the checks of its samples."""
+        ``paths``, which the eased ones then join in order of those times). Where the last pass's path is not (the
+        estimate's blend checks can refuse a path the easing's segment checks passed), the latest earlier pass's
+        path that is takes its place. The source stays, the next alternative should the eased one fail the checks
+        of its samples."""
         out, times = [], []
         for i, Q in enumerate(paths):
             before = took[i] if took is not None else None
@@ -114,11 +116,15 @@ class QuickerPaths:
                             self.s.shortcut_check_rad, self.s.corner_easing_sweeps)
                 if res.moves:
                     before = self._estimated_time(Q, alone) if before is None else before
-                    after = self._estimated_time(res.path, alone)
+                    path, after = res.path, self._estimated_time(res.path, alone)
+                    for earlier in reversed(res.passes[:-1]):
+                        if after < before:
+                            break
+                        path, after = earlier, self._estimated_time(earlier, alone)
                     if after < before:
                         self.stats["eased_s"] += before - after
                         self.stats["easing_moves"] += res.moves
-                        out.append(res.path)
+                        out.append(path)
                         times.append(after)
             out.append(Q)
             times.append(before)

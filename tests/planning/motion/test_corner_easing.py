@@ -72,3 +72,17 @@ def test_a_move_into_an_obstacle_is_never_kept():
     res = eased(P, block, topp_time, 0.01, sweeps=3)
     assert res.moves == 0 and np.array_equal(res.path, P) and res.time_after_s == res.time_before_s
     assert res.evaluations > 0  # the quicker moves were timed, then refused by the checks
+
+
+def test_each_pass_that_kept_a_move_is_kept_in_order_as_fewer_passes_would_end():
+    """``passes`` holds the path after each pass that kept a move, each quicker than the one before, the last the
+    eased path; the k-th is what k passes alone give, so a caller can fall back to it."""
+    P = np.column_stack([np.linspace(0.0, 3.0, 9), [0.0, 1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0, 0.0], np.zeros(9)])
+    free = lambda Q: (np.ones(len(np.atleast_2d(Q)), bool), np.ones(len(np.atleast_2d(Q))))
+    res = eased(P, free, topp_time, 0.01, sweeps=6)
+    assert len(res.passes) >= 2 and np.array_equal(res.passes[-1], res.path)
+    times = [res.time_before_s] + [topp_time(Q) for Q in res.passes]
+    assert all(later < earlier for earlier, later in zip(times, times[1:]))
+    for k, Q in enumerate(res.passes[:-1], start=1):
+        assert np.array_equal(eased(P, free, topp_time, 0.01, sweeps=k).path, Q)
+    assert eased(P, free, topp_time, 0.01, sweeps=0).passes == ()

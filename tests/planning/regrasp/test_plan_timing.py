@@ -648,8 +648,8 @@ def test_a_motions_best_path_is_eased_where_that_makes_it_quicker(solved, monkey
     """A motion's own path, with a zig-zag of the idle left elbow added (three waypoints swung out and back): its
     corners cost time. With corner easing the eased path comes first, the same ends, every state of it valid by the
     task's own checks (densely, here), quicker by the ranking's estimate, and the path it came from second; without
-    easing, that path is first (the test's control). In 6 passes: after 2 (the default) this zig-zag's eased path
-    fails the blend checks of the ranking's estimate, so its source stays first (docs/motion.md, corner easing)."""
+    easing, that path is first (the test's control). After its second pass (the default's last) this zig-zag's eased
+    path fails the blend checks of the ranking's estimate: the first pass's path, which passes them, is kept."""
     from planner.motion.interpolation import densify
 
     task, pieces = solved
@@ -666,7 +666,7 @@ def test_a_motions_best_path_is_eased_where_that_makes_it_quicker(solved, monkey
         return PlanTimer(task, PlanTimingSettings(shortcut_iterations=0, partial_shortcut_iterations=0, **settings),
                          1.0, task.threshold_m, 0.005)
 
-    easing = timer(corner_easing_sweeps=6)
+    easing = timer()
     levels = easing.alternatives(pieces)
     assert len(levels) == 2 and np.array_equal(levels[1][k].path, zigzag)
     eased = levels[0][k].path
