@@ -116,11 +116,10 @@ class QuickerPaths:
                             self.s.shortcut_check_rad, self.s.corner_easing_sweeps)
                 if res.moves:
                     before = self._estimated_time(Q, alone) if before is None else before
-                    path, after = res.path, self._estimated_time(res.path, alone)
-                    for earlier in reversed(res.passes[:-1]):
+                    for path in reversed(res.passes):  # the last pass's path first (``res.path``)
+                        after = self._estimated_time(path, alone)
                         if after < before:
                             break
-                        path, after = earlier, self._estimated_time(earlier, alone)
                     if after < before:
                         self.stats["eased_s"] += before - after
                         self.stats["easing_moves"] += res.moves

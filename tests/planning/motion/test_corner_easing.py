@@ -26,6 +26,12 @@ def topp_time(W: np.ndarray) -> float:
     return float(profile_times(grid, sd)[-1]) if sd is not None else np.inf
 
 
+def free(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A validity with no obstacle: every state valid."""
+    n = len(np.atleast_2d(Q))
+    return np.ones(n, bool), np.ones(n)
+
+
 def zigzag(rng: np.random.Generator) -> np.ndarray:
     """From x=0 to x=4 over the wall, the third joint zig-zagging."""
     return over_the_wall(rng, np.array([0.0, 0.8, 1.4, 2.0, 2.6, 3.2, 4.0]),
@@ -49,7 +55,6 @@ def test_easing_keeps_the_ends_never_slows_the_path_and_stays_valid(seed):
 
 def test_a_zigzag_in_free_space_gets_quicker_and_straighter():
     P = np.array([[0.0, 0.0, 0.0], [0.5, 0.3, 0.0], [1.0, -0.3, 0.0], [1.5, 0.3, 0.0], [2.0, 0.0, 0.0]])
-    free = lambda Q: (np.ones(len(np.atleast_2d(Q)), bool), np.ones(len(np.atleast_2d(Q))))
     res = eased(P, free, topp_time, 0.01, sweeps=6)
     assert res.moves > 0 and res.time_after_s < res.time_before_s - 0.1
     assert np.abs(res.path[:, 1]).max() < np.abs(P[:, 1]).max()
@@ -64,7 +69,6 @@ def test_a_move_into_an_obstacle_is_never_kept():
         Q = np.atleast_2d(Q)
         return ~((np.abs(Q[:, 0] - 1.0) < 0.1) & (Q[:, 1] > -0.8)), np.ones(len(Q))
 
-    free = lambda Q: (np.ones(len(np.atleast_2d(Q)), bool), np.ones(len(np.atleast_2d(Q))))
     assert block(densify(P, 0.01))[0].all()
     through = eased(P, free, topp_time, 0.01, sweeps=3)
     assert through.moves > 0 and through.time_after_s < through.time_before_s
@@ -78,7 +82,6 @@ def test_each_pass_that_kept_a_move_is_kept_in_order_as_fewer_passes_would_end()
     """``passes`` holds the path after each pass that kept a move, each quicker than the one before, the last the
     eased path; the k-th is what k passes alone give, so a caller can fall back to it."""
     P = np.column_stack([np.linspace(0.0, 3.0, 9), [0.0, 1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0, 0.0], np.zeros(9)])
-    free = lambda Q: (np.ones(len(np.atleast_2d(Q)), bool), np.ones(len(np.atleast_2d(Q))))
     res = eased(P, free, topp_time, 0.01, sweeps=6)
     assert len(res.passes) >= 2 and np.array_equal(res.passes[-1], res.path)
     times = [res.time_before_s] + [topp_time(Q) for Q in res.passes]
